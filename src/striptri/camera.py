@@ -1,0 +1,37 @@
+"""Collinearity (Schmid 14) and ray directions (Schmid 11), batched over a leading axis.
+
+With ``m = R^T (X - O)`` (the ground vector in the camera frame):
+``x = xp - c m_x / m_z``, ``y = yp - c m_y / m_z``. The ray of a plate point is
+``r = R (x - xp, y - yp, -c)`` in the ground frame; its length is not normalised (it carries
+the plate scale, like Schmid's u, v, w).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def plate_vector(xy_plate: np.ndarray, interior: np.ndarray) -> np.ndarray:
+    """Camera-frame vector p = (x - xp, y - yp, -c). xy_plate: (..., 2); interior: (..., 3) c, xp, yp."""
+    return np.stack(
+        [xy_plate[..., 0] - interior[..., 1], xy_plate[..., 1] - interior[..., 2], -interior[..., 0]], -1
+    )
+
+
+def ray_ground(R_ground_from_cam: np.ndarray, xy_plate: np.ndarray, interior: np.ndarray) -> np.ndarray:
+    """Ground direction of a plate point (Schmid 11: u, v, w). -> (..., 3)."""
+    p = plate_vector(xy_plate, interior)
+    return np.einsum("...ij,...j->...i", R_ground_from_cam, p)
+
+
+def project(R_ground_from_cam: np.ndarray, xyz0: np.ndarray, interior: np.ndarray, xyz_ground: np.ndarray) -> np.ndarray:
+    """Plate coordinates of ground points (Schmid 14). All batched alike -> (..., 2)."""
+    m = np.einsum("...ji,...j->...i", R_ground_from_cam, xyz_ground - xyz0)
+    c = interior[..., 0]
+    return np.stack([interior[..., 1] - c * m[..., 0] / m[..., 2], interior[..., 2] - c * m[..., 1] / m[..., 2]], -1)
+
+
+def in_front(R_ground_from_cam: np.ndarray, xyz0: np.ndarray, xyz_ground: np.ndarray) -> np.ndarray:
+    """True where the ground point lies in front of the camera (m_z < 0). -> (...,) bool."""
+    m = np.einsum("...ji,...j->...i", R_ground_from_cam, xyz_ground - xyz0)
+    return m[..., 2] < 0

@@ -1,0 +1,144 @@
+"""The in-memory project: struct-of-arrays tables that every layer below the I/O edge works on.
+
+Ids (strings) live here only to name things in output; the mathematics works on integer indices.
+Conventions (DESIGN.md section 1):
+
+* ground frame right-handed, metres, Z up; plate frame x, y in the units of c (mm by default);
+* ``R_ground_from_cam`` maps the camera-frame vector ``p = (x - xp, y - yp, -c)`` to the ground;
+* angles in the tables are radians, in the convention named by ``ProjectSettings.rotation``;
+* a standard deviation of ``nan`` means "no observation": a photo element is then free, a control
+  coordinate held fixed, a camera element held fixed. A standard deviation of 0 holds a photo
+  element fixed (an enforced element, Schmid 24).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+# Object point kinds (column `kind` of control.csv; TIE for points only measured on the plates).
+TIE, HEIGHT, PLAN, FULL, CHECK = 0, 1, 2, 3, 4
+KIND_NAMES = {TIE: "tie", HEIGHT: "Z", PLAN: "XY", FULL: "XYZ", CHECK: "check"}
+KIND_CODES = {"XYZ": FULL, "XY": PLAN, "Z": HEIGHT, "CHECK": CHECK}
+# Which of X, Y, Z a kind gives (used in the adjustment; check points are withheld).
+GIVEN_AXES = {
+    TIE: (False, False, False),
+    HEIGHT: (False, False, True),
+    PLAN: (True, True, False),
+    FULL: (True, True, True),
+    CHECK: (False, False, False),
+}
+
+ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi")
+ANGLE_UNITS = ("deg", "gon", "rad")
+
+
+@dataclass(frozen=True)
+class Cameras:
+    """Interior orientation per camera. interior: (ncam, 3) columns c, xp, yp (plate units).
+    sigma_interior: (ncam, 3), nan = held fixed, > 0 = observed, inf = free."""
+
+    ids: list[str]
+    interior: np.ndarray
+    sigma_interior: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass(frozen=True)
+class Photos:
+    """Exterior orientation per photo (approximate values unless observed).
+
+    xyz0: (n, 3) projection centres, ground metres. R_ground_from_cam: (n, 3, 3).
+    angles: (n, 3) the file's angles in radians (convention ProjectSettings.rotation).
+    sigma_xyz0, sigma_angles: (n, 3); nan = free, 0 = held fixed, > 0 = observed (GNSS, IMU).
+    """
+
+    ids: list[str]
+    camera_index: np.ndarray
+    strip_ids: list[str]
+    xyz0: np.ndarray
+    R_ground_from_cam: np.ndarray
+    angles: np.ndarray
+    sigma_xyz0: np.ndarray
+    sigma_angles: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass(frozen=True)
+class ImagePoints:
+    """Plate measurements, one row per (photo, point). xy, sigma_xy: (m, 2) plate units."""
+
+    photo_index: np.ndarray
+    point_index: np.ndarray
+    xy: np.ndarray
+    sigma_xy: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.photo_index)
+
+
+@dataclass(frozen=True)
+class ObjectPoints:
+    """Every object point named in image_points.csv or control.csv.
+
+    kind: (np,) codes TIE, HEIGHT, PLAN, FULL, CHECK. xyz_given: (np, 3), nan where not given
+    (check points carry their reference coordinates here). sigma_given: (np, 3), nan = held
+    fixed, > 0 = weighted control (an observation of the point's group).
+    """
+
+    ids: list[str]
+    kind: np.ndarray
+    xyz_given: np.ndarray
+    sigma_given: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass(frozen=True)
+class BaseComponents:
+    """Observed or enforced base components (Schmid 17, 24): value = O[photo_to, axis] - O[photo_from, axis].
+    sigma: nan or 0 = enforced exactly, > 0 = observed (statoscope)."""
+
+    photo_from: np.ndarray
+    photo_to: np.ndarray
+    axis: np.ndarray
+    value: np.ndarray
+    sigma: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.photo_from)
+
+    @staticmethod
+    def empty() -> "BaseComponents":
+        e = np.zeros(0)
+        return BaseComponents(e.astype(int), e.astype(int), e.astype(int), e, e)
+
+
+@dataclass(frozen=True)
+class ProjectSettings:
+    """What project.toml says (all optional)."""
+
+    angle_unit: str = "deg"
+    rotation: str = "omega-phi-kappa"
+    sigma_image: float = 0.005
+    method: str = "conditions"
+    solver: str = "auto"
+    max_iterations: int = 30
+
+
+@dataclass(frozen=True)
+class Project:
+    cameras: Cameras
+    photos: Photos
+    image_points: ImagePoints
+    points: ObjectPoints
+    bases: BaseComponents = field(default_factory=BaseComponents.empty)
+    settings: ProjectSettings = field(default_factory=ProjectSettings)
+    source: Path | None = None
