@@ -1,0 +1,235 @@
+"""Reading and writing the small CSV tables of a project folder (DESIGN section 10).
+
+Input rules, shared by every input file:
+
+* UTF-8 (a leading byte-order mark is accepted); the first row that is not a comment is the header;
+* a line whose first non-blank character is ``#`` is a comment; blank lines are skipped;
+* surrounding whitespace of header names and of values is stripped;
+* columns the caller does not ask for are ignored; every row must have as many fields as the header;
+* every row keeps its physical, 1-based line number, so that an error names file, line and reason.
+
+Errors are :class:`striptri.errors.InputError`. Nothing here prints or writes except ``write_csv``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from striptri.errors import InputError
+
+_BOM = b"\xef\xbb\xbf"
+
+
+@dataclass(frozen=True)
+class CsvTable:
+    """One parsed CSV file: header names, the string values of each row and their line numbers.
+
+    header: stripped column names. rows: one tuple of stripped strings per data row, aligned with
+    header. lines: physical 1-based line number of the first line of each row. header_line: that of
+    the header row (None for an empty file).
+    """
+
+    path: Path
+    header: tuple[str, ...]
+    header_line: int | None
+    rows: list[tuple[str, ...]]
+    lines: list[int]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def has(self, name: str) -> bool:
+        """True when the header has a column called ``name``."""
+        return name in self.header
+
+    def error(self, row: int, reason: str) -> InputError:
+        """An InputError for data row ``row`` (0-based index into rows), naming its physical line."""
+        return InputError(self.path, self.lines[row], reason)
+
+    def require(self, *names: str) -> None:
+        """Raise InputError(path, header line, "missing column ...") unless every name is in the header."""
+        for name in names:
+            if name not in self.header:
+                have = ", ".join(self.header) if self.header else "nothing"
+                raise InputError(self.path, self.header_line or 1, f"missing column '{name}' (header has: {have})")
+
+    def strings(self, name: str, allow_empty: bool = False) -> list[str]:
+        """Values of a required column as strings; an empty value is an error unless allow_empty."""
+        self.require(name)
+        j = self.header.index(name)
+        values = [row[j] for row in self.rows]
+        if not allow_empty:
+            for i, value in enumerate(values):
+                if value == "":
+                    raise self.error(i, f"column '{name}' is empty")
+        return values
+
+    def optional_strings(self, name: str, default: str = "") -> list[str]:
+        """Values of an optional column; ``default`` for every row when the column is absent."""
+        if name not in self.header:
+            return [default] * len(self.rows)
+        j = self.header.index(name)
+        return [row[j] for row in self.rows]
+
+    def floats(self, name: str) -> np.ndarray:
+        """A required column of finite numbers -> (n,) float array. Empty, non-numeric, nan, inf: error."""
+        self.require(name)
+        out = self.optional_floats(name)
+        for i, value in enumerate(out):
+            if math.isnan(value):
+                raise self.error(i, f"column '{name}' is empty (a number is required)")
+        return out
+
+    def optional_floats(self, name: str, keywords: Mapping[str, float] | None = None) -> np.ndarray:
+        """An optional column of finite numbers -> (n,) float array; empty field or absent column -> nan.
+
+        keywords: words accepted in place of a number (case-insensitive), e.g. {"free": inf}.
+        Non-numeric text, and the literals nan and inf, are rejected with an InputError naming the
+        line, the column and the bad value.
+        """
+        words = {k.lower(): v for k, v in (keywords or {}).items()}
+        values = self.optional_strings(name)
+        out = np.full(len(values), np.nan)
+        for i, text in enumerate(values):
+            if text == "":
+                continue
+            if text.lower() in words:
+                out[i] = words[text.lower()]
+                continue
+            out[i] = _parse_finite(text, lambda reason, i=i: self.error(i, f"column '{name}': {reason}"))
+        return out
+
+
+def _parse_finite(text: str, fail) -> float:
+    """float(text) if it is a finite number, else raise fail(reason)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise fail(f"'{text}' is not a number") from None
+    if not math.isfinite(value):
+        raise fail(f"'{text}' is not a finite number")
+    return value
+
+
+def read_csv(path: str | Path) -> CsvTable:
+    """Read one CSV table (rules in the module docstring). Missing file -> InputError(path, None, ...)."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except IsADirectoryError:
+        raise InputError(path, None, "is a folder, not a file") from None
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    text = _decode_utf8(path, raw)
+    return _parse(path, text)
+
+
+def _decode_utf8(path: Path, raw: bytes) -> str:
+    """Decode UTF-8; undecodable bytes -> InputError naming the line they are on."""
+    if raw.startswith(_BOM):
+        raw = raw[len(_BOM):]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        bad = raw[exc.start : exc.end].hex(" ")
+        raise InputError(path, line, f"not valid UTF-8 text (bytes {bad}); save the file as UTF-8") from None
+
+
+def _parse(path: Path, text: str) -> CsvTable:
+    """Split text into header and rows, skipping comments and blank lines, keeping line numbers."""
+    consumed: list[int] = []
+    reader = csv.reader(_data_lines(text, consumed), skipinitialspace=True)
+    header: tuple[str, ...] = ()
+    header_line: int | None = None
+    rows: list[tuple[str, ...]] = []
+    lines: list[int] = []
+    while True:
+        start = len(consumed)
+        try:
+            fields = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as exc:
+            line = consumed[start] if start < len(consumed) else (consumed[-1] if consumed else None)
+            raise InputError(path, line, f"malformed CSV: {exc}") from None
+        line = consumed[start]
+        fields = tuple(f.strip() for f in fields)
+        if header_line is None:
+            header, header_line = fields, line
+            _check_header(path, header, line)
+            continue
+        if len(fields) != len(header):
+            raise InputError(path, line, f"row has {len(fields)} fields, the header has {len(header)}")
+        rows.append(fields)
+        lines.append(line)
+    return CsvTable(path=path, header=header, header_line=header_line, rows=rows, lines=lines)
+
+
+def _data_lines(text: str, consumed: list[int]) -> Iterator[str]:
+    """Yield the physical lines that are not comments or blank, appending each one's number to consumed."""
+    for number, line in enumerate(io.StringIO(text, newline=""), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        consumed.append(number)
+        yield line
+
+
+def _check_header(path: Path, header: tuple[str, ...], line: int) -> None:
+    """Header names must be non-empty and distinct."""
+    seen: set[str] = set()
+    for name in header:
+        if name == "":
+            raise InputError(path, line, "the header has an empty column name")
+        if name in seen:
+            raise InputError(path, line, f"the header names column '{name}' twice")
+        seen.add(name)
+
+
+def format_csv(columns: Mapping[str, Sequence]) -> str:
+    """CSV text of equal-length columns, header first.
+
+    Floats are written with repr (shortest text that reads back to the same float), nan as an empty
+    field; ints and strings as they are; None as an empty field. Lines end in ``\\n``.
+    """
+    names = list(columns)
+    lengths = {len(columns[n]) for n in names}
+    if len(lengths) > 1:
+        raise ValueError(f"columns of unequal length: { {n: len(columns[n]) for n in names} }")
+    n_rows = lengths.pop() if lengths else 0
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(names)
+    cells = [[_format_value(v) for v in columns[n]] for n in names]
+    for i in range(n_rows):
+        writer.writerow([col[i] for col in cells])
+    return buffer.getvalue()
+
+
+def _format_value(value) -> str:
+    """One cell: float -> repr ('' for nan), bool -> 'true'/'false', int/str as is, None -> ''."""
+    if value is None:
+        return ""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return "" if math.isnan(value) else repr(value)
+    return str(value)
+
+
+def write_csv(path: str | Path, columns: Mapping[str, Sequence]) -> None:
+    """Write format_csv(columns) to path (UTF-8). For whole output folders use write_output_folder."""
+    Path(path).write_bytes(format_csv(columns).encode("utf-8"))
