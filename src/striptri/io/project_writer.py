@@ -1,0 +1,154 @@
+"""Write a :class:`striptri.model.Project` as a project folder that read_project reads back.
+
+The files follow docs/file-formats.md with the project's own settings: angles in
+``settings.angle_unit`` and in the columns of ``settings.rotation``. Numbers are written with repr,
+so ``read_project(write_project(folder, p))`` gives back p (angles to within an ulp of the unit
+conversion), provided p's object points are in the reader's order (control points first, then tie
+points by first measurement; :func:`reader_point_order` gives that order). Tie points measured on no
+photo carry no information and cannot be written (there is no file for them): they are left out.
+The folder is written atomically by write_output_folder.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from striptri import model
+from striptri.io.csvtable import format_csv
+from striptri.io.output import write_output_folder
+from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES, RADIANS_PER_UNIT
+
+_AXIS_NAMES = {axis: name for name, axis in BASE_AXES.items()}
+
+
+def write_project(
+    folder: str | Path,
+    project: model.Project,
+    truth_tables: Mapping[str, Mapping[str, Sequence]] | None = None,
+) -> Path:
+    """Write project as the input files of folder (replacing folder whole); return its path.
+
+    Files: cameras.csv, photos.csv, image_points.csv, control.csv (header only when there is no
+    control), project.toml, bases.csv when there are base components. truth_tables: file name ->
+    columns (as for format_csv), written as folder/truth/<file name>.
+    """
+    files = project_files(project)
+    for name, columns in (truth_tables or {}).items():
+        files[f"truth/{name}"] = format_csv(columns)
+    return write_output_folder(folder, files)
+
+
+def project_files(project: model.Project) -> dict[str, str]:
+    """The text of every input file of project, by file name."""
+    files = {
+        "project.toml": settings_toml(project.settings),
+        "cameras.csv": format_csv(_camera_columns(project.cameras)),
+        "photos.csv": format_csv(_photo_columns(project.photos, project.cameras, project.settings)),
+        "image_points.csv": format_csv(_image_point_columns(project)),
+        "control.csv": format_csv(_control_columns(project.points)),
+    }
+    if len(project.bases):
+        files["bases.csv"] = format_csv(_base_columns(project.bases, project.photos))
+    return files
+
+
+def reader_point_order(project: model.Project) -> np.ndarray:
+    """Indices of the object points in the order read_project gives them after write_project:
+    control points (kind != TIE) in their order, then tie points by first measurement."""
+    control = np.flatnonzero(project.points.kind != model.TIE)
+    _, first = np.unique(project.image_points.point_index, return_index=True)
+    measured = project.image_points.point_index[np.sort(first)]
+    ties = measured[project.points.kind[measured] == model.TIE]
+    return np.concatenate([control, ties]).astype(np.int64)
+
+
+def settings_toml(settings: model.ProjectSettings) -> str:
+    """project.toml holding every setting explicitly."""
+    return (
+        "# striptri project settings (docs/file-formats.md)\n"
+        "[units]\n"
+        f'angles = "{settings.angle_unit}"\n'
+        f'rotation = "{settings.rotation}"\n'
+        "\n[defaults]\n"
+        f"sigma_image = {float(settings.sigma_image)!r}\n"
+        "\n[adjustment]\n"
+        f'method = "{settings.method}"\n'
+        f'solver = "{settings.solver}"\n'
+        f"max_iterations = {int(settings.max_iterations)}\n"
+    )
+
+
+def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
+    """cameras.csv: sigma nan -> empty (held fixed), inf -> 'free'."""
+    columns: dict[str, Sequence] = {"camera_id": cameras.ids}
+    for j, name in enumerate(("c", "xp", "yp")):
+        columns[name] = cameras.interior[:, j]
+    for j, name in enumerate(("c", "xp", "yp")):
+        columns[f"sigma_{name}"] = [_camera_sigma(s) for s in cameras.sigma_interior[:, j]]
+    return columns
+
+
+def _camera_sigma(sigma: float):
+    return "free" if math.isinf(sigma) else float(sigma)
+
+
+def _photo_columns(photos: model.Photos, cameras: model.Cameras, settings: model.ProjectSettings) -> dict:
+    """photos.csv in settings.angle_unit and the angle columns of settings.rotation; sigma nan -> empty (free)."""
+    per_rad = 1.0 / RADIANS_PER_UNIT[settings.angle_unit]
+    names = ANGLE_COLUMNS[settings.rotation]
+    columns: dict[str, Sequence] = {
+        "photo_id": photos.ids,
+        "camera_id": [cameras.ids[k] for k in photos.camera_index],
+        "strip_id": photos.strip_ids,
+    }
+    for j, name in enumerate(("X0", "Y0", "Z0")):
+        columns[name] = photos.xyz0[:, j]
+    for j, name in enumerate(names):
+        columns[name] = photos.angles[:, j] * per_rad
+    for j, name in enumerate(("X0", "Y0", "Z0")):
+        columns[f"sigma_{name}"] = photos.sigma_xyz0[:, j]
+    for j, name in enumerate(names):
+        columns[f"sigma_{name}"] = photos.sigma_angles[:, j] * per_rad
+    return columns
+
+
+def _image_point_columns(project: model.Project) -> dict[str, Sequence]:
+    """image_points.csv with explicit sigmas, rows in the project's order."""
+    ip = project.image_points
+    return {
+        "photo_id": [project.photos.ids[k] for k in ip.photo_index],
+        "point_id": [project.points.ids[k] for k in ip.point_index],
+        "x": ip.xy[:, 0],
+        "y": ip.xy[:, 1],
+        "sigma_x": ip.sigma_xy[:, 0],
+        "sigma_y": ip.sigma_xy[:, 1],
+    }
+
+
+def _control_columns(points: model.ObjectPoints) -> dict[str, Sequence]:
+    """control.csv: every point whose kind is not TIE; nan coordinate or sigma -> empty."""
+    rows = np.flatnonzero(points.kind != model.TIE)
+    columns: dict[str, Sequence] = {
+        "point_id": [points.ids[k] for k in rows],
+        "kind": [model.KIND_NAMES[int(points.kind[k])] for k in rows],
+    }
+    for j, name in enumerate("XYZ"):
+        columns[name] = points.xyz_given[rows, j]
+    for j, name in enumerate("XYZ"):
+        columns[f"sigma_{name}"] = points.sigma_given[rows, j]
+    return columns
+
+
+def _base_columns(bases: model.BaseComponents, photos: model.Photos) -> dict[str, Sequence]:
+    """bases.csv; sigma nan -> empty (enforced), 0 stays 0 (enforced)."""
+    return {
+        "photo_from": [photos.ids[k] for k in bases.photo_from],
+        "photo_to": [photos.ids[k] for k in bases.photo_to],
+        "component": [_AXIS_NAMES[int(a)] for a in bases.axis],
+        "value": bases.value,
+        "sigma": bases.sigma,
+    }
