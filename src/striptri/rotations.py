@@ -138,3 +138,39 @@ def log_so3(R: np.ndarray) -> np.ndarray:
     small = sin_t < 1e-8
     factor = np.where(small, 0.5 + theta**2 / 12.0, theta / (2.0 * np.where(small, 1.0, sin_t)))
     return factor[..., None] * v
+
+
+def _d_atan2(y, x, dy, dx):
+    return (x[..., None] * dy - y[..., None] * dx) / (x * x + y * y)[..., None]
+
+
+def _d_asin(s, ds):
+    return ds / np.sqrt(np.maximum(1.0 - s * s, 1e-300))[..., None]
+
+
+def angles_jacobian(R: np.ndarray, convention: str) -> np.ndarray:
+    """d angles(R Exp(d)) / dd at d = 0: (..., 3, 3), rows the angles, columns the rotation vector.
+
+    dR/dd_k = R [e_k]x; the angles are atan2/asin of entries of R (see opk_from_R, aoc_from_R).
+    """
+    R = np.asarray(R, dtype=float)
+    E = skew(np.eye(3))  # [e_k]x for k = 0, 1, 2: (3, 3, 3)
+    dR = np.einsum("...ij,kjl->...ilk", R, E)  # dR[..., i, l, k] = d R_il / d d_k
+
+    def e(i, j):
+        return R[..., i, j], dR[..., i, j, :]
+
+    if convention == "omega-phi-kappa":
+        (r12, d12), (r22, d22), (r02, d02), (r01, d01), (r00, d00) = e(1, 2), e(2, 2), e(0, 2), e(0, 1), e(0, 0)
+        rows = [_d_atan2(-r12, r22, -d12, d22), _d_asin(r02, d02), _d_atan2(-r01, r00, -d01, d00)]
+    elif convention == "alpha-omega-chi":
+        (r12, d12), (r02, d02), (r22, d22), (r10, d10), (r11, d11) = e(1, 2), e(0, 2), e(2, 2), e(1, 0), e(1, 1)
+        rows = [_d_atan2(-r02, -r22, -d02, -d22), _d_asin(-r12, -d12), _d_atan2(-r10, r11, -d10, d11)]
+    else:
+        raise ValueError(f"unknown rotation convention {convention!r}")
+    return np.stack(rows, -2)
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angle differences into (-pi, pi]."""
+    return -((-np.asarray(a) + np.pi) % (2 * np.pi) - np.pi)

@@ -1,0 +1,357 @@
+"""Schmid's simultaneous adjustment by condition equations (DESIGN section 4).
+
+General case of least squares (Helmert), linearised at the adjusted observations (Pope 1972):
+``A v + B dx + w = 0`` per group, ``N = sum B^T M^-1 B``, ``u = sum B^T M^-1 w``, ``N dx = -u``,
+``k = -M^-1 (w + B dx)``, ``v = Q A^T k``; then ``x^ <- x^ (+) dx``, ``l^ <- l + v``, repeated.
+
+Convergence criterion: every correction is below ``tolerance`` times the standard deviation the
+element would have if all others were known (``max_i |dx_i| sqrt(N_ii) < tolerance``, with N in
+units of the a-priori weights), a scale-free test that treats metres, radians and millimetres alike.
+
+Each iteration makes two passes over the groups, chunk by chunk: one forms N and u, the other,
+after the solve, recomputes the same linearisation and back-substitutes the residuals. Memory
+therefore does not grow with the number of points.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import datum, solvers
+from .errors import NumericalFailure
+from .groups import GroupBatch, build_batches
+from .linearise import Observations, linearise
+from .model import Project
+from .normal_equations import NormalAccumulator, whiten
+from .parameter_observations import ParameterObservations, build_parameter_observations
+from .parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
+from .rotations import angles_jacobian
+
+METHODS = ("conditions",)
+
+
+@dataclass(frozen=True)
+class AdjustmentOptions:
+    """Options of the simultaneous adjustment.
+
+    scale_form: "3d" (direction-free closest-approach scales) or "xz" (Schmid 94).
+    condition_transform: optional callable(GroupBatch) -> (m, nc, nc) invertible matrices that
+    rescale/recombine each group's conditions (the result must not depend on it).
+    """
+
+    method: str = "conditions"
+    solver: str = "auto"
+    max_iterations: int = 30
+    tolerance: float = 1e-10
+    chunk_size: int = 20000
+    scale_form: str = "3d"
+    condition_transform: object = None
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        solvers.resolve_solver(self.solver, 0)
+        if self.max_iterations < 1:
+            raise ValueError("max_iterations must be at least 1")
+
+
+@dataclass
+class Iteration:
+    vtpv: float
+    max_correction: float
+    seconds: float
+
+
+@dataclass
+class AdjustmentResult:
+    """Everything a report needs. Ground coordinates are in the reduced frame; add ``offset``."""
+
+    method: str
+    solver: str
+    state: State
+    layout: UnknownLayout
+    offset: np.ndarray
+    sigma0: float
+    redundancy: int
+    vtpv: float
+    iterations: int
+    converged: bool
+    history: list[Iteration]
+    n_conditions: int
+    n_observations: int
+    n_unknowns: int
+    n_parameter_observations: int
+    plate_residuals: np.ndarray  # (m_ip, 2) v of every plate measurement
+    plate_adjusted: np.ndarray  # (m_ip, 2) l + v
+    control_residuals: np.ndarray  # (n_pt, 3) v of weighted control coordinates (0 elsewhere)
+    control_adjusted: np.ndarray  # (n_pt, 3) reduced frame
+    parameter_residuals: np.ndarray  # (p,)
+    N: sp.csr_matrix
+    checks: dict
+    timings: dict = field(default_factory=dict)
+    _Qxx: np.ndarray | None = None
+
+    @property
+    def Qxx(self) -> np.ndarray:
+        """N^-1, the weight coefficients of the unknowns (Schmid 53)."""
+        if self._Qxx is None:
+            self._Qxx = solvers.inverse(self.N)
+        return self._Qxx
+
+    @property
+    def sigma0_for_precision(self) -> float:
+        """sigma0 a posteriori, or 1 (a priori) when there is no redundancy."""
+        return self.sigma0 if self.redundancy > 0 else 1.0
+
+    def mean_error(self, f: np.ndarray) -> float:
+        """Mean error of a function of the unknowns with gradient f (Schmid 81-84):
+        ``m_F = sigma0 sqrt(f^T N^-1 f)``."""
+        f = np.asarray(f, dtype=float)
+        return float(self.sigma0_for_precision * np.sqrt(f @ self.Qxx @ f))
+
+    def gradient_of_element(self, photo: int, element: int) -> np.ndarray:
+        """Gradient of one photo element (0-2 centre, 3-5 rotation unknown) w.r.t. the unknowns."""
+        f = np.zeros(self.n_unknowns)
+        col = self.layout.photo_cols[photo, element]
+        if col >= 0:
+            f[col] = 1.0
+        return f
+
+    def base_component_mean_error(self, photo_from: int, photo_to: int, axis: int) -> float:
+        """Mean error of b = O[to, axis] - O[from, axis] (Schmid 85-86)."""
+        f = self.gradient_of_element(photo_to, axis) - self.gradient_of_element(photo_from, axis)
+        return self.mean_error(f)
+
+    def photo_mean_errors(self, convention: str) -> tuple[np.ndarray, np.ndarray]:
+        """Mean errors of the centres (n, 3) and of the angles in ``convention`` (n, 3, radians)."""
+        n = len(self.layout.photo_cols)
+        s0 = self.sigma0_for_precision
+        Q = np.vstack([self.Qxx, np.zeros((1, self.n_unknowns))])
+        Q = np.hstack([Q, np.zeros((self.n_unknowns + 1, 1))])
+        cols = self.layout.photo_cols
+        Qphoto = Q[cols[:, :, None], cols[:, None, :]]  # (n, 6, 6), column -1 reads zeros
+        sig_xyz = s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Qphoto[:, :3, :3]), 0))
+        T = self.layout.rotation_maps(self.state)
+        J = angles_jacobian(self.state.R, convention) @ T
+        Qang = J @ Qphoto[:, 3:, 3:] @ np.swapaxes(J, 1, 2)
+        sig_ang = s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Qang), 0))
+        return sig_xyz, sig_ang
+
+    def camera_mean_errors(self) -> np.ndarray:
+        s0 = self.sigma0_for_precision
+        diag = np.concatenate([np.diag(self.Qxx), [0.0]])
+        return s0 * np.sqrt(np.maximum(diag[self.layout.camera_cols], 0))
+
+
+def observations_of(project: Project, offset: np.ndarray) -> Observations:
+    pts = project.points
+    given = np.isfinite(pts.xyz_given) & _given_mask(project)
+    control = np.where(given, pts.xyz_given - offset, 0.0)
+    q_control = np.where(given & np.isfinite(pts.sigma_given), np.nan_to_num(pts.sigma_given) ** 2, 0.0)
+    ip = project.image_points
+    return Observations(plate=ip.xy.copy(), q_plate=ip.sigma_xy**2, control=control, q_control=q_control)
+
+
+def _given_mask(project: Project) -> np.ndarray:
+    from .model import GIVEN_AXES
+
+    return np.array([GIVEN_AXES[int(k)] for k in project.points.kind], dtype=bool).reshape(-1, 3)
+
+
+class _Pass:
+    """One sweep over all groups at a fixed (x^, l^)."""
+
+    def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options):
+        self.batches, self.state, self.layout = batches, state, layout
+        self.obs, self.plate_hat, self.control_hat, self.options = obs, plate_hat, control_hat, options
+        self.T = layout.rotation_maps(state)
+
+    def systems(self):
+        for batch in self.batches:
+            for chunk in batch.chunks(self.options.chunk_size):
+                yield chunk, linearise(
+                    chunk, self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat,
+                    self.options.scale_form, self.options.condition_transform,
+                )
+
+
+def _assemble(sweep: _Pass, pobs: ParameterObservations, n_unknowns: int):
+    acc = NormalAccumulator(n_unknowns)
+    for _, system in sweep.systems():
+        Bw, ww, _ = whiten(system)
+        acc.add(Bw, ww, system.cols)
+    if len(pobs):
+        f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
+        acc.add_rows(grad, cols, pobs.misclosure(f), pobs.sigma)
+    return acc
+
+
+def _back_substitute(sweep: _Pass, pobs: ParameterObservations, dx: np.ndarray, obs: Observations):
+    """New adjusted observations l + v from the corrections dx (k = -M^-1 (w + B dx), v = Q A^T k)."""
+    plate_hat = obs.plate.copy()
+    control_hat = obs.control.copy()
+    dxp = np.concatenate([dx, [0.0]])
+    vtpv = 0.0
+    for chunk, system in sweep.systems():
+        M = np.einsum("mco,mo,mdo->mcd", system.A, system.Q, system.A)
+        rhs = system.w + np.einsum("mcu,mu->mc", system.B, dxp[system.cols])
+        k = -np.linalg.solve(M, rhs[..., None])[..., 0]
+        v = system.Q * np.einsum("mco,mc->mo", system.A, k)
+        vtpv += float(np.sum(np.where(system.Q > 0, v * v / np.where(system.Q > 0, system.Q, 1.0), 0.0)))
+        m, kk = chunk.image_rows.shape
+        plate_hat[chunk.image_rows] = obs.plate[chunk.image_rows] + v[:, : 2 * kk].reshape(m, kk, 2)
+        if chunk.has_control:
+            control_hat[chunk.point_index] = obs.control[chunk.point_index] + v[:, 2 * kk :]
+    v_par = np.zeros(len(pobs))
+    if len(pobs):
+        f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
+        v_par = -(pobs.misclosure(f) - np.einsum("pi,pi->p", grad, dxp[cols]))
+        vtpv += float(np.sum((v_par / pobs.sigma) ** 2))
+    return plate_hat, control_hat, v_par, vtpv
+
+
+def _solve_or_explain(acc: NormalAccumulator, solver: str, state: State, layout: UnknownLayout, project: Project):
+    defects = datum.diagnose(acc.N, state, layout)
+    if defects:
+        raise NumericalFailure(datum.explain(defects))
+    try:
+        return solvers.solve(acc.N, -acc.u, solver).dx
+    except solvers.SingularNormalMatrix as exc:
+        labels = layout.column_labels(project.photos.ids, project.cameras.ids)
+        where = f" (first at {labels[exc.column]})" if exc.column is not None and exc.column < len(labels) else ""
+        raise NumericalFailure(
+            "the normal equations are singular although the control fixes the datum"
+            f"{where}: some orientation element is not determined by the measurements. Check that "
+            "every photograph has enough well-distributed points (at least three, not on a line) "
+            "and that each free camera constant is determined."
+        ) from exc
+
+
+def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
+    """Adjust all photographs of the project simultaneously (Schmid's method of conditions)."""
+    t_start = time.perf_counter()
+    offset = reduction_offset(project)
+    state = initial_state(project, offset)
+    layout = build_layout(project)
+    batches = build_batches(project)
+    obs = observations_of(project, offset)
+    pobs = build_parameter_observations(project, offset)
+    n_conditions = sum(len(b) * b.n_conditions for b in batches)
+    redundancy = n_conditions + len(pobs) - layout.n_unknowns
+    if redundancy < 0:
+        raise NumericalFailure(
+            f"too few conditions: {n_conditions} condition equations and {len(pobs)} observed elements "
+            f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
+        )
+    solver = solvers.resolve_solver(options.solver, layout.n_unknowns)
+    timings = {"conditions_and_assembly": 0.0, "solve": 0.0, "back_substitution": 0.0}
+
+    plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
+    history: list[Iteration] = []
+    converged = False
+    v_par = np.zeros(len(pobs))
+    vtpv = np.nan
+    for iteration in range(options.max_iterations):
+        t0 = time.perf_counter()
+        sweep = _Pass(batches, state, layout, obs, plate_hat, control_hat, options)
+        acc = _assemble(sweep, pobs, layout.n_unknowns)
+        t1 = time.perf_counter()
+        dx = _solve_or_explain(acc, solver, state, layout, project)
+        t2 = time.perf_counter()
+        plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
+        state = state.updated(layout, dx)
+        t3 = time.perf_counter()
+        timings["conditions_and_assembly"] += t1 - t0
+        timings["solve"] += t2 - t1
+        timings["back_substitution"] += t3 - t2
+        crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal()))) if len(dx) else 0.0
+        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0))
+        if not np.isfinite(crit) or not np.isfinite(vtpv) or _diverging(history):
+            raise NumericalFailure(
+                f"the adjustment diverged at iteration {iteration + 1} (sum of weighted squared "
+                f"residuals {vtpv:.6g}, largest correction {crit:.3g} times its standard deviation). "
+                "The approximate orientations are probably too far from the truth (check the "
+                "angle convention and units in project.toml), or a gross error spoils the data."
+            )
+        if crit < options.tolerance:
+            converged = True
+            break
+
+    t0 = time.perf_counter()
+    final = _Pass(batches, state, layout, obs, plate_hat, control_hat, options)
+    acc = _assemble(final, pobs, layout.n_unknowns)
+    checks = _final_checks(final, acc, vtpv, pobs)
+    timings["final_checks"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+
+    ip_count = len(project.image_points)
+    n_weighted_control = int(np.count_nonzero(obs.q_control > 0))
+    sigma0 = float(np.sqrt(vtpv / redundancy)) if redundancy > 0 else float("nan")
+    return AdjustmentResult(
+        method=options.method,
+        solver=solver,
+        state=state,
+        layout=layout,
+        offset=offset,
+        sigma0=sigma0,
+        redundancy=int(redundancy),
+        vtpv=float(vtpv),
+        iterations=len(history),
+        converged=converged,
+        history=history,
+        n_conditions=int(n_conditions),
+        n_observations=2 * ip_count + n_weighted_control + len(pobs),
+        n_unknowns=layout.n_unknowns,
+        n_parameter_observations=len(pobs),
+        plate_residuals=plate_hat - obs.plate,
+        plate_adjusted=plate_hat,
+        control_residuals=control_hat - obs.control,
+        control_adjusted=control_hat,
+        parameter_residuals=v_par,
+        N=acc.N,
+        checks=checks,
+        timings=timings,
+    )
+
+
+def _diverging(history: list[Iteration]) -> bool:
+    """Corrections growing for four iterations in a row, far beyond a first step."""
+    if len(history) < 5:
+        return False
+    c = [h.max_correction for h in history[-5:]]
+    return all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
+
+
+def _final_checks(sweep: _Pass, acc: NormalAccumulator, vtpv: float, pobs) -> dict:
+    """Schmid's checks after convergence.
+
+    * every condition holds for the adjusted observations and the final unknowns (his final
+      check): the largest misclosure g(l^, x^), in units of its standard deviation;
+    * (58) B^T k = 0: at the solution the right-hand side u of the normal equations vanishes;
+      reported as max |u_i| / sqrt(N_ii);
+    * (59) v^T P v equals [LL.u], the reduced sum w^T M^-1 w - u^T N^-1 u formed in the
+      reduction of the normal equations; reported as the relative difference.
+    """
+    max_g = 0.0
+    for _, system in sweep.systems():
+        if system.g.size:
+            max_g = max(max_g, float(np.max(np.abs(system.g))))
+    if len(pobs):
+        f, _, _ = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
+        max_g = max(max_g, float(np.max(np.abs(pobs.misclosure(f) / pobs.sigma))))
+    d = acc.N.diagonal()
+    btk = float(np.max(np.abs(acc.u) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
+    try:
+        reduced = acc.wPw - float(acc.u @ solvers.solve(acc.N, acc.u, "sparse" if len(d) > 1500 else "dense").dx)
+    except solvers.SingularNormalMatrix:
+        reduced = float("nan")
+    rel = abs(reduced - vtpv) / max(vtpv, 1e-300) if vtpv > 1e-20 else abs(reduced - vtpv)
+    return {
+        "max_condition_misclosure_sigma": max_g,
+        "max_BTk_sigma": btk,
+        "vtpv_reduction_relative_difference": rel,
+    }

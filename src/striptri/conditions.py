@@ -1,0 +1,284 @@
+"""Condition equations per object point (DESIGN section 3), functional model only.
+
+Every function here is batched over m groups of the same shape and returns the misclosures and
+their analytic derivatives. Conditions know nothing of weights: ``stochastic.py`` and
+``adjustment.py`` turn them into whitened pseudo-observations.
+
+Two families:
+
+* ray conditions (coplanarity, scale transfer, height and plan points) are functions of the k ground
+  rays ``r`` (Schmid 11, not normalised) and projection centres ``O`` of the photos that see the
+  point, plus the given control coordinates ``X``. They return derivatives with respect to r, O
+  and X; :func:`ray_chain` carries them on to the plate coordinates, the rotation corrections and
+  the interior orientation.
+* collinearity (Schmid 14) for full control, written directly in the primitives.
+
+The primitives, for a group of k rays and nc conditions, are returned as a :class:`Linearised`:
+``d_plate (m, nc, k, 2)``, ``d_rot (m, nc, k, 3)`` (rotation vector, ``R <- R Exp(d)``),
+``d_centre (m, nc, k, 3)``, ``d_interior (m, nc, k, 3)`` (c, xp, yp), ``d_control (m, nc, 3)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .rotations import skew
+
+
+@dataclass
+class Linearised:
+    """Misclosures g (m, nc) and their derivatives with respect to the primitives (see module doc)."""
+
+    g: np.ndarray
+    d_plate: np.ndarray
+    d_rot: np.ndarray
+    d_centre: np.ndarray
+    d_interior: np.ndarray
+    d_control: np.ndarray
+
+
+def _dot(a, b):
+    return np.einsum("...i,...i->...", a, b)
+
+
+# ---------------------------------------------------------------------------------------------
+# Pair geometry
+
+
+def coplanarity(b, r1, r2):
+    """Coplanarity of two rays with their base (Schmid 20): ``g = b . (r1 x r2)``.
+
+    b = O2 - O1, r1, r2: (m, 3) -> g (m,), dg/db, dg/dr1, dg/dr2 (each (m, 3)).
+    """
+    n = np.cross(r1, r2)
+    g = _dot(b, n)
+    return g, n, np.cross(r2, b), np.cross(b, r1)
+
+
+def closest_scales(b, r1, r2):
+    """Scales of the closest approach of the lines O1 + s r1 and O2 + t r2 (DESIGN section 3).
+
+    ``s = ((b x r2) . n) / (n . n)``, ``t = ((b x r1) . n) / (n . n)``, ``n = r1 x r2``, b = O2 - O1.
+    Expanded with (a x b).(c x d) = (a.c)(b.d) - (a.d)(b.c) for analytic derivatives:
+    ``s = [(b.r1)(r2.r2) - (b.r2)(r1.r2)] / h``, ``t = [(b.r1)(r1.r2) - (b.r2)(r1.r1)] / h``,
+    ``h = (r1.r1)(r2.r2) - (r1.r2)^2``.
+
+    Returns s, t (m,) and their derivatives ds = (ds/db, ds/dr1, ds/dr2), dt likewise, each (m, 3).
+    """
+    b1, b2, c12 = _dot(b, r1), _dot(b, r2), _dot(r1, r2)
+    a11, a22 = _dot(r1, r1), _dot(r2, r2)
+    h = a11 * a22 - c12**2
+    fs = b1 * a22 - b2 * c12
+    ft = b1 * c12 - b2 * a11
+    s, t = fs / h, ft / h
+    E = lambda a: a[..., None]  # noqa: E731  (broadcast a scalar per group over xyz)
+    dh_r1 = 2 * E(a22) * r1 - 2 * E(c12) * r2
+    dh_r2 = 2 * E(a11) * r2 - 2 * E(c12) * r1
+    dfs_b = E(a22) * r1 - E(c12) * r2
+    dfs_r1 = E(a22) * b - E(b2) * r2
+    dfs_r2 = 2 * E(b1) * r2 - E(b2) * r1 - E(c12) * b
+    dft_b = E(c12) * r1 - E(a11) * r2
+    dft_r1 = E(b1) * r2 + E(c12) * b - 2 * E(b2) * r1
+    dft_r2 = E(b1) * r1 - E(a11) * b
+    ih = E(1.0 / h)
+    ds = (dfs_b * ih, (dfs_r1 - E(s) * dh_r1) * ih, (dfs_r2 - E(s) * dh_r2) * ih)
+    dt = (dft_b * ih, (dft_r1 - E(t) * dh_r1) * ih, (dft_r2 - E(t) * dh_r2) * ih)
+    return s, t, ds, dt
+
+
+def projected_scales(b, r1, r2):
+    """Schmid's scales from the XZ projection of the pair (72-74, auxiliaries of 61).
+
+    ``II = u2 w1 - u1 w2``, ``[2] = bx w2 - bz u2``, ``[5] = bz u1 - bx w1``,
+    ``mu1 = -[2] / II``, ``mu2 = [5] / II``; then O1 + mu1 r1 and O2 + mu2 r2 agree in X and Z.
+    Well conditioned only when the base lies roughly along X. Returns mu1, mu2 and their derivatives
+    (d/db, d/dr1, d/dr2), each (m, 3), like :func:`closest_scales`.
+    """
+    bx, bz = b[..., 0], b[..., 2]
+    u1, w1, u2, w2 = r1[..., 0], r1[..., 2], r2[..., 0], r2[..., 2]
+    II = u2 * w1 - u1 * w2
+    a2 = bx * w2 - bz * u2
+    a5 = bz * u1 - bx * w1
+    mu1, mu2 = -a2 / II, a5 / II
+    z = np.zeros_like(II)
+
+    def vec(x, zc):
+        return np.stack([x, z, zc], -1)
+
+    dII_r1, dII_r2 = vec(-w2, u2), vec(w1, -u1)
+    da2_b, da2_r2 = vec(w2, -u2), vec(-bz, bx)
+    da5_b, da5_r1 = vec(-w1, u1), vec(bz, -bx)
+    E = lambda a: a[..., None]  # noqa: E731
+    iII = E(1.0 / II)
+    dmu1 = (-da2_b * iII, -E(mu1) * dII_r1 * iII, (-da2_r2 - E(mu1) * dII_r2) * iII)
+    dmu2 = (da5_b * iII, (da5_r1 - E(mu2) * dII_r1) * iII, -E(mu2) * dII_r2 * iII)
+    return mu1, mu2, dmu1, dmu2
+
+
+# ---------------------------------------------------------------------------------------------
+# Ray conditions of a point seen by k photos
+
+
+@dataclass
+class RayConditions:
+    """g (m, nc) with derivatives d_r (m, nc, k, 3), d_O (m, nc, k, 3), d_X (m, nc, 3)."""
+
+    g: np.ndarray
+    d_r: np.ndarray
+    d_O: np.ndarray
+    d_X: np.ndarray
+
+
+SCALE_FORMS = ("3d", "xz")
+
+
+def ray_conditions(r, O, X, given_axes, scale_form: str = "3d") -> RayConditions:
+    """Conditions of one point seen by k >= 1 photos along its chain, with d given coordinates.
+
+    r, O: (m, k, 3) rays and centres in chain order; X: (m, 3) given coordinates (ignored where
+    not given); given_axes: three bools (X, Y, Z given). Conditions, in this order:
+
+    * k - 1 coplanarities of consecutive pairs (Schmid 20);
+    * k - 2 scale transfers of consecutive triples (Schmid 93; ``scale_form`` "3d": closest-approach
+      scales, direction-free; "xz": Schmid's projected form (94) ``[2]_2 II_1 + [5]_1 II_2 = 0``,
+      written here as the difference of the two scales);
+    * for a height point, Z of the first pair's intersection equals the given Z (Schmid 18);
+      for a plan point, X and Y of it equal the given X, Y (Schmid 19). The intersection is the
+      point of closest approach on the first ray, ``O_1 + s r_1`` (the "xz" form uses Schmid's
+      mu' of formula 74 instead).
+    * a plan point seen by one photo: the ray meets the vertical through (X, Y) (coplanarity of
+      the ray with that vertical), so that 2k - (3 - d) conditions hold for every k.
+
+    The count is 2k - (3 - d) whenever that is positive (DESIGN section 3).
+    """
+    m, k, _ = r.shape
+    gx, gy, gz = given_axes
+    d = int(gx) + int(gy) + int(gz)
+    rows_g, rows_r, rows_O, rows_X = [], [], [], []
+
+    def new_row():
+        return np.zeros((m, k, 3)), np.zeros((m, k, 3)), np.zeros((m, 3))
+
+    pair_scales = closest_scales if scale_form == "3d" else projected_scales
+    if scale_form not in SCALE_FORMS:
+        raise ValueError(f"unknown scale form {scale_form!r}")
+
+    for i in range(k - 1):
+        b = O[:, i + 1] - O[:, i]
+        g, dg_b, dg_r1, dg_r2 = coplanarity(b, r[:, i], r[:, i + 1])
+        dr, dO, dX = new_row()
+        dr[:, i], dr[:, i + 1] = dg_r1, dg_r2
+        dO[:, i], dO[:, i + 1] = -dg_b, dg_b
+        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+
+    for i in range(1, k - 1):
+        # scale of r_i from the pair (i-1, i) (second ray) minus its scale from (i, i+1) (first ray)
+        b1 = O[:, i] - O[:, i - 1]
+        b2 = O[:, i + 1] - O[:, i]
+        _, t1, _, dt1 = pair_scales(b1, r[:, i - 1], r[:, i])
+        s2, _, ds2, _ = pair_scales(b2, r[:, i], r[:, i + 1])
+        dr, dO, dX = new_row()
+        dr[:, i - 1] += dt1[1]
+        dr[:, i] += dt1[2] - ds2[1]
+        dr[:, i + 1] += -ds2[2]
+        dO[:, i - 1] += -dt1[0]
+        dO[:, i] += dt1[0] + ds2[0]
+        dO[:, i + 1] += -ds2[0]
+        rows_g.append(t1 - s2), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+
+    if d in (1, 2) and k >= 2:
+        b = O[:, 1] - O[:, 0]
+        s, _, ds, _ = pair_scales(b, r[:, 0], r[:, 1])
+        P = O[:, 0] + s[:, None] * r[:, 0]
+        for axis, given in enumerate(given_axes):
+            if not given:
+                continue
+            dr, dO, dX = new_row()
+            # P_axis = O0_axis + s r0_axis
+            dr[:, 0] = r[:, 0, axis, None] * ds[1]
+            dr[:, 0, axis] += s
+            dr[:, 1] = r[:, 0, axis, None] * ds[2]
+            dO[:, 0] = -r[:, 0, axis, None] * ds[0]
+            dO[:, 0, axis] += 1.0
+            dO[:, 1] = r[:, 0, axis, None] * ds[0]
+            dX[:, axis] = -1.0
+            rows_g.append(P[:, axis] - X[:, axis]), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+    elif d == 2 and k == 1:
+        # the ray and the vertical through (X, Y): coplanarity with b = (X, Y, 0) - O, r2 = e_z
+        foot = np.concatenate([X[:, :2], np.zeros((m, 1))], axis=1)
+        ez = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (m, 3))
+        g, dg_b, dg_r1, _ = coplanarity(foot - O[:, 0], r[:, 0], ez)
+        dr, dO, dX = new_row()
+        dr[:, 0] = dg_r1
+        dO[:, 0] = -dg_b
+        dX[:, :2] = dg_b[:, :2]
+        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+
+    if not rows_g:
+        return RayConditions(np.zeros((m, 0)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, 3)))
+    return RayConditions(
+        np.stack(rows_g, 1), np.stack(rows_r, 1), np.stack(rows_O, 1), np.stack(rows_X, 1)
+    )
+
+
+def ray_chain(rc: RayConditions, R, p) -> Linearised:
+    """Carry derivatives with respect to rays on to the primitives.
+
+    ``r = R p`` with ``p = (x - xp, y - yp, -c)``: dr/dx = R e1, dr/dy = R e2, dr/dc = -R e3,
+    dr/dxp = -R e1, dr/dyp = -R e2, and with ``R <- R Exp(d)``: dr/dd = -R [p]x, so that
+    ``(dg/dr) dr/dd = p x (R^T dg/dr)``. R: (m, k, 3, 3), p: (m, k, 3).
+    """
+    Rt_g = np.einsum("mkji,mckj->mcki", R, rc.d_r)  # R^T dg/dr: (m, nc, k, 3)
+    d_plate = Rt_g[..., :2]
+    d_rot = np.cross(p[:, None], Rt_g)
+    d_interior = np.stack([-Rt_g[..., 2], -Rt_g[..., 0], -Rt_g[..., 1]], -1)
+    return Linearised(rc.g, d_plate, d_rot, rc.d_O, d_interior, rc.d_X)
+
+
+# ---------------------------------------------------------------------------------------------
+# Collinearity (full control)
+
+
+def collinearity(xy_plate, R, O, interior, X) -> Linearised:
+    """Collinearity of a full control point with each of its k photos (Schmid 14).
+
+    ``g = xy_plate - (xp - c m_x/m_z, yp - c m_y/m_z)``, ``m = R^T (X - O)``, two conditions per
+    photo in the order (x_1, y_1, x_2, y_2, ...). xy_plate: (m, k, 2); R: (m, k, 3, 3);
+    O, interior: (m, k, 3); X: (m, 3).
+    """
+    mgrp, k, _ = xy_plate.shape
+    mvec = np.einsum("mkji,mkj->mki", R, X[:, None, :] - O)
+    c = interior[..., 0]
+    mz = mvec[..., 2]
+    proj = np.stack([interior[..., 1] - c * mvec[..., 0] / mz, interior[..., 2] - c * mvec[..., 1] / mz], -1)
+    g = (xy_plate - proj).reshape(mgrp, 2 * k)
+    # d proj / d m: (m, k, 2, 3)
+    dproj_dm = np.zeros((mgrp, k, 2, 3))
+    dproj_dm[..., 0, 0] = -c / mz
+    dproj_dm[..., 1, 1] = -c / mz
+    dproj_dm[..., 0, 2] = c * mvec[..., 0] / mz**2
+    dproj_dm[..., 1, 2] = c * mvec[..., 1] / mz**2
+    dproj_dX = np.einsum("mkaj,mkij->mkai", dproj_dm, R)  # dm/dX = R^T
+    dproj_drot = np.einsum("mkaj,mkji->mkai", dproj_dm, skew(mvec))  # dm/dd = [m]x
+    dproj_dint = np.zeros((mgrp, k, 2, 3))
+    dproj_dint[..., 0, 0] = -mvec[..., 0] / mz
+    dproj_dint[..., 1, 0] = -mvec[..., 1] / mz
+    dproj_dint[..., 0, 1] = 1.0
+    dproj_dint[..., 1, 2] = 1.0
+
+    nc = 2 * k
+    d_plate = np.zeros((mgrp, nc, k, 2))
+    d_rot = np.zeros((mgrp, nc, k, 3))
+    d_centre = np.zeros((mgrp, nc, k, 3))
+    d_interior = np.zeros((mgrp, nc, k, 3))
+    for j in range(k):
+        for a in range(2):
+            row = 2 * j + a
+            d_plate[:, row, j, a] = 1.0
+            d_rot[:, row, j] = -dproj_drot[:, j, a]
+            d_centre[:, row, j] = dproj_dX[:, j, a]
+            d_interior[:, row, j] = -dproj_dint[:, j, a]
+    d_control = -dproj_dX.reshape(mgrp, nc, 3)
+    return Linearised(g, d_plate, d_rot, d_centre, d_interior, d_control)

@@ -1,0 +1,122 @@
+"""Linearisation of the groups: the Gauss-Helmert blocks A, B, w and the cofactors Q.
+
+For every group j (DESIGN section 4), at the current estimates (l^, x^):
+``A = dg/dl``, ``B = dg/dx``, ``w = g(l^, x^) + A (l - l^)``, with Q the diagonal cofactors of the
+group's observations (plate coordinates, then, for control, X, Y, Z with cofactor 0 where the
+coordinate is held fixed). This module is the functional model's only contact with weights: it
+scales each condition to unit variance at l^ (a constant per iteration, which leaves the adjustment
+unchanged) so that the 2x2 ... blocks M = A Q A^T are well conditioned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import plate_vector
+from .conditions import collinearity, ray_chain, ray_conditions
+from .groups import COLLINEARITY, GroupBatch
+from .parameters import State, UnknownLayout
+
+
+@dataclass(frozen=True)
+class Observations:
+    """All observations of the point groups (original values l and cofactors).
+
+    plate: (m_ip, 2) measured plate coordinates; q_plate: (m_ip, 2) their variances.
+    control: (n_pt, 3) given coordinates (0 where not given); q_control: (n_pt, 3) variances,
+    0 = held fixed or not given.
+    """
+
+    plate: np.ndarray
+    q_plate: np.ndarray
+    control: np.ndarray
+    q_control: np.ndarray
+
+
+@dataclass
+class GroupSystem:
+    """Linearised groups of one chunk. A: (m, nc, no), B: (m, nc, nu), cols: (m, nu) global columns
+    (-1 = fixed), w: (m, nc), Q: (m, no), l, l_hat: (m, no) original and current observations."""
+
+    A: np.ndarray
+    B: np.ndarray
+    cols: np.ndarray
+    w: np.ndarray
+    Q: np.ndarray
+    l: np.ndarray
+    l_hat: np.ndarray
+    g: np.ndarray
+
+
+def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_hat):
+    """Original and current observation vectors of each group and their cofactors: (m, no)."""
+    m, k = batch.image_rows.shape
+    parts_l = [obs.plate[batch.image_rows].reshape(m, 2 * k)]
+    parts_h = [plate_hat[batch.image_rows].reshape(m, 2 * k)]
+    parts_q = [obs.q_plate[batch.image_rows].reshape(m, 2 * k)]
+    if batch.has_control:
+        parts_l.append(obs.control[batch.point_index])
+        parts_h.append(control_hat[batch.point_index])
+        parts_q.append(obs.q_control[batch.point_index])
+    return np.concatenate(parts_l, 1), np.concatenate(parts_h, 1), np.concatenate(parts_q, 1)
+
+
+def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d"):
+    """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised."""
+    xy = plate_hat[batch.image_rows]
+    R = state.R[batch.photo_index]
+    O = state.xyz0[batch.photo_index]
+    interior = state.interior[state.camera_of_photo[batch.photo_index]]
+    X = control_hat[batch.point_index]
+    if batch.family == COLLINEARITY:
+        return collinearity(xy, R, O, interior, X)
+    p = plate_vector(xy, interior)
+    r = np.einsum("mkij,mkj->mki", R, p)
+    rc = ray_conditions(r, O, X, batch.given_axes, scale_form)
+    return ray_chain(rc, R, p)
+
+
+def linearise(
+    batch: GroupBatch,
+    state: State,
+    layout: UnknownLayout,
+    rotation_maps: np.ndarray,
+    obs: Observations,
+    plate_hat: np.ndarray,
+    control_hat: np.ndarray,
+    scale_form: str = "3d",
+    transform=None,
+) -> GroupSystem:
+    """The Gauss-Helmert blocks of a chunk of groups (module doc).
+
+    rotation_maps: (n_photos, 3, 3) from UnknownLayout.rotation_maps. transform: optional
+    callable(batch) -> (m, nc, nc) invertible matrices that recombine each group's conditions
+    (used by the tests to show the result does not depend on it).
+    """
+    lin = evaluate(batch, state, plate_hat, control_hat, scale_form)
+    m, nc = lin.g.shape
+    k = batch.k
+    l, l_hat, Q = group_observations(batch, obs, plate_hat, control_hat)
+    A_parts = [lin.d_plate.reshape(m, nc, 2 * k)]
+    if batch.has_control:
+        A_parts.append(lin.d_control)
+    A = np.concatenate(A_parts, 2)
+
+    T = rotation_maps[batch.photo_index]  # (m, k, 3, 3)
+    d_rot = np.einsum("mcki,mkij->mckj", lin.d_rot, T)
+    B = np.concatenate([lin.d_centre, d_rot, lin.d_interior], 3).reshape(m, nc, 9 * k)
+    cam = state.camera_of_photo[batch.photo_index]
+    cols = np.concatenate(
+        [layout.photo_cols[batch.photo_index], layout.camera_cols[cam]], 2
+    ).reshape(m, 9 * k)
+
+    g = lin.g
+    scale = 1.0 / np.sqrt(np.einsum("mco,mo,mco->mc", A, Q, A))
+    A, B, g = A * scale[..., None], B * scale[..., None], g * scale
+    if transform is not None:
+        Tg = transform(batch)
+        A, B, g = Tg @ A, Tg @ B, np.einsum("mab,mb->ma", Tg, g)
+    w = g + np.einsum("mco,mo->mc", A, l - l_hat)
+    return GroupSystem(A=A, B=B, cols=cols, w=w, Q=Q, l=l, l_hat=l_hat, g=g)

@@ -1,0 +1,205 @@
+"""The unknowns: current estimates, their columns in the normal matrix, and the update.
+
+Columns: per photo, in photo order, the corrections (dX0, dY0, dZ0, d1, d2, d3) where d is the
+rotation vector of ``R <- R Exp(d)`` (DESIGN section 1); then per camera (c, xp, yp), last.
+A column of -1 is an element held fixed. Two elements may share a column: a base component
+enforced exactly (Schmid 24) makes ``dO[to, axis]`` the same unknown as ``dO[from, axis]``.
+
+When only some of a photo's angles are held fixed, the photo's rotation unknowns are the
+corrections of its free angles, carried to the rotation vector by ``T = J^-1[:, free]``
+(J the angle Jacobian of rotations.angles_jacobian), and the fixed angles are restored exactly
+after each update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .model import Project
+from .rotations import R_from_angles, angles_from_R, angles_jacobian, exp_so3
+
+ELEMENT_NAMES = ("X0", "Y0", "Z0", "rot1", "rot2", "rot3")
+
+
+@dataclass(frozen=True)
+class State:
+    """Current estimates. xyz0 in the reduced ground frame (ground minus ``offset``)."""
+
+    R: np.ndarray
+    xyz0: np.ndarray
+    interior: np.ndarray
+    camera_of_photo: np.ndarray
+
+    def updated(self, layout: "UnknownLayout", dx: np.ndarray) -> "State":
+        """Apply a correction vector (DESIGN section 4: x <- x (+) dx)."""
+        dxp = np.concatenate([dx, [0.0]])  # column -1 reads a zero
+        d_photo = dxp[layout.photo_cols]  # (n, 6)
+        xyz0 = self.xyz0 + d_photo[:, :3]
+        T = layout.rotation_maps(self)
+        d_rot = np.einsum("nij,nj->ni", T, d_photo[:, 3:])
+        R = self.R @ exp_so3(d_rot)
+        R = layout.restore_fixed_angles(R)
+        interior = self.interior + dxp[layout.camera_cols]
+        return State(R=R, xyz0=xyz0, interior=interior, camera_of_photo=self.camera_of_photo)
+
+
+@dataclass(frozen=True)
+class UnknownLayout:
+    photo_cols: np.ndarray  # (n, 6) int, -1 = fixed
+    camera_cols: np.ndarray  # (ncam, 3) int, -1 = fixed
+    n_unknowns: int
+    convention: str
+    angle_fixed: np.ndarray  # (n, 3) bool
+    fixed_angles: np.ndarray  # (n, 3) radians (used where angle_fixed)
+
+    @property
+    def partial_rotation(self) -> np.ndarray:
+        """Photos whose rotation is neither all free nor all fixed."""
+        nfix = self.angle_fixed.sum(axis=1)
+        return (nfix > 0) & (nfix < 3)
+
+    def rotation_maps(self, state: State) -> np.ndarray:
+        """T (n, 3, 3): rotation vector = T @ (rotation unknowns of the photo)."""
+        n = len(self.photo_cols)
+        T = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        part = self.partial_rotation
+        if part.any():
+            Jinv = np.linalg.inv(angles_jacobian(state.R[part], self.convention))
+            Jinv[np.broadcast_to(self.angle_fixed[part][:, None, :], Jinv.shape)] = 0.0
+            T[part] = Jinv
+        return T
+
+    def restore_fixed_angles(self, R: np.ndarray) -> np.ndarray:
+        part = self.partial_rotation
+        if not part.any():
+            return R
+        R = R.copy()
+        angles = angles_from_R(R[part], self.convention)
+        fixed = self.angle_fixed[part]
+        angles[fixed] = self.fixed_angles[part][fixed]
+        R[part] = R_from_angles(angles, self.convention)
+        return R
+
+    def column_labels(self, photo_ids, camera_ids) -> list[str]:
+        labels = [""] * self.n_unknowns
+        for i, pid in enumerate(photo_ids):
+            for e, col in enumerate(self.photo_cols[i]):
+                if col >= 0 and not labels[col]:
+                    labels[col] = f"photo {pid} {ELEMENT_NAMES[e]}"
+        for i, cid in enumerate(camera_ids):
+            for e, col in enumerate(self.camera_cols[i]):
+                if col >= 0:
+                    labels[col] = f"camera {cid} {('c', 'xp', 'yp')[e]}"
+        return labels
+
+
+def _enforced_base_aliases(project: Project) -> np.ndarray:
+    """For each photo element (n, 3) of the centre, the (photo, axis) it is tied to, by union-find."""
+    n = len(project.photos)
+    parent = np.arange(3 * n)
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    b = project.bases
+    enforced = ~(b.sigma > 0)
+    for f, t, ax in zip(b.photo_from[enforced], b.photo_to[enforced], b.axis[enforced]):
+        ra, rb = find(3 * f + ax), find(3 * t + ax)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    return np.array([find(a) for a in range(3 * n)]).reshape(n, 3)
+
+
+def apply_enforced_bases(project: Project, xyz0: np.ndarray) -> np.ndarray:
+    """Make the approximate centres satisfy the enforced base components exactly (Schmid 24)."""
+    xyz0 = xyz0.copy()
+    b = project.bases
+    enforced = ~(b.sigma > 0)
+    # propagate along the listed order; repeated so that chains given in any order settle
+    for _ in range(max(1, int(enforced.sum()))):
+        for f, t, ax, val in zip(b.photo_from[enforced], b.photo_to[enforced], b.axis[enforced], b.value[enforced]):
+            xyz0[t, ax] = xyz0[f, ax] + val
+    return xyz0
+
+
+def build_layout(project: Project) -> UnknownLayout:
+    """Columns of the unknowns, from the fixed/free/observed flags of the project."""
+    photos, cams = project.photos, project.cameras
+    n = len(photos)
+    fixed_pos = photos.sigma_xyz0 == 0
+    fixed_ang = photos.sigma_angles == 0
+    alias = _enforced_base_aliases(project)  # (n, 3) root element index 3*photo + axis
+    photo_cols = -np.ones((n, 6), dtype=int)
+    root_col: dict[int, int] = {}
+    # a group of tied elements is fixed if any member is fixed
+    fixed_roots = set(alias[fixed_pos].tolist())
+    col = 0
+    for i in range(n):
+        for ax in range(3):
+            root = int(alias[i, ax])
+            if root in fixed_roots:
+                continue
+            if root not in root_col:
+                root_col[root] = col
+                col += 1
+            photo_cols[i, ax] = root_col[root]
+        all_fixed = fixed_ang[i].all()
+        for a in range(3):
+            if not all_fixed and not fixed_ang[i, a]:
+                photo_cols[i, 3 + a] = col
+                col += 1
+    camera_cols = -np.ones((len(cams), 3), dtype=int)
+    free_or_observed = ~np.isnan(cams.sigma_interior) & ~(cams.sigma_interior == 0)
+    for j in range(len(cams)):
+        for e in range(3):
+            if free_or_observed[j, e]:
+                camera_cols[j, e] = col
+                col += 1
+    return UnknownLayout(
+        photo_cols=photo_cols,
+        camera_cols=camera_cols,
+        n_unknowns=col,
+        convention=project.settings.rotation,
+        angle_fixed=fixed_ang,
+        fixed_angles=photos.angles.copy(),
+    )
+
+
+def reduction_offset(project: Project) -> np.ndarray:
+    """A round offset near the middle of the project, subtracted from every ground coordinate
+    internally so that national-grid coordinates (~1e6 m) cost no precision."""
+    pts = [project.photos.xyz0]
+    given = project.points.xyz_given
+    if np.isfinite(given).any():
+        pts.append(np.where(np.isfinite(given), given, np.nan))
+    allp = np.concatenate(pts, axis=0)
+    centre = np.nanmean(allp, axis=0)
+    centre = np.where(np.isfinite(centre), centre, 0.0)
+    return np.round(centre, -3)
+
+
+def initial_state(project: Project, offset: np.ndarray) -> State:
+    xyz0 = apply_enforced_bases(project, project.photos.xyz0 - offset)
+    return State(
+        R=project.photos.R_ground_from_cam.copy(),
+        xyz0=xyz0,
+        interior=project.cameras.interior.copy(),
+        camera_of_photo=project.photos.camera_index.copy(),
+    )
+
+
+def with_state(project: Project, state: State, offset: np.ndarray) -> Project:
+    """The project with its approximate orientations replaced by a state (used for restarts)."""
+    photos = replace(
+        project.photos,
+        xyz0=state.xyz0 + offset,
+        R_ground_from_cam=state.R,
+        angles=angles_from_R(state.R, project.settings.rotation),
+    )
+    cams = replace(project.cameras, interior=state.interior)
+    return replace(project, photos=photos, cameras=cams)
