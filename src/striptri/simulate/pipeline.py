@@ -1,0 +1,60 @@
+"""One call from options and a seed to a project and its truth tables (what ``striptri simulate`` runs)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from striptri import model
+from striptri.rotations import opk_from_R
+from striptri.simulate.design import PAIR_LAYOUTS, SyntheticDesign
+from striptri.simulate.noise import NoiseOptions, perturb
+from striptri.simulate.truth import Truth, make_truth
+
+KINDS = ("pair", "strip")
+
+
+@dataclass(frozen=True)
+class SimulateOptions:
+    design: SyntheticDesign = field(default_factory=SyntheticDesign)
+    noise: NoiseOptions = field(default_factory=NoiseOptions)
+
+
+def simulate_project(
+    kind: str, options: SimulateOptions, seed: int | None
+) -> tuple[model.Project, dict[str, dict[str, Sequence]]]:
+    """Simulate a ``kind`` ("pair" or "strip") project. -> (project, truth tables).
+
+    The seed feeds two independent streams (numpy SeedSequence.spawn): one for the truth, one for the
+    noise, so that the same seed with other noise options gives the same true flight.
+    truth tables: file name -> columns, for io.project_writer.write_project (see truth_tables).
+    """
+    _check_kind(kind, options.design)
+    truth_seed, noise_seed = np.random.SeedSequence(seed).spawn(2)
+    truth = make_truth(options.design, np.random.default_rng(truth_seed))
+    project = perturb(truth, options.noise, np.random.default_rng(noise_seed))
+    return project, truth_tables(truth)
+
+
+def truth_tables(truth: Truth) -> dict[str, dict[str, Sequence]]:
+    """photos.csv: photo_id, X0, Y0, Z0, omega, phi, kappa (degrees);
+    points.csv: point_id, kind (tie, Z, XY, XYZ, check), X, Y, Z."""
+    opk = np.degrees(opk_from_R(truth.R_ground_from_cam))
+    photos = {"photo_id": list(truth.photo_ids)}
+    photos.update({name: truth.xyz0[:, j] for j, name in enumerate(("X0", "Y0", "Z0"))})
+    photos.update({name: opk[:, j] for j, name in enumerate(("omega", "phi", "kappa"))})
+    points = {"point_id": list(truth.point_ids), "kind": [model.KIND_NAMES[int(k)] for k in truth.kind]}
+    points.update({name: truth.xyz_ground[:, j] for j, name in enumerate("XYZ")})
+    return {"photos.csv": photos, "points.csv": points}
+
+
+def _check_kind(kind: str, design: SyntheticDesign) -> None:
+    if kind not in KINDS:
+        raise ValueError(f"unknown kind {kind!r} (one of {', '.join(KINDS)})")
+    n = design.flight.n_photos
+    if kind == "pair" and n != 2:
+        raise ValueError(f"a pair has 2 photos, not {n}")
+    if kind == "strip" and design.control.layout in PAIR_LAYOUTS:
+        raise ValueError(f"control layout {design.control.layout!r} is for a pair")

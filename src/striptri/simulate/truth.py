@@ -1,0 +1,247 @@
+"""The true flight: photos, terrain, object points and their exact plate coordinates.
+
+``make_truth(design, rng)`` draws everything random of the design (terrain, deviations of the
+photos from the ideal flight line, extra tie points) from the generator it is given, and nothing
+else: noise comes later (``striptri.simulate.noise``).
+
+Ids: photo ``<strip><k:03d>`` ("1001", "1002", ...); the pass points at the nadir of that photo
+``<photo id>L``, ``<photo id>C``, ``<photo id>R`` (left of the flight direction, on it, right;
+left is +y on the plate); extra tie points ``T<first photo id of the model>_<i:02d>``; single-photo
+control ``<photo id>S``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from striptri.camera import in_front, project
+from striptri.model import CHECK, FULL, TIE
+from striptri.rotations import R_from_opk
+from striptri.simulate.control import OMITTED, POSITIONS, pass_point_kinds
+from striptri.simulate.design import SyntheticDesign
+from striptri.simulate.terrain import Terrain, make_terrain
+
+# Extra tie points are drawn in the nominal overlap of two photos shrunk by this factor, so that
+# terrain relief and the deviations from the ideal flight keep them on both plates.
+_TIE_AREA_SHRINK = 0.8
+
+
+@dataclass(frozen=True)
+class FlightLine:
+    """Nominal geometry of one strip. nadir_xy: (n, 2) ground XY of the ideal nadirs (m);
+    along, left: (2,) unit vectors of the flight direction and of its left side in ground XY."""
+
+    strip_id: str
+    photo_ids: list[str]
+    nadir_xy: np.ndarray
+    along: np.ndarray
+    left: np.ndarray
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Everything true about a synthetic project, struct of arrays.
+
+    interior: (3,) c, xp, yp of the one camera (plate units).
+    Photos: photo_ids, strip_ids (n,); xyz0: (n, 3) ground m; R_ground_from_cam: (n, 3, 3).
+    Points: point_ids (np,); kind: (np,) codes of striptri.model (TIE, HEIGHT, PLAN, FULL, CHECK);
+    xyz_ground: (np, 3) m.
+    Observations, one row per visible (photo, point), photo-major: photo_index, point_index (m,);
+    xy_plate: (m, 2) exact plate coordinates (striptri.camera.project).
+    """
+
+    design: SyntheticDesign
+    terrain: Terrain
+    interior: np.ndarray
+    photo_ids: list[str]
+    strip_ids: list[str]
+    xyz0: np.ndarray
+    R_ground_from_cam: np.ndarray
+    point_ids: list[str]
+    kind: np.ndarray
+    xyz_ground: np.ndarray
+    photo_index: np.ndarray
+    point_index: np.ndarray
+    xy_plate: np.ndarray
+
+    def rays_per_point(self) -> np.ndarray:
+        """Number of photos that see each point. -> (np,) ints."""
+        return np.bincount(self.point_index, minlength=len(self.point_ids))
+
+
+def make_truth(design: SyntheticDesign, rng: np.random.Generator) -> Truth:
+    """The true project of ``design``, random parts drawn from ``rng``.
+
+    Raises ValueError when the design cannot be realised: a pass point or control point seen by
+    fewer than two photos, a single-photo control point seen by more than one, too few tie points
+    for the check points asked for.
+    """
+    camera = design.camera
+    interior = np.array([camera.c, camera.xp, camera.yp])
+    terrain = make_terrain(design.terrain, camera.format * design.scale, rng)
+    lines = _flight_lines(design)
+    xyz0, R = _true_photos(design, lines, rng)
+
+    ids, kind, xy = _pass_points(design, lines)
+    single_ids, single_xy, single_photo = _single_photo_points(design, lines)
+    xyz_fixed = _on_terrain(terrain, np.concatenate([xy, single_xy]))
+    seen = _visible(design, xyz0, R, interior, xyz_fixed)
+
+    n_pass = len(ids)
+    _require_rays(seen[:, :n_pass], ids)
+    if single_ids and not np.array_equal(seen[:, n_pass:].T, np.eye(len(xyz0), dtype=bool)[single_photo]):
+        raise ValueError("design: a single-photo control point is not seen by exactly one photo; lower the overlap")
+
+    tie_ids, tie_xyz = _extra_ties(design, lines, terrain, xyz0, R, interior, rng)
+    point_ids = ids + tie_ids + single_ids
+    kind = np.concatenate([kind, np.full(len(tie_ids), TIE), np.full(len(single_ids), FULL)]).astype(int)
+    xyz_ground = np.concatenate([xyz_fixed[:n_pass], tie_xyz, xyz_fixed[n_pass:]])
+    kind = _with_check_points(kind, xyz_ground, lines[0], design.control.n_check)
+
+    seen = _visible(design, xyz0, R, interior, xyz_ground)
+    photo_index, point_index = np.nonzero(seen)
+    xy_plate = project(R[photo_index], xyz0[photo_index], interior, xyz_ground[point_index])
+    return Truth(
+        design=design,
+        terrain=terrain,
+        interior=interior,
+        photo_ids=[pid for line in lines for pid in line.photo_ids],
+        strip_ids=[line.strip_id for line in lines for _ in line.photo_ids],
+        xyz0=xyz0,
+        R_ground_from_cam=R,
+        point_ids=point_ids,
+        kind=kind,
+        xyz_ground=xyz_ground,
+        photo_index=photo_index,
+        point_index=point_index,
+        xy_plate=xy_plate,
+    )
+
+
+def _flight_lines(design: SyntheticDesign) -> list[FlightLine]:
+    """The nominal flight lines: one strip for now (a block will lay several side by side)."""
+    flight = design.flight
+    h = np.radians(flight.heading_deg)
+    along = np.array([np.cos(h), np.sin(h)])
+    left = np.array([-np.sin(h), np.cos(h)])
+    k = np.arange(flight.n_photos)
+    nadir_xy = np.asarray(flight.start_xy) + (k * design.base)[:, None] * along
+    strip = "1"
+    return [FlightLine(strip, [f"{strip}{i + 1:03d}" for i in k], nadir_xy, along, left)]
+
+
+def _true_photos(design: SyntheticDesign, lines: list[FlightLine], rng) -> tuple[np.ndarray, np.ndarray]:
+    """True centres and rotations: the ideal (nadir at flying height, R = Rz(heading)) plus normal
+    deviations of position (along, across, up) and of omega, phi, kappa. -> (n, 3), (n, 3, 3)."""
+    flight = design.flight
+    z0 = design.terrain.mean_z + flight.flying_height
+    xyz0, angles = [], []
+    for line in lines:
+        n = len(line.photo_ids)
+        d = rng.normal(0.0, 1.0, (n, 3)) * np.asarray(flight.position_std_m)
+        xy = line.nadir_xy + d[:, :1] * line.along + d[:, 1:2] * line.left
+        xyz0.append(np.column_stack([xy, z0 + d[:, 2]]))
+        a = rng.normal(0.0, 1.0, (n, 3)) * np.radians(flight.attitude_std_deg)
+        a[:, 2] += np.radians(flight.heading_deg)
+        angles.append(a)
+    return np.concatenate(xyz0), R_from_opk(np.concatenate(angles))
+
+
+def _pass_points(design: SyntheticDesign, lines: list[FlightLine]):
+    """Von Gruber pass points of every line with their kinds. -> ids, kind (p,), xy (p, 2)."""
+    offset = design.points.lateral_offset * design.scale
+    ids, kinds, xys = [], [], []
+    for line in lines:
+        grid = pass_point_kinds(design.control, len(line.photo_ids))
+        for k, photo_id in enumerate(line.photo_ids):
+            for j, position in enumerate(POSITIONS):
+                if grid[k, j] == OMITTED:
+                    continue
+                ids.append(f"{photo_id}{position}")
+                kinds.append(grid[k, j])
+                xys.append(line.nadir_xy[k] + (1 - j) * offset * line.left)
+    return ids, np.array(kinds, dtype=int), np.array(xys).reshape(-1, 2)
+
+
+def _single_photo_points(design: SyntheticDesign, lines: list[FlightLine]):
+    """Full control points seen by one photo only: in the middle of the part of the first (last)
+    photo that no other photo covers, on the flight line. -> ids, xy (s, 2), photo index (s,)."""
+    n = design.control.n_single_photo
+    line = lines[0]
+    footprint = design.camera.format * design.scale
+    back = (footprint - design.base) / 2  # from the end nadir to the middle of its own part
+    ends = [(0, -back), (len(line.photo_ids) - 1, back)][:n]
+    ids = [f"{line.photo_ids[k]}S" for k, _ in ends]
+    xy = np.array([line.nadir_xy[k] + a * line.along for k, a in ends]).reshape(-1, 2)
+    return ids, xy, np.array([k for k, _ in ends], dtype=int)
+
+
+def _extra_ties(design, lines, terrain, xyz0, R, interior, rng):
+    """``extra_ties_per_model`` random tie points in the (shrunk) nominal overlap of each model,
+    each seen by at least two photos. -> ids, xyz (t, 3)."""
+    n = design.points.extra_ties_per_model
+    if n == 0:
+        return [], np.zeros((0, 3))
+    half = design.camera.half_usable * design.scale  # half the usable ground footprint
+    base = design.base
+    ids, xyz = [], []
+    for line in lines:
+        for k in range(len(line.photo_ids) - 1):
+            centre = (line.nadir_xy[k] + line.nadir_xy[k + 1]) / 2
+            n_try = 4 * n
+            a = rng.uniform(-1.0, 1.0, n_try) * _TIE_AREA_SHRINK * (half - base / 2)
+            b = rng.uniform(-1.0, 1.0, n_try) * _TIE_AREA_SHRINK * half
+            candidates = _on_terrain(terrain, centre + a[:, None] * line.along + b[:, None] * line.left)
+            good = np.flatnonzero(_visible(design, xyz0, R, interior, candidates).sum(0) >= 2)
+            if len(good) < n:
+                raise ValueError("design: cannot place the extra tie points inside the overlap; lower the deviations")
+            ids += [f"T{line.photo_ids[k]}_{i + 1:02d}" for i in range(n)]
+            xyz.append(candidates[good[:n]])
+    return ids, np.concatenate(xyz)
+
+
+def _with_check_points(kind: np.ndarray, xyz_ground: np.ndarray, line: FlightLine, n_check: int) -> np.ndarray:
+    """Turn n_check tie points into check points, evenly spread along the flight (the middle point of
+    each of n_check equal runs of the tie points sorted along track)."""
+    if n_check == 0:
+        return kind
+    ties = np.flatnonzero(kind == TIE)
+    if n_check > len(ties):
+        raise ValueError(f"design: {n_check} check points asked for, but only {len(ties)} tie points")
+    along = (xyz_ground[ties, :2] - line.nadir_xy[0]) @ line.along
+    across = (xyz_ground[ties, :2] - line.nadir_xy[0]) @ line.left
+    order = ties[np.lexsort((-across, along))]
+    pick = order[((np.arange(n_check) + 0.5) * len(ties) / n_check).astype(int)]
+    kind = kind.copy()
+    kind[pick] = CHECK
+    return kind
+
+
+def _on_terrain(terrain: Terrain, xy: np.ndarray) -> np.ndarray:
+    """Ground points on the terrain surface. xy: (p, 2) -> (p, 3)."""
+    return np.column_stack([xy, terrain.z(xy)])
+
+
+def _visible(design: SyntheticDesign, xyz0, R, interior, xyz_ground) -> np.ndarray:
+    """Which photo sees which point: in front of the camera and inside the usable format.
+    xyz0: (n, 3), R: (n, 3, 3), xyz_ground: (p, 3) -> (n, p) bool."""
+    O, Rn, X = xyz0[:, None, :], R[:, None, :, :], xyz_ground[None, :, :]
+    front = in_front(Rn, O, X)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = project(Rn, O, interior, X)
+    inside = np.all(np.abs(xy) <= design.camera.half_usable, axis=-1)
+    return front & inside
+
+
+def _require_rays(seen: np.ndarray, ids: list[str]) -> None:
+    """Every pass point must be seen by two photos at least."""
+    rays = seen.sum(0)
+    bad = np.flatnonzero(rays < 2)
+    if len(bad):
+        k = bad[0]
+        raise ValueError(
+            f"design: pass point {ids[k]} is seen by {rays[k]} photo(s); "
+            "lower the lateral offset, the relief or the deviations from the ideal flight"
+        )
