@@ -1,0 +1,113 @@
+"""The ``striptri`` command (DESIGN section 10). Thin: parse options, call one pipeline function,
+write its result. Errors reach the user through :func:`reports_errors`:
+
+* :class:`striptri.errors.InputError` -> ``striptri: error: <message>`` on stderr, exit status 2;
+* :class:`striptri.errors.NumericalFailure` -> the same message form, exit status 1.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+
+import click
+
+from striptri import __version__
+from striptri.errors import InputError, NumericalFailure
+
+EXIT_INPUT, EXIT_NUMERICAL = 2, 1
+
+
+def reports_errors(command):
+    """Decorate a command so that striptri's two kinds of failure end it with a message and an
+    exit status (module doc) instead of a traceback."""
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except InputError as exc:
+            _fail(exc, EXIT_INPUT)
+        except NumericalFailure as exc:
+            _fail(exc, EXIT_NUMERICAL)
+
+    return wrapper
+
+
+def _fail(exc: Exception, status: int):
+    click.echo(f"striptri: error: {exc}", err=True)
+    sys.exit(status)
+
+
+@click.group()
+@click.version_option(__version__, prog_name="striptri")
+def main():
+    """striptri: analytical aerial triangulation after H. H. Schmid (BRL Report 961, 1955)."""
+
+
+# --------------------------------------------------------------------------- striptri simulate
+
+_DEFAULT_PHOTOS = {"pair": 2, "strip": 8}
+_DEFAULT_LAYOUT = {"pair": "corners", "strip": "ends"}
+
+
+@main.command()
+@click.argument("kind", type=click.Choice(["pair", "strip"]))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Project folder to write.")
+@click.option("--photos", type=int, default=None, help="Number of photos [pair: 2, strip: 8].")
+@click.option("--overlap", type=float, default=0.6, show_default=True, help="Forward overlap (0.6, 2/3 ...).")
+@click.option("--flying-height", type=float, default=1500.0, show_default=True, help="Metres above mean terrain.")
+@click.option("--heading", type=float, default=0.0, show_default=True, help="Flight direction, deg from +X towards +Y.")
+@click.option("--relief", type=float, default=50.0, show_default=True, help="Terrain relief amplitude (m).")
+@click.option("--attitude-std", type=float, default=1.0, show_default=True, help="Std of true omega, phi, kappa about the ideal (deg).")
+@click.option("--position-std", type=float, default=5.0, show_default=True, help="Std of true centres about the ideal flight line (m).")
+@click.option("--control", "layout", type=click.Choice(["corners", "mixed", "schmid-minimal", "ends", "every-k", "none"]),
+              default=None, help="Control layout [pair: corners, strip: ends].")
+@click.option("--every-k", type=int, default=2, show_default=True, help="every-k layout: control every k models.")
+@click.option("--every-k-kind", type=click.Choice(["Z", "XY", "XYZ"]), default="Z", show_default=True,
+              help="every-k layout: kind of the inner control points.")
+@click.option("--extra-ties", type=int, default=0, show_default=True, help="Random tie points per model.")
+@click.option("--check-points", type=int, default=0, show_default=True, help="Tie points made check points.")
+@click.option("--single-photo-control", type=click.IntRange(0, 2), default=0, show_default=True,
+              help="Full control points seen by one photo only (at the strip ends).")
+@click.option("--sigma-image", type=float, default=0.005, show_default=True, help="Plate noise (plate units); 0 = noise-free.")
+@click.option("--sigma-control", type=float, default=0.0, show_default=True, help="Control noise (m); 0 = exact, held fixed.")
+@click.option("--approx-position-error", type=float, default=10.0, show_default=True, help="Std of the approximate centres' errors (m).")
+@click.option("--approx-angle-error", type=float, default=1.0, show_default=True, help="Std of the approximate angles' errors (deg).")
+@click.option("--gnss-sigma", type=float, default=None, help="Observe the centres by GNSS with this sigma (m).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@reports_errors
+def simulate(kind, out_dir, photos, overlap, flying_height, heading, relief, attitude_std, position_std, layout,
+             every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image, sigma_control,
+             approx_position_error, approx_angle_error, gnss_sigma, seed):
+    """Write a synthetic KIND project (pair or strip) to --out, with its truth in OUT/truth/."""
+    from striptri import simulate as sim
+    from striptri.io.project_writer import write_project
+
+    try:
+        design = sim.SyntheticDesign(
+            flight=sim.FlightDesign(
+                n_photos=photos or _DEFAULT_PHOTOS[kind], overlap=overlap, flying_height=flying_height,
+                heading_deg=heading, attitude_std_deg=(attitude_std,) * 3, position_std_m=(position_std,) * 3,
+            ),
+            terrain=sim.TerrainDesign(relief=relief),
+            points=sim.PointDesign(extra_ties_per_model=extra_ties),
+            control=sim.ControlDesign(
+                layout=layout or _DEFAULT_LAYOUT[kind], every_k=every_k, every_k_kind=every_k_kind,
+                n_check=check_points, n_single_photo=single_photo_control,
+            ),
+        )
+        noise = sim.NoiseOptions(
+            sigma_image=sigma_image, sigma_control_xy=sigma_control, sigma_control_z=sigma_control,
+            approx_position_error=approx_position_error, approx_angle_error=approx_angle_error, sigma_gnss=gnss_sigma,
+        )
+        project, truth = sim.simulate_project(kind, sim.SimulateOptions(design, noise), seed)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from exc
+    folder = write_project(out_dir, project, truth_tables=truth)
+    click.echo(f"wrote {folder}: {len(project.photos)} photos, {len(project.points)} points, "
+               f"{len(project.image_points)} plate measurements")
+
+
+# --------------------------------------------------------------------------- striptri adjust
+# (DESIGN section 10: `striptri adjust DIR --out OUT ...`; decorate it with @reports_errors too.)
