@@ -13,7 +13,8 @@ from striptri import model
 from striptri.camera import project, ray_ground
 from striptri.cli import main, reports_errors
 from striptri.errors import InputError, NumericalFailure
-from striptri.rotations import exp_so3
+from striptri.io import read_project
+from striptri.rotations import R_from_opk, exp_so3
 from striptri.simulate import (
     ControlDesign,
     FlightDesign,
@@ -257,8 +258,6 @@ def test_approximate_orientations_are_perturbed_and_free():
     assert 1.0 < np.abs(dxyz).max() < 50.0
     assert np.all(np.isnan(p.photos.sigma_xyz0)) and np.all(np.isnan(p.photos.sigma_angles))
     # the stored angles and the stored rotation agree
-    from striptri.rotations import R_from_opk
-
     np.testing.assert_allclose(R_from_opk(p.photos.angles), p.photos.R_ground_from_cam, atol=1e-15)
 
 
@@ -322,8 +321,6 @@ def test_cli_simulate_writes_a_project_folder(tmp_path):
     assert result.exit_code == 0, result.output
     for name in ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "truth/photos.csv", "truth/points.csv"):
         assert (out / name).is_file(), name
-    from striptri.io import read_project
-
     read = read_project(out)
     expected, _ = simulate_project(
         "strip",
