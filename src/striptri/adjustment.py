@@ -162,7 +162,7 @@ def _given_mask(project: Project) -> np.ndarray:
     return np.array([GIVEN_AXES[int(k)] for k in project.points.kind], dtype=bool).reshape(-1, 3)
 
 
-class _Pass:
+class Sweep:
     """One sweep over all groups at a fixed (x^, l^)."""
 
     def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options):
@@ -179,7 +179,7 @@ class _Pass:
                 )
 
 
-def _assemble(sweep: _Pass, pobs: ParameterObservations, n_unknowns: int):
+def _assemble(sweep: Sweep, pobs: ParameterObservations, n_unknowns: int):
     acc = NormalAccumulator(n_unknowns)
     for _, system in sweep.systems():
         Bw, ww, _ = whiten(system)
@@ -190,7 +190,7 @@ def _assemble(sweep: _Pass, pobs: ParameterObservations, n_unknowns: int):
     return acc
 
 
-def _back_substitute(sweep: _Pass, pobs: ParameterObservations, dx: np.ndarray, obs: Observations):
+def _back_substitute(sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray, obs: Observations):
     """New adjusted observations l + v from the corrections dx (k = -M^-1 (w + B dx), v = Q A^T k)."""
     plate_hat = obs.plate.copy()
     control_hat = obs.control.copy()
@@ -257,7 +257,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     vtpv = np.nan
     for iteration in range(options.max_iterations):
         t0 = time.perf_counter()
-        sweep = _Pass(batches, state, layout, obs, plate_hat, control_hat, options)
+        sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
         acc = _assemble(sweep, pobs, layout.n_unknowns)
         t1 = time.perf_counter()
         dx = _solve_or_explain(acc, solver, state, layout, project)
@@ -282,7 +282,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
             break
 
     t0 = time.perf_counter()
-    final = _Pass(batches, state, layout, obs, plate_hat, control_hat, options)
+    final = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
     acc = _assemble(final, pobs, layout.n_unknowns)
     checks = _final_checks(final, acc, vtpv, pobs)
     timings["final_checks"] = time.perf_counter() - t0
@@ -326,7 +326,7 @@ def _diverging(history: list[Iteration]) -> bool:
     return all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
 
 
-def _final_checks(sweep: _Pass, acc: NormalAccumulator, vtpv: float, pobs) -> dict:
+def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs) -> dict:
     """Schmid's checks after convergence.
 
     * every condition holds for the adjusted observations and the final unknowns (his final

@@ -13,8 +13,13 @@ import numpy as np
 
 def plate_vector(xy_plate: np.ndarray, interior: np.ndarray) -> np.ndarray:
     """Camera-frame vector p = (x - xp, y - yp, -c). xy_plate: (..., 2); interior: (..., 3) c, xp, yp."""
+    xy_plate, interior = np.asarray(xy_plate, dtype=float), np.asarray(interior, dtype=float)
+    shape = np.broadcast_shapes(xy_plate.shape[:-1], interior.shape[:-1])
     return np.stack(
-        [xy_plate[..., 0] - interior[..., 1], xy_plate[..., 1] - interior[..., 2], -interior[..., 0]], -1
+        np.broadcast_arrays(
+            xy_plate[..., 0] - interior[..., 1], xy_plate[..., 1] - interior[..., 2], -interior[..., 0] + np.zeros(shape)
+        ),
+        -1,
     )
 
 

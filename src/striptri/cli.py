@@ -111,3 +111,27 @@ def simulate(kind, out_dir, photos, overlap, flying_height, heading, relief, att
 
 # --------------------------------------------------------------------------- striptri adjust
 # (DESIGN section 10: `striptri adjust DIR --out OUT ...`; decorate it with @reports_errors too.)
+
+
+@main.command()
+@click.argument("project_dir", type=click.Path(file_okay=False))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder to write.")
+@click.option("--method", type=click.Choice(["conditions"]), default=None,
+              help="Adjustment method [project.toml or conditions].")
+@click.option("--solver", type=click.Choice(["auto", "dense", "sparse"]), default=None,
+              help="Solver of the normal equations [project.toml or auto].")
+@click.option("--max-iterations", type=click.IntRange(min=1), default=None, help="Iteration limit [30].")
+@click.option("--scale-form", type=click.Choice(["3d", "xz"]), default=None,
+              help="Scale-transfer condition: direction-free 3d (default) or Schmid's XZ form (94).")
+@reports_errors
+def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form):
+    """Adjust the project in PROJECT_DIR and write the results to --out."""
+    from striptri.pipeline import run_adjust
+
+    products = run_adjust(project_dir, out_dir, method=method, solver=solver,
+                          max_iterations=max_iterations, scale_form=scale_form)
+    s = products.summary
+    sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
+    state = "converged" if s["converged"] else "NOT converged"
+    click.echo(f"{state} in {s['iterations']} iterations: sigma0 {sigma0}, redundancy {s['redundancy']}, "
+               f"{s['n_photos']} photos, {s['n_points']} points -> {out_dir}")

@@ -1,0 +1,211 @@
+"""Pipelines: load, compute, save. The CLI and the scripts call these; the mathematics below them
+never opens a file or prints.
+
+``run_adjust(project_dir, out_dir, options)`` reads a project folder, adjusts it, computes the
+products of DESIGN section 10 (photos, cameras, points, residuals, summary, report) and writes the
+output folder whole or not at all.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import report
+from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, observations_of
+from .errors import InputError
+from .groups import rays_per_point
+from .io.csvtable import format_csv
+from .io.output import write_output_folder
+from .io.project_reader import RADIANS_PER_UNIT, read_project
+from .model import CHECK, GIVEN_AXES, KIND_NAMES, Project
+from .precision import W_CRITICAL, normalised_residuals, residual_cofactors
+from .rotations import angles_from_R
+from .triangulation import Triangulated, triangulate
+
+
+@dataclass
+class AdjustmentProducts:
+    """What an adjustment run produces: the result and the tables of the output folder."""
+
+    project: Project
+    result: AdjustmentResult
+    points: Triangulated
+    summary: dict
+    files: dict
+
+
+def options_for(project: Project, **overrides) -> AdjustmentOptions:
+    """AdjustmentOptions from project.toml's [adjustment], with command-line values on top."""
+    s = project.settings
+    base = dict(method=s.method, solver=s.solver, max_iterations=s.max_iterations)
+    base.update({k: v for k, v in overrides.items() if v is not None})
+    return AdjustmentOptions(**base)
+
+
+def run_adjust(project_dir, out_dir, **overrides) -> AdjustmentProducts:
+    """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure."""
+    project_dir, out_dir = Path(project_dir), Path(out_dir)
+    if out_dir.resolve() == project_dir.resolve():
+        raise InputError(out_dir, None, "the output folder must not be the project folder")
+    project = read_project(project_dir)
+    try:
+        options = options_for(project, **overrides)
+    except ValueError as exc:
+        raise InputError(project_dir / "project.toml", None, str(exc)) from exc
+    products = adjust_products(project, options)
+    write_output_folder(out_dir, products.files)
+    return products
+
+
+def adjust_products(project: Project, options: AdjustmentOptions) -> AdjustmentProducts:
+    result = adjust(project, options)
+    points = triangulate_result(project, result)
+    cof = residual_cofactors(project, result, options)
+    w = normalised_residuals(result.plate_residuals, cof.plate)
+    summary = summary_of(project, result, points)
+    files = {
+        "photos.csv": format_csv(photo_table(project, result)),
+        "cameras.csv": format_csv(camera_table(project, result)),
+        "points.csv": format_csv(point_table(project, result, points)),
+        "residuals.csv": format_csv(residual_table(project, result, w)),
+        "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n",
+    }
+    files["report.html"] = report.html_report(project, result, summary, w)
+    return AdjustmentProducts(project, result, points, summary, files)
+
+
+def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulated:
+    """Ground points from the adjusted rays, with Schmid's (90) precision split."""
+    s, lay = result.state, result.layout
+    obs = observations_of(project, result.offset)
+    given_mask = np.array([GIVEN_AXES[int(k)] for k in project.points.kind], dtype=bool).reshape(-1, 3)
+    ip = project.image_points
+    return triangulate(
+        s.R, s.xyz0, s.interior[s.camera_of_photo], lay.rotation_maps(s), lay.photo_cols, lay.camera_cols,
+        s.camera_of_photo, ip.photo_index, ip.point_index, result.plate_adjusted, ip.sigma_xy,
+        len(project.points), np.where(given_mask, result.control_adjusted, 0.0), given_mask, obs.q_control,
+        result.Qxx,
+    )
+
+
+def _angle_scale(project: Project) -> float:
+    return 1.0 / RADIANS_PER_UNIT[project.settings.angle_unit]
+
+
+def photo_table(project: Project, result: AdjustmentResult) -> dict:
+    """photos.csv: centres (ground frame) and omega, phi, kappa in the project's angle unit, with
+    mean errors; for projects in Schmid's convention also alpha, omega, chi (prefixed schmid_)."""
+    s = result.state
+    xyz = s.xyz0 + result.offset
+    unit = _angle_scale(project)
+    sig_xyz, sig_opk = result.photo_mean_errors("omega-phi-kappa")
+    opk = angles_from_R(s.R, "omega-phi-kappa") * unit
+    cols = {"photo_id": project.photos.ids}
+    for a, name in enumerate(("X0", "Y0", "Z0")):
+        cols[name] = xyz[:, a]
+    for a, name in enumerate(("omega", "phi", "kappa")):
+        cols[name] = opk[:, a]
+    for a, name in enumerate(("X0", "Y0", "Z0")):
+        cols[f"sigma_{name}"] = sig_xyz[:, a]
+    for a, name in enumerate(("omega", "phi", "kappa")):
+        cols[f"sigma_{name}"] = sig_opk[:, a] * unit
+    if project.settings.rotation == "alpha-omega-chi":
+        _, sig_aoc = result.photo_mean_errors("alpha-omega-chi")
+        aoc = angles_from_R(s.R, "alpha-omega-chi") * unit
+        for a, name in enumerate(("alpha", "omega", "chi")):
+            cols[f"schmid_{name}"] = aoc[:, a]
+        for a, name in enumerate(("alpha", "omega", "chi")):
+            cols[f"sigma_schmid_{name}"] = sig_aoc[:, a] * unit
+    return cols
+
+
+def camera_table(project: Project, result: AdjustmentResult) -> dict:
+    cams = project.cameras
+    sig = result.camera_mean_errors()
+    estimated = result.layout.camera_cols >= 0
+    cols = {"camera_id": cams.ids}
+    for e, name in enumerate(("c", "xp", "yp")):
+        cols[name] = result.state.interior[:, e]
+    cols["k1"] = np.zeros(len(cams))
+    cols["k2"] = np.zeros(len(cams))
+    for e, name in enumerate(("c", "xp", "yp")):
+        cols[f"sigma_{name}"] = np.where(estimated[:, e], sig[:, e], np.nan)
+    return cols
+
+
+def point_table(project: Project, result: AdjustmentResult, tri: Triangulated) -> dict:
+    pts = project.points
+    s0 = result.sigma0_for_precision
+    cov = (tri.cov_measurement + tri.cov_orientation) * s0**2
+    sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
+    xyz = tri.xyz + result.offset
+    sig = np.where(tri.determined[:, None], sig, np.nan)
+    cols = {"point_id": pts.ids, "kind": [KIND_NAMES[int(k)] for k in pts.kind]}
+    for a, name in enumerate("XYZ"):
+        cols[name] = xyz[:, a]
+    for a, name in enumerate("XYZ"):
+        cols[f"sigma_{name}"] = sig[:, a]
+    cols["rays"] = rays_per_point(project)
+    return cols
+
+
+def residual_table(project: Project, result: AdjustmentResult, w: np.ndarray) -> dict:
+    """residuals.csv: v of every plate measurement, the larger normalised residual of its x and y,
+    and a flag "suspect" when |w| exceeds Baarda's critical value 3.29 (alpha0 = 0.001)."""
+    ip = project.image_points
+    wmax = np.where(np.isnan(w).all(axis=1), np.nan,
+                    np.take_along_axis(w, np.nanargmax(np.nan_to_num(np.abs(w), nan=-1), axis=1)[:, None], 1)[:, 0])
+    flag = np.where(np.abs(np.nan_to_num(wmax)) > W_CRITICAL, "suspect", "")
+    return {
+        "photo_id": [project.photos.ids[i] for i in ip.photo_index],
+        "point_id": [project.points.ids[i] for i in ip.point_index],
+        "vx": result.plate_residuals[:, 0],
+        "vy": result.plate_residuals[:, 1],
+        "w": wmax,
+        "flag": flag,
+    }
+
+
+def check_point_statistics(project: Project, result: AdjustmentResult, tri: Triangulated) -> dict:
+    """Differences adjusted - given at check points and their RMS per axis (None without any)."""
+    sel = (project.points.kind == CHECK) & tri.determined
+    n = int(sel.sum())
+    if n == 0:
+        return {"n": 0, "rms_X": None, "rms_Y": None, "rms_Z": None}
+    diff = tri.xyz[sel] + result.offset - project.points.xyz_given[sel]
+    rms = np.sqrt(np.mean(diff**2, axis=0))
+    return {"n": n, "rms_X": float(rms[0]), "rms_Y": float(rms[1]), "rms_Z": float(rms[2])}
+
+
+def _finite_or_none(x):
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) -> dict:
+    return {
+        "method": result.method,
+        "solver": result.solver,
+        "sigma0": _finite_or_none(result.sigma0),
+        "redundancy": result.redundancy,
+        "vtpv": _finite_or_none(result.vtpv),
+        "iterations": result.iterations,
+        "converged": result.converged,
+        "n_photos": len(project.photos),
+        "n_points": len(project.points),
+        "n_observations": result.n_observations,
+        "n_conditions": result.n_conditions,
+        "n_unknowns": result.n_unknowns,
+        "check_points": check_point_statistics(project, result, tri),
+        "timings_s": {k: round(v, 6) for k, v in result.timings.items()},
+        "checks": {k: _finite_or_none(v) for k, v in result.checks.items()},
+        "history": [
+            {"vtpv": _finite_or_none(h.vtpv), "max_correction": _finite_or_none(h.max_correction)}
+            for h in result.history
+        ],
+    }
+

@@ -1,0 +1,237 @@
+"""Triangulation of object points from oriented photographs (Schmid IV.B, DESIGN section 7).
+
+* :func:`intersect_rays` - least-squares intersection of k rays (minimum sum of squared
+  perpendicular distances), the start for everything else;
+* :func:`schmid_pair_intersection` - Schmid's closed form for a pair (72-74), with the
+  non-vanishing auxiliaries II, [2], [5] of the XZ projection;
+* :func:`independent_pair_triangulation` - the independent procedure after orientation (75-80):
+  one coplanarity condition adjusts the four plate coordinates, then (74) gives X, Y, Z;
+* :func:`triangulate` - coordinates of every point from its adjusted rays by least squares on
+  the collinearity equations, with given coordinates held or weighted, and their precision split
+  into an orientation part and a measurement part (Schmid 87-90).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import plate_vector, project, ray_ground
+from .conditions import coplanarity, ray_chain, RayConditions
+from .rotations import skew
+
+
+def intersect_rays(O: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Least-squares intersection of rays O_i + t r_i. O, r: (m, k, 3); mask: (m, k) -> (m, 3).
+
+    Minimises sum_i |(I - r^_i r^_i^T)(X - O_i)|^2 (r^ the unit direction).
+    """
+    rh = r / np.linalg.norm(r, axis=-1, keepdims=True)
+    P = np.eye(3) - rh[..., :, None] * rh[..., None, :]
+    if mask is not None:
+        P = P * mask[..., None, None]
+    lhs = P.sum(axis=1)
+    rhs = np.einsum("mkij,mkj->mi", P, O)
+    return np.linalg.solve(lhs, rhs[..., None])[..., 0]
+
+
+def schmid_pair_intersection(O1, r1, O2, r2):
+    """Intersection of a pair by Schmid (72-74). All (m, 3) -> X (m, 3), mu1, mu2 (m,).
+
+    ``II = u'' w' - u' w''``, ``[2] = bx w'' - bz u''``, ``[5] = bz u' - bx w'``,
+    ``mu' = -[2]/II``, ``mu'' = [5]/II`` (auxiliaries that do not vanish for a strip along X);
+    ``X = O' + mu' r'`` and ``O'' + mu'' r''`` agree for intersecting rays; the mean is returned.
+    """
+    b = O2 - O1
+    bx, bz = b[:, 0], b[:, 2]
+    u1, w1, u2, w2 = r1[:, 0], r1[:, 2], r2[:, 0], r2[:, 2]
+    II = u2 * w1 - u1 * w2
+    a2 = bx * w2 - bz * u2
+    a5 = bz * u1 - bx * w1
+    mu1, mu2 = -a2 / II, a5 / II
+    X = 0.5 * ((O1 + mu1[:, None] * r1) + (O2 + mu2[:, None] * r2))
+    return X, mu1, mu2
+
+
+@dataclass
+class PairTriangulation:
+    xyz: np.ndarray  # (m, 3)
+    v: np.ndarray  # (m, 4) residuals of x', y', x'', y''
+    vtpv: float | np.ndarray  # (m,) per point
+    k: np.ndarray  # (m,) correlates
+    misclosure: np.ndarray  # (m,) coplanarity of the adjusted observations (final check)
+
+
+def independent_pair_triangulation(R1, O1, int1, xy1, R2, O2, int2, xy2, sigma_xy, iterations: int = 5):
+    """Schmid's independent triangulation (75-80) with the orientation held.
+
+    R*: (m, 3, 3); O*, int*: (m, 3); xy*: (m, 2); sigma_xy: (m, 4) standard deviations of
+    x', y', x'', y''. The single condition (20) ``{a} v + w = 0`` gives ``N = sum a^2/p`` (78),
+    ``k = -w / N`` (77), ``v = a k / p`` (79) and the check ``v^T P v = -w k`` (80), iterated at
+    the adjusted observations until the condition holds.
+    """
+    l = np.concatenate([xy1, xy2], axis=1)
+    q = sigma_xy**2
+    lhat = l.copy()
+    R = np.stack([R1, R2], 1)
+    O = np.stack([O1, O2], 1)
+    interior = np.stack([int1, int2], 1)
+    for _ in range(iterations):
+        xy = lhat.reshape(-1, 2, 2)
+        p = plate_vector(xy, interior)
+        r = np.einsum("mkij,mkj->mki", R, p)
+        g, dg_b, dg_r1, dg_r2 = coplanarity(O[:, 1] - O[:, 0], r[:, 0], r[:, 1])
+        m = len(g)
+        d_r = np.stack([dg_r1, dg_r2], 1)[:, None]  # (m, 1, 2, 3)
+        lin = ray_chain(RayConditions(g[:, None], d_r, np.zeros_like(d_r), np.zeros((m, 1, 3))), R, p)
+        a = lin.d_plate.reshape(m, 4)
+        w = g + np.einsum("mi,mi->m", a, l - lhat)
+        N = np.einsum("mi,mi->m", a * q, a)
+        k = -w / N
+        v = q * a * k[:, None]
+        lhat = l + v
+    xy = lhat.reshape(-1, 2, 2)
+    r = ray_ground(R, xy, interior)
+    g_final, *_ = coplanarity(O[:, 1] - O[:, 0], r[:, 0], r[:, 1])
+    X, _, _ = schmid_pair_intersection(O[:, 0], r[:, 0], O[:, 1], r[:, 1])
+    vtpv = np.sum(v * v / q, axis=1)
+    return PairTriangulation(xyz=X, v=v, vtpv=vtpv, k=k, misclosure=g_final)
+
+
+@dataclass
+class Triangulated:
+    """Coordinates (n_pt, 3) (nan where undetermined) and their covariance split (Schmid 90):
+    cov_measurement and cov_orientation (n_pt, 3, 3), both in units of the a-priori variances."""
+
+    xyz: np.ndarray
+    cov_measurement: np.ndarray
+    cov_orientation: np.ndarray
+    determined: np.ndarray
+
+
+def _collinearity_jacobians(R, O, interior, X):
+    """Plate coordinates and their derivatives for rays (m, k): w.r.t. X (m,k,2,3), the centre
+    (m,k,2,3), the rotation vector (m,k,2,3) and the interior c, xp, yp (m,k,2,3)."""
+    mvec = np.einsum("mkji,mkj->mki", R, X[:, None, :] - O)
+    c = interior[..., 0]
+    mz = mvec[..., 2]
+    xy = np.stack([interior[..., 1] - c * mvec[..., 0] / mz, interior[..., 2] - c * mvec[..., 1] / mz], -1)
+    dm = np.zeros(mvec.shape[:2] + (2, 3))
+    dm[..., 0, 0] = -c / mz
+    dm[..., 1, 1] = -c / mz
+    dm[..., 0, 2] = c * mvec[..., 0] / mz**2
+    dm[..., 1, 2] = c * mvec[..., 1] / mz**2
+    dX = np.einsum("mkaj,mkij->mkai", dm, R)
+    drot = np.einsum("mkaj,mkji->mkai", dm, skew(mvec))
+    dint = np.zeros_like(dm)
+    dint[..., 0, 0] = -mvec[..., 0] / mz
+    dint[..., 1, 0] = -mvec[..., 1] / mz
+    dint[..., 0, 1] = 1.0
+    dint[..., 1, 2] = 1.0
+    return xy, dX, -dX, drot, dint
+
+
+def triangulate(
+    R_photo, O_photo, interior_photo, rotation_maps, photo_cols, camera_cols, camera_of_photo,
+    photo_index, point_index, xy_plate, sigma_xy, n_points, xyz_given, given_mask, q_given, Qxx=None,
+    iterations: int = 6,
+) -> Triangulated:
+    """Least-squares coordinates of every point from its rays, with given coordinates.
+
+    Per point: unknown = the coordinates that are neither given nor weighted-fixed; observations
+    = its plate coordinates (weights 1/sigma^2) and its weighted given coordinates (q_given > 0).
+    Fixed given coordinates (given_mask and q_given == 0) are held. The covariance has a
+    measurement part ``(J^T P J + P_given)^-1`` and, when Qxx (N^-1 of the orientation unknowns)
+    is given, an orientation part ``G Qxx G^T`` with ``G = -(J^T P J + P_given)^-1 J^T P J_orient``
+    (Schmid 87-90), both without the factor sigma0^2.
+
+    R_photo, O_photo: per photo; photo_index, point_index, xy_plate, sigma_xy: per image point.
+    """
+    xyz = np.full((n_points, 3), np.nan)
+    cov_m = np.zeros((n_points, 3, 3))
+    cov_o = np.zeros((n_points, 3, 3))
+    determined = np.zeros(n_points, dtype=bool)
+    order = np.lexsort((photo_index, point_index))
+    counts = np.bincount(point_index, minlength=n_points)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    fixed = given_mask & ~(q_given > 0)
+    weighted = given_mask & (q_given > 0)
+    for k in np.unique(counts[counts > 0]):
+        sel = np.flatnonzero(counts == k)
+        rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+        ph = photo_index[rows]
+        R, O = R_photo[ph], O_photo[ph]
+        interior = interior_photo[ph]
+        free = ~fixed[sel]  # (m, 3)
+        n_obs = 2 * k + weighted[sel].sum(axis=1)
+        ok = free.sum(axis=1) <= n_obs
+        ok &= ~((free.sum(axis=1) == 3) & (k < 2))  # a tie ray alone fixes nothing
+        X = _initial_points(R, O, interior, xy_plate[rows], xyz_given[sel], fixed[sel])
+        Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
+        wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
+        for _ in range(iterations):
+            pred, dX, *_ = _collinearity_jacobians(R, O, interior, X)
+            res = xy_plate[rows] - pred  # (m, k, 2)
+            Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+            gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - X)
+            Nx, gx = _hold(Nx, gx, free)
+            X = X + np.linalg.solve(Nx, gx[..., None])[..., 0]
+        pred, dX, dO, drot, dint = _collinearity_jacobians(R, O, interior, X)
+        Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+        Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
+        Qm = np.linalg.inv(Nx) * (free[:, :, None] & free[:, None, :])
+        xyz[sel[ok]] = X[ok]
+        cov_m[sel[ok]] = Qm[ok]
+        determined[sel[ok]] = True
+        if Qxx is not None and Qxx.size:
+            T = rotation_maps[ph]
+            drot_u = np.einsum("mkai,mkij->mkaj", drot, T)
+            J = np.concatenate([dO, drot_u, dint], 3)  # (m, k, 2, 9)
+            cols = np.concatenate([photo_cols[ph], camera_cols[camera_of_photo[ph]]], 2)  # (m, k, 9)
+            m = len(sel)
+            JX = dX.reshape(m, 2 * k, 3)
+            G_rows = -np.einsum("mij,mrj,mr->mir", Qm, JX, wxy.reshape(m, 2 * k))  # dX/d(plate)
+            # rows 2j, 2j+1 of the plate coordinates depend on the 9 unknowns of ray j only
+            Gfull = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J).reshape(m, 3, 9 * k)
+            colflat = cols.reshape(m, 9 * k)
+            Qext = np.zeros((Qxx.shape[0] + 1, Qxx.shape[0] + 1))
+            Qext[:-1, :-1] = Qxx
+            Qloc = Qext[colflat[:, :, None], colflat[:, None, :]]  # -1 -> last row/col of zeros
+            Qo = np.einsum("mic,mcd,mjd->mij", Gfull, Qloc, Gfull)
+            cov_o[sel[ok]] = Qo[ok]
+    return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined)
+
+
+def _hold(Nx, gx, free):
+    """Hold coordinates that are not free: their rows and columns become the identity."""
+    keep = free[:, :, None] & free[:, None, :]
+    Nx = np.where(keep, Nx, 0.0) + (~free)[:, :, None] * np.eye(3)
+    gx = np.where(free, gx, 0.0)
+    return Nx, gx
+
+
+def _initial_points(R, O, interior, xy, xyz_given, fixed):
+    """Starting coordinates: the ray intersection (k >= 2), or the ray met with the given
+    height / the vertical through the given plan position (one ray); given values where held."""
+    m, k, _ = xy.shape
+    r = ray_ground(R, xy, interior)
+    if k >= 2:
+        X = intersect_rays(O, r)
+    else:
+        r0, O0 = r[:, 0], O[:, 0]
+        height = np.where(fixed[:, 2], xyz_given[:, 2], np.nan)
+        t = np.where(np.isfinite(height), (height - O0[:, 2]) / r0[:, 2], np.nan)
+        # without a given height, the point on the ray nearest the vertical through (X, Y)
+        horiz = np.where(fixed[:, :2], xyz_given[:, :2], O0[:, :2])
+        d2 = np.sum(r0[:, :2] ** 2, axis=1)
+        t_plan = np.einsum("mi,mi->m", horiz - O0[:, :2], r0[:, :2]) / np.where(d2 > 0, d2, 1.0)
+        t = np.where(np.isfinite(t), t, t_plan)
+        t = np.where(t > 0, t, 1.0)
+        X = O0 + t[:, None] * r0
+    return np.where(fixed, xyz_given, X)
+
+
+def reproject(R, O, interior, X):
+    """Plate coordinates of points X seen from photos (batched alike)."""
+    return project(R, O, interior, X)
