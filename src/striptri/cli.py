@@ -135,3 +135,7 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form):
     state = "converged" if s["converged"] else "NOT converged"
     click.echo(f"{state} in {s['iterations']} iterations: sigma0 {sigma0}, redundancy {s['redundancy']}, "
                f"{s['n_photos']} photos, {s['n_points']} points -> {out_dir}")
+
+
+if __name__ == "__main__":
+    main()

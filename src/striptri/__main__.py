@@ -1,0 +1,5 @@
+"""`python -m striptri` runs the command line."""
+
+from striptri.cli import main
+
+main()
