@@ -46,7 +46,7 @@ class AdjustmentOptions:
     method: str = "conditions"
     solver: str = "auto"
     max_iterations: int = 30
-    tolerance: float = 1e-10
+    tolerance: float = 1e-8
     chunk_size: int = 20000
     scale_form: str = "3d"
     condition_transform: object = None
@@ -182,8 +182,8 @@ class Sweep:
 def _assemble(sweep: Sweep, pobs: ParameterObservations, n_unknowns: int):
     acc = NormalAccumulator(n_unknowns)
     for _, system in sweep.systems():
-        Bw, ww, _ = whiten(system)
-        acc.add(Bw, ww, system.cols)
+        Bw, ww, gw, _ = whiten(system)
+        acc.add(Bw, ww, system.cols, gw)
     if len(pobs):
         f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         acc.add_rows(grad, cols, pobs.misclosure(f), pobs.sigma)
@@ -214,13 +214,16 @@ def _back_substitute(sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray, 
     return plate_hat, control_hat, v_par, vtpv
 
 
-def _solve_or_explain(acc: NormalAccumulator, solver: str, state: State, layout: UnknownLayout, project: Project):
-    defects = datum.diagnose(acc.N, state, layout)
+def _solve_or_explain(acc: NormalAccumulator, solver: str, state: State, layout: UnknownLayout, project: Project, offset):
+    defects = datum.diagnose(acc, state, layout, offset=offset)
     if defects:
         raise NumericalFailure(datum.explain(defects))
     try:
         return solvers.solve(acc.N, -acc.u, solver).dx
     except solvers.SingularNormalMatrix as exc:
+        defects = datum.diagnose(acc, state, layout, datum.LOOSE_TOLERANCE, offset)
+        if defects:
+            raise NumericalFailure(datum.explain(defects)) from exc
         labels = layout.column_labels(project.photos.ids, project.cameras.ids)
         where = f" (first at {labels[exc.column]})" if exc.column is not None and exc.column < len(labels) else ""
         raise NumericalFailure(
@@ -243,6 +246,10 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     n_conditions = sum(len(b) * b.n_conditions for b in batches)
     redundancy = n_conditions + len(pobs) - layout.n_unknowns
     if redundancy < 0:
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        defects = datum.diagnose(_assemble(sweep, pobs, layout.n_unknowns), state, layout, offset=offset)
+        if defects:
+            raise NumericalFailure(datum.explain(defects))
         raise NumericalFailure(
             f"too few conditions: {n_conditions} condition equations and {len(pobs)} observed elements "
             f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
@@ -260,7 +267,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
         acc = _assemble(sweep, pobs, layout.n_unknowns)
         t1 = time.perf_counter()
-        dx = _solve_or_explain(acc, solver, state, layout, project)
+        dx = _solve_or_explain(acc, solver, state, layout, project, offset)
         t2 = time.perf_counter()
         plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
         state = state.updated(layout, dx)

@@ -28,7 +28,11 @@ DIRECTION_NAMES = (
     "rotation about the Z axis (kappa of the whole block)",
     "scale",
 )
-DEFECT_TOLERANCE = 1e-9
+# An exact invariance gives a Rayleigh quotient at rounding level (~1e-16); a very heavily weighted
+# observation that does not constrain a direction can push a regular one down to ~1e-11. The strict
+# value is used before every solve; the loose one names the defect once the factorisation failed.
+STRICT_TOLERANCE = 1e-13
+LOOSE_TOLERANCE = 1e-7
 
 
 def similarity_changes(state: State, layout: UnknownLayout) -> np.ndarray:
@@ -55,14 +59,22 @@ def similarity_changes(state: State, layout: UnknownLayout) -> np.ndarray:
     return H
 
 
-def diagnose(N: sp.csr_matrix, state: State, layout: UnknownLayout) -> list[str]:
-    """Names of the similarity directions left free by the control (empty when none)."""
+def diagnose(acc, state: State, layout: UnknownLayout, tolerance: float = STRICT_TOLERANCE, offset=None) -> list[str]:
+    """Names of the similarity directions left free by the control (empty when none): those whose
+    Rayleigh quotient h^T N h / h^T diag(N) h is below ``tolerance``.
+
+    acc: the NormalAccumulator (N, and the sums B~^T g~, g~^T g~ of the misclosures). Translations
+    and rotations leave every tie condition unchanged (B h = 0), but a change of scale multiplies
+    them (B h_scale = g, homogeneous of degree one), so before convergence the scale direction is
+    tested with ``B h_scale - g`` in place of ``B h_scale``.
+    """
+    N = acc.N
     n_unknowns = layout.n_unknowns
     H_el = similarity_changes(state, layout)  # (n, 6, 7)
     cols = layout.photo_cols
     extent = max(float(np.ptp(state.xyz0, axis=0).max()), 1.0)
-    units = np.array([1, 1, 1, extent, extent, extent, extent], dtype=float)
-    H_el = H_el * units  # comparable columns: metres at the photo positions
+    units = np.array([1, 1, 1, 1 / extent, 1 / extent, 1 / extent, 1 / extent], dtype=float)
+    H_el = H_el * units  # comparable columns: about one metre of motion across the block
 
     constraints = [H_el[cols < 0]]  # fixed elements must not move
     first_at_col: dict[int, tuple[int, int]] = {}
@@ -81,27 +93,60 @@ def diagnose(N: sp.csr_matrix, state: State, layout: UnknownLayout) -> list[str]
     H = np.zeros((n_unknowns, 7))
     for c, (i, e) in first_at_col.items():
         H[c] = H_el[i, e]
+    K7 = H.T @ (N @ H)
+    Hug = H.T @ acc.ug * units[6]  # the scale column is h_scale * units[6], so B h = g * units[6]
+    K7[:, 6] -= Hug
+    K7[6, :] -= Hug
+    K7[6, 6] += acc.gPg * units[6] ** 2
     Hz = H @ Z
-    K = Hz.T @ (N @ Hz)
+    K = Z.T @ K7 @ Z
     D = Hz.T @ (N.diagonal()[:, None] * Hz)
     keep = np.diag(D) > 0
     if not keep.any():
         return []
     lam, vec = la.eigh(K[np.ix_(keep, keep)], D[np.ix_(keep, keep)])
-    defects = []
-    for j in np.flatnonzero(lam < DEFECT_TOLERANCE * max(lam.max(), 1e-300) + 1e-14):
-        coeff = Z[:, keep] @ vec[:, j]
-        coeff = coeff / np.abs(coeff).max()
-        defects.append(" combined with ".join(DIRECTION_NAMES[a] for a in np.flatnonzero(np.abs(coeff) > 0.3)))
-    return defects
+    free = Z[:, keep] @ vec[:, lam < tolerance]  # (7, d) coefficients of the free directions
+    if free.shape[1] == 0:
+        return []
+    centroid = state.xyz0.mean(axis=0) + (0.0 if offset is None else offset)
+    return describe(free, extent, centroid)
 
 
-ADVICE = {
-    "translation in X": "full or plan control",
-    "translation in Y": "full or plan control",
-    "translation in Z": "full or height control",
-    "scale": "a second full or plan control point, or observed base components",
-}
+def describe(free: np.ndarray, extent: float, centroid: np.ndarray) -> list[str]:
+    """Words for the span of free similarity directions (7, d) (coefficients scaled as in diagnose).
+
+    Elementary directions (a translation along an axis, a rotation about an axis through the
+    centroid of the projection centres, the scale) that lie in the span are named as such; what
+    remains is described geometrically: a rotation about an axis through a named ground point, or
+    a scale about a ground point.
+    """
+    Q, _ = np.linalg.qr(free)
+    names, pure = [], []
+    for a in range(7):
+        e = np.zeros(7)
+        e[a] = 1.0
+        if np.linalg.norm(e - Q @ (Q.T @ e)) < 1e-6:
+            names.append(DIRECTION_NAMES[a])
+            pure.append(e)
+    rest = Q - (np.array(pure).T @ (np.array(pure) @ Q) if pure else 0.0)
+    U, sv, _ = np.linalg.svd(rest, full_matrices=False)
+    for c in U[:, sv > 1e-6].T:
+        names.append(_combined(c, extent, centroid))
+    return names
+
+
+def _combined(c: np.ndarray, extent: float, centroid: np.ndarray) -> str:
+    t, omega, scale = c[:3], c[3:6] / extent, c[6] / extent
+    fmt = lambda p: "(" + ", ".join(f"{v:.1f}" for v in p) + ")"  # noqa: E731
+    if np.linalg.norm(omega) * extent > 1e-3 * np.abs(c).max() and abs(scale) * extent < 1e-3 * np.abs(c).max():
+        w = omega / np.linalg.norm(omega)
+        point = centroid + np.cross(omega, t) / (omega @ omega)
+        axis = next((f"parallel to the {'XYZ'[k]} axis" for k in range(3) if abs(w[k]) > 0.99),
+                    f"with direction {fmt(w)}")
+        return f"rotation about an axis {axis} through the ground point {fmt(point)}"
+    if abs(scale) * extent > 1e-3 * np.abs(c).max() and np.linalg.norm(omega) * extent < 1e-3 * np.abs(c).max():
+        return f"scale about the ground point {fmt(centroid - t / scale)}"
+    return " combined with ".join(DIRECTION_NAMES[a] for a in np.flatnonzero(np.abs(c) > 0.3 * np.abs(c).max()))
 
 
 def explain(defects: list[str]) -> str:

@@ -15,12 +15,12 @@ from .linearise import GroupSystem
 
 
 def whiten(system: GroupSystem):
-    """L^-1 B, L^-1 w and L for each group (M = A Q A^T = L L^T). Batched."""
+    """L^-1 B, L^-1 w, L^-1 g and L for each group (M = A Q A^T = L L^T). Batched."""
     M = np.einsum("mco,mo,mdo->mcd", system.A, system.Q, system.A)
     L = np.linalg.cholesky(M)
     Bw = np.linalg.solve(L, system.B)
-    ww = np.linalg.solve(L, system.w[..., None])[..., 0]
-    return Bw, ww, L
+    wg = np.linalg.solve(L, np.stack([system.w, system.g], -1))
+    return Bw, wg[..., 0], wg[..., 1], L
 
 
 class NormalAccumulator:
@@ -31,16 +31,25 @@ class NormalAccumulator:
         self.N = sp.csr_matrix((n_unknowns, n_unknowns))
         self.u = np.zeros(n_unknowns)
         self.wPw = 0.0  # sum of w~^T w~ (Schmid 59: [LL])
+        # sum B~^T g~ and g~^T g~ of the misclosures at l^ (used by the datum diagnosis: the tie
+        # conditions are homogeneous of degree one in the scale of the block, so B h_scale = g)
+        self.ug = np.zeros(n_unknowns)
+        self.gPg = 0.0
 
-    def add(self, Bw: np.ndarray, ww: np.ndarray, cols: np.ndarray) -> None:
-        """Bw: (m, nc, nu) whitened B; ww: (m, nc); cols: (m, nu) global columns, -1 = fixed."""
+    def add(self, Bw: np.ndarray, ww: np.ndarray, cols: np.ndarray, gw: np.ndarray | None = None) -> None:
+        """Bw: (m, nc, nu) whitened B; ww, gw: (m, nc) whitened w and g; cols: (m, nu) global
+        columns, -1 = fixed."""
         self.wPw += float(np.sum(ww * ww))
+        gw = ww if gw is None else gw
+        self.gPg += float(np.sum(gw * gw))
         if Bw.shape[-1] == 0 or self.n == 0:
             return
         Nloc = np.einsum("mca,mcb->mab", Bw, Bw)
         uloc = np.einsum("mca,mc->ma", Bw, ww)
         valid = cols >= 0
         self.u += np.bincount(cols[valid], weights=uloc[valid], minlength=self.n)
+        uglo = np.einsum("mca,mc->ma", Bw, gw)
+        self.ug += np.bincount(cols[valid], weights=uglo[valid], minlength=self.n)
         pair = valid[:, :, None] & valid[:, None, :]
         rows = np.broadcast_to(cols[:, :, None], Nloc.shape)[pair]
         cc = np.broadcast_to(cols[:, None, :], Nloc.shape)[pair]
@@ -51,4 +60,4 @@ class NormalAccumulator:
         """Parameter observations: one condition each, B = -grad, w = misclosure, M = sigma^2."""
         Bw = (-grad / sigma[:, None])[:, None, :]
         ww = (misclosure / sigma)[:, None]
-        self.add(Bw, ww, cols)
+        self.add(Bw, ww, cols, np.zeros_like(ww))

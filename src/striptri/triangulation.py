@@ -60,6 +60,7 @@ class PairTriangulation:
     v: np.ndarray  # (m, 4) residuals of x', y', x'', y''
     vtpv: float | np.ndarray  # (m,) per point
     k: np.ndarray  # (m,) correlates
+    w: np.ndarray  # (m,) absolute terms of the last linearisation
     misclosure: np.ndarray  # (m,) coplanarity of the adjusted observations (final check)
 
 
@@ -96,7 +97,7 @@ def independent_pair_triangulation(R1, O1, int1, xy1, R2, O2, int2, xy2, sigma_x
     g_final, *_ = coplanarity(O[:, 1] - O[:, 0], r[:, 0], r[:, 1])
     X, _, _ = schmid_pair_intersection(O[:, 0], r[:, 0], O[:, 1], r[:, 1])
     vtpv = np.sum(v * v / q, axis=1)
-    return PairTriangulation(xyz=X, v=v, vtpv=vtpv, k=k, misclosure=g_final)
+    return PairTriangulation(xyz=X, v=v, vtpv=vtpv, k=k, w=w, misclosure=g_final)
 
 
 @dataclass
