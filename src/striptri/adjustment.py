@@ -64,6 +64,7 @@ class Iteration:
     vtpv: float
     max_correction: float
     seconds: float
+    solver_info: dict = field(default_factory=dict)  # e.g. inner iterations of an iterative solver
 
 
 @dataclass
@@ -214,12 +215,13 @@ def _back_substitute(sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray, 
     return plate_hat, control_hat, v_par, vtpv
 
 
-def _solve_or_explain(acc: NormalAccumulator, solver: str, state: State, layout: UnknownLayout, project: Project, offset):
+def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
+                      project: Project, offset) -> solvers.SolveResult:
     defects = datum.diagnose(acc, state, layout, offset=offset)
     if defects:
         raise NumericalFailure(datum.explain(defects))
     try:
-        return solvers.solve(acc.N, -acc.u, solver).dx
+        return solver.solve(acc.N, -acc.u)
     except solvers.SingularNormalMatrix as exc:
         defects = datum.diagnose(acc, state, layout, datum.LOOSE_TOLERANCE, offset)
         if defects:
@@ -254,7 +256,9 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
             f"too few conditions: {n_conditions} condition equations and {len(pobs)} observed elements "
             f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
         )
-    solver = solvers.resolve_solver(options.solver, layout.n_unknowns)
+    solver = solvers.make_solver(
+        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts())
+    )
     timings = {"conditions_and_assembly": 0.0, "solve": 0.0, "back_substitution": 0.0}
 
     plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
@@ -267,7 +271,8 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
         acc = _assemble(sweep, pobs, layout.n_unknowns)
         t1 = time.perf_counter()
-        dx = _solve_or_explain(acc, solver, state, layout, project, offset)
+        solved = _solve_or_explain(acc, solver, state, layout, project, offset)
+        dx = solved.dx
         t2 = time.perf_counter()
         plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
         state = state.updated(layout, dx)
@@ -276,7 +281,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         timings["solve"] += t2 - t1
         timings["back_substitution"] += t3 - t2
         crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal()))) if len(dx) else 0.0
-        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0))
+        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
         if not np.isfinite(crit) or not np.isfinite(vtpv) or _diverging(history):
             raise NumericalFailure(
                 f"the adjustment diverged at iteration {iteration + 1} (sum of weighted squared "
@@ -291,7 +296,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     t0 = time.perf_counter()
     final = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
     acc = _assemble(final, pobs, layout.n_unknowns)
-    checks = _final_checks(final, acc, vtpv, pobs)
+    checks = _final_checks(final, acc, vtpv, pobs, v_par)
     timings["final_checks"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
 
@@ -300,7 +305,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     sigma0 = float(np.sqrt(vtpv / redundancy)) if redundancy > 0 else float("nan")
     return AdjustmentResult(
         method=options.method,
-        solver=solver,
+        solver=solver.name,
         state=state,
         layout=layout,
         offset=offset,
@@ -333,7 +338,7 @@ def _diverging(history: list[Iteration]) -> bool:
     return all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
 
 
-def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs) -> dict:
+def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par: np.ndarray) -> dict:
     """Schmid's checks after convergence.
 
     * every condition holds for the adjusted observations and the final unknowns (his final
@@ -349,7 +354,7 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs) -> di
             max_g = max(max_g, float(np.max(np.abs(system.g))))
     if len(pobs):
         f, _, _ = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
-        max_g = max(max_g, float(np.max(np.abs(pobs.misclosure(f) / pobs.sigma))))
+        max_g = max(max_g, float(np.max(np.abs((pobs.misclosure(f) + v_par) / pobs.sigma))))
     d = acc.N.diagonal()
     btk = float(np.max(np.abs(acc.u) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
     try:

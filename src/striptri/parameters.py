@@ -82,6 +82,18 @@ class UnknownLayout:
         R[part] = R_from_angles(angles, self.convention)
         return R
 
+    def block_starts(self) -> np.ndarray:
+        """First column of each photo's block of new columns, then of each camera's (columns are
+        numbered photo by photo, cameras last, so every block is a contiguous range)."""
+        starts = []
+        seen = -1
+        for cols in list(self.photo_cols) + list(self.camera_cols):
+            new = cols[cols > seen]
+            if len(new):
+                starts.append(int(new.min()))
+                seen = int(new.max())
+        return np.array(starts, dtype=int)
+
     def column_labels(self, photo_ids, camera_ids) -> list[str]:
         labels = [""] * self.n_unknowns
         for i, pid in enumerate(photo_ids):
