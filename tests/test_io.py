@@ -91,7 +91,7 @@ def small_project(angle_unit: str, rotation: str) -> model.Project:
         sigma=np.array([0.5, np.nan]),
     )
     settings = model.ProjectSettings(
-        angle_unit=angle_unit, rotation=rotation, sigma_image=0.004, method="bundle", solver="banded",
+        angle_unit=angle_unit, rotation=rotation, sigma_image=0.004, method="conditions", solver="sparse",
         max_iterations=12,
     )
     return model.Project(cameras, photos, image_points, points, bases, settings)

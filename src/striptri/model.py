@@ -34,8 +34,6 @@ GIVEN_AXES = {
 ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi")
 ANGLE_UNITS = ("deg", "gon", "rad")
 # Values accepted for [adjustment] method and solver in project.toml (DESIGN sections 4, 5, 8).
-METHODS = ("conditions", "bundle", "sequential")
-SOLVERS = ("auto", "banded", "cholmod", "gauss-seidel", "pcg", "dense")
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,9 @@ import numpy as np
 
 from striptri import model, rotations
 from striptri.errors import InputError
+from striptri.adjustment import METHODS
 from striptri.io.csvtable import CsvTable, read_csv
+from striptri.solvers import SOLVERS
 
 try:  # Python >= 3.11
     import tomllib
@@ -121,8 +123,8 @@ def read_settings(path: str | Path) -> model.ProjectSettings:
         angle_unit=choice("units", "angles", model.ANGLE_UNITS, defaults.angle_unit),
         rotation=choice("units", "rotation", model.ROTATION_CONVENTIONS, defaults.rotation),
         sigma_image=float(sigma_image),
-        method=choice("adjustment", "method", model.METHODS, defaults.method),
-        solver=choice("adjustment", "solver", model.SOLVERS, defaults.solver),
+        method=choice("adjustment", "method", METHODS, defaults.method),
+        solver=choice("adjustment", "solver", SOLVERS, defaults.solver),
         max_iterations=max_iterations,
     )
 
