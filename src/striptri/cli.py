@@ -13,7 +13,9 @@ import sys
 import click
 
 from striptri import __version__
+from striptri.adjustment import METHODS
 from striptri.errors import InputError, NumericalFailure
+from striptri.solvers import SOLVERS
 
 EXIT_INPUT, EXIT_NUMERICAL = 2, 1
 
@@ -116,9 +118,9 @@ def simulate(kind, out_dir, photos, overlap, flying_height, heading, relief, att
 @main.command()
 @click.argument("project_dir", type=click.Path(file_okay=False))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder to write.")
-@click.option("--method", type=click.Choice(["conditions"]), default=None,
+@click.option("--method", type=click.Choice(list(METHODS)), default=None,
               help="Adjustment method [project.toml or conditions].")
-@click.option("--solver", type=click.Choice(["auto", "dense", "sparse"]), default=None,
+@click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
               help="Solver of the normal equations [project.toml or auto].")
 @click.option("--max-iterations", type=click.IntRange(min=1), default=None, help="Iteration limit [30].")
 @click.option("--scale-form", type=click.Choice(["3d", "xz"]), default=None,
