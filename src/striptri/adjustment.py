@@ -26,7 +26,7 @@ from .errors import NumericalFailure
 from .groups import GroupBatch, build_batches
 from .linearise import Observations, linearise
 from .model import Project
-from .normal_equations import NormalAccumulator, whiten
+from .normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, whiten
 from .parameter_observations import ParameterObservations, build_parameter_observations
 from .parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .rotations import angles_jacobian
@@ -47,7 +47,7 @@ class AdjustmentOptions:
     solver: str = "auto"
     max_iterations: int = 30
     tolerance: float = 1e-8
-    chunk_size: int = 20000
+    chunk_size: int = 4096
     scale_form: str = "3d"
     condition_transform: object = None
 
@@ -180,15 +180,33 @@ class Sweep:
                 )
 
 
-def _assemble(sweep: Sweep, pobs: ParameterObservations, n_unknowns: int):
-    acc = NormalAccumulator(n_unknowns)
-    for _, system in sweep.systems():
+def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly"):
+    """N and u of one sweep: point groups into the block pattern, then the observed elements."""
+    acc = PatternAccumulator(assembly.pattern, assembly.S)
+    cam_of_photo = sweep.state.camera_of_photo
+    for chunk, system in sweep.systems():
         Bw, ww, gw, _ = whiten(system)
-        acc.add(Bw, ww, system.cols, gw)
+        acc.add_groups(Bw, ww, gw, chunk.photo_index, cam_of_photo[chunk.photo_index])
     if len(pobs):
         f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         acc.add_rows(grad, cols, pobs.misclosure(f), pobs.sigma)
-    return acc
+    return acc.finish()
+
+
+@dataclass(frozen=True)
+class Assembly:
+    """What the assembly computes once per adjustment: the block pattern of N and the selection S."""
+
+    pattern: BlockPattern
+    S: sp.csr_matrix
+
+    @staticmethod
+    def of(batches, state: State, layout: UnknownLayout, chunk_size: int) -> "Assembly":
+        chunks = (
+            (c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size)
+        )
+        pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks)
+        return Assembly(pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns))
 
 
 def _back_substitute(sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray, obs: Observations):
@@ -246,10 +264,11 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     obs = observations_of(project, offset)
     pobs = build_parameter_observations(project, offset)
     n_conditions = sum(len(b) * b.n_conditions for b in batches)
+    assembly = Assembly.of(batches, state, layout, options.chunk_size)
     redundancy = n_conditions + len(pobs) - layout.n_unknowns
     if redundancy < 0:
         sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
-        defects = datum.diagnose(_assemble(sweep, pobs, layout.n_unknowns), state, layout, offset=offset)
+        defects = datum.diagnose(_assemble(sweep, pobs, assembly), state, layout, offset=offset)
         if defects:
             raise NumericalFailure(datum.explain(defects))
         raise NumericalFailure(
@@ -269,7 +288,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     for iteration in range(options.max_iterations):
         t0 = time.perf_counter()
         sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
-        acc = _assemble(sweep, pobs, layout.n_unknowns)
+        acc = _assemble(sweep, pobs, assembly)
         t1 = time.perf_counter()
         solved = _solve_or_explain(acc, solver, state, layout, project, offset)
         dx = solved.dx
@@ -295,7 +314,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
 
     t0 = time.perf_counter()
     final = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
-    acc = _assemble(final, pobs, layout.n_unknowns)
+    acc = _assemble(final, pobs, assembly)
     checks = _final_checks(final, acc, vtpv, pobs, v_par)
     timings["final_checks"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start

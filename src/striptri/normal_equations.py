@@ -61,3 +61,143 @@ class NormalAccumulator:
         Bw = (-grad / sigma[:, None])[:, None, :]
         ww = (misclosure / sigma)[:, None]
         self.add(Bw, ww, cols, np.zeros_like(ww))
+
+
+class BlockPattern:
+    """The block sparsity pattern of N in the full parameter space, computed once per adjustment.
+
+    Full space: 6 columns per photo (centre, rotation unknowns), then 3 per camera (c, xp, yp).
+    A group couples every pair of its photos (6x6 blocks) and, when cameras are estimated, each of
+    its photos with each of their cameras (6x3) and those cameras with each other (3x3). Each
+    iteration fills the blocks' numbers (:class:`PatternAccumulator`) and the reduced N of the
+    free unknowns is ``S^T N_full S`` with the 0/1 selection S of ``selection_matrix`` (fixed
+    elements dropped, tied elements summed).
+    """
+
+    def __init__(self, n_photos: int, n_cameras: int, with_cameras: bool, chunks):
+        """chunks: iterable of (photo_index (m, k), camera_index (m, k)) of all group chunks."""
+        self.n_photos, self.n_cameras, self.with_cameras = n_photos, n_cameras, with_cameras
+        pp, pc, cc = [], [], []
+        for photo, cam in chunks:
+            pp.append(np.unique(self._keys(photo, photo, n_photos)))
+            if with_cameras:
+                pc.append(np.unique(self._keys(photo, cam, n_cameras)))
+                cc.append(np.unique(self._keys(cam, cam, n_cameras)))
+        # every photo and camera keeps its diagonal block (N stays square even for unmeasured photos)
+        pp.append(np.arange(n_photos, dtype=np.int64) * (n_photos + 1))
+        self.pp = np.unique(np.concatenate(pp))
+        self.pc = np.unique(np.concatenate(pc)) if pc else np.zeros(0, dtype=np.int64)
+        self.cc = np.unique(np.concatenate(cc + [np.arange(n_cameras, dtype=np.int64) * (n_cameras + 1)])) \
+            if with_cameras else np.zeros(0, dtype=np.int64)
+        self.n_full = 6 * n_photos + 3 * n_cameras
+        self._rows, self._cols = self._full_indices()
+
+    @staticmethod
+    def _keys(a, b, nb):
+        return (a[:, :, None].astype(np.int64) * nb + b[:, None, :]).ravel()
+
+    def positions(self, photo, cam):
+        """Block positions of a chunk's (a, b) pairs: pp (m, k, k), pc (m, k, k), cc (m, k, k)."""
+        m, k = photo.shape
+        pos_pp = np.searchsorted(self.pp, self._keys(photo, photo, self.n_photos)).reshape(m, k, k)
+        if not self.with_cameras:
+            return pos_pp, None, None
+        pos_pc = np.searchsorted(self.pc, self._keys(photo, cam, self.n_cameras)).reshape(m, k, k)
+        pos_cc = np.searchsorted(self.cc, self._keys(cam, cam, self.n_cameras)).reshape(m, k, k)
+        return pos_pp, pos_pc, pos_cc
+
+    def _full_indices(self):
+        n = self.n_photos
+        a, b = np.divmod(self.pp, n)
+        i6, j6 = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+        rows = [(6 * a[:, None, None] + i6).ravel()]
+        cols = [(6 * b[:, None, None] + j6).ravel()]
+        if self.with_cameras:
+            nc = self.n_cameras
+            p, c = np.divmod(self.pc, nc)
+            i, j = np.meshgrid(np.arange(6), np.arange(3), indexing="ij")
+            r_pc = (6 * p[:, None, None] + i).ravel()
+            c_pc = (6 * n + 3 * c[:, None, None] + j).ravel()
+            rows += [r_pc, c_pc]
+            cols += [c_pc, r_pc]
+            ca, cb = np.divmod(self.cc, nc)
+            i3, j3 = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+            rows.append((6 * n + 3 * ca[:, None, None] + i3).ravel())
+            cols.append((6 * n + 3 * cb[:, None, None] + j3).ravel())
+        return np.concatenate(rows), np.concatenate(cols)
+
+    def matrix(self, pp, pc, cc) -> sp.csr_matrix:
+        """N_full from the block data: pp (nb, 6, 6), pc (nbpc, 6, 3), cc (nbcc, 3, 3)."""
+        data = [pp.ravel()]
+        if self.with_cameras:
+            data += [pc.ravel(), pc.ravel(), cc.ravel()]
+        data = np.concatenate(data)
+        return sp.csr_matrix((data, (self._rows, self._cols)), shape=(self.n_full, self.n_full))
+
+
+def selection_matrix(photo_cols: np.ndarray, camera_cols: np.ndarray, n_unknowns: int) -> sp.csr_matrix:
+    """S (n_full, n_unknowns): full element -> its column (0/1; fixed elements have none)."""
+    full = np.concatenate([photo_cols.ravel(), camera_cols.ravel()])
+    keep = full >= 0
+    return sp.csr_matrix((np.ones(int(keep.sum())), (np.flatnonzero(keep), full[keep])),
+                         shape=(len(full), n_unknowns))
+
+
+class PatternAccumulator:
+    """Sums the whitened groups into the block pattern (module doc); the same outputs as
+    NormalAccumulator (N, u, wPw, ug, gPg) once :meth:`finish` has been called."""
+
+    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
+        self.pattern, self.S = pattern, S
+        self.pp = np.zeros(len(pattern.pp) * 36)
+        self.pc = np.zeros(len(pattern.pc) * 18)
+        self.cc = np.zeros(len(pattern.cc) * 9)
+        self.u_full = np.zeros(pattern.n_full)
+        self.ug_full = np.zeros(pattern.n_full)
+        self.wPw = 0.0
+        self.gPg = 0.0
+        self.extra = NormalAccumulator(S.shape[1])
+
+    def add_groups(self, Bw, ww, gw, photo, cam) -> None:
+        """Bw: (m, nc, 9k) whitened B with 9 columns per ray (6 photo, 3 camera); photo, cam: (m, k)."""
+        m, k = photo.shape
+        pat = self.pattern
+        self.wPw += float(np.sum(ww * ww))
+        self.gPg += float(np.sum(gw * gw))
+        Nloc = np.einsum("mca,mcb->mab", Bw, Bw).reshape(m, k, 9, k, 9)
+        pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
+        flat = (pos_pp[..., None] * 36 + np.arange(36)).ravel()
+        block = Nloc[:, :, :6, :, :6].transpose(0, 1, 3, 2, 4).reshape(-1)
+        self.pp += np.bincount(flat, weights=block, minlength=len(self.pp))
+        full_cols = np.concatenate(
+            [6 * photo[..., None] + np.arange(6), 6 * pat.n_photos + 3 * cam[..., None] + np.arange(3)], -1
+        ).reshape(m, 9 * k)
+        uloc = np.einsum("mca,mc->ma", Bw, ww)
+        ugloc = np.einsum("mca,mc->ma", Bw, gw)
+        if not pat.with_cameras:
+            photo_part = (np.arange(9 * k) % 9) < 6
+            full_cols, uloc, ugloc = full_cols[:, photo_part], uloc[:, photo_part], ugloc[:, photo_part]
+        self.u_full += np.bincount(full_cols.ravel(), weights=uloc.ravel(), minlength=pat.n_full)
+        self.ug_full += np.bincount(full_cols.ravel(), weights=ugloc.ravel(), minlength=pat.n_full)
+        if pat.with_cameras:
+            flat = (pos_pc[..., None] * 18 + np.arange(18)).ravel()
+            block = Nloc[:, :, :6, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
+            self.pc += np.bincount(flat, weights=block, minlength=len(self.pc))
+            flat = (pos_cc[..., None] * 9 + np.arange(9)).ravel()
+            block = Nloc[:, :, 6:, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
+            self.cc += np.bincount(flat, weights=block, minlength=len(self.cc))
+
+    def add_rows(self, grad, cols, misclosure, sigma) -> None:
+        """Parameter observations (in the reduced columns), as NormalAccumulator.add_rows."""
+        self.extra.add_rows(grad, cols, misclosure, sigma)
+
+    def finish(self) -> "PatternAccumulator":
+        pat, S = self.pattern, self.S
+        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, 3), self.cc.reshape(-1, 3, 3))
+        self.N = (S.T @ N_full @ S).tocsr() + self.extra.N
+        self.N.sum_duplicates()
+        self.u = S.T @ self.u_full + self.extra.u
+        self.ug = S.T @ self.ug_full + self.extra.ug
+        self.wPw += self.extra.wPw
+        self.gPg += self.extra.gPg
+        return self
