@@ -265,6 +265,8 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     pobs = build_parameter_observations(project, offset)
     n_conditions = sum(len(b) * b.n_conditions for b in batches)
     assembly = Assembly.of(batches, state, layout, options.chunk_size)
+    if options.scale_form == "xz":
+        _require_strip_along_x(batches, state)
     redundancy = n_conditions + len(pobs) - layout.n_unknowns
     if redundancy < 0:
         sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
@@ -347,6 +349,27 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         checks=checks,
         timings=timings,
     )
+
+
+def _require_strip_along_x(batches, state: State, max_angle_deg: float = 30.0) -> None:
+    """Schmid's projected scale condition (94) intersects the rays in their XZ projection, which is
+    well conditioned only when the bases run along X. Refuse it otherwise rather than return a
+    weak or wrong adjustment."""
+    worst = 0.0
+    for batch in batches:
+        if batch.k < 3:
+            continue
+        b = np.diff(state.xyz0[batch.photo_index], axis=1)  # consecutive bases of every chain
+        horiz = np.linalg.norm(b[..., :2], axis=-1)
+        angle = np.degrees(np.arccos(np.clip(np.abs(b[..., 0]) / np.maximum(horiz, 1e-300), 0, 1)))
+        worst = max(worst, float(angle.max(initial=0.0)))
+    if worst > max_angle_deg:
+        raise NumericalFailure(
+            f"Schmid's projected scale condition (94, --scale-form xz) is unsuitable for these photos: "
+            f"some bases make {worst:.0f} deg with the X axis (at most {max_angle_deg:.0f} deg allowed), and the "
+            "XZ projection of their rays degenerates for a strip not flown along X. Use the "
+            "direction-free form (--scale-form 3d, the default)."
+        )
 
 
 def _diverging(history: list[Iteration]) -> bool:
