@@ -351,6 +351,18 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     )
 
 
+def normal_matrix_at_approximations(project: Project, options: AdjustmentOptions = AdjustmentOptions()):
+    """N of the first iteration (at the approximate values) and the layout: enough to show the
+    structure of the normal equations of any project without adjusting it."""
+    offset = reduction_offset(project)
+    state, layout = initial_state(project, offset), build_layout(project)
+    batches = build_batches(project)
+    obs = observations_of(project, offset)
+    assembly = Assembly.of(batches, state, layout, options.chunk_size)
+    sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+    return _assemble(sweep, build_parameter_observations(project, offset), assembly).N, layout
+
+
 def _require_strip_along_x(batches, state: State, max_angle_deg: float = 30.0) -> None:
     """Schmid's projected scale condition (94) intersects the rays in their XZ projection, which is
     well conditioned only when the bases run along X. Refuse it otherwise rather than return a

@@ -49,58 +49,78 @@ def main():
 
 # --------------------------------------------------------------------------- striptri simulate
 
-_DEFAULT_PHOTOS = {"pair": 2, "strip": 8}
-_DEFAULT_LAYOUT = {"pair": "corners", "strip": "ends"}
+_DEFAULT_PHOTOS = {"pair": 2, "strip": 8, "block": 6}
+_DEFAULT_STRIPS = {"pair": 1, "strip": 1, "block": 3}
+_DEFAULT_LAYOUT = {"pair": "corners", "strip": "ends", "block": "perimeter"}
+_LAYOUT_CHOICES = ["corners", "mixed", "schmid-minimal", "ends", "every-k", "perimeter", "sparse-height",
+                   "schmid-fig8", "none"]
+_DEFAULT_OVERLAP = 0.6
 
 
 @main.command()
-@click.argument("kind", type=click.Choice(["pair", "strip"]))
+@click.argument("kind", type=click.Choice(["pair", "strip", "block"]))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Project folder to write.")
-@click.option("--photos", type=int, default=None, help="Number of photos [pair: 2, strip: 8].")
-@click.option("--overlap", type=float, default=0.6, show_default=True, help="Forward overlap (0.6, 2/3 ...).")
+@click.option("--photos", type=int, default=None, help="Photos per strip [pair: 2, strip: 8, block: 6; schmid-fig8: 5].")
+@click.option("--strips", type=int, default=None, help="Parallel strips [pair, strip: 1; block: 3].")
+@click.option("--overlap", type=float, default=None, help="Forward overlap (0.6, 2/3 ...) [0.6; schmid-fig8: 2/3].")
+@click.option("--sidelap", type=float, default=0.3, show_default=True, help="Sidelap of neighbouring strips (0.2 .. 0.6).")
+@click.option("--alternate/--same-direction", default=True, show_default=True,
+              help="Fly every other strip of a block the other way, or all strips the same way.")
 @click.option("--flying-height", type=float, default=1500.0, show_default=True, help="Metres above mean terrain.")
-@click.option("--heading", type=float, default=0.0, show_default=True, help="Flight direction, deg from +X towards +Y.")
+@click.option("--heading", type=float, default=0.0, show_default=True, help="Flight direction of the first strip, deg from +X towards +Y.")
 @click.option("--relief", type=float, default=50.0, show_default=True, help="Terrain relief amplitude (m).")
 @click.option("--attitude-std", type=float, default=1.0, show_default=True, help="Std of true omega, phi, kappa about the ideal (deg).")
 @click.option("--position-std", type=float, default=5.0, show_default=True, help="Std of true centres about the ideal flight line (m).")
-@click.option("--control", "layout", type=click.Choice(["corners", "mixed", "schmid-minimal", "ends", "every-k", "none"]),
-              default=None, help="Control layout [pair: corners, strip: ends].")
-@click.option("--every-k", type=int, default=2, show_default=True, help="every-k layout: control every k models.")
+@click.option("--control", "layout", type=click.Choice(_LAYOUT_CHOICES), default=None,
+              help="Control layout [pair: corners, strip: ends, block: perimeter].")
+@click.option("--every-k", type=int, default=2, show_default=True,
+              help="every-k, perimeter, sparse-height layouts: control every k models.")
 @click.option("--every-k-kind", type=click.Choice(["Z", "XY", "XYZ"]), default="Z", show_default=True,
               help="every-k layout: kind of the inner control points.")
 @click.option("--extra-ties", type=int, default=0, show_default=True, help="Random tie points per model.")
 @click.option("--check-points", type=int, default=0, show_default=True, help="Tie points made check points.")
 @click.option("--single-photo-control", type=click.IntRange(0, 2), default=0, show_default=True,
-              help="Full control points seen by one photo only (at the strip ends).")
+              help="Full control points seen by one photo only (at the ends of the first strip).")
 @click.option("--sigma-image", type=float, default=0.005, show_default=True, help="Plate noise (plate units); 0 = noise-free.")
-@click.option("--sigma-control", type=float, default=0.0, show_default=True, help="Control noise (m); 0 = exact, held fixed.")
+@click.option("--sigma-control", type=float, default=0.0, show_default=True,
+              help="Control noise and stated sigma (m); 0 = exact, held fixed.")
+@click.option("--sigma-control-z", type=float, default=None, help="Control noise in Z (m) [--sigma-control].")
 @click.option("--approx-position-error", type=float, default=10.0, show_default=True, help="Std of the approximate centres' errors (m).")
 @click.option("--approx-angle-error", type=float, default=1.0, show_default=True, help="Std of the approximate angles' errors (deg).")
 @click.option("--gnss-sigma", type=float, default=None, help="Observe the centres by GNSS with this sigma (m).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
-def simulate(kind, out_dir, photos, overlap, flying_height, heading, relief, attitude_std, position_std, layout,
-             every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image, sigma_control,
-             approx_position_error, approx_angle_error, gnss_sigma, seed):
-    """Write a synthetic KIND project (pair or strip) to --out, with its truth in OUT/truth/."""
+def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_height, heading, relief, attitude_std,
+             position_std, layout, every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image,
+             sigma_control, sigma_control_z, approx_position_error, approx_angle_error, gnss_sigma, seed):
+    """Write a synthetic KIND project (pair, strip or block) to --out, with its truth in OUT/truth/.
+
+    --control schmid-fig8 is Schmid's worked strip (BRL 961, Fig. 8): 5 photos, 2/3 overlap and his
+    30 points; --photos and --overlap default to those values and may not differ from them."""
     from striptri import simulate as sim
     from striptri.io.project_writer import write_project
 
+    layout = layout or _DEFAULT_LAYOUT[kind]
+    if layout == sim.SCHMID_FIG8:
+        photos, overlap = photos or 5, 2 / 3 if overlap is None else overlap
     try:
         design = sim.SyntheticDesign(
             flight=sim.FlightDesign(
-                n_photos=photos or _DEFAULT_PHOTOS[kind], overlap=overlap, flying_height=flying_height,
-                heading_deg=heading, attitude_std_deg=(attitude_std,) * 3, position_std_m=(position_std,) * 3,
+                n_photos=photos or _DEFAULT_PHOTOS[kind], overlap=_DEFAULT_OVERLAP if overlap is None else overlap,
+                n_strips=strips or _DEFAULT_STRIPS[kind], sidelap=sidelap, alternate=alternate,
+                flying_height=flying_height, heading_deg=heading, attitude_std_deg=(attitude_std,) * 3,
+                position_std_m=(position_std,) * 3,
             ),
             terrain=sim.TerrainDesign(relief=relief),
             points=sim.PointDesign(extra_ties_per_model=extra_ties),
             control=sim.ControlDesign(
-                layout=layout or _DEFAULT_LAYOUT[kind], every_k=every_k, every_k_kind=every_k_kind,
+                layout=layout, every_k=every_k, every_k_kind=every_k_kind,
                 n_check=check_points, n_single_photo=single_photo_control,
             ),
         )
         noise = sim.NoiseOptions(
-            sigma_image=sigma_image, sigma_control_xy=sigma_control, sigma_control_z=sigma_control,
+            sigma_image=sigma_image, sigma_control_xy=sigma_control,
+            sigma_control_z=sigma_control if sigma_control_z is None else sigma_control_z,
             approx_position_error=approx_position_error, approx_angle_error=approx_angle_error, sigma_gnss=gnss_sigma,
         )
         project, truth = sim.simulate_project(kind, sim.SimulateOptions(design, noise), seed)
@@ -137,6 +157,18 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form):
     state = "converged" if s["converged"] else "NOT converged"
     click.echo(f"{state} in {s['iterations']} iterations: sigma0 {sigma0}, redundancy {s['redundancy']}, "
                f"{s['n_photos']} photos, {s['n_points']} points -> {out_dir}")
+
+
+
+@main.command()
+@click.argument("project_dir", type=click.Path(file_okay=False))
+@click.option("--out", "out_png", required=True, type=click.Path(dir_okay=False), help="PNG file to write.")
+@reports_errors
+def structure(project_dir, out_png):
+    """Draw the structure of the normal matrix of PROJECT_DIR (Schmid Fig. 10) into --out."""
+    from striptri.pipeline import structure_figure
+
+    click.echo(f"wrote {structure_figure(project_dir, out_png)}")
 
 
 if __name__ == "__main__":

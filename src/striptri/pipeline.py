@@ -62,6 +62,22 @@ def run_adjust(project_dir, out_dir, **overrides) -> AdjustmentProducts:
     return products
 
 
+def structure_figure(project_dir, out_png) -> Path:
+    """Write the normal matrix's structure (Schmid Fig. 10) of a project as a PNG."""
+    from .adjustment import normal_matrix_at_approximations
+    from .figures import normal_matrix_structure
+
+    project = read_project(project_dir)
+    N, layout = normal_matrix_at_approximations(project)
+    png = normal_matrix_structure(N, layout.block_starts(), len(project.photos))
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_png.with_name(out_png.name + ".tmp")
+    tmp.write_bytes(png)
+    tmp.replace(out_png)
+    return out_png
+
+
 def adjust_products(project: Project, options: AdjustmentOptions) -> AdjustmentProducts:
     result = adjust(project, options)
     points = triangulate_result(project, result)
@@ -75,7 +91,10 @@ def adjust_products(project: Project, options: AdjustmentOptions) -> AdjustmentP
         "residuals.csv": format_csv(residual_table(project, result, w)),
         "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n",
     }
-    files["report.html"] = report.html_report(project, result, summary, w)
+    from .figures import normal_matrix_structure
+
+    structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(project.photos))
+    files["report.html"] = report.html_report(project, result, summary, w, figures={"structure": structure})
     return AdjustmentProducts(project, result, points, summary, files)
 
 

@@ -5,6 +5,7 @@ the check points and the largest normalised residuals; figures come with the pre
 
 from __future__ import annotations
 
+import base64
 import html
 
 import numpy as np
@@ -40,7 +41,13 @@ def _table(header, rows) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np.ndarray) -> str:
+def _img(png: bytes, alt: str) -> str:
+    return f"<img alt='{html.escape(alt)}' src='data:image/png;base64,{base64.b64encode(png).decode()}'>"
+
+
+def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np.ndarray, figures=None) -> str:
+    """figures: optional name -> PNG bytes, embedded (the file stays readable offline)."""
+    figures = figures or {}
     src = html.escape(str(project.source or ""))
     keys = ["method", "solver", "sigma0", "redundancy", "vtpv", "iterations", "converged", "n_photos",
             "n_points", "n_observations", "n_conditions", "n_unknowns"]
@@ -64,6 +71,9 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     rows = [(html.escape(project.photos.ids[ip.photo_index[i]]), html.escape(project.points.ids[ip.point_index[i]]),
              _fmt(result.plate_residuals[i, 0]), _fmt(result.plate_residuals[i, 1]), _fmt(absw[i]))
             for i in worst]
+    if "structure" in figures:
+        parts += ["<h2>Structure of the normal matrix (Schmid Fig. 10)</h2>",
+                  _img(figures["structure"], "normal matrix structure")]
     parts += ["<h2>Largest normalised residuals</h2>",
               _table(["photo", "point", "vx", "vy", "|w|"], rows), "</body></html>"]
     return "\n".join(parts)
