@@ -57,13 +57,28 @@ _LAYOUT_CHOICES = ["corners", "mixed", "schmid-minimal", "ends", "every-k", "per
 _DEFAULT_OVERLAP = 0.6
 
 
+class _Fraction(click.ParamType):
+    """A number given as a decimal (0.6) or as a fraction (2/3)."""
+
+    name = "fraction"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float):
+            return value
+        try:
+            num, _, den = str(value).partition("/")
+            return float(num) / float(den) if den else float(num)
+        except (ValueError, ZeroDivisionError):
+            self.fail(f"{value!r} is not a number or a fraction such as 2/3", param, ctx)
+
+
 @main.command()
 @click.argument("kind", type=click.Choice(["pair", "strip", "block"]))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Project folder to write.")
 @click.option("--photos", type=int, default=None, help="Photos per strip [pair: 2, strip: 8, block: 6; schmid-fig8: 5].")
 @click.option("--strips", type=int, default=None, help="Parallel strips [pair, strip: 1; block: 3].")
-@click.option("--overlap", type=float, default=None, help="Forward overlap (0.6, 2/3 ...) [0.6; schmid-fig8: 2/3].")
-@click.option("--sidelap", type=float, default=0.3, show_default=True, help="Sidelap of neighbouring strips (0.2 .. 0.6).")
+@click.option("--overlap", type=_Fraction(), default=None, help="Forward overlap (0.6, 2/3 ...) [0.6; schmid-fig8: 2/3].")
+@click.option("--sidelap", type=_Fraction(), default=0.3, show_default=True, help="Sidelap of neighbouring strips (0.2 .. 0.6).")
 @click.option("--alternate/--same-direction", default=True, show_default=True,
               help="Fly every other strip of a block the other way, or all strips the same way.")
 @click.option("--flying-height", type=float, default=1500.0, show_default=True, help="Metres above mean terrain.")

@@ -1,7 +1,9 @@
 """Synthetic photogrammetric projects: truth apart from noise (cf. COLMAP's SyntheticDatasetOptions /
 SyntheticNoiseOptions).
 
-* :mod:`.design` -- what to fly: camera, flight line, terrain, pass points, control layout;
+* :mod:`.design` -- what to fly: camera, strips (a block), terrain, pass points, control layout;
+* :mod:`.control` -- control layouts on the grid of pass points of a strip or block;
+* :mod:`.schmid_fig8` -- Schmid's worked strip of five photographs (BRL 961, Fig. 8);
 * :mod:`.truth` -- ``make_truth(design, rng)``: true photos, points and exact plate coordinates;
 * :mod:`.noise` -- ``perturb(truth, noise, rng)``: the :class:`striptri.model.Project` an
   adjustment is given;
@@ -9,8 +11,10 @@ SyntheticNoiseOptions).
 """
 
 from striptri.simulate.design import (
+    BLOCK_LAYOUTS,
     LAYOUTS,
     PAIR_LAYOUTS,
+    SCHMID_FIG8,
     STRIP_LAYOUTS,
     CameraDesign,
     ControlDesign,
@@ -25,9 +29,11 @@ from striptri.simulate.terrain import Terrain
 from striptri.simulate.truth import Truth, make_truth
 
 __all__ = [
+    "BLOCK_LAYOUTS",
     "KINDS",
     "LAYOUTS",
     "PAIR_LAYOUTS",
+    "SCHMID_FIG8",
     "STRIP_LAYOUTS",
     "CameraDesign",
     "ControlDesign",

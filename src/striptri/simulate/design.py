@@ -7,8 +7,10 @@ from +X towards +Y (0 = flown along +X, 90 = flown along +Y). The ideal photo lo
 with its plate x axis along the flight direction, i.e. ``R_ground_from_cam = Rz(heading)``
 (omega = phi = 0, kappa = heading): Schmid's normal case for a strip flown along X.
 
-A strip is the only flight line made so far; blocks of several strips will add a strip count and a
-sidelap to ``FlightDesign`` and reuse everything per strip (see ``truth._flight_lines``).
+A block is ``n_strips`` parallel strips of ``n_photos`` photos each, laid side by side to the left
+of the first strip (towards +Y when it is flown along +X) at a spacing of
+``(1 - sidelap) * format * flying_height / c``; with ``alternate`` every other strip is flown the
+other way (as a survey aircraft flies a block). A strip is a block of one strip.
 """
 
 from __future__ import annotations
@@ -17,9 +19,12 @@ from dataclasses import dataclass, field
 
 from striptri.model import FULL, HEIGHT, PLAN
 
-# Control layouts (ControlDesign.layout). A pair layout needs exactly two photos.
+# Control layouts (ControlDesign.layout). A pair layout needs exactly two photos; a block layout
+# serves strips and blocks; Schmid's Fig. 8 strip is one fixed strip of five photos.
 PAIR_LAYOUTS = ("corners", "mixed", "schmid-minimal")
-STRIP_LAYOUTS = ("ends", "every-k")
+BLOCK_LAYOUTS = ("ends", "every-k", "perimeter", "sparse-height")
+SCHMID_FIG8 = "schmid-fig8"
+STRIP_LAYOUTS = BLOCK_LAYOUTS + (SCHMID_FIG8,)
 LAYOUTS = PAIR_LAYOUTS + STRIP_LAYOUTS + ("none",)
 EVERY_K_KINDS = {"XYZ": FULL, "XY": PLAN, "Z": HEIGHT}
 
@@ -62,11 +67,16 @@ class CameraDesign:
 
 @dataclass(frozen=True)
 class FlightDesign:
-    """One flight line (a strip; two photos = a pair).
+    """The flight: ``n_strips`` parallel strips of ``n_photos`` photos each (one strip of two photos =
+    a pair).
 
     flying_height: metres above the mean terrain. overlap: forward overlap as a fraction of the
     format (0.6 classical, 2/3 for Schmid's Fig. 8 strip); the air base is
-    ``(1 - overlap) * format * flying_height / c``. start_xy: ground XY of the first nominal nadir.
+    ``(1 - overlap) * format * flying_height / c``. sidelap: overlap of neighbouring strips as a
+    fraction of the format (0.2 .. 0.6; 0.3 classical); the strip spacing is
+    ``(1 - sidelap) * format * flying_height / c``. alternate: fly every other strip the other way
+    (its first photo is then at the end where the previous strip ended). start_xy: ground XY of the
+    first nominal nadir of the first strip. heading_deg: flight direction of the first strip.
     attitude_std_deg: standard deviations (omega, phi, kappa) of the true attitudes about the ideal
     one. position_std_m: standard deviations (along track, across track, height) of the true
     projection centres about the ideal flight line.
@@ -79,10 +89,15 @@ class FlightDesign:
     start_xy: tuple[float, float] = (5000.0, 5000.0)
     attitude_std_deg: tuple[float, float, float] = (1.0, 1.0, 1.0)
     position_std_m: tuple[float, float, float] = (5.0, 5.0, 5.0)
+    n_strips: int = 1
+    sidelap: float = 0.3
+    alternate: bool = True
 
     def __post_init__(self):
-        _require(int(self.n_photos) == self.n_photos and self.n_photos >= 2, "flight: at least 2 photos")
+        _require(int(self.n_photos) == self.n_photos and 2 <= self.n_photos <= 999, "flight: 2 to 999 photos per strip")
+        _require(int(self.n_strips) == self.n_strips and self.n_strips >= 1, "flight: at least 1 strip")
         _require(0.5 < self.overlap < 0.95, "flight: forward overlap must be in (0.5, 0.95)")
+        _require(0.1 <= self.sidelap <= 0.7, "flight: sidelap must be in [0.1, 0.7]")
         _require(self.flying_height > 0, "flight: flying height must be positive")
         _require(len(self.start_xy) == 2, "flight: start_xy must be (X, Y)")
         object.__setattr__(self, "start_xy", tuple(float(v) for v in self.start_xy))
@@ -135,14 +150,34 @@ class ControlDesign:
       cameras): two full points in the overlap (first-left, second-right), one height point
       (second-left) and two relative points (the two nadir points), nothing else:
       8 + 2 + 2 = 12 conditions for 12 unknowns;
-    * ``ends`` (strip): the four corner points of the first and of the last model are XYZ;
-    * ``every-k`` (strip): ``ends`` plus the lateral points at every k-th nadir in between, of kind
+    Strips and blocks. The pass points of a block lie in rows across the strips: the outer row of the
+    first strip (its right side), the nadir row of every strip, one row in the middle of every
+    sidelap (shared by the two strips) and the outer row of the last strip; the *lateral* rows are
+    all rows but the nadir rows. A *column* is a nadir position along the strips (photo k of a strip
+    flown forwards, photo n-1-k of one flown backwards). For one strip the lateral rows are its L
+    and R points.
+
+    * ``ends``: the lateral points of the first two and of the last two columns (the corners of the
+      first and of the last model of every strip) are XYZ;
+    * ``every-k``: ``ends`` plus the lateral points at every k-th column in between, of kind
       ``every_k_kind`` (Z by default: height points);
+    * ``perimeter`` (the classical block layout): XYZ points around the block perimeter every k
+      models (the two outer rows at columns 0, k, 2k, ... and the last column; every lateral point
+      of the first and of the last column), height points inside (the sidelap rows at the same
+      columns);
+    * ``sparse-height``: XYZ at the four corners of the block only, Z at the lateral points of
+      every k-th column (and of the last column);
+    * ``schmid-fig8``: Schmid's worked strip (BRL 961, Fig. 8 and its table; see
+      :mod:`striptri.simulate.schmid_fig8`): 5 photos, 2/3 overlap, 30 points of which 12 are in two
+      and 18 in three photos; XYZ points 1 (two photos), 16 (three), 30 (two); Z points 3 (two)
+      and 14 (three); the rest relative (tie) points;
     * ``none``: no control (tie points only; for free-network datums).
 
-    n_check: tie points turned into check points (evenly spread along the flight).
-    n_single_photo: 0, 1 or 2 full control points outside the common area, each seen by one photo
-    only (Schmid allows such points): behind the first nadir, then beyond the last one.
+    n_check: tie points turned into check points (evenly spread along the flight; in a block,
+    shared out over the strips). n_single_photo: 0, 1 or 2 full control points outside the common
+    area, each seen by one photo only (Schmid allows such points): behind the first nadir of the
+    first strip, then beyond its last one (in a block, on the outer side of the first strip, so
+    that no neighbouring strip sees them).
     """
 
     layout: str = "corners"
@@ -170,9 +205,18 @@ class SyntheticDesign:
     control: ControlDesign = field(default_factory=ControlDesign)
 
     def __post_init__(self):
-        layout = self.control.layout
+        layout, flight = self.control.layout, self.flight
         if layout in PAIR_LAYOUTS:
-            _require(self.flight.n_photos == 2, f"control layout {layout!r} is for a pair (2 photos)")
+            _require(flight.n_photos == 2 and flight.n_strips == 1, f"control layout {layout!r} is for a pair (2 photos)")
+        if layout == SCHMID_FIG8:
+            _require(
+                flight.n_photos == 5 and abs(flight.overlap - 2 / 3) < 1e-9 and flight.n_strips == 1,
+                "control layout 'schmid-fig8' is Schmid's strip: 5 photos, 2/3 overlap, one strip",
+            )
+            _require(
+                self.points.extra_ties_per_model == 0 and self.control.n_check == 0 and self.control.n_single_photo == 0,
+                "control layout 'schmid-fig8' is exactly Schmid's 30 points: no extra tie, check or single-photo points",
+            )
         if layout == "schmid-minimal":
             _require(
                 self.points.extra_ties_per_model == 0 and self.control.n_check == 0 and self.control.n_single_photo == 0,
@@ -183,6 +227,11 @@ class SyntheticDesign:
             "points: lateral offset must lie inside the usable format",
         )
         _require(self.terrain.relief < 0.5 * self.flight.flying_height, "terrain: relief must be below half the flying height")
+        if flight.n_strips > 1:
+            _require(
+                (1.0 - flight.sidelap) * self.camera.format / 2 < self.camera.half_usable,
+                "flight: the sidelap is too small for points in the middle of it to lie inside the usable format",
+            )
 
     @property
     def scale(self) -> float:
@@ -193,3 +242,8 @@ class SyntheticDesign:
     def base(self) -> float:
         """Nominal air base (m)."""
         return (1.0 - self.flight.overlap) * self.camera.format * self.scale
+
+    @property
+    def strip_spacing(self) -> float:
+        """Nominal distance between the axes of neighbouring strips (m)."""
+        return (1.0 - self.flight.sidelap) * self.camera.format * self.scale

@@ -9,11 +9,11 @@ import numpy as np
 
 from striptri import model
 from striptri.rotations import opk_from_R
-from striptri.simulate.design import PAIR_LAYOUTS, SyntheticDesign
+from striptri.simulate.design import PAIR_LAYOUTS, SCHMID_FIG8, SyntheticDesign
 from striptri.simulate.noise import NoiseOptions, perturb
 from striptri.simulate.truth import Truth, make_truth
 
-KINDS = ("pair", "strip")
+KINDS = ("pair", "strip", "block")
 
 
 @dataclass(frozen=True)
@@ -25,7 +25,8 @@ class SimulateOptions:
 def simulate_project(
     kind: str, options: SimulateOptions, seed: int | None
 ) -> tuple[model.Project, dict[str, dict[str, Sequence]]]:
-    """Simulate a ``kind`` ("pair" or "strip") project. -> (project, truth tables).
+    """Simulate a ``kind`` ("pair", "strip" or "block") project. -> (project, truth tables).
+    A pair and a strip are one strip; a block has two strips or more.
 
     The seed feeds two independent streams (numpy SeedSequence.spawn): one for the truth, one for the
     noise, so that the same seed with other noise options gives the same true flight.
@@ -53,8 +54,14 @@ def truth_tables(truth: Truth) -> dict[str, dict[str, Sequence]]:
 def _check_kind(kind: str, design: SyntheticDesign) -> None:
     if kind not in KINDS:
         raise ValueError(f"unknown kind {kind!r} (one of {', '.join(KINDS)})")
-    n = design.flight.n_photos
+    n, n_strips, layout = design.flight.n_photos, design.flight.n_strips, design.control.layout
     if kind == "pair" and n != 2:
         raise ValueError(f"a pair has 2 photos, not {n}")
-    if kind == "strip" and design.control.layout in PAIR_LAYOUTS:
-        raise ValueError(f"control layout {design.control.layout!r} is for a pair")
+    if kind in ("pair", "strip") and n_strips != 1:
+        raise ValueError(f"a {kind} is one strip, not {n_strips}; simulate a block")
+    if kind == "block" and n_strips < 2:
+        raise ValueError(f"a block has 2 strips or more, not {n_strips}")
+    if kind != "pair" and layout in PAIR_LAYOUTS:
+        raise ValueError(f"control layout {layout!r} is for a pair")
+    if kind != "strip" and layout == SCHMID_FIG8:
+        raise ValueError(f"control layout {layout!r} is Schmid's strip: simulate a strip")

@@ -4,10 +4,16 @@
 photos from the ideal flight line, extra tie points) from the generator it is given, and nothing
 else: noise comes later (``striptri.simulate.noise``).
 
-Ids: photo ``<strip><k:03d>`` ("1001", "1002", ...); the pass points at the nadir of that photo
-``<photo id>L``, ``<photo id>C``, ``<photo id>R`` (left of the flight direction, on it, right;
-left is +y on the plate); extra tie points ``T<first photo id of the model>_<i:02d>``; single-photo
-control ``<photo id>S``.
+Ids: photo ``<strip><k:03d>`` ("1001", "1002", ... for the first strip, "2001", ... for the second),
+k counted in flight order; the pass points at the nadir of that photo ``<photo id>L``,
+``<photo id>C``, ``<photo id>R`` (left of that strip's flight direction, on it, right; left is +y on
+the plate). A pass point in the middle of a sidelap is seen by both strips and named once, by the
+photo of the earlier strip (so a later strip names only its nadir point and the point on its side
+away from the earlier strip). Extra tie points ``T<first photo id of the model>_<i:02d>``;
+single-photo control ``<photo id>S``. Schmid's Fig. 8 strip numbers its points "1" ... "30" as he
+does (:mod:`striptri.simulate.schmid_fig8`).
+
+Photos are listed strip after strip, each strip in flight order.
 """
 
 from __future__ import annotations
@@ -19,8 +25,9 @@ import numpy as np
 from striptri.camera import in_front, project
 from striptri.model import CHECK, FULL, TIE
 from striptri.rotations import R_from_opk
+from striptri.simulate import schmid_fig8
 from striptri.simulate.control import OMITTED, POSITIONS, pass_point_kinds
-from striptri.simulate.design import SyntheticDesign
+from striptri.simulate.design import SCHMID_FIG8, SyntheticDesign
 from striptri.simulate.terrain import Terrain, make_terrain
 
 # Extra tie points are drawn in the nominal overlap of two photos shrunk by this factor, so that
@@ -30,14 +37,19 @@ _TIE_AREA_SHRINK = 0.8
 
 @dataclass(frozen=True)
 class FlightLine:
-    """Nominal geometry of one strip. nadir_xy: (n, 2) ground XY of the ideal nadirs (m);
-    along, left: (2,) unit vectors of the flight direction and of its left side in ground XY."""
+    """Nominal geometry of one strip. nadir_xy: (n, 2) ground XY of the ideal nadirs (m), in flight
+    order; along, left: (2,) unit vectors of this strip's flight direction and of its left side in
+    ground XY; heading: its flight direction (rad from +X towards +Y). index: 0-based strip number;
+    columns: (n,) the block column of each photo (control.py)."""
 
     strip_id: str
     photo_ids: list[str]
     nadir_xy: np.ndarray
     along: np.ndarray
     left: np.ndarray
+    heading: float
+    index: int
+    columns: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -91,6 +103,8 @@ def make_truth(design: SyntheticDesign, rng: np.random.Generator) -> Truth:
 
     n_pass = len(ids)
     _require_rays(seen[:, :n_pass], ids)
+    if design.control.layout == SCHMID_FIG8:
+        schmid_fig8.require_pattern(seen[:, :n_pass])
     if single_ids and not np.array_equal(seen[:, n_pass:].T, np.eye(len(xyz0), dtype=bool)[single_photo]):
         raise ValueError("design: a single-photo control point is not seen by exactly one photo; lower the overlap")
 
@@ -98,7 +112,7 @@ def make_truth(design: SyntheticDesign, rng: np.random.Generator) -> Truth:
     point_ids = ids + tie_ids + single_ids
     kind = np.concatenate([kind, np.full(len(tie_ids), TIE), np.full(len(single_ids), FULL)]).astype(int)
     xyz_ground = np.concatenate([xyz_fixed[:n_pass], tie_xyz, xyz_fixed[n_pass:]])
-    kind = _with_check_points(kind, xyz_ground, lines[0], design.control.n_check)
+    kind = _with_check_points(kind, xyz_ground, lines, design.strip_spacing, design.control.n_check)
 
     seen = _visible(design, xyz0, R, interior, xyz_ground)
     photo_index, point_index = np.nonzero(seen)
@@ -121,20 +135,33 @@ def make_truth(design: SyntheticDesign, rng: np.random.Generator) -> Truth:
 
 
 def _flight_lines(design: SyntheticDesign) -> list[FlightLine]:
-    """The nominal flight lines: one strip for now (a block will lay several side by side)."""
+    """The nominal flight lines: ``n_strips`` parallel strips, strip s (0-based) ``s * spacing`` to the
+    left of the first; with ``alternate`` the odd strips are flown backwards, starting where the
+    previous strip ended."""
     flight = design.flight
     h = np.radians(flight.heading_deg)
     along = np.array([np.cos(h), np.sin(h)])
     left = np.array([-np.sin(h), np.cos(h)])
     k = np.arange(flight.n_photos)
-    nadir_xy = np.asarray(flight.start_xy) + (k * design.base)[:, None] * along
-    strip = "1"
-    return [FlightLine(strip, [f"{strip}{i + 1:03d}" for i in k], nadir_xy, along, left)]
+    lines = []
+    for s in range(flight.n_strips):
+        backwards = flight.alternate and s % 2 == 1
+        columns = k[::-1] if backwards else k
+        nadir_xy = np.asarray(flight.start_xy) + (columns * design.base)[:, None] * along + (s * design.strip_spacing) * left
+        sign = -1.0 if backwards else 1.0
+        strip = str(s + 1)
+        lines.append(FlightLine(
+            strip_id=strip, photo_ids=[f"{strip}{i + 1:03d}" for i in k], nadir_xy=nadir_xy,
+            along=sign * along, left=sign * left, heading=h + (np.pi if backwards else 0.0), index=s,
+            columns=columns,
+        ))
+    return lines
 
 
 def _true_photos(design: SyntheticDesign, lines: list[FlightLine], rng) -> tuple[np.ndarray, np.ndarray]:
-    """True centres and rotations: the ideal (nadir at flying height, R = Rz(heading)) plus normal
-    deviations of position (along, across, up) and of omega, phi, kappa. -> (n, 3), (n, 3, 3)."""
+    """True centres and rotations: the ideal (nadir at flying height, R = Rz(heading of the strip))
+    plus normal deviations of position (along, across, up) and of omega, phi, kappa.
+    -> (n, 3), (n, 3, 3)."""
     flight = design.flight
     z0 = design.terrain.mean_z + flight.flying_height
     xyz0, angles = [], []
@@ -144,30 +171,48 @@ def _true_photos(design: SyntheticDesign, lines: list[FlightLine], rng) -> tuple
         xy = line.nadir_xy + d[:, :1] * line.along + d[:, 1:2] * line.left
         xyz0.append(np.column_stack([xy, z0 + d[:, 2]]))
         a = rng.normal(0.0, 1.0, (n, 3)) * np.radians(flight.attitude_std_deg)
-        a[:, 2] += np.radians(flight.heading_deg)
+        a[:, 2] += line.heading
         angles.append(a)
     return np.concatenate(xyz0), R_from_opk(np.concatenate(angles))
 
 
 def _pass_points(design: SyntheticDesign, lines: list[FlightLine]):
-    """Von Gruber pass points of every line with their kinds. -> ids, kind (p,), xy (p, 2)."""
+    """Von Gruber pass points of the block with their kinds (control.py for the rows), strip after
+    strip, photo after photo in flight order, L, C, R; a sidelap point is listed with the earlier
+    strip. Schmid's Fig. 8 strip has its own 30 points. -> ids, kind (p,), xy (p, 2)."""
+    if design.control.layout == SCHMID_FIG8:
+        line = lines[0]
+        xy = schmid_fig8.ground_xy(line.nadir_xy[0], line.along, line.left, design.base,
+                                   design.points.lateral_offset * design.scale)
+        return [str(n) for n in range(1, len(xy) + 1)], schmid_fig8.kinds(), xy
     offset = design.points.lateral_offset * design.scale
+    n_strips, spacing = len(lines), design.strip_spacing
+    # across-track position of every row from the axis of the first strip, towards its left (m)
+    row_across = np.arange(2 * n_strips + 1) * spacing / 2 - spacing / 2
+    row_across[0], row_across[-1] = -offset, (n_strips - 1) * spacing + offset
+    row_across[1::2] = np.arange(n_strips) * spacing
+    left0 = lines[0].left
+    grid = pass_point_kinds(design.control, design.flight.n_photos, n_strips)
     ids, kinds, xys = [], [], []
-    for line in lines:
-        grid = pass_point_kinds(design.control, len(line.photo_ids))
+    for s, line in enumerate(lines):
+        sign = int(round(float(line.left @ left0)))  # -1 for a strip flown backwards
         for k, photo_id in enumerate(line.photo_ids):
+            column = line.columns[k]
             for j, position in enumerate(POSITIONS):
-                if grid[k, j] == OMITTED:
-                    continue
+                row = 2 * s + 1 + sign * (1 - j)
+                if (s > 0 and row == 2 * s) or grid[column, row] == OMITTED:
+                    continue  # named by the previous strip / not in the layout
                 ids.append(f"{photo_id}{position}")
-                kinds.append(grid[k, j])
-                xys.append(line.nadir_xy[k] + (1 - j) * offset * line.left)
+                kinds.append(grid[column, row])
+                xys.append(line.nadir_xy[k] + (row_across[row] - row_across[2 * s + 1]) * left0)
     return ids, np.array(kinds, dtype=int), np.array(xys).reshape(-1, 2)
 
 
 def _single_photo_points(design: SyntheticDesign, lines: list[FlightLine]):
     """Full control points seen by one photo only: in the middle of the part of the first (last)
-    photo that no other photo covers, on the flight line. -> ids, xy (s, 2), photo index (s,)."""
+    photo of the first strip that no other photo of it covers, on its flight line; in a block
+    moved ``lateral_offset`` to the outer side, away from the second strip.
+    -> ids, xy (s, 2), photo index (s,)."""
     n = design.control.n_single_photo
     line = lines[0]
     footprint = design.camera.format * design.scale
@@ -175,6 +220,8 @@ def _single_photo_points(design: SyntheticDesign, lines: list[FlightLine]):
     ends = [(0, -back), (len(line.photo_ids) - 1, back)][:n]
     ids = [f"{line.photo_ids[k]}S" for k, _ in ends]
     xy = np.array([line.nadir_xy[k] + a * line.along for k, a in ends]).reshape(-1, 2)
+    if len(lines) > 1:
+        xy = xy - design.points.lateral_offset * design.scale * line.left
     return ids, xy, np.array([k for k, _ in ends], dtype=int)
 
 
@@ -202,21 +249,40 @@ def _extra_ties(design, lines, terrain, xyz0, R, interior, rng):
     return ids, np.concatenate(xyz)
 
 
-def _with_check_points(kind: np.ndarray, xyz_ground: np.ndarray, line: FlightLine, n_check: int) -> np.ndarray:
-    """Turn n_check tie points into check points, evenly spread along the flight (the middle point of
-    each of n_check equal runs of the tie points sorted along track)."""
+def _with_check_points(kind: np.ndarray, xyz_ground: np.ndarray, lines: list[FlightLine], spacing: float,
+                       n_check: int) -> np.ndarray:
+    """Turn n_check tie points into check points, evenly spread along the flight. In a block every
+    tie point belongs to the strip whose axis is nearest (a sidelap point to the later strip); the
+    check points are shared out over the strips (the first n_check % S strips get one more) and
+    spread along each."""
     if n_check == 0:
         return kind
     ties = np.flatnonzero(kind == TIE)
     if n_check > len(ties):
         raise ValueError(f"design: {n_check} check points asked for, but only {len(ties)} tie points")
+    kind = kind.copy()
+    if len(lines) == 1:
+        kind[_spread_along(ties, xyz_ground, lines[0], n_check)] = CHECK
+        return kind
+    across = (xyz_ground[ties, :2] - lines[0].nadir_xy[0]) @ lines[0].left
+    strip_of = np.clip(np.floor(across / spacing + 0.5), 0, len(lines) - 1).astype(int)
+    share = n_check // len(lines) + (np.arange(len(lines)) < n_check % len(lines))
+    for line, n in zip(lines, share):
+        mine = ties[strip_of == line.index]
+        if n > len(mine):
+            raise ValueError(f"design: {n} check points asked for in strip {line.strip_id}, but it has only {len(mine)} tie points")
+        if n:
+            kind[_spread_along(mine, xyz_ground, line, int(n))] = CHECK
+    return kind
+
+
+def _spread_along(ties: np.ndarray, xyz_ground: np.ndarray, line: FlightLine, n: int) -> np.ndarray:
+    """n of the points ``ties`` evenly spread along ``line``: the middle point of each of n equal runs
+    of them sorted along track (then from left to right). -> (n,) point indices."""
     along = (xyz_ground[ties, :2] - line.nadir_xy[0]) @ line.along
     across = (xyz_ground[ties, :2] - line.nadir_xy[0]) @ line.left
     order = ties[np.lexsort((-across, along))]
-    pick = order[((np.arange(n_check) + 0.5) * len(ties) / n_check).astype(int)]
-    kind = kind.copy()
-    kind[pick] = CHECK
-    return kind
+    return order[((np.arange(n) + 0.5) * len(ties) / n).astype(int)]
 
 
 def _on_terrain(terrain: Terrain, xy: np.ndarray) -> np.ndarray:
