@@ -1,0 +1,321 @@
+"""The collinearity bundle adjustment with the object points as unknowns (DESIGN sections 4, 5),
+the independent check of Schmid's method of conditions.
+
+Gauss-Newton on the whitened observation equations: plate coordinates by collinearity (Schmid 14),
+weighted control coordinates, and the observations of orientation elements (GNSS, IMU, camera,
+base components: parameter_observations). The orientation unknowns, their columns and their
+update are those of the method of conditions (parameters.build_layout / State.updated), so the
+two results compare element by element. Each iteration:
+
+1. per chunk of points: linearise, eliminate the points (Schur complement) into the reduced
+   camera system ``N_rcs dx = b_rcs`` (bundle.reduced);
+2. diagnose the datum on N_rcs and solve with the solver object (solvers.make_solver);
+3. per chunk again: back-substitute the point corrections, x^ <- x^ (+) dx, X^ <- X^ + dX.
+
+Convergence: as in adjustment.py, ``max |dx_i| sqrt(N_ii) < tolerance`` over the orientation
+unknowns (N_ii of the reduced system: the standard deviation of the element if the other
+orientation elements were known, points free, the same as the N of the conditions method) and
+over the point coordinates (N_ii of the point's own 3x3 block).
+
+At convergence both methods minimise the same v^T P v over the same observations, so the
+orientations, residuals, v^T P v, redundancy and N^-1 agree: the reduced camera system is the
+normal matrix of the conditions method (its conditions span the orthogonal complement of the
+points' Jacobian).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import datum, solvers
+from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, observations_of
+from ..errors import NumericalFailure
+from ..groups import GroupBatch, build_batches
+from ..linearise import Observations
+from ..model import Project
+from ..parameter_observations import ParameterObservations, build_parameter_observations
+from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
+from .points import PointUnknowns, initial_points, point_unknowns
+from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections
+
+METHOD = "bundle"
+
+
+@dataclass
+class BundleSolution:
+    """The adjustment result and what only the bundle has: the adjusted object points
+    ``xyz_points`` (n_pt, 3), reduced frame (add ``result.offset``), nan for points that take no
+    part; ``n_point_unknowns``, the coordinates among the unknowns."""
+
+    result: AdjustmentResult
+    xyz_points: np.ndarray
+    n_point_unknowns: int
+
+
+def adjust_bundle(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
+    """Adjust all photographs and object points simultaneously by collinearity (method "bundle").
+
+    Same options and result type as adjustment.adjust; ``options.method``, ``scale_form`` and
+    ``condition_transform`` do not apply. Raises NumericalFailure (datum defect, too few
+    observations, divergence) like the method of conditions.
+    """
+    return solve_bundle(project, options).result
+
+
+class _Problem:
+    """Everything fixed during the adjustment."""
+
+    def __init__(self, project: Project, options: AdjustmentOptions):
+        self.project, self.options = project, options
+        self.offset = reduction_offset(project)
+        self.layout: UnknownLayout = build_layout(project)
+        self.batches: list[GroupBatch] = build_batches(project)
+        self.obs: Observations = observations_of(project, self.offset)
+        self.pobs: ParameterObservations = build_parameter_observations(project, self.offset)
+        self.unknowns: PointUnknowns = point_unknowns(project, self.batches, self.obs)
+        n_plate = 2 * sum(len(b) * b.k for b in self.batches)
+        # observation equations of the points minus their unknown coordinates: the number of
+        # conditions of the method of conditions, 2k - (3 - d) per point
+        self.n_conditions = n_plate + self.unknowns.n_control_observations - self.unknowns.n_unknowns
+        self.redundancy = self.n_conditions + len(self.pobs) - self.layout.n_unknowns
+        self.initial_state = initial_state(project, self.offset)
+        self.pattern, self.S = block_pattern(self.batches, self.initial_state, self.layout, options.chunk_size)
+
+    def chunks(self, state: State, xyz: np.ndarray):
+        """Linearised point chunks at (state, xyz)."""
+        T = self.layout.rotation_maps(state)
+        for batch in self.batches:
+            for chunk in batch.chunks(self.options.chunk_size):
+                yield linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns, xyz)
+
+    def parameter_rows(self, state: State):
+        """Whitened observation equations of the observed elements: J (p, 3), cols, e (p,)."""
+        f, grad, cols = self.pobs.evaluate(state, self.layout, self.layout.rotation_maps(state))
+        s = self.pobs.sigma
+        return grad / s[:, None], cols, self.pobs.misclosure(f) / s
+
+    def normals(self) -> ReducedNormals:
+        return ReducedNormals(self.pattern, self.S)
+
+    def assemble(self, state: State, xyz: np.ndarray) -> ReducedNormals:
+        normals = self.normals()
+        for chunk in self.chunks(state, xyz):
+            normals.add_points(chunk, state.camera_of_photo)
+        if len(self.pobs):
+            normals.add_rows(*self.parameter_rows(state))
+        return normals.finish()
+
+
+def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> BundleSolution:
+    """The bundle adjustment (module doc), with the adjusted object points."""
+    t_start = time.perf_counter()
+    problem = _Problem(project, options)
+    layout, obs, pobs = problem.layout, problem.obs, problem.pobs
+    state = problem.initial_state
+    xyz = initial_points(problem.batches, state, obs, problem.unknowns, options.chunk_size)
+    timings = {"initial_points": time.perf_counter() - t_start, "linearisation_and_reduction": 0.0,
+               "solve": 0.0, "back_substitution": 0.0}
+    if problem.redundancy < 0:
+        _explain_too_few(problem, state, xyz)
+    solver = solvers.make_solver(
+        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts())
+    )
+
+    plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
+    v_par = np.zeros(len(pobs))
+    history: list[Iteration] = []
+    converged = False
+    vtpv = np.nan
+    for iteration in range(options.max_iterations):
+        t0 = time.perf_counter()
+        normals = problem.assemble(state, xyz)
+        t1 = time.perf_counter()
+        solved = _solve_or_explain(normals, solver, state, problem)
+        dx = solved.dx
+        t2 = time.perf_counter()
+        step = _back_substitute(problem, state, xyz, dx)
+        plate_hat, control_hat, v_par, vtpv = step.plate_hat, step.control_hat, step.v_par, step.vtpv
+        xyz = step.xyz
+        state = state.updated(layout, dx)
+        t3 = time.perf_counter()
+        timings["linearisation_and_reduction"] += t1 - t0
+        timings["solve"] += t2 - t1
+        timings["back_substitution"] += t3 - t2
+        d = normals.N.diagonal()
+        crit_orientation = float(np.max(np.abs(dx) * np.sqrt(d))) if len(dx) else 0.0
+        crit = max(crit_orientation, step.max_point_correction)
+        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
+        if not np.isfinite(crit) or not np.isfinite(vtpv) or _diverging(history):
+            raise NumericalFailure(
+                f"the bundle adjustment diverged at iteration {iteration + 1} (sum of weighted squared "
+                f"residuals {vtpv:.6g}, largest correction {crit:.3g} times its standard deviation). "
+                "The approximate orientations are probably too far from the truth (check the "
+                "angle convention and units in project.toml), or a gross error spoils the data."
+            )
+        if crit < options.tolerance:
+            converged = True
+            break
+
+    t0 = time.perf_counter()
+    normals, checks = _final_checks(problem, solver, state, xyz, plate_hat, control_hat, v_par, vtpv)
+    timings["final_checks"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+
+    redundancy = problem.redundancy
+    n_weighted_control = int(np.count_nonzero(obs.q_control > 0))
+    result = AdjustmentResult(
+        method=METHOD,
+        solver=solver.name,
+        state=state,
+        layout=layout,
+        offset=problem.offset,
+        sigma0=float(np.sqrt(vtpv / redundancy)) if redundancy > 0 else float("nan"),
+        redundancy=int(redundancy),
+        vtpv=float(vtpv),
+        iterations=len(history),
+        converged=converged,
+        history=history,
+        n_conditions=int(problem.n_conditions),
+        n_observations=2 * len(project.image_points) + n_weighted_control + len(pobs),
+        n_unknowns=layout.n_unknowns,
+        n_parameter_observations=len(pobs),
+        plate_residuals=plate_hat - obs.plate,
+        plate_adjusted=plate_hat,
+        control_residuals=control_hat - obs.control,
+        control_adjusted=control_hat,
+        parameter_residuals=v_par,
+        N=normals.N,
+        checks=checks,
+        timings=timings,
+    )
+    return BundleSolution(result=result, xyz_points=xyz, n_point_unknowns=problem.unknowns.n_unknowns)
+
+
+@dataclass
+class _Step:
+    xyz: np.ndarray
+    plate_hat: np.ndarray
+    control_hat: np.ndarray
+    v_par: np.ndarray
+    vtpv: float
+    max_point_correction: float
+
+
+def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray) -> _Step:
+    """Point corrections and the adjusted observations l + v of the linearised step (v from
+    ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``)."""
+    obs = problem.obs
+    xyz_new = xyz.copy()
+    plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
+    vtpv, crit = 0.0, 0.0
+    for chunk in problem.chunks(state, xyz):
+        dX, v_plate, v_control = point_corrections(chunk, dx)
+        pt, rows = chunk.batch.point_index, chunk.batch.image_rows
+        xyz_new[pt] = xyz[pt] + dX
+        plate_hat[rows] = obs.plate[rows] + v_plate * chunk.sigma
+        weighted = chunk.weight > 0
+        control_hat[pt] = np.where(weighted, xyz_new[pt], obs.control[pt])
+        vtpv += float(np.sum(v_plate**2) + np.sum(v_control**2))
+        d = np.einsum("mii->mi", chunk.N_pp)
+        if dX.size:
+            crit = max(crit, float(np.max(np.where(chunk.free, np.abs(dX) * np.sqrt(d), 0.0))))
+    v_par = np.zeros(len(problem.pobs))
+    if len(problem.pobs):
+        J, cols, e = problem.parameter_rows(state)
+        dxp = np.concatenate([dx, [0.0]])
+        v_white = np.einsum("pi,pi->p", J, dxp[cols]) - e
+        v_par = v_white * problem.pobs.sigma
+        vtpv += float(np.sum(v_white**2))
+    return _Step(xyz_new, plate_hat, control_hat, v_par, vtpv, crit)
+
+
+def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _Problem) -> solvers.SolveResult:
+    layout, offset = problem.layout, problem.offset
+    defects = datum.diagnose(normals, state, layout, offset=offset)
+    if defects:
+        raise NumericalFailure(datum.explain(defects))
+    try:
+        return solver.solve(normals.N, normals.b)
+    except solvers.SingularNormalMatrix as exc:
+        defects = datum.diagnose(normals, state, layout, datum.LOOSE_TOLERANCE, offset)
+        if defects:
+            raise NumericalFailure(datum.explain(defects)) from exc
+        labels = layout.column_labels(problem.project.photos.ids, problem.project.cameras.ids)
+        where = f" (first at {labels[exc.column]})" if exc.column is not None and exc.column < len(labels) else ""
+        raise NumericalFailure(
+            "the reduced normal equations of the bundle adjustment are singular although the control "
+            f"fixes the datum{where}: some orientation element is not determined by the measurements. "
+            "Check that every photograph has enough well-distributed points (at least three, not on "
+            "a line) and that each free camera constant is determined."
+        ) from exc
+
+
+def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
+    defects = datum.diagnose(problem.assemble(state, xyz), state, problem.layout, offset=problem.offset)
+    if defects:
+        raise NumericalFailure(datum.explain(defects))
+    raise NumericalFailure(
+        f"too few observations: {problem.n_conditions} observation equations beyond the "
+        f"{problem.unknowns.n_unknowns} point coordinates, and {len(problem.pobs)} observed elements, "
+        f"for {problem.layout.n_unknowns} orientation unknowns. Add control or tie points, or fix elements."
+    )
+
+
+def _diverging(history: list[Iteration]) -> bool:
+    """Corrections growing for four iterations in a row, far beyond a first step (as adjustment.py)."""
+    if len(history) < 5:
+        return False
+    c = [h.max_correction for h in history[-5:]]
+    return all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
+
+
+def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plate_hat, control_hat, v_par,
+                  vtpv: float):
+    """The reduced camera system at the solution and the checks after convergence.
+
+    * ``max_condition_misclosure_sigma``: every observation equation holds for the adjusted
+      observations (l + v of the last step) and the final unknowns: max |l^ - f(x^, X^)| / sigma
+      (Schmid's final check);
+    * ``max_BTk_sigma``: the reduced gradient vanishes at the solution (the bundle's form of
+      Schmid 58): max |b_rcs,i| / sqrt(N_rcs,ii);
+    * ``max_point_gradient_sigma``: likewise for the point coordinates, max |b_p,i| / sqrt(N_pp,ii);
+    * ``vtpv_reduction_relative_difference``: v^T P v against the reduced sum
+      ``e^T e - sum b_p^T N_pp^-1 b_p - b_rcs^T N_rcs^-1 b_rcs`` (Schmid 59).
+    """
+    obs = problem.obs
+    normals = problem.normals()
+    max_g, max_gp = 0.0, 0.0
+    for chunk in problem.chunks(state, xyz):
+        normals.add_points(chunk, state.camera_of_photo)
+        rows = chunk.batch.image_rows
+        # l^ - f = (l - f) + (l^ - l) = sigma e + v
+        g = chunk.e + (plate_hat[rows] - obs.plate[rows]) / chunk.sigma
+        g_control = np.sqrt(chunk.weight) * (control_hat[chunk.batch.point_index] - xyz[chunk.batch.point_index])
+        if g.size:
+            max_g = max(max_g, float(np.max(np.abs(g))), float(np.max(np.abs(g_control))))
+        d = np.einsum("mii->mi", chunk.N_pp)
+        if chunk.b_p.size:
+            max_gp = max(max_gp, float(np.max(np.where(chunk.free, np.abs(chunk.b_p) / np.sqrt(d), 0.0))))
+    if len(problem.pobs):
+        J, cols, e = problem.parameter_rows(state)
+        normals.add_rows(J, cols, e)
+        max_g = max(max_g, float(np.max(np.abs(e + v_par / problem.pobs.sigma))))
+    normals.finish()
+    d = normals.N.diagonal()
+    btk = float(np.max(np.abs(normals.b) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
+    try:
+        last = float(normals.b @ solver.solve(normals.N, normals.b).dx) if len(d) else 0.0
+        reduced = normals.ee - normals.reduced - last
+    except solvers.SingularNormalMatrix:
+        reduced = float("nan")
+    rel = abs(reduced - vtpv) / max(vtpv, 1e-300) if vtpv > 1e-20 else abs(reduced - vtpv)
+    checks = {
+        "max_condition_misclosure_sigma": max_g,
+        "max_BTk_sigma": btk,
+        "max_point_gradient_sigma": max_gp,
+        "vtpv_reduction_relative_difference": rel,
+    }
+    return normals, checks

@@ -1,0 +1,215 @@
+"""The reduced camera system: object points eliminated point by point (Schur complement).
+
+For a chunk of m points seen by k photos each, the whitened observation equations are
+``Jc dx + Jp dX = e + v~`` (plate coordinates, ``e = (l - f(x^, X^)) / sigma``) plus
+``dX = (given - X^) + v~`` times ``1/sigma`` for weighted control coordinates. Per point, with
+its orientation unknowns ``c`` (the 9 columns of each of its rays: centre, rotation unknowns,
+camera c, xp, yp; -1 = held) and its coordinates ``p``:
+
+    N_pp = Jp^T Jp + P_control          b_p = Jp^T e + P_control (given - X^)
+    N_cp = Jc^T Jp                      b_c = Jc^T e
+    N_rcs += N_cc - N_cp N_pp^-1 N_pc   b_rcs += b_c - N_cp N_pp^-1 b_p
+
+Coordinates held fixed have zero columns in Jp and the identity in N_pp, so every point uses a
+3x3 block. After ``N_rcs dx = b_rcs``, each point follows by back-substitution
+``dX = N_pp^-1 (b_p - N_pc dx)``. Nothing per point is kept between the two passes: the second
+pass linearises again at the same (x^, X^), so memory does not grow with the number of points
+beyond the coordinates themselves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..groups import GroupBatch
+from ..linearise import Observations
+from ..normal_equations import BlockPattern, selection_matrix
+from ..parameters import State, UnknownLayout
+from .collinearity import collinearity_jacobians
+from .points import PointUnknowns
+
+N_RAY = 9  # orientation columns per ray: centre (3), rotation unknowns (3), camera c, xp, yp
+
+
+@dataclass
+class PointChunk:
+    """A chunk of m points with k rays each, linearised and whitened (module doc).
+
+    cols: (m, k, 9) global columns (-1 = held); Jc: (m, k, 2, 9); Jp: (m, k, 2, 3); e: (m, k, 2);
+    sigma: (m, k, 2) plate standard deviations; N_pp: (m, 3, 3); b_p: (m, 3); free: (m, 3);
+    weight: (m, 3) control weights; control_misclosure: (m, 3) given - X^ (0 where not weighted).
+    """
+
+    batch: GroupBatch
+    cols: np.ndarray
+    Jc: np.ndarray
+    Jp: np.ndarray
+    e: np.ndarray
+    sigma: np.ndarray
+    N_pp: np.ndarray
+    b_p: np.ndarray
+    free: np.ndarray
+    weight: np.ndarray
+    control_misclosure: np.ndarray
+
+    @property
+    def N_cp(self) -> np.ndarray:
+        """(m, 9k, 3), rows in the order of ``cols.reshape(m, 9k)``."""
+        m, k = self.e.shape[:2]
+        return np.einsum("mkai,mkaj->mkij", self.Jc, self.Jp).reshape(m, N_RAY * k, 3)
+
+    def sum_of_squares(self) -> float:
+        """e^T e of the plate and control observations at the linearisation point."""
+        return float(np.sum(self.e**2) + np.sum(self.weight * self.control_misclosure**2))
+
+
+def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rotation_maps: np.ndarray,
+                     obs: Observations, unknowns: PointUnknowns, xyz: np.ndarray) -> PointChunk:
+    """Whitened observation equations of a chunk of points at (x^, X^).
+
+    rotation_maps: (n_photos, 3, 3) of UnknownLayout.rotation_maps; xyz: (n_pt, 3) current points.
+    """
+    ph, rows, pt = batch.photo_index, batch.image_rows, batch.point_index
+    cam = state.camera_of_photo[ph]
+    X = xyz[pt]
+    jac = collinearity_jacobians(state.R[ph], state.xyz0[ph], state.interior[cam], X[:, None, :])
+    d_rot = jac.d_rot @ rotation_maps[ph]  # (m, k, 2, 3): w.r.t. the photo's rotation unknowns
+    sigma = np.sqrt(obs.q_plate[rows])
+    s = (1.0 / sigma)[..., None]
+    Jc = np.concatenate([jac.d_centre, d_rot, jac.d_interior], -1) * s
+    free = unknowns.free[pt]
+    Jp = jac.d_point * s * free[:, None, None, :]
+    e = (obs.plate[rows] - jac.xy) / sigma
+    cols = np.concatenate([layout.photo_cols[ph], layout.camera_cols[cam]], -1)
+    weight = unknowns.weight[pt]
+    control_misclosure = np.where(weight > 0, unknowns.given[pt] - X, 0.0)
+    N_pp = np.einsum("mkai,mkaj->mij", Jp, Jp)
+    N_pp += (weight + ~free)[:, :, None] * np.eye(3)
+    b_p = np.einsum("mkai,mka->mi", Jp, e) + weight * control_misclosure
+    return PointChunk(batch, cols, Jc, Jp, e, sigma, N_pp, b_p, free, weight, control_misclosure)
+
+
+def reduce_points(chunk: PointChunk):
+    """Each point's contribution to the reduced camera system: (m, 9k, 9k), (m, 9k) and
+    b_p^T N_pp^-1 b_p (m,) (the points' share of the reduced sum of squares)."""
+    m, k = chunk.e.shape[:2]
+    N_cp = chunk.N_cp
+    N_pp_inv = np.linalg.inv(chunk.N_pp)
+    Y = N_cp @ N_pp_inv
+    N_loc = -(Y @ np.swapaxes(N_cp, 1, 2))
+    N_cc = np.einsum("mkai,mkaj->kmij", chunk.Jc, chunk.Jc)  # rays of a point: block diagonal
+    ray = np.arange(k)
+    N_loc.reshape(m, k, N_RAY, k, N_RAY)[:, ray, :, ray, :] += N_cc
+    b_c = np.einsum("mkai,mka->mki", chunk.Jc, chunk.e).reshape(m, N_RAY * k)
+    b_loc = b_c - np.einsum("mci,mi->mc", Y, chunk.b_p)
+    reduced = np.einsum("mi,mij,mj->m", chunk.b_p, N_pp_inv, chunk.b_p)
+    return N_loc, b_loc, reduced
+
+
+def point_corrections(chunk: PointChunk, dx: np.ndarray):
+    """Back-substitution ``dX = N_pp^-1 (b_p - N_pc dx)`` (m, 3) and the linearised whitened
+    residuals after the step: plate (m, k, 2) ``Jc dx + Jp dX - e`` and control (m, 3)."""
+    m, k = chunk.e.shape[:2]
+    dxp = np.concatenate([dx, [0.0]])
+    dx_loc = dxp[chunk.cols]  # (m, k, 9); column -1 reads 0
+    rhs = chunk.b_p - np.einsum("mci,mc->mi", chunk.N_cp, dx_loc.reshape(m, N_RAY * k))
+    dX = np.linalg.solve(chunk.N_pp, rhs[..., None])[..., 0]
+    v_plate = (np.einsum("mkai,mki->mka", chunk.Jc, dx_loc) + np.einsum("mkai,mi->mka", chunk.Jp, dX)
+               - chunk.e)
+    v_control = np.sqrt(chunk.weight) * (dX - chunk.control_misclosure)
+    return dX, v_plate, v_control
+
+
+class ReducedNormals:
+    """Sums the reduced camera system ``N_rcs dx = b_rcs`` of point chunks and parameter
+    observations.
+
+    The point contributions are scattered into the block pattern of N computed once per adjustment
+    (normal_equations.BlockPattern: 6x6 photo, 6x3 and 3x3 camera blocks in the full element
+    space); :meth:`finish` reduces it to the unknowns with the selection ``S`` (fixed elements
+    dropped, tied elements summed), ``N_rcs = S^T N_full S``. The reduced camera system has the
+    pattern of the conditions method's N: two photos are coupled when they see a common point.
+
+    ``ug`` and ``gPg`` are zero: the collinearity equations are exactly invariant under a
+    similarity of photos and points together (scale included), so the datum diagnosis
+    (datum.diagnose) needs no misclosure term for the bundle. ``ee`` is the sum of squares of all
+    whitened misclosures, ``reduced`` the part of it that the point elimination removes
+    (sum b_p^T N_pp^-1 b_p); ``ee - reduced - b_rcs^T N_rcs^-1 b_rcs`` is the minimum of the
+    linearised problem (Schmid 59's [LL.u]).
+    """
+
+    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
+        self.pattern, self.S = pattern, S
+        self.n = S.shape[1]
+        self.pp = np.zeros(len(pattern.pp) * 36)
+        self.pc = np.zeros(len(pattern.pc) * 18)
+        self.cc = np.zeros(len(pattern.cc) * 9)
+        self.b_full = np.zeros(pattern.n_full)
+        self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.ug = np.zeros(self.n)
+        self.gPg = 0.0
+        self.ee = 0.0
+        self.reduced = 0.0
+        self.N: sp.csr_matrix | None = None
+        self.b: np.ndarray | None = None
+
+    def add_points(self, chunk: PointChunk, camera_of_photo: np.ndarray) -> None:
+        N_loc, b_loc, reduced = reduce_points(chunk)
+        photo = chunk.batch.photo_index
+        cam = camera_of_photo[photo]
+        m, k = photo.shape
+        pat = self.pattern
+        N5 = N_loc.reshape(m, k, N_RAY, k, N_RAY)
+        pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
+        self.pp += _scatter(pos_pp, N5[:, :, :6, :, :6], 36, len(self.pp))
+        full_cols = np.concatenate(
+            [6 * photo[..., None] + np.arange(6), 6 * pat.n_photos + 3 * cam[..., None] + np.arange(3)], -1
+        )  # (m, k, 9)
+        b3 = b_loc.reshape(m, k, N_RAY)
+        if not pat.with_cameras:
+            full_cols, b3 = full_cols[..., :6], b3[..., :6]
+        self.b_full += np.bincount(full_cols.ravel(), weights=b3.ravel(), minlength=pat.n_full)
+        if pat.with_cameras:
+            self.pc += _scatter(pos_pc, N5[:, :, :6, :, 6:], 18, len(self.pc))
+            self.cc += _scatter(pos_cc, N5[:, :, 6:, :, 6:], 9, len(self.cc))
+        self.ee += chunk.sum_of_squares()
+        self.reduced += float(np.sum(reduced))
+
+    def add_rows(self, J: np.ndarray, cols: np.ndarray, e: np.ndarray) -> None:
+        """Whitened observation equations of parameters, one row each: J (p, w), cols (p, w) in the
+        columns of the unknowns (-1 = none), e (p,)."""
+        self.rows.append((J, cols, e))
+        self.ee += float(np.sum(e**2))
+
+    def finish(self) -> "ReducedNormals":
+        pat, S = self.pattern, self.S
+        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, 3), self.cc.reshape(-1, 3, 3))
+        N = (S.T @ N_full @ S).tocsr()
+        b = S.T @ self.b_full
+        for J, cols, e in self.rows:
+            valid = cols >= 0
+            b += np.bincount(cols[valid], weights=(J * e[:, None])[valid], minlength=self.n)
+            pair = valid[:, :, None] & valid[:, None, :]
+            JJ = J[:, :, None] * J[:, None, :]
+            r = np.broadcast_to(cols[:, :, None], JJ.shape)[pair]
+            c = np.broadcast_to(cols[:, None, :], JJ.shape)[pair]
+            N = N + sp.coo_matrix((JJ[pair], (r, c)), shape=(self.n, self.n)).tocsr()
+        N.sum_duplicates()
+        self.N, self.b = N, b
+        return self
+
+
+def _scatter(pos: np.ndarray, blocks: np.ndarray, size: int, length: int) -> np.ndarray:
+    """Sum the (a, b) ray-pair blocks (m, k, r, k, s) of a chunk at their pattern positions (m, k, k)."""
+    flat = (pos[..., None] * size + np.arange(size)).ravel()
+    return np.bincount(flat, weights=blocks.transpose(0, 1, 3, 2, 4).reshape(-1), minlength=length)
+
+
+def block_pattern(batches, state: State, layout: UnknownLayout, chunk_size: int):
+    """The block pattern of the reduced camera system and the selection S, computed once."""
+    chunks = ((c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size))
+    pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks)
+    return pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
