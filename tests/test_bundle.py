@@ -100,6 +100,9 @@ CASES = {
     "pair": lambda: read_project(DATA / "pair"),
     "pair_minimal": lambda: read_project(DATA / "pair_minimal"),
     "strip8": lambda: read_project(DATA / "strip8"),
+    "schmid_fig8": lambda: read_project(DATA / "schmid_fig8"),
+    "strip_2_3": lambda: read_project(DATA / "strip_2_3"),
+    "block_3x6": lambda: read_project(DATA / "block_3x6"),
     "pair, weighted control": lambda: _generated(layout="mixed", noise=WEIGHTED),
     "strip, weighted control": lambda: _strip(noise=WEIGHTED),
     "strip, GNSS centres": lambda: _strip(noise=sim.NoiseOptions(sigma_gnss=0.1)),
@@ -206,7 +209,7 @@ def test_one_photo_points_follow_the_condition_count(solved):
 
 
 @pytest.mark.parametrize("solver", [s for s in solvers.SOLVERS if s != "auto"])
-@pytest.mark.parametrize("name", ["strip8", "strip, GNSS centres", "strip, IMU, held angle, bases, interior"])
+@pytest.mark.parametrize("name", ["strip8", "block_3x6", "strip, GNSS centres", "strip, IMU, held angle, bases, interior"])
 def test_every_solver_gives_the_conditions_result(solved, name, solver):
     if solver == "cholmod":
         pytest.importorskip("sksparse")
@@ -279,15 +282,3 @@ def test_datum_defects_are_named_as_by_the_conditions_method(make):
         adjust_bundle(project)
     assert "datum undetermined" in str(bundle.value)
     assert str(bundle.value) == str(conditions.value)
-
-
-@pytest.mark.skipif("n_strips" not in sim.FlightDesign.__dataclass_fields__, reason="no blocks in the simulator")
-def test_block_of_two_strips():
-    design = sim.SyntheticDesign(
-        flight=sim.FlightDesign(n_photos=4, n_strips=2),
-        points=sim.PointDesign(extra_ties_per_model=2),
-        control=sim.ControlDesign(layout="ends"),
-    )
-    project = sim.perturb(sim.make_truth(design, np.random.default_rng(11)), sim.NoiseOptions(),
-                          np.random.default_rng(12))
-    _assert_same_adjustment(project, adjust(project), adjust_bundle(project))
