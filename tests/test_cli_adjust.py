@@ -476,11 +476,10 @@ def test_bad_input_exit_2(tmp_path, case):
     assert snapshot(project) == before  # the reader writes nothing
 
 
-@pytest.mark.parametrize("key, value", [("method", "bundle"), ("solver", "banded")])
-def test_toml_value_documented_but_not_implemented(tmp_path, key, value):
-    """docs/file-formats.md lists method "bundle" and solver "banded" as valid project.toml values;
-    the adjustment does not offer them (yet). That is bad input all the same: exit 2, and like
-    every project.toml error the message names the file and the line of the key."""
+@pytest.mark.parametrize("key, value", [("method", "simplex"), ("solver", "magic")])
+def test_toml_value_not_implemented(tmp_path, key, value):
+    """A method or solver striptri does not have is bad input: exit 2, and like every project.toml
+    error the message names the file and the line of the key."""
     project = copy_project("pair", tmp_path / "project")
     path = project / "project.toml"
     lines = path.read_text(encoding="utf-8").splitlines()

@@ -31,7 +31,7 @@ from .parameter_observations import ParameterObservations, build_parameter_obser
 from .parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .rotations import angles_jacobian
 
-METHODS = ("conditions",)
+METHODS = ("conditions", "bundle")
 
 
 @dataclass(frozen=True)
@@ -259,7 +259,12 @@ def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, stat
 
 
 def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
-    """Adjust all photographs of the project simultaneously (Schmid's method of conditions)."""
+    """Adjust all photographs of the project simultaneously: Schmid's method of conditions, or with
+    ``options.method == "bundle"`` the collinearity bundle adjustment (striptri.bundle)."""
+    if options.method == "bundle":
+        from .bundle import adjust_bundle  # striptri.bundle imports this module
+
+        return adjust_bundle(project, options)
     t_start = time.perf_counter()
     offset = reduction_offset(project)
     state = initial_state(project, offset)
@@ -296,14 +301,15 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
         acc = _assemble(sweep, pobs, assembly)
         t1 = time.perf_counter()
+        t_conditions = sweep.seconds
         solved = _solve_or_explain(acc, solver, state, layout, project, offset)
         dx = solved.dx
         t2 = time.perf_counter()
         plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
         state = state.updated(layout, dx)
         t3 = time.perf_counter()
-        timings["conditions"] += sweep.seconds
-        timings["assembly"] += t1 - t0 - sweep.seconds
+        timings["conditions"] += t_conditions
+        timings["assembly"] += t1 - t0 - t_conditions
         timings["solve"] += t2 - t1
         timings["back_substitution"] += t3 - t2
         crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal()))) if len(dx) else 0.0

@@ -166,9 +166,9 @@ def triangulate(
         interior = interior_photo[ph]
         free = ~fixed[sel]  # (m, 3)
         n_obs = 2 * k + weighted[sel].sum(axis=1)
-        ok = free.sum(axis=1) <= n_obs
-        ok &= ~((free.sum(axis=1) == 3) & (k < 2))  # a tie ray alone fixes nothing
-        X = _initial_points(R, O, interior, xy_plate[rows], xyz_given[sel], fixed[sel])
+        # determined when the rays and the given coordinates (held or weighted) are at least three
+        ok = (2 * k + given_mask[sel].sum(axis=1) >= 3) & (free.sum(axis=1) <= n_obs)
+        X = _initial_points(R, O, interior, xy_plate[rows], xyz_given[sel], given_mask[sel])
         Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
         wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
         for _ in range(iterations):
@@ -212,9 +212,11 @@ def _hold(Nx, gx, free):
     return Nx, gx
 
 
-def _initial_points(R, O, interior, xy, xyz_given, fixed):
+def _initial_points(R, O, interior, xy, xyz_given, given):
     """Starting coordinates: the ray intersection (k >= 2), or the ray met with the given
-    height / the vertical through the given plan position (one ray); given values where held."""
+    height / the vertical through the given plan position (one ray); given values (held or
+    weighted) where there are any."""
+    fixed = given
     m, k, _ = xy.shape
     r = ray_ground(R, xy, interior)
     if k >= 2:
