@@ -282,3 +282,22 @@ def test_datum_defects_are_named_as_by_the_conditions_method(make):
         adjust_bundle(project)
     assert "datum undetermined" in str(bundle.value)
     assert str(bundle.value) == str(conditions.value)
+
+
+def test_adjust_command_with_method_bundle_matches_conditions(tmp_path):
+    """`striptri adjust --method bundle` writes the same photos as the conditions method."""
+    import csv
+    import json
+    import subprocess
+
+    data = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "strip8"
+    photos = {}
+    for method in ("conditions", "bundle"):
+        out = tmp_path / method
+        done = subprocess.run(["striptri", "adjust", str(data), "--out", str(out), "--method", method],
+                              capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        assert json.loads((out / "summary.json").read_text())["method"] == method
+        with open(out / "photos.csv", newline="") as f:
+            photos[method] = np.array([[float(r[c]) for c in ("X0", "Y0", "Z0")] for r in csv.DictReader(f)])
+    np.testing.assert_allclose(photos["bundle"], photos["conditions"], atol=1e-6 * 1500)
