@@ -1,0 +1,51 @@
+"""Solvers of the normal equations N dx = b behind one interface (DESIGN section 5).
+
+A solver is made once per adjustment by :func:`make_solver` (so that a sparse Cholesky can analyse
+the pattern once and an iterative solver can start from its last solution) and called once per
+outer iteration with the numeric N of that iteration. Every solver returns a :class:`SolveResult`
+and raises :class:`SingularNormalMatrix` when N is not positive definite. All work on the
+Jacobi-scaled matrix ``D N D``, ``D = diag(N)^-1/2``.
+
+* ``dense`` - the reference: LAPACK Cholesky of the full matrix (:mod:`.direct`);
+* ``sparse`` - scipy's SuperLU with a symmetric minimum-degree ordering, the fallback (:mod:`.direct`);
+* ``banded`` - LAPACK banded Cholesky for strips, camera columns as a dense border (:mod:`.banded`);
+* ``cholmod`` - CHOLMOD sparse Cholesky, analysed once per adjustment; needs the optional
+  scikit-sparse (:mod:`.sparse_cholesky`);
+* ``gauss-seidel`` - block Gauss-Seidel / SOR with the 6x6 photo blocks (:mod:`.iterative`);
+* ``pcg`` - block-Jacobi preconditioned conjugate gradients (:mod:`.iterative`);
+* ``auto`` - picks from N's pattern at the first solve (:func:`resolve_solver`, docs/solvers.md).
+"""
+
+from .banded import BandedSolver, bandwidth
+from .base import (
+    PIVOT_TOLERANCE,
+    SOLVERS,
+    WARM_STARTS,
+    NormalSolver,
+    SingularNormalMatrix,
+    SolveResult,
+    SolverOptions,
+    SolverUnavailable,
+    Structure,
+    jacobi_scaled,
+)
+from .direct import DenseSolver, ScipySparseSolver, inverse
+from .iterative import SLOW_PCG, SLOW_SWEEPS, GaussSeidelSolver, PcgSolver, SlowConvergenceWarning
+from .selection import (
+    BANDED_MAX_BANDWIDTH,
+    DENSE_LIMIT,
+    AutoSolver,
+    make_solver,
+    resolve_solver,
+    solve,
+)
+from .sparse_cholesky import CholmodSolver, cholmod_available
+
+__all__ = [
+    "SOLVERS", "WARM_STARTS", "PIVOT_TOLERANCE", "DENSE_LIMIT", "BANDED_MAX_BANDWIDTH", "SLOW_SWEEPS", "SLOW_PCG",
+    "SingularNormalMatrix", "SolverUnavailable", "SlowConvergenceWarning",
+    "SolverOptions", "Structure", "SolveResult", "NormalSolver",
+    "DenseSolver", "ScipySparseSolver", "BandedSolver", "CholmodSolver", "GaussSeidelSolver", "PcgSolver",
+    "AutoSolver", "make_solver", "resolve_solver", "solve", "inverse", "jacobi_scaled", "bandwidth",
+    "cholmod_available",
+]

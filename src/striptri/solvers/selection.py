@@ -1,0 +1,84 @@
+"""Choosing a solver: the names, ``auto``, and the factory used once per adjustment."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .banded import BandedSolver, choose_split
+from .base import SOLVERS, NormalSolver, SolveResult, SolverOptions, Structure
+from .direct import DenseSolver, ScipySparseSolver
+from .iterative import GaussSeidelSolver, PcgSolver
+from .sparse_cholesky import CholmodSolver, cholmod_available
+
+# auto: measured on a 2-core machine (scripts/bench/bench_solvers.py, docs/solvers.md)
+DENSE_LIMIT = 60  # unknowns up to which the dense reference is as fast as anything
+BANDED_MAX_BANDWIDTH = 120  # lower bandwidth of the photo part up to which banded wins
+
+_SOLVER_CLASSES = {
+    "dense": DenseSolver,
+    "sparse": ScipySparseSolver,
+    "banded": BandedSolver,
+    "cholmod": CholmodSolver,
+    "gauss-seidel": GaussSeidelSolver,
+    "pcg": PcgSolver,
+}
+
+
+def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
+                   structure: Structure | None = None) -> str:
+    """The concrete solver ``name`` stands for (or the name itself, validated).
+
+    ``auto`` (docs/solvers.md): ``dense`` up to DENSE_LIMIT unknowns; else ``banded`` when the
+    photo part of N (camera columns split off as a border) has a lower bandwidth of at most
+    BANDED_MAX_BANDWIDTH - a strip, or a block only a few photos across; else ``cholmod`` when
+    scikit-sparse is installed, ``sparse`` when not. Without N (its pattern not yet known) the choice
+    after ``dense`` is the sparse one.
+    """
+    if name not in SOLVERS:
+        raise ValueError(f"unknown solver {name!r}; choose one of {', '.join(SOLVERS)}")
+    if name != "auto":
+        return name
+    if n_unknowns <= DENSE_LIMIT:
+        return "dense"
+    if N is not None:
+        A = sp.csr_matrix(N)
+        A.sort_indices()
+        _, w = choose_split(A, structure or Structure(n_unknowns))
+        if w <= BANDED_MAX_BANDWIDTH:
+            return "banded"
+    return "cholmod" if cholmod_available() else "sparse"
+
+
+class AutoSolver(NormalSolver):
+    """``auto``: picks the concrete solver from N's pattern at the first solve and keeps it (so a
+    CHOLMOD analysis or a warm start carries over); ``name`` becomes the concrete solver's."""
+
+    name = "auto"
+
+    def __init__(self, options, structure):
+        super().__init__(options, structure)
+        self._chosen: NormalSolver | None = None
+
+    def solve(self, N, b) -> SolveResult:
+        if self._chosen is None or self._chosen.structure.n_unknowns != N.shape[0]:
+            concrete = resolve_solver("auto", N.shape[0], N, self.structure)
+            self._chosen = _SOLVER_CLASSES[concrete](self.options, self.structure)
+            self.name = concrete
+        return self._chosen.solve(N, b)
+
+
+def make_solver(options: SolverOptions, structure: Structure) -> NormalSolver:
+    """The solver object of one adjustment (made once, called once per outer iteration).
+    Raises SolverUnavailable for ``cholmod`` without scikit-sparse (with the install command)."""
+    if options.name == "auto":
+        return AutoSolver(options, structure)
+    return _SOLVER_CLASSES[options.name](options, structure)
+
+
+def solve(N: sp.spmatrix, b: np.ndarray, solver: str, structure: Structure | None = None) -> SolveResult:
+    """One-off solve of N dx = b with the named solver."""
+    return make_solver(SolverOptions(name=solver), structure or Structure(N.shape[0])).solve(N, b)
+
+
+
