@@ -68,10 +68,12 @@ def bandwidth(A: sp.spmatrix) -> int:
 def _band_storage(A: sp.csr_matrix, k: int, w: int) -> np.ndarray:
     """LAPACK lower band storage ab[i - j, j] = A[i, j] of the leading k x k part."""
     ab = np.zeros((w + 1, k))
-    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
-    cols = A.indices
-    keep = (rows < k) & (cols <= rows)
-    ab[rows[keep] - cols[keep], cols[keep]] = A.data[keep]
+    end = A.indptr[k]  # rows >= k (the border) are not needed
+    rows = np.repeat(np.arange(k), np.diff(A.indptr[: k + 1]))
+    cols = A.indices[:end]
+    below = rows - cols
+    keep = below >= 0
+    np.put(ab, below[keep] * k + cols[keep], A.data[:end][keep])
     return ab
 
 

@@ -103,14 +103,17 @@ def jacobi_scaled(N: sp.spmatrix):
 
     Returns a canonical CSR matrix (sorted indices, no duplicates) whose diagonal is 1."""
     N = sp.csr_matrix(N)
-    N.sum_duplicates()  # also sorts the indices
+    if not N.has_canonical_format:
+        N = N.copy()  # never reorder the caller's arrays
+        N.sum_duplicates()  # also sorts the indices
     d = N.diagonal()
     if np.any(d <= 0) or not np.all(np.isfinite(d)):
         raise SingularNormalMatrix(int(np.flatnonzero(~(d > 0))[0]) if np.any(~(d > 0)) else None,
                                    "non-positive or non-finite diagonal element")
     s = 1.0 / np.sqrt(d)
     rows = np.repeat(np.arange(N.shape[0]), np.diff(N.indptr))
-    Ns = sp.csr_matrix((N.data * s[rows] * s[N.indices], N.indices.copy(), N.indptr.copy()), shape=N.shape)
+    # the index arrays are shared with N: callers never change a scaled matrix's pattern in place
+    Ns = sp.csr_matrix((N.data * s[rows] * s[N.indices], N.indices, N.indptr), shape=N.shape, copy=False)
     Ns.has_sorted_indices = True
     return Ns, s
 

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as la
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg import lapack
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, check_pivots, jacobi_scaled
+from .blocks import Blocks, partition
 
 
 def dense_cholesky(A: np.ndarray) -> np.ndarray:
@@ -40,27 +42,75 @@ class DenseSolver(NormalSolver):
 
 
 class ScipySparseSolver(NormalSolver):
-    """scipy's SuperLU with a symmetric minimum-degree ordering (on N + N^T) and diagonal pivots,
-    i.e. an LDL^T-like factorisation of the SPD matrix: the fallback when scikit-sparse is absent."""
+    """scipy's SuperLU on N in a fill-reducing order, with diagonal pivots (so an L D U of the SPD
+    matrix whose pivots are Cholesky's, squared): the fallback when scikit-sparse is absent.
+
+    The ordering is a minimum-degree ordering of the *block graph* (one node per photo or camera
+    block, :func:`block_order`), expanded to the columns. It keeps each 6x6 block together and is
+    36 times smaller than the column graph, so it costs a fraction of SuperLU's own column ordering
+    (0.1 s instead of 1 s for a 10000-photo strip) at the same fill. It is kept while N's block
+    pattern does not change (once per adjustment)."""
 
     name = "sparse"
 
+    def __init__(self, options, structure):
+        super().__init__(options, structure)
+        self._order: np.ndarray | None = None
+        self._block_pattern: tuple | None = None
+        self.orderings = 0
+
     def solve(self, N, b):
-        if N.shape[0] == 0:
+        n = N.shape[0]
+        if n == 0:
             return SolveResult(np.zeros(0), self.name)
         Ns, s = jacobi_scaled(N)
+        blocks = partition(self.structure, n)
+        graph = block_graph(Ns, blocks)
+        key = (n, graph.indptr.tobytes(), graph.indices.tobytes())
+        if self._block_pattern != key:
+            self._order = block_order(graph, blocks)
+            self._block_pattern = key
+            self.orderings += 1
+        order = self._order
+        Np = Ns[order][:, order]
         try:
-            lu = spla.splu(
-                Ns.T.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                options={"SymmetricMode": True},
-            )
+            lu = spla.splu(Np.T.tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                           options={"SymmetricMode": True})
         except RuntimeError as exc:  # exactly singular: SuperLU stops
             raise SingularNormalMatrix() from exc
-        # with diagonal pivoting U_jj is the Cholesky pivot squared (the D of L D L^T)
+        # with diagonal pivoting U_jj is the Cholesky pivot squared (the D of L D L^T); step i of
+        # SuperLU eliminates column argsort(perm_c)[i] of the matrix it was given
         udiag = lu.U.diagonal()
         pivots = np.sqrt(np.maximum(udiag, 0.0)) * np.sign(udiag)
-        check_pivots(pivots, lu.perm_c)
-        return SolveResult(lu.solve(b * s) * s, self.name)
+        check_pivots(pivots, order[np.argsort(lu.perm_c)])
+        y = np.empty(n)
+        y[order] = lu.solve((b * s)[order])
+        return SolveResult(y * s, self.name, {"orderings": self.orderings})
+
+
+def block_graph(A: sp.csr_matrix, blocks: Blocks) -> sp.csr_matrix:
+    """The pattern of A between blocks: (nb, nb), 1 where two blocks are coupled."""
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    br, bc = blocks.of_column[rows], blocks.of_column[A.indices]
+    nb = len(blocks.starts)
+    G = sp.csr_matrix((np.ones(len(br)), (br, bc)), shape=(nb, nb))
+    G.sum_duplicates()
+    return G
+
+
+def block_order(graph: sp.csr_matrix, blocks: Blocks) -> np.ndarray:
+    """Column order from a minimum-degree ordering of the block graph. scipy exposes SuperLU's
+    multiple-minimum-degree ordering only through a factorisation, so it factorises a diagonally
+    dominant matrix with the graph's pattern (small: one row per block) and reads the order."""
+    nb = graph.shape[0]
+    degree = np.diff(graph.indptr)
+    surrogate = sp.csr_matrix((np.ones(graph.nnz), graph.indices, graph.indptr), shape=(nb, nb))
+    surrogate = (surrogate + sp.diags(degree + 1.0)).tocsc()
+    lu = spla.splu(surrogate, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    block_sequence = np.argsort(lu.perm_c)
+    sizes = blocks.sizes[block_sequence]
+    offsets = np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    return np.repeat(blocks.starts[block_sequence], sizes) + offsets
 
 
 def inverse(N) -> np.ndarray:

@@ -20,7 +20,9 @@ substitution) and one product with U = L'. Its residual needs no extra product:
 Convergence. SOR converges for every symmetric positive definite N and 0 < omega < 2
 (Ostrowski-Reich), at a rate that degrades with N's condition number: a long strip held by control
 only at its ends converges very slowly. A sweep count above SLOW_SWEEPS, or no convergence at all,
-is reported (``info["slow"]``) and warned about. A residual that grows beyond DIVERGED times the
+is reported (``info["slow"]``) and warned about; so is a residual that has not fallen by 1 % in
+STAGNATION_SWEEPS sweeps (the rounding floor of an ill-conditioned N, ``info["stagnated"]``), where
+the sweeps stop. A residual that grows beyond DIVERGED times the
 first proves that N is not positive definite (SingularNormalMatrix).
 
 PCG breaks down when a search direction has curvature ``p' N~ p <= 1e-14 p'p`` (N~ has a unit
@@ -41,6 +43,7 @@ from .blocks import block_cholesky, block_diagonal_matrix, partition, strictly_b
 SLOW_SWEEPS = 500  # Gauss-Seidel sweeps (PCG iterations: SLOW_PCG) beyond which convergence is "slow"
 SLOW_PCG = 500
 DIVERGED = 1e8
+STAGNATION_SWEEPS = 200  # Gauss-Seidel stops when its residual has not fallen 1 % in this many sweeps
 
 
 class SlowConvergenceWarning(RuntimeWarning):
@@ -134,7 +137,8 @@ class GaussSeidelSolver(_IterativeSolver):
         # residual of the start, in the scaled system
         res0 = float(np.linalg.norm(bs - Ns @ y0)) / bnorm
         residual, sweeps, converged = res0, 0, res0 < opts.inner_tolerance
-        while not converged and sweeps < opts.max_inner_iterations:
+        best, best_sweep, stagnated = res0, 0, False
+        while not converged and not stagnated and sweeps < opts.max_inner_iterations:
             rhs = omega * (g - Uz) + (1.0 - omega) * z
             z_new = spla.spsolve_triangular(T, rhs, lower=True, unit_diagonal=True,
                                             overwrite_A=True, overwrite_b=True)
@@ -148,8 +152,12 @@ class GaussSeidelSolver(_IterativeSolver):
                 raise SingularNormalMatrix(None, "Gauss-Seidel diverged, which it cannot do for a "
                                                  "positive definite matrix")
             converged = residual < opts.inner_tolerance
+            if residual < 0.99 * best:
+                best, best_sweep = residual, sweeps
+            # rounding floor reached (or hopelessly slow): more sweeps would not help
+            stagnated = sweeps - best_sweep >= STAGNATION_SWEEPS
         y = Ci.T @ z
-        return self._report(y * s, sweeps, residual, converged, {"relaxation": omega})
+        return self._report(y * s, sweeps, residual, converged, {"relaxation": omega, "stagnated": stagnated})
 
 
 class PcgSolver(_IterativeSolver):

@@ -12,8 +12,9 @@ from .iterative import GaussSeidelSolver, PcgSolver
 from .sparse_cholesky import CholmodSolver, cholmod_available
 
 # auto: measured on a 2-core machine (scripts/bench/bench_solvers.py, docs/solvers.md)
-DENSE_LIMIT = 60  # unknowns up to which the dense reference is as fast as anything
-BANDED_MAX_BANDWIDTH = 120  # lower bandwidth of the photo part up to which banded wins
+DENSE_LIMIT = 120  # unknowns up to which the dense reference is as fast as anything (~20 photos)
+BANDED_MAX_BANDWIDTH = 500  # bandwidth of the photo part up to which banded beats cholmod and sparse
+BANDED_MAX_STORAGE = 50_000_000  # band entries (400 MB) beyond which banded is not chosen
 
 _SOLVER_CLASSES = {
     "dense": DenseSolver,
@@ -31,7 +32,8 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
 
     ``auto`` (docs/solvers.md): ``dense`` up to DENSE_LIMIT unknowns; else ``banded`` when the
     photo part of N (camera columns split off as a border) has a lower bandwidth of at most
-    BANDED_MAX_BANDWIDTH - a strip, or a block only a few photos across; else ``cholmod`` when
+    BANDED_MAX_BANDWIDTH (and its band fits BANDED_MAX_STORAGE) - a strip, or a block of strips of
+    up to about 80 photos numbered strip after strip; else ``cholmod`` when
     scikit-sparse is installed, ``sparse`` when not. Without N (its pattern not yet known) the choice
     after ``dense`` is the sparse one.
     """
@@ -44,8 +46,8 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
     if N is not None:
         A = sp.csr_matrix(N)
         A.sort_indices()
-        _, w = choose_split(A, structure or Structure(n_unknowns))
-        if w <= BANDED_MAX_BANDWIDTH:
+        k, w = choose_split(A, structure or Structure(n_unknowns))
+        if w <= BANDED_MAX_BANDWIDTH and (w + 1) * k <= BANDED_MAX_STORAGE:
             return "banded"
     return "cholmod" if cholmod_available() else "sparse"
 

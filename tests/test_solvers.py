@@ -1,0 +1,378 @@
+"""One suite every solver of the normal equations must pass (DESIGN section 5; scipy ``_lsq``
+mixin style): each concrete solver is a subclass of :class:`SolverSuite` that names it.
+
+Agreement with the dense reference is measured on the Jacobi-scaled unknowns ``y = dx sqrt(N_ii)``
+(metres, radians and millimetres alike): ``|y - y_ref| / |y_ref|``. Direct solvers: 1e-10.
+Iterative solvers stop at the relative residual ``tol`` of the scaled system, which bounds the
+relative error by ``cond(N~) tol`` (``|e|/|y| <= cond |r|/|b|``); they must meet twice that bound.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from striptri import solvers
+from striptri.adjustment import AdjustmentOptions, adjust
+from striptri.io import read_project
+from striptri.solvers import (
+    SOLVERS,
+    SingularNormalMatrix,
+    SlowConvergenceWarning,
+    SolverOptions,
+    SolverUnavailable,
+    Structure,
+    make_solver,
+)
+from striptri.solvers.synthetic import block_normal_matrix, strip_normal_matrix
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
+FLYING_HEIGHT = 1500.0  # m, data/synthetic_strips/README.md
+DIRECT_RTOL = 1e-10
+
+
+def scaled_error(N, dx, ref) -> float:
+    s = np.sqrt(N.diagonal())
+    return float(np.linalg.norm((dx - ref) * s) / np.linalg.norm(ref * s))
+
+
+def scaled_condition(N) -> float:
+    s = 1.0 / np.sqrt(N.diagonal())
+    return float(np.linalg.cond(N.toarray() * s[:, None] * s[None, :]))
+
+
+def dense_reference(N, b):
+    return make_solver(SolverOptions("dense"), Structure(N.shape[0])).solve(N, b).dx
+
+
+def strip_case(n_photos, n_cameras, seed):
+    return strip_normal_matrix(n_photos, np.random.default_rng(seed), n_cameras=n_cameras)
+
+
+def block_case(n_strips, photos, n_cameras, seed):
+    return block_normal_matrix(n_strips, photos, np.random.default_rng(seed), n_cameras=n_cameras)
+
+
+def indefinite_case():
+    """12 x 12, both 6x6 diagonal blocks the identity (positive definite), N itself indefinite
+    (eigenvalues -1 and 3): [[I, 2I], [2I, I]]."""
+    eye = np.eye(6)
+    return sp.csr_matrix(np.block([[eye, 2 * eye], [2 * eye, eye]])), Structure(12, np.array([0, 6]))
+
+
+def datum_defect_case(seed=3):
+    """A strip with tie conditions only: every 6x6 block regular, N singular (6 free directions)."""
+    return strip_normal_matrix(6, np.random.default_rng(seed), control=False)
+
+
+class SolverSuite:
+    """The tests every solver passes; a subclass sets ``name`` (and ``iterative``)."""
+
+    name = "dense"
+    iterative = False
+    defaults: dict = {}  # options of this suite's solver unless a test says otherwise
+
+    def make(self, structure, **options):
+        return make_solver(SolverOptions(self.name, **{**self.defaults, **options}), structure)
+
+    def assert_agrees(self, N, structure, b=None, seed=0, solver=None, **options):
+        rng = np.random.default_rng(seed)
+        b = rng.normal(size=N.shape[0]) if b is None else b
+        solver = solver or self.make(structure, **options)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SlowConvergenceWarning)  # slow is fine here, wrong is not
+            result = solver.solve(N, b)
+        ref = dense_reference(N, b)
+        err = scaled_error(N, result.dx, ref)
+        if self.iterative:
+            tol = options.get("inner_tolerance", SolverOptions().inner_tolerance)
+            bound = 2 * scaled_condition(N) * tol
+            assert result.info["converged"] and result.info["relative_residual"] < tol
+            assert err < bound, (err, bound)
+        else:
+            assert err < DIRECT_RTOL, err
+        assert result.solver == solver.name
+        return result
+
+    # -- structures of strips and blocks -------------------------------------------------------
+
+    @pytest.mark.parametrize("n_photos", [2, 3, 8, 25])
+    @pytest.mark.parametrize("n_cameras", [0, 1, 2])
+    def test_strip_block_banded(self, n_photos, n_cameras):
+        """6x6 blocks within two photos of the diagonal, camera columns last coupling everything."""
+        N, st = strip_case(n_photos, n_cameras, seed=n_photos + 10 * n_cameras)
+        self.assert_agrees(N, st)
+
+    @pytest.mark.parametrize("shape", [(3, 6, 0), (4, 10, 1), (2, 25, 3)])
+    def test_multi_strip_block(self, shape):
+        """Block-sparse, not banded: strips side by side, numbered strip after strip."""
+        N, st = block_case(*shape, seed=sum(shape))
+        self.assert_agrees(N, st)
+
+    def test_without_block_starts(self):
+        """Structure without blocks: consecutive blocks of 6 columns are taken."""
+        N, _ = strip_case(10, 1, seed=5)
+        self.assert_agrees(N, Structure(N.shape[0]))
+
+    @pytest.mark.parametrize("n", [1, 2, 6, 7])
+    def test_tiny_systems(self, n):
+        rng = np.random.default_rng(n)
+        G = rng.normal(size=(n + 3, n))
+        N = sp.csr_matrix(G.T @ G)
+        self.assert_agrees(N, Structure(n, np.arange(0, n, 6)))
+
+    def test_zero_size(self):
+        result = self.make(Structure(0)).solve(sp.csr_matrix((0, 0)), np.zeros(0))
+        assert result.dx.shape == (0,)
+
+    def test_one_solver_object_over_several_iterations(self):
+        """Made once, called per outer iteration: new numbers (same pattern), new right-hand sides,
+        then a pattern that has lost some entries and one that has more."""
+        solver = None
+        for k in range(3):
+            N, st = strip_case(12, 1, seed=21 + k)  # same pattern, other numbers
+            solver = solver or self.make(st)
+            self.assert_agrees(N, st, seed=k, solver=solver)
+        rng = np.random.default_rng(4)
+        # fewer entries: a coupling block between photos 0 and 2 set to exact zero and dropped
+        Nz = N.tolil()
+        Nz[0:6, 12:18] = 0.0
+        Nz[12:18, 0:6] = 0.0
+        Nz = Nz.tocsr()
+        Nz.eliminate_zeros()
+        if np.all(np.linalg.eigvalsh(Nz.toarray()) > 0):
+            self.assert_agrees(Nz, st, seed=7, solver=solver)
+        # more entries: a tie between photos 0 and 5 (outside the band)
+        extra = sp.lil_matrix(N.shape)
+        v = rng.normal(size=(1, 12))
+        cols = np.r_[0:6, 30:36]
+        extra[np.ix_(cols, cols)] = v.T @ v
+        self.assert_agrees(sp.csr_matrix(N + extra), st, seed=8, solver=solver)
+
+    # -- singular and indefinite N ---------------------------------------------------------------
+
+    def test_zero_column_is_singular_at_that_column(self):
+        N, st = strip_case(5, 0, seed=2)
+        N = N.tolil()
+        N[14, :] = 0.0
+        N[:, 14] = 0.0
+        with pytest.raises(SingularNormalMatrix) as exc:
+            self.make(st).solve(N.tocsr(), np.ones(N.shape[0]))
+        assert exc.value.column == 14
+
+    def test_dependent_columns_within_a_block(self):
+        """Two equal columns of one photo: its diagonal block (and N) is singular."""
+        rng = np.random.default_rng(9)
+        N, st = strip_case(5, 1, seed=9)
+        G = rng.normal(size=(40, N.shape[0]))
+        G[:, 9] = G[:, 8]
+        A = G.T @ G
+        A[:, 9], A[9, :] = A[:, 8], A[8, :]  # exactly equal columns
+        with pytest.raises(SingularNormalMatrix) as exc:
+            self.make(st).solve(sp.csr_matrix(A), rng.normal(size=N.shape[0]))
+        assert exc.value.column in (8, 9)
+
+    def test_indefinite_matrix_with_regular_blocks(self):
+        N, st = indefinite_case()
+        with pytest.raises(SingularNormalMatrix):
+            self.make(st, max_inner_iterations=5000).solve(N, np.arange(1.0, 13.0))
+
+    def test_datum_defect(self):
+        """Every block regular, N of rank n - 6. Direct solvers raise; an iterative one either
+        raises or reports that it did not converge (never a silent, converged answer)."""
+        N, st = datum_defect_case()
+        b = np.random.default_rng(1).normal(size=N.shape[0])
+        if not self.iterative:
+            with pytest.raises(SingularNormalMatrix) as exc:
+                self.make(st).solve(N, b)
+            assert exc.value.column is not None
+            return
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                result = self.make(st).solve(N, b)
+            except SingularNormalMatrix:
+                return
+        assert not result.info["converged"]
+        assert any(issubclass(w.category, SlowConvergenceWarning) for w in caught)
+
+    # -- real normal matrices ------------------------------------------------------------------
+
+    def test_real_normal_matrix_of_strip8(self, strip8_dense):
+        _, result = strip8_dense
+        st = Structure(result.n_unknowns, result.layout.block_starts())
+        self.assert_agrees(result.N, st)
+
+    def test_adjust_strip8_gives_the_dense_orientations(self, strip8_dense):
+        project, ref = strip8_dense
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SlowConvergenceWarning)
+            r = adjust(project, AdjustmentOptions(solver=self.name))
+        assert r.converged and r.solver == self.name
+        assert np.abs(r.state.xyz0 - ref.state.xyz0).max() < 1e-9 * FLYING_HEIGHT
+        assert np.abs(r.state.R - ref.state.R).max() < 1e-9
+        assert r.vtpv == pytest.approx(ref.vtpv, rel=1e-9)
+        if self.iterative:
+            assert all(h.solver_info["converged"] for h in r.history)
+
+
+class IterativeSuite(SolverSuite):
+    """What only the iterative solvers report: inner iterations, residual, convergence, slowness."""
+
+    iterative = True
+    # the synthetic strips converge slowly for Gauss-Seidel (thousands of sweeps): correctness is
+    # tested here, speed in scripts/bench/bench_solvers.py
+    defaults = {"max_inner_iterations": 50000}
+    slow_limit = solvers.SLOW_SWEEPS
+
+    def test_reports_inner_iterations(self):
+        N, st = strip_case(8, 1, seed=3)
+        result = self.assert_agrees(N, st)
+        info = result.info
+        assert info["inner_iterations"] >= 1
+        assert info["slow"] is (info["inner_iterations"] > self.slow_limit)
+        assert 0 < info["relative_residual"] < SolverOptions().inner_tolerance
+
+    def test_a_looser_tolerance_needs_fewer_iterations(self):
+        N, st = strip_case(8, 1, seed=3)
+        tight = self.assert_agrees(N, st, inner_tolerance=1e-12)
+        loose = self.assert_agrees(N, st, inner_tolerance=1e-6)
+        assert loose.info["inner_iterations"] < tight.info["inner_iterations"]
+
+    def test_warns_when_it_converges_slowly(self):
+        N, st = strip_case(30, 1, seed=6)
+        with pytest.warns(SlowConvergenceWarning, match="did not reach"):
+            result = self.make(st, max_inner_iterations=3).solve(N, np.ones(N.shape[0]))
+        assert result.info["slow"] is True and result.info["converged"] is False
+        assert result.info["inner_iterations"] == 3
+
+    @pytest.mark.parametrize("warm_start", ["zero", "previous", "projected"])
+    def test_warm_starts_give_the_same_solution(self, warm_start):
+        N, st = strip_case(10, 1, seed=12)
+        solver = self.make(st, warm_start=warm_start)
+        for seed in range(3):
+            result = self.assert_agrees(N, st, seed=seed, solver=solver, warm_start=warm_start)
+            assert result.info["warm_start"] == warm_start
+
+    def test_zero_right_hand_side(self):
+        N, st = strip_case(4, 0, seed=1)
+        result = self.make(st).solve(N, np.zeros(N.shape[0]))
+        assert np.all(result.dx == 0) and result.info["converged"]
+
+
+class TestDense(SolverSuite):
+    name = "dense"
+
+
+class TestSparse(SolverSuite):
+    name = "sparse"
+
+
+class TestBanded(SolverSuite):
+    name = "banded"
+
+    @pytest.mark.parametrize("n_cameras", [0, 1, 3])
+    def test_bandwidth_of_a_strip_and_its_camera_border(self, n_cameras):
+        """Schmid Fig. 10: blocks within two photos of the diagonal, band 17; cameras a border."""
+        N, st = strip_case(20, n_cameras, seed=4)
+        result = self.assert_agrees(N, st)
+        assert result.info == {"bandwidth": 17, "border": 3 * n_cameras}
+
+
+class TestCholmod(SolverSuite):
+    name = "cholmod"
+
+    @pytest.fixture(autouse=True)
+    def _needs_scikit_sparse(self):
+        pytest.importorskip("sksparse.cholmod")
+
+    def test_analyses_once_per_adjustment(self):
+        N, st = block_case(3, 8, 1, seed=2)
+        solver = self.make(st)
+        for seed in range(3):
+            result = self.assert_agrees(N * (1.0 + seed), st, seed=seed, solver=solver)
+        assert result.info["analyses"] == 1
+
+
+class TestGaussSeidel(IterativeSuite):
+    name = "gauss-seidel"
+
+    def test_over_relaxation(self):
+        N, st = strip_case(8, 1, seed=3)
+        plain = self.assert_agrees(N, st)
+        sor = self.assert_agrees(N, st, relaxation=1.3)
+        assert sor.info["relaxation"] == 1.3
+        assert sor.info["inner_iterations"] != plain.info["inner_iterations"]
+
+
+class TestPcg(IterativeSuite):
+    name = "pcg"
+    slow_limit = solvers.SLOW_PCG
+
+
+@pytest.fixture(scope="module")
+def strip8_dense():
+    project = read_project(DATA / "strip8")
+    return project, adjust(project, AdjustmentOptions(solver="dense"))
+
+
+# -- choosing a solver ---------------------------------------------------------------------------
+
+
+def test_every_solver_has_a_suite():
+    suites = {cls.name for cls in (TestDense, TestSparse, TestBanded, TestCholmod, TestGaussSeidel, TestPcg)}
+    assert suites == set(SOLVERS) - {"auto"}
+
+
+def test_auto_picks_from_the_pattern():
+    tiny = sp.csr_matrix(np.eye(solvers.DENSE_LIMIT))
+    assert solvers.resolve_solver("auto", tiny.shape[0], tiny) == "dense"
+    N, st = strip_case(100, 1, seed=1)
+    assert solvers.resolve_solver("auto", N.shape[0], N, st) == "banded"
+    wide, wst = block_case(3, 100, 1, seed=1)  # strips of 100 photos side by side: bandwidth ~ 6 x 100
+    sparse_choice = "cholmod" if solvers.cholmod_available() else "sparse"
+    assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == sparse_choice
+    auto = make_solver(SolverOptions("auto"), st)
+    result = auto.solve(N, np.ones(N.shape[0]))
+    assert auto.name == result.solver == "banded"
+
+
+def test_auto_in_an_adjustment_reports_the_concrete_solver(strip8_dense):
+    project, ref = strip8_dense
+    r = adjust(project)
+    assert r.solver in set(SOLVERS) - {"auto"}
+    assert np.abs(r.state.xyz0 - ref.state.xyz0).max() < 1e-9 * FLYING_HEIGHT
+
+
+def test_without_scikit_sparse(monkeypatch):
+    """make_solver('cholmod') names the install command; auto never picks cholmod."""
+    monkeypatch.setitem(sys.modules, "sksparse", None)
+    monkeypatch.setitem(sys.modules, "sksparse.cholmod", None)
+    assert not solvers.cholmod_available()
+    with pytest.raises(SolverUnavailable, match=r"libsuitesparse-dev.*pip install 'striptri\[cholmod\]'"):
+        make_solver(SolverOptions("cholmod"), Structure(10))
+    wide, wst = block_case(3, 100, 1, seed=1)
+    assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == "sparse"
+    assert solvers.resolve_solver("auto", 10**6) == "sparse"
+
+
+@pytest.mark.parametrize("bad", [dict(name="lu"), dict(relaxation=2.0), dict(relaxation=0.0),
+                                 dict(inner_tolerance=0.0), dict(max_inner_iterations=0),
+                                 dict(warm_start="last")])
+def test_options_are_validated(bad):
+    with pytest.raises(ValueError):
+        SolverOptions(**bad)
+
+
+def test_one_off_solve_and_inverse_agree_with_the_reference():
+    N, st = strip_case(6, 1, seed=8)
+    b = np.random.default_rng(0).normal(size=N.shape[0])
+    for name in ("dense", "sparse", "banded", "pcg"):
+        assert scaled_error(N, solvers.solve(N, b, name, st).dx, dense_reference(N, b)) < 1e-9
+    Q = solvers.inverse(N)
+    np.testing.assert_allclose(Q @ N.toarray(), np.eye(N.shape[0]), atol=1e-8)
