@@ -1,0 +1,214 @@
+"""The same adjustment by pycolmap's bundle adjustment (COLMAP, Ceres), for comparison.
+
+pycolmap is not a dependency of striptri; it is used by the benchmark only: ``pip install pycolmap``
+(measured with pycolmap 4.2.1). Without it the benchmark skips this column.
+
+The striptri project becomes a pycolmap.Reconstruction:
+
+* one PINHOLE camera, f = c / PIXEL_SIZE pixels, principal point at the image centre; the format
+  (230 mm) is the image size. A plate point (x right, y up, mm, origin at the principal point)
+  becomes the pixel ``u = cx + x / PIXEL_SIZE, v = cy - y / PIXEL_SIZE`` (origin top left, v down).
+  PIXEL_SIZE equals the plate sigma, so one pixel is one standard deviation: Ceres' cost
+  ``1/2 sum r^2`` is ``v^T P v / 2``.
+* COLMAP's camera looks along +z with y down; striptri's along -z with y up (p = (x, y, -c)).
+  With D = diag(1, -1, -1): ``cam_from_world = D R_ground_from_cam^T (X - O)``, i.e. rotation
+  D R^T and translation -D R^T O.
+* coordinates in striptri's reduced frame (ground minus adjustment.reduction_offset), as striptri
+  adjusts them;
+* points: every point that takes part in striptri's adjustment (groups.build_batches). Full
+  control points at their given coordinates, held constant (the datum, like striptri's fixed
+  control); the others start at the least-squares intersection of their rays from the approximate
+  orientations (triangulation.intersect_rays, as striptri's bundle starts);
+* intrinsics constant; poses start at the project's approximate orientations.
+
+Ceres: linear solver SPARSE_SCHUR forced (COLMAP's automatic choice takes a dense or iterative
+solver by image count), trust region Levenberg-Marquardt, tolerances tight enough to reach
+striptri's convergence.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from striptri.groups import build_batches
+from striptri.model import FULL, Project
+from striptri.parameters import reduction_offset
+from striptri.camera import ray_ground
+from striptri.triangulation import intersect_rays
+
+PIXEL_SIZE = 0.005  # mm per pixel
+INSTALL_HINT = "pip install pycolmap"
+D = np.diag([1.0, -1.0, -1.0])
+
+
+def pycolmap_module():
+    """The pycolmap module, or None when it is not installed."""
+    try:
+        import pycolmap
+    except ImportError:
+        return None
+    return pycolmap
+
+
+@dataclass
+class ColmapData:
+    """What the reconstruction is built from (numpy only, built once per case)."""
+
+    offset: np.ndarray  # (3,) reduction offset
+    point_index: np.ndarray  # (p,) striptri points that take part
+    xyz_start: np.ndarray  # (p, 3) reduced frame
+    constant: np.ndarray  # (p,) bool: full control held fixed
+    uv: np.ndarray  # (m, 2) pixels of every image point
+    photo_of_row: np.ndarray  # (m,)
+    point_of_row: np.ndarray  # (m,) position in point_index, -1 if the point takes no part
+    xyz0: np.ndarray  # (n, 3) approximate centres, reduced frame
+    R: np.ndarray  # (n, 3, 3) approximate R_ground_from_cam
+    c: float
+    format: float
+
+
+def prepare(project: Project, format_mm: float = 230.0) -> ColmapData:
+    """Pixels, start points and datum of a project with one camera and full (fixed) control only."""
+    if len(project.cameras) != 1:
+        raise ValueError("the pycolmap comparison handles one camera")
+    c, xp, yp = project.cameras.interior[0]
+    offset = reduction_offset(project)
+    xyz0 = project.photos.xyz0 - offset
+    R = project.photos.R_ground_from_cam
+    pts = project.points
+    ip = project.image_points
+    xyz = np.full((len(pts), 3), np.nan)
+    for batch in build_batches(project):
+        if batch.family == "collinearity":
+            xyz[batch.point_index] = pts.xyz_given[batch.point_index] - offset
+            continue
+        ph, rows = batch.photo_index, batch.image_rows
+        r = ray_ground(R[ph], ip.xy[rows], project.cameras.interior[0])
+        xyz[batch.point_index] = intersect_rays(xyz0[ph], r)
+    taking_part = np.flatnonzero(np.isfinite(xyz[:, 0]))
+    constant = pts.kind[taking_part] == FULL
+    if np.any(np.isfinite(pts.sigma_given[taking_part][constant])):
+        raise ValueError("the pycolmap comparison holds control fixed: weighted control is not supported")
+    position = np.full(len(pts), -1)
+    position[taking_part] = np.arange(len(taking_part))
+    half = format_mm / 2 / PIXEL_SIZE
+    uv = np.column_stack([half + (ip.xy[:, 0] - xp) / PIXEL_SIZE, half - (ip.xy[:, 1] - yp) / PIXEL_SIZE])
+    return ColmapData(
+        offset=offset, point_index=taking_part, xyz_start=xyz[taking_part], constant=constant, uv=uv,
+        photo_of_row=ip.photo_index, point_of_row=position[ip.point_index], xyz0=xyz0, R=R, c=float(c),
+        format=format_mm,
+    )
+
+
+def build(pycolmap, data: ColmapData):
+    """-> (reconstruction, config, point3D ids (p,))."""
+    size = int(round(data.format / PIXEL_SIZE))
+    f = data.c / PIXEL_SIZE
+    camera = pycolmap.Camera(model="PINHOLE", width=size, height=size, params=[f, f, size / 2, size / 2], camera_id=1)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(camera)
+    config = pycolmap.BundleAdjustmentConfig()
+    config.set_constant_cam_intrinsics(1)
+    n = len(data.xyz0)
+    order = np.argsort(data.photo_of_row, kind="stable")
+    starts = np.searchsorted(data.photo_of_row[order], np.arange(n + 1))
+    rows_of_photo = [order[starts[i] : starts[i + 1]] for i in range(n)]
+    for i in range(n):
+        R_cam_from_world = D @ data.R[i].T
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(R_cam_from_world), -R_cam_from_world @ data.xyz0[i])
+        image = pycolmap.Image(name=f"{i}", keypoints=data.uv[rows_of_photo[i]], camera_id=1, image_id=i + 1)
+        rec.add_image_with_trivial_frame(image, pose)
+        config.add_image(i + 1)
+    # tracks: (image id, index of the keypoint in that image) per row
+    index_in_image = np.empty(len(data.uv), dtype=int)
+    for i in range(n):
+        index_in_image[rows_of_photo[i]] = np.arange(len(rows_of_photo[i]))
+    rows = np.flatnonzero(data.point_of_row >= 0)
+    rows = rows[np.argsort(data.point_of_row[rows], kind="stable")]
+    bounds = np.searchsorted(data.point_of_row[rows], np.arange(len(data.point_index) + 1))
+    ids = np.empty(len(data.point_index), dtype=np.int64)
+    for j in range(len(data.point_index)):
+        r = rows[bounds[j] : bounds[j + 1]]
+        track = pycolmap.Track([pycolmap.TrackElement(int(data.photo_of_row[k]) + 1, int(index_in_image[k])) for k in r])
+        ids[j] = rec.add_point3D(data.xyz_start[j], track)
+        if data.constant[j]:
+            config.add_constant_point(int(ids[j]))
+    return rec, config, ids
+
+
+def options(pycolmap, threads: int, initial_radius: float | None = None, max_iterations: int = 100):
+    """COLMAP's bundle adjustment options with intrinsics constant, SPARSE_SCHUR forced and tight
+    tolerances. initial_radius: Ceres' initial trust region radius (None: COLMAP's 1e4)."""
+    opts = pycolmap.BundleAdjustmentOptions()
+    opts.refine_focal_length = False
+    opts.refine_principal_point = False
+    opts.refine_extra_params = False
+    opts.refine_sensor_from_rig = False
+    opts.print_summary = False
+    ceres = opts.ceres
+    ceres.auto_select_solver_type = False
+    ceres.use_gpu = False
+    so = ceres.solver_options
+    so.linear_solver_type = pycolmap._core.pyceres.LinearSolverType.SPARSE_SCHUR
+    so.num_threads = threads
+    so.max_num_iterations = max_iterations
+    so.function_tolerance = 1e-16
+    so.gradient_tolerance = 1e-16
+    so.parameter_tolerance = 1e-12
+    if initial_radius is not None:
+        so.initial_trust_region_radius = initial_radius
+        so.max_trust_region_radius = max(so.max_trust_region_radius, initial_radius)
+    ceres.solver_options = so
+    opts.ceres = ceres
+    return opts
+
+
+@dataclass
+class ColmapRun:
+    seconds: float  # adjuster set-up and solve
+    ceres_seconds: float  # Ceres' own total time
+    build_seconds: float  # the Reconstruction from the project (Python)
+    iterations: int
+    initial_cost: float
+    final_cost: float
+    linear_solver: str
+    termination: str
+    xyz0: np.ndarray  # (n, 3) adjusted centres, ground frame (offset added)
+    R: np.ndarray  # (n, 3, 3) adjusted R_ground_from_cam
+    xyz_points: np.ndarray  # (p, 3) ground frame, rows of data.point_index
+
+    @property
+    def vtpv(self) -> float:
+        """2 x final cost: one pixel is one sigma (module doc)."""
+        return 2.0 * self.final_cost
+
+
+def run(pycolmap, data: ColmapData, threads: int, initial_radius: float | None = None) -> ColmapRun:
+    t0 = time.perf_counter()
+    rec, config, ids = build(pycolmap, data)
+    t1 = time.perf_counter()
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options(pycolmap, threads, initial_radius), config, rec)
+    summary = adjuster.solve()
+    t2 = time.perf_counter()
+    cs = summary.ceres_summary
+    n = len(data.xyz0)
+    centres = np.array([rec.image(i + 1).projection_center() for i in range(n)]) + data.offset
+    R = np.array([rec.image(i + 1).cam_from_world().rotation.matrix() for i in range(n)])
+    R_ground_from_cam = np.swapaxes(R, 1, 2) @ D  # (D R^T)^T = R D
+    xyz_points = np.array([rec.point3D(int(i)).xyz for i in ids]) + data.offset
+    return ColmapRun(
+        seconds=t2 - t1,
+        ceres_seconds=float(cs.total_time_in_seconds),
+        build_seconds=t1 - t0,
+        iterations=int(cs.num_successful_steps + cs.num_unsuccessful_steps),
+        initial_cost=float(cs.initial_cost),
+        final_cost=float(cs.final_cost),
+        linear_solver=str(cs.linear_solver_type_used).split(".")[-1],
+        termination=str(cs.termination_type).split(".")[-1],
+        xyz0=centres,
+        R=R_ground_from_cam,
+        xyz_points=xyz_points,
+    )
