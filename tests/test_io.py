@@ -380,7 +380,8 @@ BAD_CASES = {
     "toml unknown key": (
         {"project_toml": '[units]\nangle = "gon"\n'}, "project.toml", 2, ["unknown key 'angle'", "[units]"]),
     "toml unknown section": ({"project_toml": "\n[unit]\n"}, "project.toml", 2, ["unknown section [unit]"]),
-    "toml datum": ({"project_toml": "[datum]\nx = 1\n"}, "project.toml", 1, ["[datum]", "not supported"]),
+    "toml datum key": ({"project_toml": "[datum]\nx = 1\n"}, "project.toml", 2, ["unknown key", "x"]),
+    "toml datum mode": ({"project_toml": "[datum]\nmode = \"free\"\n"}, "project.toml", 2, ["mode", "free"]),
     "toml syntax": ({"project_toml": "[units]\nangles = deg\n"}, "project.toml", 2, ["not valid TOML"]),
 }
 

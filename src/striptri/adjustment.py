@@ -32,6 +32,9 @@ from .parameters import State, UnknownLayout, build_layout, initial_state, reduc
 from .rotations import angles_jacobian
 
 METHODS = ("conditions", "bundle")
+# "control": the datum comes from control and observed elements (a defect is an error);
+# "inner": a free network, the directions the control leaves free fixed by inner constraints.
+DATUMS = ("control", "inner")
 
 
 @dataclass(frozen=True)
@@ -50,8 +53,11 @@ class AdjustmentOptions:
     chunk_size: int = 4096
     scale_form: str = "3d"
     condition_transform: object = None
+    datum: str = "control"
 
     def __post_init__(self):
+        if self.datum not in DATUMS:
+            raise ValueError(f"unknown datum {self.datum!r}; choose one of {', '.join(DATUMS)}")
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
         solvers.resolve_solver(self.solver, 0)
@@ -94,13 +100,22 @@ class AdjustmentResult:
     N: sp.csr_matrix
     checks: dict
     timings: dict = field(default_factory=dict)
+    free_network: datum.FreeNetwork | None = None
     _Qxx: np.ndarray | None = None
 
     @property
     def Qxx(self) -> np.ndarray:
-        """N^-1, the weight coefficients of the unknowns (Schmid 53)."""
+        """N^-1, the weight coefficients of the unknowns (Schmid 53); for a free network the
+        inverse under its inner constraints, S Q_min S^T."""
         if self._Qxx is None:
-            self._Qxx = solvers.inverse(self.N)
+            if self.free_network is None:
+                self._Qxx = solvers.inverse(self.N)
+            else:
+                fn = self.free_network
+                N_min, mask = fn.minimum_constraint_system(self.N)
+                Q_min = solvers.inverse(N_min) * np.outer(1 - mask, 1 - mask)
+                SQ = fn.transform(Q_min)
+                self._Qxx = fn.transform(SQ.T).T
         return self._Qxx
 
     @property
@@ -237,8 +252,23 @@ def _back_substitute(sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray, 
     return plate_hat, control_hat, v_par, vtpv
 
 
+def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork) -> solvers.SolveResult:
+    """Minimum constraints, then the S-transformation onto the inner constraints (datum.FreeNetwork)."""
+    N_min, mask = fn.minimum_constraint_system(acc.N)
+    solved = solver.solve(N_min, -acc.u * (1.0 - mask))
+    return solvers.SolveResult(fn.transform(solved.dx), solved.solver, solved.info)
+
+
 def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
-                      project: Project, offset) -> solvers.SolveResult:
+                      project: Project, offset, free_network=None) -> solvers.SolveResult:
+    if free_network is not None:
+        try:
+            return _solve_free_network(acc, solver, free_network)
+        except solvers.SingularNormalMatrix as exc:
+            raise NumericalFailure(
+                "the free network's normal equations are singular beyond the datum: some "
+                "orientation element is not determined by the measurements."
+            ) from exc
     defects = datum.diagnose(acc, state, layout, offset=offset)
     if defects:
         raise NumericalFailure(datum.explain(defects))
@@ -276,7 +306,15 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     assembly = Assembly.of(batches, state, layout, options.chunk_size)
     if options.scale_form == "xz":
         _require_strip_along_x(batches, state)
-    redundancy = n_conditions + len(pobs) - layout.n_unknowns
+    free_network = None
+    if options.datum == "inner":
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        acc0 = _assemble(sweep, pobs, assembly)
+        free = datum.free_directions(acc0, state, layout)
+        if len(free):
+            free_network = datum.FreeNetwork.of(free, acc0.N)
+    n_datum = 0 if free_network is None else len(free_network)
+    redundancy = n_conditions + len(pobs) - layout.n_unknowns + n_datum
     if redundancy < 0:
         sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
         defects = datum.diagnose(_assemble(sweep, pobs, assembly), state, layout, offset=offset)
@@ -302,7 +340,9 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         acc = _assemble(sweep, pobs, assembly)
         t1 = time.perf_counter()
         t_conditions = sweep.seconds
-        solved = _solve_or_explain(acc, solver, state, layout, project, offset)
+        if free_network is not None:
+            free_network = free_network.at(state, layout, acc.N)
+        solved = _solve_or_explain(acc, solver, state, layout, project, offset, free_network)
         dx = solved.dx
         t2 = time.perf_counter()
         plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
@@ -328,7 +368,9 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     t0 = time.perf_counter()
     final = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
     acc = _assemble(final, pobs, assembly)
-    checks = _final_checks(final, acc, vtpv, pobs, v_par)
+    if free_network is not None:
+        free_network = free_network.at(state, layout, acc.N)
+    checks = _final_checks(final, acc, vtpv, pobs, v_par, free_network)
     timings["final_checks"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
 
@@ -359,6 +401,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         N=acc.N,
         checks=checks,
         timings=timings,
+        free_network=free_network,
     )
 
 
@@ -403,7 +446,8 @@ def _diverging(history: list[Iteration]) -> bool:
     return all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
 
 
-def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par: np.ndarray) -> dict:
+def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par: np.ndarray,
+                  free_network=None) -> dict:
     """Schmid's checks after convergence.
 
     * every condition holds for the adjusted observations and the final unknowns (his final
@@ -423,7 +467,13 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
     d = acc.N.diagonal()
     btk = float(np.max(np.abs(acc.u) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
     try:
-        reduced = acc.wPw - float(acc.u @ solvers.solve(acc.N, acc.u, "sparse" if len(d) > 1500 else "dense").dx)
+        direct = solvers.make_solver(solvers.SolverOptions(name="sparse" if len(d) > 1500 else "dense"),
+                                     solvers.Structure(len(d)))
+        if free_network is None:
+            dx = direct.solve(acc.N, acc.u).dx
+        else:
+            dx = -_solve_free_network(acc, direct, free_network).dx
+        reduced = acc.wPw - float(acc.u @ dx)
     except solvers.SingularNormalMatrix:
         reduced = float("nan")
     rel = abs(reduced - vtpv) / max(vtpv, 1e-300) if vtpv > 1e-20 else abs(reduced - vtpv)

@@ -13,7 +13,7 @@ import sys
 import click
 
 from striptri import __version__
-from striptri.adjustment import METHODS
+from striptri.adjustment import DATUMS, METHODS
 from striptri.errors import InputError, NumericalFailure
 from striptri.solvers import SOLVERS
 
@@ -160,13 +160,15 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
 @click.option("--max-iterations", type=click.IntRange(min=1), default=None, help="Iteration limit [30].")
 @click.option("--scale-form", type=click.Choice(["3d", "xz"]), default=None,
               help="Scale-transfer condition: direction-free 3d (default) or Schmid's XZ form (94).")
+@click.option("--datum", type=click.Choice(list(DATUMS)), default=None,
+              help="Datum: from control (default; a defect is an error) or a free network by inner constraints.")
 @reports_errors
-def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form):
+def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum):
     """Adjust the project in PROJECT_DIR and write the results to --out."""
     from striptri.pipeline import run_adjust
 
     products = run_adjust(project_dir, out_dir, method=method, solver=solver,
-                          max_iterations=max_iterations, scale_form=scale_form)
+                          max_iterations=max_iterations, scale_form=scale_form, datum=datum)
     s = products.summary
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
     state = "converged" if s["converged"] else "NOT converged"

@@ -12,6 +12,8 @@ datum defect, and its eigenvector says in words which translation, rotation or s
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
@@ -59,9 +61,31 @@ def similarity_changes(state: State, layout: UnknownLayout) -> np.ndarray:
     return H
 
 
+@dataclass
+class FreeDirections:
+    """The similarity directions the control leaves free: ``H`` (n_unknowns, d) their change of the
+    unknowns; ``coefficients`` (7, d) in the scaled similarity basis; ``extent`` of the block."""
+
+    H: np.ndarray
+    coefficients: np.ndarray
+    extent: float
+
+    def __len__(self) -> int:
+        return self.H.shape[1]
+
+
 def diagnose(acc, state: State, layout: UnknownLayout, tolerance: float = STRICT_TOLERANCE, offset=None) -> list[str]:
-    """Names of the similarity directions left free by the control (empty when none): those whose
-    Rayleigh quotient h^T N h / h^T diag(N) h is below ``tolerance``.
+    """Names of the similarity directions left free by the control (empty when none)."""
+    free = free_directions(acc, state, layout, tolerance)
+    if len(free) == 0:
+        return []
+    centroid = state.xyz0.mean(axis=0) + (0.0 if offset is None else offset)
+    return describe(free.coefficients, free.extent, centroid)
+
+
+def free_directions(acc, state: State, layout: UnknownLayout, tolerance: float = STRICT_TOLERANCE) -> FreeDirections:
+    """The similarity directions left free by the control: those whose Rayleigh quotient
+    h^T N h / h^T diag(N) h is below ``tolerance``.
 
     acc: the NormalAccumulator (N, and the sums B~^T g~, g~^T g~ of the misclosures). Translations
     and rotations leave every tie condition unchanged (B h = 0), but a change of scale multiplies
@@ -69,30 +93,14 @@ def diagnose(acc, state: State, layout: UnknownLayout, tolerance: float = STRICT
     tested with ``B h_scale - g`` in place of ``B h_scale``.
     """
     N = acc.N
-    n_unknowns = layout.n_unknowns
-    H_el = similarity_changes(state, layout)  # (n, 6, 7)
-    cols = layout.photo_cols
     extent = max(float(np.ptp(state.xyz0, axis=0).max()), 1.0)
-    units = np.array([1, 1, 1, 1 / extent, 1 / extent, 1 / extent, 1 / extent], dtype=float)
-    H_el = H_el * units  # comparable columns: about one metre of motion across the block
-
-    constraints = [H_el[cols < 0]]  # fixed elements must not move
-    first_at_col: dict[int, tuple[int, int]] = {}
-    for i, e in zip(*np.nonzero(cols >= 0)):
-        c = int(cols[i, e])
-        if c in first_at_col:  # tied elements (enforced base) must move together
-            i0, e0 = first_at_col[c]
-            constraints.append((H_el[i, e] - H_el[i0, e0])[None])
-        else:
-            first_at_col[c] = (i, e)
-    C = np.concatenate(constraints, axis=0) if constraints else np.zeros((0, 7))
+    units = _units(extent)
+    H, C = similarity_matrix(state, layout, extent)
     scale = np.abs(C).max() if C.size else 1.0
     Z = la.null_space(C / scale, rcond=1e-9) if C.size else np.eye(7)
+    none = FreeDirections(np.zeros((layout.n_unknowns, 0)), np.zeros((7, 0)), extent)
     if Z.shape[1] == 0:
-        return []
-    H = np.zeros((n_unknowns, 7))
-    for c, (i, e) in first_at_col.items():
-        H[c] = H_el[i, e]
+        return none
     K7 = H.T @ (N @ H)
     Hug = H.T @ acc.ug * units[6]  # the scale column is h_scale * units[6], so B h = g * units[6]
     K7[:, 6] -= Hug
@@ -103,13 +111,93 @@ def diagnose(acc, state: State, layout: UnknownLayout, tolerance: float = STRICT
     D = Hz.T @ (N.diagonal()[:, None] * Hz)
     keep = np.diag(D) > 0
     if not keep.any():
-        return []
+        return none
     lam, vec = la.eigh(K[np.ix_(keep, keep)], D[np.ix_(keep, keep)])
     free = Z[:, keep] @ vec[:, lam < tolerance]  # (7, d) coefficients of the free directions
-    if free.shape[1] == 0:
-        return []
-    centroid = state.xyz0.mean(axis=0) + (0.0 if offset is None else offset)
-    return describe(free, extent, centroid)
+    return FreeDirections(H @ free, free, extent)
+
+
+@dataclass
+class FreeNetwork:
+    """Datum of a free network (no or too little control): the corrections satisfy ``C^T dx = 0``.
+
+    Solved by minimum constraints (the ``held`` unknowns, one per free direction, chosen by a
+    pivoted QR so that they fix those directions well, are held at zero) followed by the
+    S-transformation ``dx = S dx_min``, ``S = I - H (C^T H)^-1 C^T``, which moves the solution along
+    the free similarity directions H onto the constraints; ``Q = S Q_min S^T``.
+    """
+
+    H: np.ndarray
+    C: np.ndarray
+    held: np.ndarray
+    free: FreeDirections
+
+    def __len__(self) -> int:
+        return self.H.shape[1]
+
+    @staticmethod
+    def of(free: FreeDirections, N) -> "FreeNetwork":
+        C = inner_constraints(free, N)
+        scaled = free.H * np.sqrt(N.diagonal())[:, None]
+        _, _, piv = la.qr(scaled.T, pivoting=True, mode="economic")
+        return FreeNetwork(free.H, C, np.sort(piv[: free.H.shape[1]]), free)
+
+    def at(self, state: State, layout: UnknownLayout, N) -> "FreeNetwork":
+        """The same free directions at another state (the similarity directions move with the
+        photos): H, C recomputed, the held unknowns kept."""
+        H = similarity_matrix(state, layout, self.free.extent)[0] @ self.free.coefficients
+        free = FreeDirections(H, self.free.coefficients, self.free.extent)
+        return FreeNetwork(H, inner_constraints(free, N), self.held, free)
+
+    def minimum_constraint_system(self, N):
+        """N with the held unknowns replaced by identity rows and columns (scaled by N_ii)."""
+        mask = np.zeros(N.shape[0])
+        mask[self.held] = 1.0
+        keep = sp.diags(1.0 - mask)
+        return (keep @ N @ keep + sp.diags(mask * N.diagonal())).tocsr(), mask
+
+    def transform(self, dx_min: np.ndarray) -> np.ndarray:
+        """S dx_min (class doc); dx_min may be a vector or a matrix of columns."""
+        CtH = self.C.T @ self.H
+        return dx_min - self.H @ np.linalg.solve(CtH, self.C.T @ dx_min)
+
+
+def inner_constraints(free: FreeDirections, N) -> np.ndarray:
+    """Constraint matrix C (n_unknowns, d) of the free network: ``C^T dx = 0`` makes the corrections
+    D-orthogonal (D = diag N) to the free similarity directions, the minimum-norm solution in the
+    metric of the Jacobi-scaled unknowns (generalised inner constraints on all orientation
+    unknowns). C is normalised so that C C^T has the scale of N along those directions:
+    ``C = D H G^-1/2`` with ``G = H^T D H``."""
+    d = N.diagonal()
+    H = free.H
+    G = H.T @ (d[:, None] * H)
+    w, U = np.linalg.eigh(G)
+    return (d[:, None] * H) @ (U / np.sqrt(w)) @ U.T
+
+
+def _units(extent: float) -> np.ndarray:
+    """Scales of the seven similarity coefficients: about one metre of motion across the block."""
+    return np.array([1, 1, 1, 1 / extent, 1 / extent, 1 / extent, 1 / extent], dtype=float)
+
+
+def similarity_matrix(state: State, layout: UnknownLayout, extent: float):
+    """H (n_unknowns, 7): the change of the unknowns under the seven scaled similarities, and the
+    constraint rows (r, 7) that fixed and tied elements put on the similarity coefficients."""
+    H_el = similarity_changes(state, layout) * _units(extent)  # (n, 6, 7)
+    cols = layout.photo_cols
+    constraints = [H_el[cols < 0]]  # fixed elements must not move
+    first_at_col: dict[int, tuple[int, int]] = {}
+    for i, e in zip(*np.nonzero(cols >= 0)):
+        c = int(cols[i, e])
+        if c in first_at_col:  # tied elements (enforced base) must move together
+            i0, e0 = first_at_col[c]
+            constraints.append((H_el[i, e] - H_el[i0, e0])[None])
+        else:
+            first_at_col[c] = (i, e)
+    H = np.zeros((layout.n_unknowns, 7))
+    for c, (i, e) in first_at_col.items():
+        H[c] = H_el[i, e]
+    return H, np.concatenate(constraints, axis=0)
 
 
 def describe(free: np.ndarray, extent: float, centroid: np.ndarray) -> list[str]:
@@ -157,6 +245,7 @@ def explain(defects: list[str]) -> str:
     lines += [f"  - {d}" for d in defects]
     lines.append(
         "Add control (at least two full points and one height point not on a line, i.e. seven "
-        "independent datum elements), observed projection centres, or fix orientation elements."
+        "independent datum elements), observed projection centres, or fix orientation elements; "
+        "or adjust it as a free network (--datum inner, or [datum] mode = \"inner\" in project.toml)."
     )
     return "\n".join(lines)

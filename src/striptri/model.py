@@ -132,6 +132,7 @@ class ProjectSettings:
     method: str = "conditions"
     solver: str = "auto"
     max_iterations: int = 30
+    datum: str = "control"
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ import numpy as np
 
 from striptri import model, rotations
 from striptri.errors import InputError
-from striptri.adjustment import METHODS
+from striptri.adjustment import DATUMS, METHODS
 from striptri.io.csvtable import CsvTable, read_csv
 from striptri.solvers import SOLVERS
 
@@ -55,6 +55,7 @@ TOML_KEYS = {
     "units": ("angles", "rotation"),
     "defaults": ("sigma_image",),
     "adjustment": ("method", "solver", "max_iterations"),
+    "datum": ("mode",),
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "project.toml")
@@ -126,6 +127,7 @@ def read_settings(path: str | Path) -> model.ProjectSettings:
         method=choice("adjustment", "method", METHODS, defaults.method),
         solver=choice("adjustment", "solver", SOLVERS, defaults.solver),
         max_iterations=max_iterations,
+        datum=choice("datum", "mode", DATUMS, defaults.datum),
     )
 
 
@@ -155,8 +157,6 @@ def _check_toml_keys(path: Path, text: str, data: dict) -> None:
         if section not in TOML_KEYS:
             known = ", ".join(f"[{s}]" for s in TOML_KEYS)
             reason = f"unknown section [{section}] (known: {known})"
-            if section == "datum":
-                reason = "section [datum] is not supported yet: the datum comes from control.csv"
             raise InputError(path, _toml_section_line(text, section), reason)
         if not isinstance(table, dict):
             raise InputError(path, _toml_line(text, "", section), f"'{section}' must be a section [{section}]")

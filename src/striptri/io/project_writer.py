@@ -67,7 +67,8 @@ def reader_point_order(project: model.Project) -> np.ndarray:
 
 
 def settings_toml(settings: model.ProjectSettings) -> str:
-    """project.toml holding every setting explicitly."""
+    """project.toml holding every setting explicitly ([datum] only when it is not the default)."""
+    datum = "" if settings.datum == model.ProjectSettings().datum else f'\n[datum]\nmode = "{settings.datum}"\n'
     return (
         "# striptri project settings (docs/file-formats.md)\n"
         "[units]\n"
@@ -79,6 +80,7 @@ def settings_toml(settings: model.ProjectSettings) -> str:
         f'method = "{settings.method}"\n'
         f'solver = "{settings.solver}"\n'
         f"max_iterations = {int(settings.max_iterations)}\n"
+        + datum
     )
 
 

@@ -1,0 +1,105 @@
+"""Free networks: data without (enough) control adjusted with inner constraints. The datum-invariant
+results (v^T P v, residuals, the shape of the block) must equal those of an adjustment whose control
+gives exactly the seven datum elements and no more; the cofactor matrix is a generalised inverse of
+N orthogonal to the constraints."""
+
+import json
+import subprocess
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from striptri import model
+from striptri import simulate as sim
+from striptri.adjustment import AdjustmentOptions, adjust
+from striptri.errors import NumericalFailure
+from striptri.io import write_project
+
+
+def _strip(seed=5):
+    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=5), control=sim.ControlDesign(layout="ends"),
+                                 points=sim.PointDesign(extra_ties_per_model=5))
+    truth = sim.make_truth(design, np.random.default_rng(seed))
+    return sim.perturb(truth, sim.NoiseOptions(), np.random.default_rng(seed + 1))
+
+
+def _relabel(project, kinds: dict):
+    k, g = project.points.kind.copy(), project.points.xyz_given.copy()
+    for i, kind in kinds.items():
+        k[i] = kind
+        g[i, ~np.array(model.GIVEN_AXES[kind])] = np.nan
+    return replace(project, points=replace(project.points, kind=k, xyz_given=g))
+
+
+@pytest.fixture(scope="module")
+def pair_of_runs():
+    p = _strip()
+    full = np.flatnonzero(p.points.kind == model.FULL)
+    # two full points and one height point: exactly the seven datum elements
+    minimal = {int(i): model.TIE for i in full}
+    minimal.update({int(full[0]): model.FULL, int(full[-1]): model.FULL, int(full[1]): model.HEIGHT})
+    ties_only = {int(i): model.TIE for i in full}
+    a = adjust(_relabel(p, minimal))
+    b = adjust(_relabel(p, ties_only), AdjustmentOptions(datum="inner"))
+    return a, b
+
+
+def test_free_network_equals_minimal_control_in_everything_datum_invariant(pair_of_runs):
+    a, b = pair_of_runs
+    assert b.converged and len(b.free_network) == 7
+    assert b.redundancy == a.redundancy
+    assert b.vtpv == pytest.approx(a.vtpv, rel=1e-9)
+    np.testing.assert_allclose(b.plate_residuals, a.plate_residuals, atol=1e-9)
+    # the shape: relative rotations and ratios of distances between projection centres
+    for i, j in [(0, 3), (1, 4), (2, 3)]:
+        np.testing.assert_allclose(b.state.R[i].T @ b.state.R[j], a.state.R[i].T @ a.state.R[j], atol=1e-12)
+    da = np.linalg.norm(a.state.xyz0[1:] - a.state.xyz0[0], axis=1)
+    db = np.linalg.norm(b.state.xyz0[1:] - b.state.xyz0[0], axis=1)
+    np.testing.assert_allclose(db / db[-1], da / da[-1], atol=1e-12)
+
+
+def test_free_network_cofactors_are_the_inner_constraint_inverse(pair_of_runs):
+    _, b = pair_of_runs
+    N, Q, C = b.N.toarray(), b.Qxx, b.free_network.C
+    assert np.abs(N @ Q @ N - N).max() < 1e-10 * np.abs(N).max()  # a generalised inverse of N
+    assert np.abs(C.T @ Q).max() < 1e-10 * np.abs(Q).max()  # orthogonal to the constraints
+    np.testing.assert_allclose(Q, Q.T, atol=1e-12 * np.abs(Q).max())
+    # and the minimum-norm one: equal to the pseudo-inverse in the metric of the constraints
+    d = np.sqrt(N.diagonal())
+    pinv = np.linalg.pinv((N / d[:, None]) / d[None, :], rcond=1e-10) / d[:, None] / d[None, :]
+    np.testing.assert_allclose(Q, pinv, atol=1e-8 * np.abs(Q).max())
+
+
+def test_partial_defect_only_the_free_directions_are_constrained():
+    """Plan control only leaves translation in Z free: the inner datum fixes that one direction
+    and keeps the plan control exactly."""
+    p = _strip()
+    full = np.flatnonzero(p.points.kind == model.FULL)
+    q = _relabel(p, {int(i): model.PLAN for i in full})
+    with pytest.raises(NumericalFailure, match="translation in Z"):
+        adjust(q)
+    r = adjust(q, AdjustmentOptions(datum="inner"))
+    assert r.converged and len(r.free_network) == 1
+    assert r.redundancy == r.n_conditions - r.n_unknowns + 1
+
+
+def test_with_full_control_inner_datum_changes_nothing():
+    p = _strip()
+    a, b = adjust(p), adjust(p, AdjustmentOptions(datum="inner"))
+    assert b.free_network is None
+    np.testing.assert_allclose(b.state.xyz0, a.state.xyz0, atol=1e-9)
+
+
+def test_command_line_datum_inner(tmp_path):
+    p = _strip()
+    full = np.flatnonzero(p.points.kind == model.FULL)
+    write_project(tmp_path / "free", _relabel(p, {int(i): model.TIE for i in full}))
+    bad = subprocess.run(["striptri", "adjust", str(tmp_path / "free"), "--out", str(tmp_path / "o1")],
+                         capture_output=True, text=True)
+    assert bad.returncode == 1 and "datum" in bad.stderr and "--datum inner" in bad.stderr
+    ok = subprocess.run(["striptri", "adjust", str(tmp_path / "free"), "--out", str(tmp_path / "o2"),
+                         "--datum", "inner"], capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    summary = json.loads((tmp_path / "o2" / "summary.json").read_text())
+    assert summary["converged"] and summary["redundancy"] > 0
