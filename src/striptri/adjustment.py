@@ -58,6 +58,9 @@ class AdjustmentOptions:
     def __post_init__(self):
         if self.datum not in DATUMS:
             raise ValueError(f"unknown datum {self.datum!r}; choose one of {', '.join(DATUMS)}")
+        if self.datum != "control" and self.method == "bundle":
+            raise ValueError("the free-network datum (inner) is available with the conditions method only; "
+                             "use --method conditions")
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
         solvers.resolve_solver(self.solver, 0)
