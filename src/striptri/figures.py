@@ -10,8 +10,10 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
+from matplotlib.collections import EllipseCollection, LineCollection  # noqa: E402
 
 
 def _png(fig) -> bytes:
@@ -64,4 +66,247 @@ def normal_matrix_structure(N: sp.spmatrix, block_starts: np.ndarray, n_photo_bl
     fill = pattern.nnz / max(nb * nb, 1)
     ax.set_title(title or f"normal matrix: {n} unknowns, {nb} blocks, {fill:.1%} of blocks filled, "
                           f"block bandwidth {bandwidth}", fontsize=9)
+    return _png(fig)
+
+
+# Colours shared by the figures and the report's legend text.
+RESIDUAL_COLOUR = "#1f4e79"
+FLAG_COLOUR = "#c0392b"
+KIND_STYLE = {  # kind name -> (marker, colour, label)
+    "tie": (".", "#4c72b0", "tie point"),
+    "XYZ": ("^", "#c0392b", "full control (XYZ)"),
+    "XY": ("^", "#e67e22", "plan control (XY)"),
+    "Z": ("v", "#27ae60", "height control (Z)"),
+    "check": ("D", "#8e44ad", "check point"),
+}
+
+
+def nice_number(x: float) -> float:
+    """The largest of 1, 2, 5 times a power of ten not above x (x > 0)."""
+    if not np.isfinite(x) or x <= 0:
+        return 1.0
+    e = np.floor(np.log10(x))
+    for m in (5.0, 2.0, 1.0):
+        if m * 10**e <= x * (1 + 1e-12):
+            return float(m * 10**e)
+    return float(10**e)
+
+
+def _positive(a) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    return np.where(np.isfinite(a) & (a > 0), a, np.nan)
+
+
+def _power_label(y, _pos) -> str:
+    """1e-05 -> "1e-5": short plain labels for log axes."""
+    return f"{y:.0e}".replace("e+0", "e").replace("e-0", "e-")
+
+
+def convergence(vtpv, max_correction, inner_iterations=None) -> bytes:
+    """Convergence history on log axes: v^T P v and the largest correction (in units of its
+    standard deviation) per iteration; a third panel with the inner iterations of an iterative
+    solver when given. All arrays (n_iter,)."""
+    it = np.arange(1, len(vtpv) + 1)
+    n_panels = 3 if inner_iterations is not None else 2
+    fig, axes = plt.subplots(1, n_panels, figsize=(3.3 * n_panels, 2.6))
+    for ax, values, label in ((axes[0], vtpv, "vᵀP v"), (axes[1], max_correction, "largest |dx| / its σ")):
+        ax.semilogy(it, _positive(values), "o-", color=RESIDUAL_COLOUR, markersize=4)
+        # plain labels and no minor ticks: mathtext labels and minor gridlines cost most of the time
+        ax.yaxis.set_major_locator(matplotlib.ticker.LogLocator(numticks=7))
+        ax.yaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+        ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(_power_label))
+        ax.set_xlabel("iteration", fontsize=8)
+        ax.set_title(label, fontsize=9)
+        ax.grid(True, linewidth=0.3, alpha=0.6)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    if inner_iterations is not None:
+        ax = axes[2]
+        ax.bar(it, np.nan_to_num(np.asarray(inner_iterations, dtype=float)), color="#7f8c8d")
+        ax.set_xlabel("iteration", fontsize=8)
+        ax.set_title("inner iterations of the solver", fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _format_frame(ax, half_format: float) -> None:
+    h = half_format
+    ax.plot([-h, h, h, -h, -h], [-h, -h, h, h, -h], color="#888888", linewidth=0.6)
+    ax.plot([-0.03 * h, 0.03 * h], [0, 0], color="#888888", linewidth=0.5)
+    ax.plot([0, 0], [-0.03 * h, 0.03 * h], color="#888888", linewidth=0.5)
+    ax.set_xlim(-1.04 * h, 1.04 * h)
+    ax.set_ylim(-1.04 * h, 1.04 * h)
+    ax.set_aspect("equal")
+    for s in ax.spines.values():
+        s.set_visible(False)
+
+
+def _vectors(ax, xy, v, flagged, magnification, width=0.6, alpha=1.0, rasterized=False, dots=True) -> None:
+    """Residual vectors as line segments from the measured point to point + magnification v;
+    flagged ones on top in FLAG_COLOUR, opaque."""
+    styles = ((~flagged, RESIDUAL_COLOUR, width, alpha), (flagged, FLAG_COLOUR, 2.0 * max(width, 0.6), 1.0))
+    for sel, colour, lw, al in styles:
+        if not sel.any():
+            continue
+        seg = np.stack([xy[sel], xy[sel] + magnification * v[sel]], axis=1)
+        ax.add_collection(LineCollection(seg, colors=colour, linewidths=lw, alpha=al, rasterized=rasterized,
+                                         zorder=2 if colour == RESIDUAL_COLOUR else 4))
+        if dots or colour == FLAG_COLOUR:
+            ax.scatter(xy[sel, 0], xy[sel, 1], s=2 if colour == RESIDUAL_COLOUR else 6, color=colour,
+                       linewidths=0, alpha=al, rasterized=rasterized, zorder=3 if colour == RESIDUAL_COLOUR else 5)
+
+
+def _scale_bar(ax, length_plot: float, label: str, half_format: float) -> None:
+    """A bar of length_plot (plot units) in the lower left corner of the format."""
+    x0, y0 = -0.92 * half_format, -0.9 * half_format
+    ax.plot([x0, x0 + length_plot], [y0, y0], color="black", linewidth=1.6, solid_capstyle="butt")
+    ax.text(x0, y0 + 0.05 * half_format, label, fontsize=6.5, va="bottom", ha="left")
+
+
+def plate_residuals_per_photo(xy_plate, v_plate, flagged, groups, titles, half_format: float,
+                              magnification: float, bar_length: float, bar_label: str, ncols: int = 6) -> bytes:
+    """Small multiples: the residual vectors of one photo per panel, drawn on the format.
+
+    xy_plate, v_plate: (m, 2) measured plate coordinates and residuals (plate units); flagged: (m,)
+    bool; groups: list of index arrays into the rows, one per panel; titles: one per panel;
+    half_format: half the side of the drawn frame; the vectors are drawn magnified by
+    ``magnification``; the scale bar shows a residual of bar_length (plate units) labelled bar_label.
+
+    All panels share one axes (each shifted to its place in the grid): one collection per colour
+    instead of one axes per photo keeps this fast for many panels.
+    """
+    n = len(groups)
+    ncols = max(1, min(ncols, n))
+    nrows = int(np.ceil(n / ncols))
+    h = half_format
+    pitch_x, pitch_y = 2.25 * h, 2.5 * h  # room for the title above each frame
+    fig = plt.figure(figsize=(1.9 * ncols, 2.1 * nrows))
+    ax = fig.add_axes((0, 0, 1, 1))
+    shift = np.array([[(k % ncols) * pitch_x, -(k // ncols) * pitch_y] for k in range(n)]).reshape(-1, 2)
+    rows = np.concatenate(groups) if n else np.zeros(0, dtype=int)
+    panel = np.repeat(np.arange(n), [len(g) for g in groups])
+    xy = xy_plate[rows] + shift[panel]
+    frame = np.array([[-h, -h], [h, -h], [h, h], [-h, h], [-h, -h]])
+    ax.add_collection(LineCollection([frame + s for s in shift], colors="#888888", linewidths=0.6))
+    cross = [np.array([[-0.03 * h, 0], [0.03 * h, 0]]), np.array([[0, -0.03 * h], [0, 0.03 * h]])]
+    ax.add_collection(LineCollection([c + s for s in shift for c in cross], colors="#888888", linewidths=0.5))
+    _vectors(ax, xy, v_plate[rows], flagged[rows], magnification)
+    for k in range(n):
+        ax.text(shift[k, 0], shift[k, 1] + 1.06 * h, titles[k], fontsize=7, ha="center", va="bottom")
+    if n:
+        x0, y0 = shift[0] + (-0.92 * h, -0.9 * h)
+        ax.plot([x0, x0 + bar_length * magnification], [y0, y0], color="black", linewidth=1.6, solid_capstyle="butt")
+        ax.text(x0, y0 + 0.05 * h, bar_label, fontsize=6.5, va="bottom", ha="left")
+    ax.set_xlim(-1.1 * h, (ncols - 1) * pitch_x + 1.1 * h)
+    ax.set_ylim(-(nrows - 1) * pitch_y - 1.1 * h, 1.4 * h)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    return _png(fig)
+
+
+def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magnification: float,
+                            bar_length: float, bar_label: str, cell_means=None) -> bytes:
+    """All residual vectors of all photos over one format (systematic image errors show as a
+    pattern), and, when cell_means = (centres (k, 2), means (k, 2), counts (k,), magnification,
+    bar_length, bar_label) is given, the mean residual of each cell of a grid in a second panel."""
+    n_panels = 2 if cell_means is not None else 1
+    fig, axes = plt.subplots(1, n_panels, figsize=(4.6 * n_panels, 4.6), squeeze=False)
+    ax = axes[0, 0]
+    _format_frame(ax, half_format)
+    many = len(xy_plate) > 3000
+    _vectors(ax, xy_plate, v_plate, flagged, magnification, width=0.3 if many else 0.5, alpha=0.35 if many else 1.0,
+             rasterized=many, dots=not many)
+    _scale_bar(ax, bar_length * magnification, bar_label, half_format)
+    ax.set_title(f"all {len(xy_plate)} measurements, vectors x{magnification:g}", fontsize=9)
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel("x (mm)", fontsize=8)
+    ax.set_ylabel("y (mm)", fontsize=8)
+    if cell_means is not None:
+        centres, means, counts, mag2, bar2, label2 = cell_means
+        ax = axes[0, 1]
+        _format_frame(ax, half_format)
+        ok = counts > 0
+        seg = np.stack([centres[ok], centres[ok] + mag2 * means[ok]], axis=1)
+        ax.add_collection(LineCollection(seg, colors="#d35400", linewidths=1.6))
+        ax.scatter(centres[ok, 0], centres[ok, 1], s=8, color="#d35400", zorder=3)
+        _scale_bar(ax, bar2 * mag2, label2, half_format)
+        ax.set_title(f"mean residual per cell, vectors x{mag2:g}", fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("x (mm)", fontsize=8)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def error_ellipses(xy_centres, strip_of_photo, xy_points, kind_names, cov_xy, magnification: float,
+                   bar_length: float, bar_label: str, labels=None) -> bytes:
+    """Plan view of the block: projection centres joined along their strips, the ground points
+    coloured by kind (control as triangles) and the horizontal standard error ellipse of each point
+    magnified by ``magnification``, with a scale bar of bar_length (m) labelled bar_label.
+
+    xy_centres: (n_ph, 2) ground X, Y of the projection centres, in flight order within a strip;
+    strip_of_photo: (n_ph,) strip labels; xy_points: (n_pt, 2); kind_names: (n_pt,) names of
+    KIND_STYLE; cov_xy: (n_pt, 2, 2) covariance of X, Y in m^2 (nan where undetermined);
+    labels: optional (n_pt,) strings, drawn beside control and check points.
+    """
+    kind_names = np.asarray(kind_names)
+    many = len(xy_points) > 2000
+    every = np.concatenate([xy_centres, xy_points[np.isfinite(xy_points).all(axis=1)]])
+    dx, dy = np.ptp(every, axis=0) if len(every) else (1.0, 1.0)
+    aspect = float(np.clip((dy + 0.1 * max(dx, dy)) / max(dx, 1e-9), 0.3, 1.0))  # height / width of the axes
+    fig, ax = plt.subplots(figsize=(8.6, 0.9 + 6.3 * aspect))
+    strips = np.asarray(strip_of_photo)
+    for s in dict.fromkeys(strips.tolist()):
+        c = xy_centres[strips == s]
+        ax.plot(c[:, 0], c[:, 1], color="#95a5a6", linewidth=0.8, zorder=1)
+        if len(c) > 1:
+            ax.annotate("", xy=c[-1], xytext=c[-2],
+                        arrowprops=dict(arrowstyle="-|>", color="#95a5a6", linewidth=0.8))
+    ax.scatter(xy_centres[:, 0], xy_centres[:, 1], marker="+", s=18, color="#2c3e50", linewidths=0.7,
+               zorder=2, label="projection centre", rasterized=len(xy_centres) > 2000)
+    # ellipses: semi-axes sqrt(eigenvalues) of the 2x2 covariance
+    cov = np.asarray(cov_xy, dtype=float)
+    ok = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(xy_points).all(axis=1)
+    eigval, eigvec = np.linalg.eigh(np.where(ok[:, None, None], cov, np.eye(2)))
+    a = np.sqrt(np.maximum(eigval[:, 1], 0.0))
+    b = np.sqrt(np.maximum(eigval[:, 0], 0.0))
+    angle = np.degrees(np.arctan2(eigvec[:, 1, 1], eigvec[:, 0, 1]))
+    ok &= a > 0
+    colours = np.array([KIND_STYLE.get(k, KIND_STYLE["tie"])[1] for k in kind_names] or ["#000000"])[:len(kind_names)]
+    if ok.any():
+        ax.add_collection(EllipseCollection(
+            2 * a[ok] * magnification, 2 * b[ok] * magnification, angle[ok], units="xy",
+            offsets=xy_points[ok], offset_transform=ax.transData, facecolors="none",
+            edgecolors=colours[ok], linewidths=0.7, zorder=3, rasterized=many))
+    for name, (marker, colour, label) in KIND_STYLE.items():
+        sel = kind_names == name
+        if not sel.any():
+            continue
+        size = 10 if name == "tie" else 30
+        ax.scatter(xy_points[sel, 0], xy_points[sel, 1], marker=marker, s=size, color=colour,
+                   edgecolors="white" if name != "tie" else "none", linewidths=0.4, zorder=4,
+                   label=f"{label} ({int(sel.sum())})", rasterized=many)
+    if labels is not None:
+        named = np.flatnonzero(kind_names != "tie")
+        if len(named) <= 60:
+            for i in named:
+                ax.annotate(str(labels[i]), xy_points[i], xytext=(3, 3), textcoords="offset points",
+                            fontsize=5.5, color="#34495e", zorder=5)
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    pad = 0.04 * max(x1 - x0, y1 - y0)
+    ax.set_xlim(x0 - pad, x1 + pad)
+    ax.set_ylim(y0 - 2.5 * pad, y1 + pad)
+    bx, by = x0 - 0.5 * pad, y0 - 1.8 * pad
+    ax.plot([bx, bx + bar_length * magnification], [by, by], color="black", linewidth=2, solid_capstyle="butt")
+    ax.text(bx, by + 0.25 * pad, f"{bar_label} (ellipses x{magnification:g})", fontsize=7, va="bottom")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel("X (m)", fontsize=8)
+    ax.set_ylabel("Y (m)", fontsize=8)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    ax.grid(True, linewidth=0.3, alpha=0.5)
     return _png(fig)

@@ -94,7 +94,9 @@ def adjust_products(project: Project, options: AdjustmentOptions) -> AdjustmentP
     from .figures import normal_matrix_structure
 
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(project.photos))
-    files["report.html"] = report.html_report(project, result, summary, w, figures={"structure": structure})
+    flags = residual_table(project, result, w)["flag"]  # the flags residuals.csv carries
+    files["report.html"] = report.html_report(project, result, summary, w, points=points, flags=flags,
+                                              figures={"structure": structure})
     return AdjustmentProducts(project, result, points, summary, files)
 
 

@@ -1,27 +1,107 @@
-"""report.html: a human-readable account of an adjustment, readable offline (no scripts, no
-external files). This first version holds the summary, Schmid's checks, the convergence history,
-the check points and the largest normalised residuals; figures come with the precision issue.
+"""report.html: a human-readable account of an adjustment, readable offline.
+
+One self-contained file: inline CSS, every figure a PNG data URI, no scripts, no links but to its
+own sections. It holds the summary (with the global test of sigma0), Schmid's checks after
+convergence, the convergence history, the residual vectors on the photographs, the error ellipses
+of the ground points over the block, the check points, the flagged measurements, the photographs
+with their mean errors and the structure of the normal matrix.
+
+Large projects stay quick: at most MAX_PHOTO_PANELS photos get a panel of their own (the worst
+ones when there are more), tables list the first and worst rows with a note, and large scatters
+are rasterised.
 """
 
 from __future__ import annotations
 
 import base64
 import html
+import time
 
 import numpy as np
+from scipy.stats import chi2
 
+from . import figures as fig
 from .adjustment import AdjustmentResult
-from .model import Project
+from .io.project_reader import RADIANS_PER_UNIT
+from .model import CHECK, KIND_NAMES, Project
+from .precision import W_CRITICAL
+from .rotations import angles_from_R
+from .triangulation import Triangulated
+
+MAX_PHOTO_PANELS = 24  # all photos get a residual panel up to this many; beyond, the worst WORST_PANELS
+WORST_PANELS = 12
+MAX_PHOTO_ROWS = 40  # all photos in the table up to this many; beyond, the first and the worst PHOTO_ROWS_EACH
+PHOTO_ROWS_EACH = 10
+MAX_TABLE_ROWS = 100  # flagged measurements and check points listed at most
+CHECKS_HOLD_BELOW = 1e-6
+
+SECTIONS = {  # id -> heading, in the order of the report
+    "summary": "Summary",
+    "checks": "Checks after convergence",
+    "convergence": "Convergence",
+    "residuals": "Residuals on the photographs",
+    "points": "Precision of the ground points",
+    "check-points": "Check points",
+    "flagged": "Flagged measurements",
+    "largest": "Largest normalised residuals",
+    "photos": "Photographs",
+    "structure": "Structure of the normal matrix",
+}
+
+CHECK_TEXT = {
+    "max_condition_misclosure_sigma": "Final check: largest misclosure of a condition at the adjusted observations "
+                                      "and unknowns, in units of its standard deviation",
+    "max_BTk_sigma": "(58) B<sup>T</sup>k = 0: largest |u<sub>i</sub>| / &radic;N<sub>ii</sub> at the solution",
+    "vtpv_reduction_relative_difference": "(59) v<sup>T</sup>P v = [LL.u]: relative difference of the two sums",
+    "max_point_gradient_sigma": "Largest gradient with respect to a point coordinate, in units of its "
+                                "standard deviation",
+}
 
 _STYLE = """
-body { font-family: sans-serif; margin: 2em; max-width: 60em; color: #222 }
-table { border-collapse: collapse; margin: 0.5em 0 1.5em }
-td, th { border: 1px solid #bbb; padding: 0.2em 0.6em; text-align: right }
-th { background: #eee } td.l, th.l { text-align: left }
+:root { --ink: #1d2733; --muted: #5d6d7e; --rule: #d5dbe1; --head: #eef2f6; --accent: #1f4e79; --bad: #c0392b;
+        --good: #1e8449 }
+* { box-sizing: border-box }
+body { font: 15px/1.45 "DejaVu Sans", "Liberation Sans", Helvetica, Arial, sans-serif; color: var(--ink);
+       margin: 0; background: #fafbfc }
+main { max-width: 76em; margin: 0 auto; padding: 1.5em 2em 3em; background: #fff; min-height: 100vh }
+h1 { font-size: 1.6em; margin: 0.2em 0 0.1em; color: var(--accent) }
+h2 { font-size: 1.25em; margin: 2em 0 0.5em; padding-bottom: 0.2em; border-bottom: 2px solid var(--accent) }
+h3 { font-size: 1.02em; margin: 1.2em 0 0.4em }
+p, li { max-width: 62em }
+.sub { color: var(--muted); margin: 0 0 1em; word-break: break-all }
+nav { margin: 1em 0 0.5em; font-size: 0.9em; line-height: 1.9 }
+nav a { color: var(--accent); text-decoration: none; margin-right: 0.4em; padding: 0.1em 0.5em;
+        border: 1px solid var(--rule); border-radius: 3px; white-space: nowrap }
+.cards { display: flex; flex-wrap: wrap; gap: 0.8em; margin: 1em 0 }
+.card { border: 1px solid var(--rule); border-left: 4px solid var(--accent); border-radius: 3px;
+        padding: 0.45em 0.9em; min-width: 10em; background: #fdfefe }
+.card .v { font-size: 1.35em; font-weight: bold }
+.card .k { font-size: 0.8em; color: var(--muted) }
+.card.bad { border-left-color: var(--bad) } .card.good { border-left-color: var(--good) }
+.cols { display: flex; flex-wrap: wrap; gap: 0 2.5em; align-items: flex-start }
+.scroll { overflow-x: auto; max-width: 100% }
+table { border-collapse: collapse; margin: 0.4em 0 1.2em; font-size: 0.88em; font-variant-numeric: tabular-nums }
+td, th { border-bottom: 1px solid var(--rule); padding: 0.22em 0.7em; text-align: right; white-space: nowrap }
+th { background: var(--head); font-weight: 600; border-bottom: 1px solid #aab7c4 }
+td.l, th.l { text-align: left } td.wrap { white-space: normal; text-align: left; max-width: 34em }
+tr.sep td { border-top: 2px solid #aab7c4 } tr.total td { font-weight: bold; background: #f6f8fa }
+table.photos td, table.photos th { padding: 0.18em 0.45em; font-size: 0.92em }
+.ok { color: var(--good); font-weight: 600 } .no { color: var(--bad); font-weight: 600 }
+.flag { color: var(--bad) }
+figure { margin: 0.6em 0 1.4em } figure img { max-width: 100%; height: auto; display: block }
+figcaption { color: var(--muted); font-size: 0.88em; margin-top: 0.3em; max-width: 62em }
+.note { color: var(--muted); font-size: 0.88em }
+footer { margin-top: 3em; color: var(--muted); font-size: 0.8em; border-top: 1px solid var(--rule); padding-top: 0.5em }
+@media print { main { max-width: none; padding: 0 } nav { display: none } h2 { break-after: avoid }
+               figure { break-inside: avoid } }
 """
 
 
-def _fmt(x) -> str:
+# ---------------------------------------------------------------------------------------------------------------
+# small HTML helpers
+
+
+def _fmt(x, spec: str = ".6g") -> str:
     if x is None:
         return "&ndash;"
     if isinstance(x, (bool, np.bool_)):
@@ -30,50 +110,499 @@ def _fmt(x) -> str:
         return str(int(x))
     if isinstance(x, str):
         return html.escape(x)
-    if isinstance(x, float) and not np.isfinite(x):
+    if not np.isfinite(x):
         return "&ndash;"
-    return f"{x:.6g}"
+    x = float(x)
+    if spec.endswith("f"):  # no "-0.000": round first, then drop the sign of a zero
+        x = round(x, int(spec[1:-1] or 6)) + 0.0
+    return format(x, spec)
 
 
-def _table(header, rows) -> str:
-    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+def _cell(text, cls: str = "", title: str = "") -> tuple:
+    return (text, cls, title)
 
 
-def _img(png: bytes, alt: str) -> str:
-    return f"<img alt='{html.escape(alt)}' src='data:image/png;base64,{base64.b64encode(png).decode()}'>"
+def _table(header, rows, cls: str = "", left: int = 0, row_classes=None) -> str:
+    """header: list of column names (HTML); rows: cells as HTML text or (text, class, title);
+    the first ``left`` columns are left-aligned."""
+    head = "".join(f"<th{' class=l' if j < left else ''}>{h}</th>" for j, h in enumerate(header))
+    body = []
+    for i, row in enumerate(rows):
+        cells = []
+        for j, c in enumerate(row):
+            text, ccls, title = c if isinstance(c, tuple) else (c, "", "")
+            classes = " ".join(x for x in (("l" if j < left else ""), ccls) if x)
+            attrs = (f" class='{classes}'" if classes else "") + (f" title='{html.escape(title)}'" if title else "")
+            cells.append(f"<td{attrs}>{text}</td>")
+        rc = row_classes[i] if row_classes else ""
+        body.append(f"<tr{f' class={rc}' if rc else ''}>" + "".join(cells) + "</tr>")
+    return (f"<div class='scroll'><table{f' class={cls}' if cls else ''}><tr>{head}</tr>"
+            + "".join(body) + "</table></div>")
 
 
-def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np.ndarray, figures=None) -> str:
-    """figures: optional name -> PNG bytes, embedded (the file stays readable offline)."""
-    figures = figures or {}
-    src = html.escape(str(project.source or ""))
-    keys = ["method", "solver", "sigma0", "redundancy", "vtpv", "iterations", "converged", "n_photos",
-            "n_points", "n_observations", "n_conditions", "n_unknowns"]
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>striptri adjustment</title>"
-             f"<style>{_STYLE}</style></head><body>",
-             f"<h1>striptri adjustment</h1><p>Project: {src}</p>",
-             "<h2>Summary</h2>", _table(["quantity", "value"], [(k, _fmt(summary[k])) for k in keys])]
-    checks = summary["checks"]
-    parts += ["<h2>Checks after convergence (Schmid 58, 59 and the final check)</h2>",
-              _table(["check", "value"], [(html.escape(k), _fmt(v)) for k, v in checks.items()])]
-    parts += ["<h2>Convergence</h2>",
-              _table(["iteration", "v^T P v", "largest correction / its sigma"],
-                     [(i + 1, _fmt(h.vtpv), _fmt(h.max_correction)) for i, h in enumerate(result.history)])]
+def _img(png: bytes, alt: str, caption: str = "") -> str:
+    data = base64.b64encode(png).decode("ascii")
+    cap = f"<figcaption>{caption}</figcaption>" if caption else ""
+    return f"<figure><img alt='{html.escape(alt)}' src='data:image/png;base64,{data}'>{cap}</figure>"
+
+
+def _section(key: str) -> str:
+    return f"<h2 id='{key}'>{SECTIONS[key]}</h2>"
+
+
+def _card(value: str, label: str, cls: str = "") -> str:
+    return f"<div class='card {cls}'><div class='v'>{value}</div><div class='k'>{label}</div></div>"
+
+
+def _micron(x) -> str:
+    return _fmt(None if x is None else 1000.0 * x, ".1f")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# quantities the report shows (computed here from the result; nothing is read back from files)
+
+
+def _flags_of(flags, w: np.ndarray) -> np.ndarray:
+    """Boolean (m,) flags: the given array (bool, or residuals.csv's "flag" strings, non-empty =
+    flagged), else residuals.csv's rule |w| > W_CRITICAL for the larger normalised residual."""
+    if flags is None:
+        return np.nan_to_num(np.abs(w), nan=0.0).max(axis=1) > W_CRITICAL
+    flags = np.asarray(flags)
+    if flags.dtype.kind in "USO":
+        return np.array([bool(str(f).strip()) for f in flags], dtype=bool)
+    return flags.astype(bool)
+
+
+def _flag_text(flags) -> str:
+    rule = f"suspect, |w| &gt; {W_CRITICAL} (Baarda, &alpha;<sub>0</sub> = 0.001)"
+    if flags is None:
+        return rule
+    flags = np.asarray(flags)
+    if flags.dtype.kind in "USO":
+        values = sorted({str(f).strip() for f in flags} - {""})
+        if set(values) <= {"suspect"}:
+            return rule + " as in residuals.csv"
+        return "flagged " + ", ".join(html.escape(v) for v in values)
+    return "flagged"
+
+
+def _photo_statistics(project: Project, v: np.ndarray, absw: np.ndarray, flagged: np.ndarray) -> dict:
+    """Per photo: number of measurements, RMS of vx and vy, largest |w|, number flagged."""
+    n = len(project.photos)
+    ph = project.image_points.photo_index
+    count = np.bincount(ph, minlength=n)
+    safe = np.maximum(count, 1)
+    rms = np.sqrt(np.stack([np.bincount(ph, v[:, a] ** 2, n) for a in range(2)], axis=1) / safe[:, None])
+    wmax = np.zeros(n)
+    np.maximum.at(wmax, ph, absw)
+    return {"count": count, "rms": np.where(count[:, None] > 0, rms, np.nan), "wmax": wmax,
+            "flagged": np.bincount(ph, flagged.astype(float), n).astype(int)}
+
+
+def _point_covariance(result: AdjustmentResult, points: Triangulated) -> np.ndarray:
+    """(n_pt, 3, 3) covariance of the triangulated points in m^2, as in points.csv (Schmid 90)."""
+    cov = (points.cov_measurement + points.cov_orientation) * result.sigma0_for_precision**2
+    return np.where(points.determined[:, None, None], cov, np.nan)
+
+
+def _half_format(xy: np.ndarray) -> float:
+    """Half the side of a square about the principal point that holds every measurement, rounded up."""
+    r = float(np.nanmax(np.abs(xy))) if len(xy) else 1.0
+    step = fig.nice_number(r / 10)
+    return float(np.ceil(r * 1.02 / step) * step)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# sections
+
+
+def _summary_section(project: Project, result: AdjustmentResult, summary: dict, flagged: np.ndarray) -> list[str]:
+    s0, r = summary["sigma0"], summary["redundancy"]
+    cards = []
+    if s0 is not None:
+        cards.append(_card(f"{s0:.3f}", "&sigma;<sub>0</sub> a posteriori"))
+    cards.append(_card(str(r), "redundancy"))
+    conv = summary["converged"]
+    cards.append(_card(f"{summary['iterations']}", "iterations, " + ("converged" if conv else "NOT converged"),
+                       "good" if conv else "bad"))
     cp = summary["check_points"]
-    parts += ["<h2>Check points</h2>",
-              _table(["n", "RMS X (m)", "RMS Y (m)", "RMS Z (m)"],
-                     [(cp["n"], _fmt(cp["rms_X"]), _fmt(cp["rms_Y"]), _fmt(cp["rms_Z"]))])]
-    absw = np.nan_to_num(np.abs(w), nan=0.0).max(axis=1)
-    worst = np.argsort(-absw)[:20]
+    if cp["n"]:
+        rms_xy = np.hypot(cp["rms_X"], cp["rms_Y"])
+        cards.append(_card(f"{rms_xy:.3f} / {cp['rms_Z']:.3f} m", f"check points ({cp['n']}): RMS XY / Z"))
+    nf = int(flagged.sum())
+    cards.append(_card(str(nf), "flagged measurements", "bad" if nf else "good"))
+
+    kinds = np.bincount(project.points.kind, minlength=len(KIND_NAMES))
+    kind_text = ", ".join(f"{kinds[k]} {KIND_NAMES[k]}" for k in sorted(KIND_NAMES) if kinds[k])
+    method = {"conditions": "conditions (Schmid's simultaneous adjustment)", "bundle": "bundle (collinearity)"}
+    rows = [
+        ("method", _fmt(method.get(summary["method"], summary["method"]))),
+        ("solver", _fmt(summary["solver"])),
+        ("&sigma;<sub>0</sub> a posteriori (unit: the a-priori &sigma;)", _fmt(s0, ".4f")),
+        ("v<sup>T</sup>P v", _fmt(summary["vtpv"])),
+        ("redundancy r", _fmt(r)),
+        ("iterations", _fmt(summary["iterations"])),
+        ("converged", f"<span class='{'ok' if conv else 'no'}'>{_fmt(conv)}</span>"),
+    ]
+    if r > 0 and s0 is not None:
+        lo, hi = np.sqrt(chi2.ppf([0.025, 0.975], r) / r)
+        inside = lo <= s0 <= hi
+        verdict = "<span class='ok'>inside</span>" if inside else "<span class='no'>outside</span>"
+        rows.append(("global test: 95 % range of &sigma;<sub>0</sub> if the a-priori &sigma; hold",
+                     f"{lo:.3f} &ndash; {hi:.3f} ({verdict})"))
+    sizes = [
+        ("photographs", _fmt(summary["n_photos"])),
+        ("strips", _fmt(len(set(project.photos.strip_ids)))),
+        ("cameras", _fmt(len(project.cameras))),
+        ("object points", _fmt(summary["n_points"])),
+        ("&nbsp;&nbsp;by kind", _fmt(kind_text)),
+        ("plate measurements (points on photos)", _fmt(len(project.image_points))),
+        ("observations", _fmt(summary["n_observations"])),
+        ("condition equations", _fmt(summary["n_conditions"])),
+        ("unknowns", _fmt(summary["n_unknowns"])),
+    ]
+    timings = [(html.escape(k.replace("_", " ")), _fmt(v, ".3f")) for k, v in summary["timings_s"].items()]
+    return [
+        _section("summary"),
+        "<div class='cards'>" + "".join(cards) + "</div>",
+        "<div class='cols'>",
+        "<div><h3>Adjustment</h3>" + _table(["quantity", "value"], rows, left=1) + "</div>",
+        "<div><h3>Size</h3>" + _table(["quantity", "value"], sizes, left=1) + "</div>",
+        "<div><h3>Timings (s)</h3>" + _table(["step", "seconds"], timings, left=1) + "</div>",
+        "</div>",
+    ]
+
+
+def _checks_section(summary: dict) -> list[str]:
+    rows = []
+    for k, v in summary["checks"].items():
+        holds = v is not None and abs(v) < CHECKS_HOLD_BELOW
+        mark = "<span class='ok'>holds</span>" if holds else "<span class='no'>fails</span>"
+        rows.append((CHECK_TEXT.get(k, html.escape(k)), _fmt(v, ".2e"), mark))
+    return [
+        _section("checks"),
+        "<p>After the last iteration the adjustment is checked as Schmid prescribes; every value should "
+        f"vanish to rounding (here: below {CHECKS_HOLD_BELOW:g}).</p>",
+        _table(["check", "value", ""], [((t, "wrap", ""), v, m) for t, v, m in rows], left=1),
+    ]
+
+
+def _convergence_section(result: AdjustmentResult) -> list[str]:
+    hist = result.history
+    inner = [h.solver_info.get("inner_iterations") for h in hist]
+    has_inner = any(i is not None for i in inner)
+    png = fig.convergence([h.vtpv for h in hist], [h.max_correction for h in hist],
+                          [np.nan if i is None else i for i in inner] if has_inner else None)
+    header = ["iteration", "v<sup>T</sup>P v", "largest correction / its &sigma;", "seconds"]
+    if has_inner:
+        header += ["inner iterations", "relative residual"]
+    rows = []
+    for i, h in enumerate(hist):
+        row = [str(i + 1), _fmt(h.vtpv, ".8g"), _fmt(h.max_correction, ".3e"), _fmt(h.seconds, ".3f")]
+        if has_inner:
+            row += [_fmt(h.solver_info.get("inner_iterations")), _fmt(h.solver_info.get("relative_residual"), ".1e")]
+        rows.append(row)
+    return [
+        _section("convergence"),
+        _img(png, "convergence history",
+             "Sum of the weighted squared residuals and the largest correction of an unknown (in units of the "
+             "standard deviation it would have if all others were known) per iteration, on log axes."
+             + (" Right: inner iterations of the iterative solver." if has_inner else "")),
+        _table(header, rows),
+    ]
+
+
+def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, flagged: np.ndarray,
+                       flag_text: str) -> list[str]:
     ip = project.image_points
-    rows = [(html.escape(project.photos.ids[ip.photo_index[i]]), html.escape(project.points.ids[ip.point_index[i]]),
-             _fmt(result.plate_residuals[i, 0]), _fmt(result.plate_residuals[i, 1]), _fmt(absw[i]))
-            for i in worst]
+    xy, v = ip.xy, result.plate_residuals
+    if len(xy) == 0:
+        return [_section("residuals"), "<p>No plate measurements.</p>"]
+    h = _half_format(xy)
+    length = np.hypot(v[:, 0], v[:, 1])
+    sig = ip.sigma_xy[np.isfinite(ip.sigma_xy) & (ip.sigma_xy > 0)]
+    sigma_prior = float(np.median(sig)) if len(sig) else 1e-3 * h
+    resolvable = 0.01 * sigma_prior  # smaller residuals are zero to the eye (no redundancy, exact plates)
+    typical = float(np.percentile(length, 95))
+    vanish = not typical > resolvable
+    if vanish:
+        typical = sigma_prior  # scale as for residuals of the a-priori size
+    # a typical (95 %) residual drawn as about 15 % of the format side in the small panels, half that over all
+    mag = fig.nice_number(0.3 * h / max(typical, 1e-300))
+    mag_all = fig.nice_number(0.5 * mag)
+    bar = fig.nice_number(0.3 * h / mag)
+    bar_all = fig.nice_number(0.3 * h / mag_all)
+    bar_label = f"{bar * 1000:g} µm"
+    n_ph = len(project.photos)
+    ids = project.photos.ids
+    rms_all = np.sqrt(np.mean(v**2, axis=0))
+    parts = [
+        _section("residuals"),
+        f"<p>RMS of the plate residuals: v<sub>x</sub> {_micron(rms_all[0])} µm, v<sub>y</sub> "
+        f"{_micron(rms_all[1])} µm over {len(xy)} measurements (plate coordinates in mm). "
+        f"Vectors are drawn magnified <b>{mag:g} times</b> per photograph (<b>{mag_all:g} times</b> over "
+        f"all photographs); the bar is the length of a residual of {bar_label}. "
+        f"Dark blue: residuals; <span class='flag'>red</span>: {flag_text}.</p>",
+        "<p class='note'>All residuals vanish (below 1 % of the a-priori &sigma;): there is no redundancy or the "
+        "plates are exact.</p>" if vanish else "",
+    ]
+    order = np.argsort(-(stats["flagged"] * 1e6 + np.nan_to_num(np.hypot(*stats["rms"].T))), kind="stable")
+    if n_ph <= MAX_PHOTO_PANELS:
+        shown, what = np.arange(n_ph), "every photograph"
+    else:
+        shown = order[:WORST_PANELS]
+        what = (f"the {WORST_PANELS} photographs with the most flagged measurements and the largest RMS residual "
+                f"(of {n_ph}; residuals.csv lists all)")
+    rows_of = np.argsort(ip.photo_index, kind="stable")
+    bounds = np.searchsorted(ip.photo_index[rows_of], np.arange(n_ph + 1))
+    groups = [rows_of[bounds[p]:bounds[p + 1]] for p in shown]
+    titles = [f"{ids[p]}  ({stats['count'][p]} pts, {1000 * np.hypot(*stats['rms'][p]) / np.sqrt(2):.1f} µm)"
+              for p in shown]
+    png = fig.plate_residuals_per_photo(xy, v, flagged, groups, titles, h, mag, bar, bar_label)
+    parts.append("<h3>Per photograph</h3>")
+    parts.append(_img(png, "residual vectors per photograph",
+                      f"Residual vectors on the format of {what}; panel title: photo, measurements, RMS residual "
+                      f"per coordinate. Frame: &plusmn;{h:g} mm about the principal point."))
+    # all photographs stacked, and the mean residual per cell of a 5 x 5 grid
+    cells = 5
+    edges = np.linspace(-h, h, cells + 1)
+    ix = np.clip(np.searchsorted(edges, xy[:, 0]) - 1, 0, cells - 1)
+    iy = np.clip(np.searchsorted(edges, xy[:, 1]) - 1, 0, cells - 1)
+    cell = iy * cells + ix
+    counts = np.bincount(cell, minlength=cells * cells)
+    sums = np.stack([np.bincount(cell, v[:, a], cells * cells) for a in range(2)], axis=1)
+    means = sums / np.maximum(counts, 1)[:, None]
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    cx, cy = np.meshgrid(centres, centres)
+    biggest = float(np.max(np.hypot(means[:, 0], means[:, 1]), initial=0.0))
+    cell_means, caption = None, f"The residuals of all photographs drawn over one format (x{mag_all:g})."
+    if biggest > resolvable:
+        mag2 = fig.nice_number(0.3 * h / biggest)
+        bar2 = fig.nice_number(0.3 * h / mag2)
+        cell_means = (np.column_stack([cx.ravel(), cy.ravel()]), means, counts, mag2, bar2, f"{bar2 * 1000:g} µm")
+        caption = (f"Left: the residuals of all photographs drawn over one format (x{mag_all:g}). Right: the mean "
+                   f"residual in each cell of a {cells} &times; {cells} grid (x{mag2:g}); a regular pattern there "
+                   "points to a systematic image error (lens distortion, film deformation) rather than noise.")
+    png = fig.plate_residuals_stacked(xy, v, flagged, h, mag_all, bar_all, f"{bar_all * 1000:g} µm", cell_means)
+    parts.append("<h3>All photographs over one format</h3>")
+    parts.append(_img(png, "residual vectors of all photographs", caption))
+    return parts
+
+
+def _points_section(project: Project, result: AdjustmentResult, points: Triangulated, cov: np.ndarray) -> list[str]:
+    pts = project.points
+    xyz = points.xyz + result.offset
+    kind_names = np.array([KIND_NAMES[int(k)] for k in pts.kind])
+    centres = result.state.xyz0 + result.offset
+    sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
+    a = np.sqrt(np.maximum(np.linalg.eigvalsh(np.nan_to_num(cov[:, :2, :2]))[:, 1], 0.0))
+    a = np.where(points.determined, a, np.nan)
+    pos = np.isfinite(a) & (a > 0)
+    span = np.ptp(np.concatenate([xyz[points.determined, :2], centres[:, :2]]), axis=0)
+    extent = float(span.max())
+    spacing = float(np.sqrt(max(span[0] * span[1], extent**2 / 100) / max(int(points.determined.sum()), 1)))
+    typical = float(np.median(a[pos])) if pos.any() else 1.0
+    # a typical ellipse 1.5 % of the block across, or a third of the mean point spacing in dense blocks
+    mag = fig.nice_number(min(0.015 * extent, 0.35 * spacing) / typical)
+    bar = fig.nice_number(0.12 * extent / mag)
+    bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
+    png = fig.error_ellipses(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, cov[:, :2, :2],
+                             mag, bar, bar_label, labels=pts.ids)
+    rows = []
+    for k in sorted(KIND_NAMES):
+        sel = (pts.kind == k) & points.determined
+        if not sel.any():
+            continue
+        s = sig[sel]
+        rows.append([KIND_NAMES[k], str(int(sel.sum()))] + [_fmt(x, ".3f") for x in np.nanmean(s, axis=0)]
+                    + [_fmt(x, ".3f") for x in np.nanmax(s, axis=0)])
+    n_undet = int((~points.determined).sum())
+    return [
+        _section("points"),
+        _img(png, "error ellipses of the ground points",
+             f"Plan view of the block: projection centres (+) along their flight lines (arrow: direction of "
+             f"flight), ground points coloured by kind, control as triangles. Around every point its horizontal "
+             f"standard error ellipse (1 &sigma;, from the X, Y part of its covariance), magnified "
+             f"<b>{mag:g} times</b>; the bar is {bar_label} of error. Fixed control has no ellipse."),
+        "<h3>Mean errors by kind (m)</h3>",
+        _table(["kind", "points", "mean &sigma;X", "mean &sigma;Y", "mean &sigma;Z", "max &sigma;X", "max &sigma;Y",
+                "max &sigma;Z"], rows, left=1),
+        f"<p class='note'>{n_undet} points could not be determined.</p>" if n_undet else "",
+    ]
+
+
+def _check_points_section(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
+                          summary: dict) -> list[str]:
+    pts = project.points
+    sel = np.flatnonzero((pts.kind == CHECK) & points.determined)
+    parts = [_section("check-points")]
+    if len(sel) == 0:
+        return parts + ["<p>The project has no check points.</p>"]
+    d = points.xyz[sel] + result.offset - pts.xyz_given[sel]
+    rows = [[html.escape(pts.ids[i])] + [_fmt(x, ".3f") for x in d[j]] + [_fmt(x, ".3f") for x in sig[i]]
+            for j, i in enumerate(sel[:MAX_TABLE_ROWS])]
+    classes = [""] * len(rows)
+    mean = d.mean(axis=0)
+    rows.append(["mean"] + [_fmt(x, ".3f") for x in mean] + ["", "", ""])
+    cp = summary["check_points"]
+    rms = [cp["rms_X"], cp["rms_Y"], cp["rms_Z"]]  # summary.json's values, shown as they are
+    rows.append(["RMS"] + [_cell(_fmt(x, ".3f"), "", repr(float(x))) for x in rms]
+                + [_fmt(x, ".3f") for x in np.sqrt(np.nanmean(sig[sel] ** 2, axis=0))])
+    classes += ["sep", "total"]
+    note = (f"<p class='note'>The first {MAX_TABLE_ROWS} of {len(sel)} check points; points.csv lists all.</p>"
+            if len(sel) > MAX_TABLE_ROWS else "")
+    return parts + [
+        f"<p>{len(sel)} check points were adjusted as tie points and compared with their given coordinates "
+        "afterwards: d = adjusted &minus; given (m), beside the mean error of the adjusted point. The RMS row of "
+        "&sigma; is the quadratic mean of the mean errors, to compare with the RMS of d.</p>",
+        _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1, row_classes=classes),
+        note,
+    ]
+
+
+def _measurement_rows(project: Project, result: AdjustmentResult, w: np.ndarray, rows_idx) -> list:
+    ip = project.image_points
+    out = []
+    for i in rows_idx:
+        wi = w[i]
+        out.append([html.escape(project.photos.ids[ip.photo_index[i]]),
+                    html.escape(project.points.ids[ip.point_index[i]]),
+                    KIND_NAMES[int(project.points.kind[ip.point_index[i]])],
+                    _fmt(ip.xy[i, 0], ".3f"), _fmt(ip.xy[i, 1], ".3f"),
+                    _micron(result.plate_residuals[i, 0]), _micron(result.plate_residuals[i, 1]),
+                    _fmt(wi[0], ".2f"), _fmt(wi[1], ".2f")])
+    return out
+
+
+_MEAS_HEADER = ["photo", "point", "kind", "x (mm)", "y (mm)", "v<sub>x</sub> (µm)", "v<sub>y</sub> (µm)",
+                "w<sub>x</sub>", "w<sub>y</sub>"]
+
+
+def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
+    idx = np.flatnonzero(flagged)
+    idx = idx[np.argsort(-absw[idx], kind="stable")]
+    parts = [_section("flagged")]
+    if len(idx) == 0:
+        return parts + [f"<p>No measurement is flagged ({flag_text}).</p>"]
+    note = (f"<p class='note'>The {MAX_TABLE_ROWS} with the largest |w| of {len(idx)}; residuals.csv lists all.</p>"
+            if len(idx) > MAX_TABLE_ROWS else "")
+    return parts + [
+        f"<p>{len(idx)} measurement{'s' if len(idx) != 1 else ''} flagged ({flag_text}), largest |w| first. "
+        "w is the normalised residual "
+        "v / (&sigma; &radic;q<sub>vv</sub>) of Baarda's data snooping.</p>",
+        _table(_MEAS_HEADER, _measurement_rows(project, result, w, idx[:MAX_TABLE_ROWS]), left=3),
+        note,
+    ]
+
+
+def _largest_section(project, result, w, absw, n: int = 15) -> list[str]:
+    worst = np.argsort(-absw, kind="stable")[:n]
+    return [_section("largest"),
+            f"<p>The {len(worst)} measurements with the largest normalised residual, flagged or not.</p>",
+            _table(_MEAS_HEADER, _measurement_rows(project, result, w, worst), left=3)]
+
+
+def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> list[str]:
+    unit = project.settings.angle_unit
+    per_rad = 1.0 / RADIANS_PER_UNIT[unit]
+    digits = {"deg": 5, "gon": 5, "rad": 7}[unit]
+    xyz = result.state.xyz0 + result.offset
+    opk = angles_from_R(result.state.R, "omega-phi-kappa") * per_rad
+    sig_xyz, sig_ang = result.photo_mean_errors("omega-phi-kappa")
+    sig_ang = sig_ang * per_rad
+    n = len(project.photos)
+    worst_key = np.nan_to_num(sig_xyz.max(axis=1), nan=np.inf)
+    if n <= MAX_PHOTO_ROWS:
+        shown, classes, note = np.arange(n), None, ""
+    else:
+        first = np.arange(PHOTO_ROWS_EACH)
+        worst = np.array([p for p in np.argsort(-worst_key, kind="stable") if p >= PHOTO_ROWS_EACH][:PHOTO_ROWS_EACH])
+        shown = np.concatenate([first, worst])
+        classes = [""] * PHOTO_ROWS_EACH + ["sep"] + [""] * (len(worst) - 1)
+        note = (f"<p class='note'>The first {PHOTO_ROWS_EACH} photographs, then (below the line) the "
+                f"{len(worst)} others with the largest mean error of the projection centre, of {n}; "
+                "photos.csv lists all.</p>")
+    rows = []
+    for p in shown:
+        rows.append([html.escape(project.photos.ids[p]), html.escape(project.photos.strip_ids[p]),
+                     str(stats["count"][p])]
+                    + [_fmt(x, ".2f") for x in xyz[p]] + [_fmt(x, f".{digits - 1}f") for x in opk[p]]
+                    + [_fmt(x, ".3f") for x in sig_xyz[p]] + [_fmt(x, f".{digits}f") for x in sig_ang[p]]
+                    + [_micron(x) for x in stats["rms"][p]] + [_fmt(stats["wmax"][p], ".2f"),
+                       _cell(str(stats["flagged"][p]), "flag" if stats["flagged"][p] else "")])
+    header = ["photo", "strip", "pts", "X0", "Y0", "Z0", "&omega;", "&phi;", "&kappa;", "&sigma;X0", "&sigma;Y0",
+              "&sigma;Z0", "&sigma;&omega;", "&sigma;&phi;", "&sigma;&kappa;", "RMS v<sub>x</sub>",
+              "RMS v<sub>y</sub>", "max |w|", "flagged"]
+    return [
+        _section("photos"),
+        f"<p>Adjusted exterior orientation (centres in m, angles &omega;, &phi;, &kappa; in {unit}) with their "
+        "mean errors &sigma;<sub>0</sub>&radic;Q<sub>ii</sub>, and the residuals of each photograph (RMS in "
+        "µm).</p>",
+        _table(header, rows, cls="photos", left=2, row_classes=classes),
+        note,
+    ]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np.ndarray,
+                points: Triangulated | None = None, flags=None, figures=None) -> str:
+    """The report as one self-contained HTML text.
+
+    summary: summary.json's dict; w: (m, 2) normalised residuals of the plate coordinates (nan where
+    undefined); points: the triangulated points (pipeline.triangulate_result), needed for the error
+    ellipses and the check-point table; flags: optional (m,) flags of the plate measurements (bool, or
+    residuals.csv's "flag" strings); by default residuals.csv's rule |w| > 3.29. figures: optional
+    name -> PNG bytes made elsewhere ("structure": the normal matrix pattern).
+    """
+    t0 = time.perf_counter()
+    figures = figures or {}
+    w = np.asarray(w, dtype=float)
+    absw = np.nan_to_num(np.abs(w), nan=0.0).max(axis=1) if len(w) else np.zeros(0)
+    flagged = _flags_of(flags, w)
+    flag_text = _flag_text(flags)
+    stats = _photo_statistics(project, result.plate_residuals, absw, flagged)
+    src = html.escape(str(project.source or ""))
+
+    body = [_summary_section(project, result, summary, flagged), _checks_section(summary),
+            _convergence_section(result), _residuals_section(project, result, stats, flagged, flag_text)]
+    if points is not None:
+        cov = _point_covariance(result, points)
+        sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
+        body += [_points_section(project, result, points, cov),
+                 _check_points_section(project, result, points, sig, summary)]
+    else:
+        body += [[_section("points"), "<p>Not available (no triangulated points given).</p>"],
+                 [_section("check-points"), "<p>Not available (no triangulated points given).</p>"]]
+    body += [_flagged_section(project, result, w, absw, flagged, flag_text),
+             _largest_section(project, result, w, absw),
+             _photos_section(project, result, stats)]
+    structure = [_section("structure")]
     if "structure" in figures:
-        parts += ["<h2>Structure of the normal matrix (Schmid Fig. 10)</h2>",
-                  _img(figures["structure"], "normal matrix structure")]
-    parts += ["<h2>Largest normalised residuals</h2>",
-              _table(["photo", "point", "vx", "vy", "|w|"], rows), "</body></html>"]
+        structure.append(_img(figures["structure"], "normal matrix structure",
+                              "Nonzero 6 &times; 6 blocks of the normal matrix, one row and column per photograph "
+                              "(cameras last), as in Schmid's Fig. 10: the band shows which photographs share "
+                              "points; its width decides the cost of the solution."))
+    else:
+        structure.append("<p>Not drawn.</p>")
+    body.append(structure)
+
+    nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items())
+    seconds = time.perf_counter() - t0
+    parts = [
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>striptri adjustment report</title><style>{_STYLE}</style></head><body><main>",
+        "<h1>Aerial triangulation: adjustment report</h1>",
+        f"<p class='sub'>Project {src or '(in memory)'} &middot; {summary['n_photos']} photographs, "
+        f"{summary['n_points']} points &middot; method {html.escape(summary['method'])}, solver "
+        f"{html.escape(summary['solver'])}</p>",
+        f"<nav>{nav}</nav>",
+    ]
+    for section in body:
+        parts += [p for p in section if p]
+    parts.append(f"<footer>Written by striptri. Report and figures built in {seconds:.2f} s. "
+                 "The numbers in full are in photos.csv, points.csv, residuals.csv and summary.json beside "
+                 "this file.</footer></main></body></html>")
     return "\n".join(parts)
