@@ -101,3 +101,22 @@ def test_assembly_memory_does_not_grow_with_the_number_of_points():
     peak_few = _assembly_peak_bytes(few, chunk_size=100)
     peak_many = _assembly_peak_bytes(many, chunk_size=100)
     assert peak_many < 1.25 * peak_few
+
+
+def test_gauss_seidel_inner_iterations_are_reported_per_outer_iteration(tmp_path):
+    """summary.json's history carries the inner iterations of the relaxation in every outer
+    iteration, and the relaxation reached its tolerance each time."""
+    import json
+    import subprocess
+
+    out = tmp_path / "gs"
+    done = subprocess.run(["striptri", "adjust", str(DATA / "strip8"), "--out", str(out), "--solver", "gauss-seidel"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["solver"] == "gauss-seidel"
+    history = summary["history"]
+    assert len(history) == summary["iterations"]
+    for h in history:
+        assert h["solver_inner_iterations"] > 0 and h["solver_converged"]
+        assert h["solver_relative_residual"] < 1e-10

@@ -165,10 +165,16 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
 @reports_errors
 def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum):
     """Adjust the project in PROJECT_DIR and write the results to --out."""
+    import warnings
+
     from striptri.pipeline import run_adjust
 
-    products = run_adjust(project_dir, out_dir, method=method, solver=solver,
-                          max_iterations=max_iterations, scale_form=scale_form, datum=datum)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        products = run_adjust(project_dir, out_dir, method=method, solver=solver,
+                              max_iterations=max_iterations, scale_form=scale_form, datum=datum)
+    for message in dict.fromkeys(str(w.message) for w in caught):
+        click.echo(f"striptri: warning: {message}", err=True)
     s = products.summary
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
     state = "converged" if s["converged"] else "NOT converged"

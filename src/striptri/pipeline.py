@@ -225,8 +225,21 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
         "timings_s": {k: round(v, 6) for k, v in result.timings.items()},
         "checks": {k: _finite_or_none(v) for k, v in result.checks.items()},
         "history": [
-            {"vtpv": _finite_or_none(h.vtpv), "max_correction": _finite_or_none(h.max_correction)}
+            {"vtpv": _finite_or_none(h.vtpv), "max_correction": _finite_or_none(h.max_correction),
+             **_solver_report(h.solver_info)}
             for h in result.history
         ],
     }
+
+
+def _solver_report(info: dict) -> dict:
+    """The inner iterations of an iterative solver in an outer iteration (empty for direct ones)."""
+    keys = ("inner_iterations", "relative_residual", "converged", "slow")
+    out = {}
+    for k in keys:
+        if k in info:
+            v = info[k]
+            out[f"solver_{k}"] = bool(v) if isinstance(v, (bool, np.bool_)) else (
+                int(v) if isinstance(v, (int, np.integer)) else _finite_or_none(float(v)))
+    return out
 
