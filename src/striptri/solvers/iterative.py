@@ -14,7 +14,8 @@ iteration as on G (block-diagonal transformations keep the block-triangular spli
     (I + omega L) z_new = omega (g - U z) + (1 - omega) z
 
 is one sparse triangular solve (scipy.sparse.linalg.spsolve_triangular, SuperLU's compiled
-substitution) and one product with U = L'. Its residual needs no extra product:
+substitution; a dense one up to DENSE_SWEEP_LIMIT unknowns, where it is faster) and one product
+with U = L'. Its residual needs no extra product:
 ``g - G z_new = (U - (1/omega - 1) I)(z - z_new)``.
 
 Convergence. SOR converges for every symmetric positive definite N and 0 < omega < 2
@@ -34,6 +35,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -43,6 +45,7 @@ from .blocks import block_cholesky, block_diagonal_matrix, partition, strictly_b
 SLOW_SWEEPS = 500  # Gauss-Seidel sweeps (PCG iterations: SLOW_PCG) beyond which convergence is "slow"
 SLOW_PCG = 500
 DIVERGED = 1e8
+DENSE_SWEEP_LIMIT = 600  # unknowns up to which a sweep uses a dense triangular solve (measured faster)
 STAGNATION_SWEEPS = 200  # Gauss-Seidel stops when its residual has not fallen 1 % in this many sweeps
 
 
@@ -51,7 +54,7 @@ class SlowConvergenceWarning(RuntimeWarning):
 
 
 class _IterativeSolver(NormalSolver):
-    """Common parts: Jacobi scaling, block Cholesky of the diagonal blocks, warm start, report."""
+    """Common parts: warm start and the report (with the slow-convergence warning)."""
 
     slow_limit = SLOW_SWEEPS
     unit = "iterations"
@@ -60,7 +63,7 @@ class _IterativeSolver(NormalSolver):
         super().__init__(options, structure)
         self._previous: np.ndarray | None = None
 
-    def _start(self, N, Ns, s, b) -> np.ndarray:
+    def _start(self, Ns, s, b) -> np.ndarray:
         """Initial y (scaled unknowns) per SolverOptions.warm_start."""
         n = len(b)
         prev = self._previous
@@ -126,10 +129,19 @@ class GaussSeidelSolver(_IterativeSolver):
         U = L.T.tocsr()
         T = (sp.identity(n, format="csr") + omega * L).tocsc()
         T.sort_indices()
+        if n <= DENSE_SWEEP_LIMIT:  # small: a dense substitution has less overhead per sweep
+            T_dense = T.toarray()
+
+            def lower_solve(rhs):
+                return la.solve_triangular(T_dense, rhs, lower=True, unit_diagonal=True, check_finite=False)
+        else:
+            def lower_solve(rhs):
+                return spla.spsolve_triangular(T, rhs, lower=True, unit_diagonal=True, overwrite_A=True,
+                                               overwrite_b=True)
         bs = b * s
         g = Ci @ bs
         bnorm = float(np.linalg.norm(bs))
-        y0 = self._start(N, Ns, s, b)
+        y0 = self._start(Ns, s, b)
         if bnorm == 0.0:
             return self._report(np.zeros(n), 0, 0.0, True, {"relaxation": omega})
         z = Cs.T @ y0
@@ -140,8 +152,7 @@ class GaussSeidelSolver(_IterativeSolver):
         best, best_sweep, stagnated = res0, 0, False
         while not converged and not stagnated and sweeps < opts.max_inner_iterations:
             rhs = omega * (g - Uz) + (1.0 - omega) * z
-            z_new = spla.spsolve_triangular(T, rhs, lower=True, unit_diagonal=True,
-                                            overwrite_A=True, overwrite_b=True)
+            z_new = lower_solve(rhs)
             Uz_new = U @ z_new
             dz = z - z_new
             r = (Uz - Uz_new) - (1.0 / omega - 1.0) * dz  # g - G z_new
@@ -180,7 +191,7 @@ class PcgSolver(_IterativeSolver):
         Minv = (Ci.T @ Ci).tocsr()  # block-diagonal inverse of the diagonal blocks
         bs = b * s
         bnorm = float(np.linalg.norm(bs))
-        y = self._start(N, Ns, s, b)
+        y = self._start(Ns, s, b)
         if bnorm == 0.0:
             return self._report(np.zeros(n), 0, 0.0, True)
         tol = opts.inner_tolerance
