@@ -75,11 +75,12 @@ def run_striptri(project, true_xyz0, method: str, solver: str, repeats: int, out
     options = AdjustmentOptions(method=method, solver=solver)
     if tolerance is not None:
         options = AdjustmentOptions(method=method, solver=solver, tolerance=tolerance)
-    runs = []
+    runs, cpus = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = adjust(project, options)
         wall = time.perf_counter() - t0
+        cpus.append(time.process_time() - c0)
         runs.append((wall, result))
     walls = [w for w, _ in runs]
     median = sorted(range(repeats), key=lambda i: walls[i])[repeats // 2]
@@ -99,6 +100,7 @@ def run_striptri(project, true_xyz0, method: str, solver: str, repeats: int, out
         "timings": timings,
         "seconds": statistics.median(walls),
         "seconds_all": walls,
+        "cpu_seconds": statistics.median(cpus),
         "sigma0": result.sigma0,
         "vtpv": result.vtpv,
         "redundancy": result.redundancy,
@@ -126,6 +128,7 @@ def run_pycolmap(project, true_xyz0, repeats: int, threads: int, out: Path, radi
         "termination": run.termination,
         "seconds": statistics.median(secs),
         "seconds_all": secs,
+        "cpu_seconds": statistics.median(r.cpu_seconds for r in runs),
         "ceres_seconds": statistics.median(r.ceres_seconds for r in runs),
         "build_seconds": statistics.median(r.build_seconds for r in runs),
         "initial_cost": run.initial_cost,

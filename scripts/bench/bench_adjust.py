@@ -169,9 +169,10 @@ def skip_reason(engine, solver, case, n_unknowns, history, max_seconds) -> str |
     if "seconds" not in prev:
         return f"skipped: did not finish on {prev_case.name}"
     growth = GROWTH.get(solver, 1.0)
-    predicted = prev["seconds"] * (case.total_photos / prev_case.total_photos) ** growth
+    took = prev.get("cpu_seconds", prev["seconds"])
+    predicted = took * (case.total_photos / prev_case.total_photos) ** growth
     if predicted > max_seconds:
-        return f"skipped: ~{predicted:.0f} s predicted from {prev_case.name} ({prev['seconds']:.1f} s)"
+        return f"skipped: ~{predicted:.0f} s predicted from {prev_case.name} ({took:.1f} s)"
     return None
 
 
@@ -295,7 +296,7 @@ def compare(results: dict) -> dict:
 
 def table(rows) -> str:
     head = ("| case | unknowns | engine / solver | iters | conditions ms/it | assembly ms/it | solve ms/it "
-            "| total s | peak MiB (Δ) | RMS centres m | sigma0 | vTPv | striptri / pycolmap |")
+            "| total s | CPU s | peak MiB (Δ) | RMS centres m | sigma0 | vTPv | striptri / pycolmap (CPU) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     notes = []
     for case, n_unknowns, results, repeats in rows:
@@ -305,7 +306,7 @@ def table(rows) -> str:
             name = case.name + (f" (median of {repeats})" if repeats > 1 else "")
             if "seconds" not in rep:
                 lines.append(f"| {name} | {n_unknowns} | {label} | {rep.get('skipped') or 'failed: ' + rep.get('failed', '?')} "
-                             "| | | | | | | | | |")
+                             "| | | | | | | | | | |")
                 continue
             c, a, s = per_iteration_ms(rep)
             redundancy = results_redundancy(results)
@@ -314,7 +315,7 @@ def table(rows) -> str:
                 sigma0 = float(np.sqrt(rep["vtpv"] / redundancy))
             ratio = "-"
             if engine != "pycolmap" and "seconds" in colmap:
-                ratio = f"{rep['seconds'] / colmap['seconds']:.1f}"
+                ratio = f"{rep['cpu_seconds'] / colmap['cpu_seconds']:.1f}"
             peak = f"{rep['peak_mib']:.0f} ({rep['peak_mib'] - rep['loaded_mib']:.0f})"
             it = str(rep["iterations"]) + ("" if rep.get("converged", True) else " (not converged)")
             extra = rep.get("solver_info_totals") or {}
@@ -324,14 +325,17 @@ def table(rows) -> str:
                 notes.append(f"{case.name} {label}: " + stall_note(rep))
             lines.append(
                 f"| {name} | {n_unknowns} | {label} | {it} | {fmt(c, '.1f')} | {fmt(a, '.1f')} | {fmt(s, '.1f')} "
-                f"| {rep['seconds']:.2f} | {peak} | {rep['rms_centres']:.4f} | {fmt(sigma0, '.4f')} | {rep['vtpv']:.6g} | {ratio} |"
+                f"| {rep['seconds']:.2f} | {rep['cpu_seconds']:.2f} | {peak} | {rep['rms_centres']:.4f} | {fmt(sigma0, '.4f')} | {rep['vtpv']:.6g} | {ratio} |"
             )
     text = "\n".join(lines)
-    text += ("\n\nms/it: AdjustmentResult.timings / iterations (bundle: linearisation and point elimination "
-             "together under assembly). total s: the whole adjust() call (pycolmap: adjuster set-up and Ceres "
-             "solve, without building the Reconstruction in Python). peak MiB: the peak resident memory of the run's own "
-             "process (VmHWM; ru_maxrss would include the parent's, see adjust_worker.py); (Δ): above its size after "
-             "loading the project and the libraries.")
+    text += (
+        "\n\nms/it: AdjustmentResult.timings / iterations (bundle: linearisation and point elimination together "
+        "under assembly). total s: wall time of the whole adjust() call (pycolmap: adjuster set-up and Ceres solve, "
+        "without building the Reconstruction in Python). CPU s: the same in CPU time of the run's process; every run "
+        "is single-threaded, so this is what it would take alone on the machine, and the ratio uses it. peak MiB: "
+        "peak resident memory of the run's own process (VmHWM; ru_maxrss would include the parent's, see "
+        "adjust_worker.py); (Δ): above its size after loading the project and the libraries."
+    )
     if notes:
         text += "\n\nnotes:\n" + "\n".join("- " + n for n in notes)
     return text

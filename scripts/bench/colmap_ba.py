@@ -169,6 +169,7 @@ def options(pycolmap, threads: int, initial_radius: float | None = None, max_ite
 @dataclass
 class ColmapRun:
     seconds: float  # adjuster set-up and solve
+    cpu_seconds: float  # the same in CPU time of this process
     ceres_seconds: float  # Ceres' own total time
     build_seconds: float  # the Reconstruction from the project (Python)
     iterations: int
@@ -189,10 +190,10 @@ class ColmapRun:
 def run(pycolmap, data: ColmapData, threads: int, initial_radius: float | None = None) -> ColmapRun:
     t0 = time.perf_counter()
     rec, config, ids = build(pycolmap, data)
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(options(pycolmap, threads, initial_radius), config, rec)
     summary = adjuster.solve()
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     cs = summary.ceres_summary
     n = len(data.xyz0)
     centres = np.array([rec.image(i + 1).projection_center() for i in range(n)]) + data.offset
@@ -201,6 +202,7 @@ def run(pycolmap, data: ColmapData, threads: int, initial_radius: float | None =
     xyz_points = np.array([rec.point3D(int(i)).xyz for i in ids]) + data.offset
     return ColmapRun(
         seconds=t2 - t1,
+        cpu_seconds=c2 - c1,
         ceres_seconds=float(cs.total_time_in_seconds),
         build_seconds=t1 - t0,
         iterations=int(cs.num_successful_steps + cs.num_unsuccessful_steps),
