@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import datum, solvers
+from .covariance import Covariance
 from .errors import NumericalFailure
 from .groups import GroupBatch, build_batches
 from .linearise import Observations, linearise
@@ -32,6 +33,7 @@ from .parameters import State, UnknownLayout, build_layout, initial_state, reduc
 from .rotations import angles_jacobian
 
 METHODS = ("conditions", "bundle")
+DENSE_QXX_LIMIT = 5000  # unknowns up to which AdjustmentResult.Qxx forms the dense N^-1
 # "control": the datum comes from control and observed elements (a defect is an error);
 # "inner": a free network, the directions the control leaves free fixed by inner constraints.
 DATUMS = ("control", "inner")
@@ -104,22 +106,23 @@ class AdjustmentResult:
     checks: dict
     timings: dict = field(default_factory=dict)
     free_network: datum.FreeNetwork | None = None
-    _Qxx: np.ndarray | None = None
+    _covariance: Covariance | None = None
+
+    @property
+    def covariance(self) -> Covariance:
+        """Selected entries of Qxx = N^-1 (covariance.Covariance), computed once."""
+        if self._covariance is None:
+            self._covariance = Covariance(self.N, self.layout, self.free_network)
+        return self._covariance
 
     @property
     def Qxx(self) -> np.ndarray:
-        """N^-1, the weight coefficients of the unknowns (Schmid 53); for a free network the
-        inverse under its inner constraints, S Q_min S^T."""
-        if self._Qxx is None:
-            if self.free_network is None:
-                self._Qxx = solvers.inverse(self.N)
-            else:
-                fn = self.free_network
-                N_min, mask = fn.minimum_constraint_system(self.N)
-                Q_min = solvers.inverse(N_min) * np.outer(1 - mask, 1 - mask)
-                SQ = fn.transform(Q_min)
-                self._Qxx = fn.transform(SQ.T).T
-        return self._Qxx
+        """The dense N^-1, the weight coefficients of the unknowns (Schmid 53); for a free network
+        the inverse under its inner constraints. For small problems and tests: large ones use
+        ``covariance``."""
+        if self.n_unknowns > DENSE_QXX_LIMIT:
+            raise MemoryError(f"a dense Qxx of {self.n_unknowns} unknowns; use result.covariance")
+        return self.covariance.dense()
 
     @property
     def sigma0_for_precision(self) -> float:
@@ -129,8 +132,7 @@ class AdjustmentResult:
     def mean_error(self, f: np.ndarray) -> float:
         """Mean error of a function of the unknowns with gradient f (Schmid 81-84):
         ``m_F = sigma0 sqrt(f^T N^-1 f)``."""
-        f = np.asarray(f, dtype=float)
-        return float(self.sigma0_for_precision * np.sqrt(f @ self.Qxx @ f))
+        return float(self.sigma0_for_precision * np.sqrt(max(self.covariance.quadratic_form(f), 0.0)))
 
     def gradient_of_element(self, photo: int, element: int) -> np.ndarray:
         """Gradient of one photo element (0-2 centre, 3-5 rotation unknown) w.r.t. the unknowns."""
@@ -147,12 +149,8 @@ class AdjustmentResult:
 
     def photo_mean_errors(self, convention: str) -> tuple[np.ndarray, np.ndarray]:
         """Mean errors of the centres (n, 3) and of the angles in ``convention`` (n, 3, radians)."""
-        n = len(self.layout.photo_cols)
         s0 = self.sigma0_for_precision
-        Q = np.vstack([self.Qxx, np.zeros((1, self.n_unknowns))])
-        Q = np.hstack([Q, np.zeros((self.n_unknowns + 1, 1))])
-        cols = self.layout.photo_cols
-        Qphoto = Q[cols[:, :, None], cols[:, None, :]]  # (n, 6, 6), column -1 reads zeros
+        Qphoto = self.covariance.photo_blocks()  # (n, 6, 6), fixed elements zero
         sig_xyz = s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Qphoto[:, :3, :3]), 0))
         T = self.layout.rotation_maps(self.state)
         J = angles_jacobian(self.state.R, convention) @ T
@@ -162,7 +160,7 @@ class AdjustmentResult:
 
     def camera_mean_errors(self) -> np.ndarray:
         s0 = self.sigma0_for_precision
-        diag = np.concatenate([np.diag(self.Qxx), [0.0]])
+        diag = np.concatenate([self.covariance.diag(), [0.0]])
         return s0 * np.sqrt(np.maximum(diag[self.layout.camera_cols], 0))
 
 

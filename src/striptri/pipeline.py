@@ -110,7 +110,7 @@ def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulat
         s.R, s.xyz0, s.interior[s.camera_of_photo], lay.rotation_maps(s), lay.photo_cols, lay.camera_cols,
         s.camera_of_photo, ip.photo_index, ip.point_index, result.plate_adjusted, ip.sigma_xy,
         len(project.points), np.where(given_mask, result.control_adjusted, 0.0), given_mask, obs.q_control,
-        result.Qxx,
+        result.covariance,
     )
 
 

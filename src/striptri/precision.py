@@ -47,15 +47,13 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
 
     sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
                   result.control_adjusted, options)
-    nu = result.n_unknowns
-    Qext = np.zeros((nu + 1, nu + 1))
-    Qext[:nu, :nu] = result.Qxx
+    cov = result.covariance
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
     for chunk, s in sweep.systems():
         M = np.einsum("mco,mo,mdo->mcd", s.A, s.Q, s.A)
         Minv = np.linalg.inv(M)
-        Qloc = Qext[s.cols[:, :, None], s.cols[:, None, :]]
+        Qloc = cov.entries(s.cols[:, :, None], s.cols[:, None, :])
         C = M - np.einsum("mcu,muv,mdv->mcd", s.B, Qloc, s.B)
         AQ = s.A * s.Q[:, None, :]  # (m, nc, no): A Q
         K = Minv @ C @ Minv
@@ -68,7 +66,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     q_par = np.zeros(len(pobs))
     if len(pobs):
         _, grad, cols = pobs.evaluate(result.state, result.layout, sweep.T)
-        Qloc = Qext[cols[:, :, None], cols[:, None, :]]
+        Qloc = cov.entries(cols[:, :, None], cols[:, None, :])
         q_par = pobs.sigma**2 - np.einsum("pi,pij,pj->p", grad, Qloc, grad)
     return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par)
 

@@ -143,8 +143,8 @@ def triangulate(
     Per point: unknown = the coordinates that are neither given nor weighted-fixed; observations
     = its plate coordinates (weights 1/sigma^2) and its weighted given coordinates (q_given > 0).
     Fixed given coordinates (given_mask and q_given == 0) are held. The covariance has a
-    measurement part ``(J^T P J + P_given)^-1`` and, when Qxx (N^-1 of the orientation unknowns)
-    is given, an orientation part ``G Qxx G^T`` with ``G = -(J^T P J + P_given)^-1 J^T P J_orient``
+    measurement part ``(J^T P J + P_given)^-1`` and, when Qxx (N^-1 of the orientation unknowns,
+    a dense array or a covariance.Covariance) is given, an orientation part ``G Qxx G^T`` with ``G = -(J^T P J + P_given)^-1 J^T P J_orient``
     (Schmid 87-90), both without the factor sigma0^2.
 
     R_photo, O_photo: per photo; photo_index, point_index, xy_plate, sigma_xy: per image point.
@@ -185,7 +185,7 @@ def triangulate(
         xyz[sel[ok]] = X[ok]
         cov_m[sel[ok]] = Qm[ok]
         determined[sel[ok]] = True
-        if Qxx is not None and Qxx.size:
+        if Qxx is not None and n_unknowns_of(Qxx):
             T = rotation_maps[ph]
             drot_u = np.einsum("mkai,mkij->mkaj", drot, T)
             J = np.concatenate([dO, drot_u, dint], 3)  # (m, k, 2, 9)
@@ -196,12 +196,23 @@ def triangulate(
             # rows 2j, 2j+1 of the plate coordinates depend on the 9 unknowns of ray j only
             Gfull = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J).reshape(m, 3, 9 * k)
             colflat = cols.reshape(m, 9 * k)
-            Qext = np.zeros((Qxx.shape[0] + 1, Qxx.shape[0] + 1))
-            Qext[:-1, :-1] = Qxx
-            Qloc = Qext[colflat[:, :, None], colflat[:, None, :]]  # -1 -> last row/col of zeros
+            Qloc = qxx_entries(Qxx, colflat[:, :, None], colflat[:, None, :])  # -1 reads zeros
             Qo = np.einsum("mic,mcd,mjd->mij", Gfull, Qloc, Gfull)
             cov_o[sel[ok]] = Qo[ok]
     return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined)
+
+
+def n_unknowns_of(Qxx) -> int:
+    return Qxx.shape[0] if isinstance(Qxx, np.ndarray) else Qxx.n
+
+
+def qxx_entries(Qxx, rows, cols):
+    """Entries of Qxx (a dense array, or a covariance.Covariance) with index -1 reading zero."""
+    if not isinstance(Qxx, np.ndarray):
+        return Qxx.entries(rows, cols)
+    Qext = np.zeros((Qxx.shape[0] + 1, Qxx.shape[0] + 1))
+    Qext[:-1, :-1] = Qxx
+    return Qext[rows, cols]
 
 
 def _hold(Nx, gx, free):
