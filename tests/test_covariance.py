@@ -1,0 +1,58 @@
+"""covariance.Covariance (selected inversion) against dense references: N^-1 with control, and the
+inner-constraint inverse of a free network."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from striptri import model
+from striptri.adjustment import AdjustmentOptions, adjust
+from striptri.covariance import Covariance
+from striptri.io import read_project
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
+
+
+def _scaled_inverse(N):
+    d = np.sqrt(N.diagonal())
+    return np.linalg.inv((N / d[:, None]) / d[None, :]) / d[:, None] / d[None, :]
+
+
+def _free(project):
+    k = np.where(project.points.kind == model.FULL, model.TIE, project.points.kind)
+    g = np.where((project.points.kind == model.FULL)[:, None], np.nan, project.points.xyz_given)
+    return replace(project, points=replace(project.points, kind=k, xyz_given=g))
+
+
+@pytest.fixture(scope="module", params=["strip8", "block_3x6", "free strip8"])
+def case(request):
+    if request.param.startswith("free"):
+        project = _free(read_project(DATA / "strip8"))
+        r = adjust(project, AdjustmentOptions(datum="inner"))
+        N = r.N.toarray()
+        d = np.sqrt(N.diagonal())
+        reference = np.linalg.pinv((N / d[:, None]) / d[None, :], rcond=1e-10) / d[:, None] / d[None, :]
+    else:
+        r = adjust(read_project(DATA / request.param))
+        reference = _scaled_inverse(r.N.toarray())
+    return r, reference
+
+
+def test_entries_equal_the_dense_reference(case):
+    r, Q = case
+    cov = Covariance(r.N, r.layout, r.free_network)
+    scale = np.abs(Q).max()
+    np.testing.assert_allclose(cov.dense(), Q, atol=1e-9 * scale)
+    np.testing.assert_allclose(cov.diag(), np.diag(Q), atol=1e-9 * scale)
+    cols = r.layout.photo_cols
+    Qp = np.pad(Q, ((0, 1), (0, 1)))
+    np.testing.assert_allclose(cov.photo_blocks(), Qp[cols[:, :, None], cols[:, None, :]], atol=1e-9 * scale)
+
+
+def test_quadratic_form_of_a_function(case):
+    r, Q = case
+    cov = Covariance(r.N, r.layout, r.free_network)
+    f = np.random.default_rng(0).normal(size=r.n_unknowns)
+    assert cov.quadratic_form(f) == pytest.approx(f @ Q @ f, rel=1e-8)
