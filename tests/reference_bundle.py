@@ -52,6 +52,7 @@ class BundleResult:
     iterations: int
     converged: bool
     Q_photo: np.ndarray
+    Q_points: np.ndarray | None = None  # (np, 3, 3) point blocks of (J^T J)^-1 (fixed coordinates 0)
 
 
 class _Problem:
@@ -116,6 +117,12 @@ class _Problem:
         observed = photos.xyz0 - self.offset
         parts.append((observed - centres)[self.centre_observed] / photos.sigma_xyz0[self.centre_observed])
         return np.concatenate(parts)
+
+    def point_columns(self) -> np.ndarray:
+        """(np, 3) column of each point coordinate in the unknown vector, -1 where not unknown."""
+        cols = -np.ones(self.point_unknown.shape, dtype=int)
+        cols[self.point_unknown] = self.n_photo + np.arange(self.n_point)
+        return cols
 
     def photo_columns(self) -> np.ndarray:
         """(n, 6) column of each photo element in the unknown vector, -1 where held fixed."""
@@ -229,6 +236,8 @@ def bundle_adjust(project: model.Project, max_iterations: int = 60, tolerance: f
     cols = problem.photo_columns()
     Qp = np.pad(Qxx, ((0, 1), (0, 1)))  # column -1 reads zeros
     Q_photo = Qp[cols[:, :, None], cols[:, None, :]]
+    pcols = problem.point_columns()
+    Q_points = Qp[pcols[:, :, None], pcols[:, None, :]]
 
     m = len(project.image_points)
     v = -(r[: 2 * m].reshape(m, 2) * problem.sigma_xy)  # adjusted - measured
@@ -246,4 +255,5 @@ def bundle_adjust(project: model.Project, max_iterations: int = 60, tolerance: f
         iterations=iterations,
         converged=converged,
         Q_photo=Q_photo,
+        Q_points=Q_points,
     )

@@ -277,3 +277,23 @@ def test_invariant_to_recombining_conditions(geometry, noise):
     assert np.abs(mixed.plate_residuals - plain.plate_residuals).max() < STAT * project.image_points.sigma_xy.min()
     corr_diff = np.abs(_photo_Q(mixed) - _photo_Q(plain)).max() / np.abs(_photo_Q(plain)).max()
     assert corr_diff < 1e-8
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_point_precision_equals_the_bundle(solved, name):
+    """The ground points' cofactors, Schmid's split (90) and the rigorous joint form (92), equal the
+    point blocks of the independent bundle's (J^T J)^-1 (points as unknowns there)."""
+    from striptri.pipeline import triangulate_result
+    from striptri.precision import joint_point_covariance
+
+    _, project, res, ref = solved[name]
+    tri = triangulate_result(project, res)
+    q90 = tri.cov_measurement + tri.cov_orientation
+    q92 = joint_point_covariance(project, res, tri)
+    unknown = np.abs(np.einsum("nii->ni", ref.Q_points)).sum(axis=1) > 0
+    sel = unknown & tri.determined
+    assert sel.sum() >= 5
+    scale = np.sqrt(np.einsum("nii->ni", ref.Q_points[sel]))  # standard deviations (sigma0 = 1)
+    for q in (q90, q92):
+        diff = (q[sel] - ref.Q_points[sel]) / (scale[:, :, None] * scale[:, None, :] + 1e-300)
+        assert np.abs(np.nan_to_num(diff)).max() < 1e-5

@@ -162,8 +162,11 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
               help="Scale-transfer condition: direction-free 3d (default) or Schmid's XZ form (94).")
 @click.option("--datum", type=click.Choice(list(DATUMS)), default=None,
               help="Datum: from control (default; a defect is an error) or a free network by inner constraints.")
+@click.option("--point-precision", type=click.Choice(["schmid90", "joint92"]), default="schmid90", show_default=True,
+              help="Mean errors of the ground points: orientation part + measurement part (Schmid 90) "
+                   "or the rigorous joint form (92).")
 @reports_errors
-def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum):
+def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision):
     """Adjust the project in PROJECT_DIR and write the results to --out."""
     import warnings
 
@@ -171,7 +174,7 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        products = run_adjust(project_dir, out_dir, method=method, solver=solver,
+        products = run_adjust(project_dir, out_dir, point_precision=point_precision, method=method, solver=solver,
                               max_iterations=max_iterations, scale_form=scale_form, datum=datum)
     for message in dict.fromkeys(str(w.message) for w in caught):
         click.echo(f"striptri: warning: {message}", err=True)

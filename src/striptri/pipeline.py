@@ -47,8 +47,15 @@ def options_for(project: Project, **overrides) -> AdjustmentOptions:
     return AdjustmentOptions(**base)
 
 
-def run_adjust(project_dir, out_dir, **overrides) -> AdjustmentProducts:
-    """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure."""
+POINT_PRECISION = ("schmid90", "joint92")
+
+
+def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", **overrides) -> AdjustmentProducts:
+    """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure.
+
+    point_precision: "schmid90", the orientation part plus the measurement part (Schmid 87-90), or
+    "joint92", the rigorous joint form (92) (docs/decisions.md: for points in the adjustment the
+    two agree to rounding)."""
     project_dir, out_dir = Path(project_dir), Path(out_dir)
     if out_dir.resolve() == project_dir.resolve():
         raise InputError(out_dir, None, "the output folder must not be the project folder")
@@ -57,7 +64,7 @@ def run_adjust(project_dir, out_dir, **overrides) -> AdjustmentProducts:
         options = options_for(project, **overrides)
     except ValueError as exc:
         raise InputError(project_dir / "project.toml", None, str(exc)) from exc
-    products = adjust_products(project, options)
+    products = adjust_products(project, options, point_precision)
     write_output_folder(out_dir, products.files)
     return products
 
@@ -78,9 +85,18 @@ def structure_figure(project_dir, out_png) -> Path:
     return out_png
 
 
-def adjust_products(project: Project, options: AdjustmentOptions) -> AdjustmentProducts:
+def adjust_products(project: Project, options: AdjustmentOptions, point_precision: str = "schmid90") -> AdjustmentProducts:
+    if point_precision not in POINT_PRECISION:
+        raise ValueError(f"unknown point precision {point_precision!r}; choose one of {', '.join(POINT_PRECISION)}")
     result = adjust(project, options)
     points = triangulate_result(project, result)
+    if point_precision == "joint92":
+        from dataclasses import replace as _replace
+
+        from .precision import joint_point_covariance
+
+        joint = joint_point_covariance(project, result, points, options)
+        points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
     cof = residual_cofactors(project, result, options)
     w = normalised_residuals(result.plate_residuals, cof.plate)
     summary = summary_of(project, result, points)

@@ -75,3 +75,70 @@ def normalised_residuals(v: np.ndarray, qvv: np.ndarray) -> np.ndarray:
     """w = v / sqrt(qvv) (a-priori sigma0 = 1); nan where the observation has no redundancy."""
     ok = qvv > 1e-12 * np.max(np.abs(qvv), initial=1.0)
     return np.where(ok, v / np.sqrt(np.where(ok, qvv, 1.0)), np.nan)
+
+
+def joint_point_covariance(project: Project, result: AdjustmentResult, tri, options: AdjustmentOptions = AdjustmentOptions()):
+    """Point cofactors by Schmid's rigorous joint form (92): ``m_F^2 = m^2 F^T R F`` with R the joint
+    cofactor matrix of the adjusted unknowns and the adjusted observations of the point's group.
+
+    For a group (DESIGN section 4) the estimator is linear in its observations l:
+    ``Cov(l^) = Q - Qvv``, ``Cov(x^, l^) = -Qxx B^T M^-1 A Q`` (the correlation of the adjusted
+    unknowns with the adjusted observations; Cov(x^, v) = 0). The point X(x^, l^) is the least-squares
+    intersection of the group's adjusted rays with its given coordinates (held or weighted), so
+    ``dX/dl^ = Qm [J^T P, P_given]`` and ``dX/dx^ = -Qm J^T P J_x`` with ``Qm = (J^T P J + P_given)^-1``.
+
+    tri: triangulation.Triangulated (its coordinates; its (90) cofactors are kept for points that
+    form no group). Returns (n_points, 3, 3) cofactors (times sigma0^2 for covariances).
+    """
+    from .groups import build_batches
+    from .triangulation import _collinearity_jacobians
+
+    obs = observations_of(project, result.offset)
+    sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
+                  result.control_adjusted, options)
+    cov = result.covariance
+    out = tri.cov_measurement + tri.cov_orientation
+    state = result.state
+    for chunk, s in sweep.systems():
+        m, k = chunk.image_rows.shape
+        M = np.einsum("mco,mo,mdo->mcd", s.A, s.Q, s.A)
+        Minv = np.linalg.inv(M)
+        Qloc = cov.entries(s.cols[:, :, None], s.cols[:, None, :])
+        AQ = s.A * s.Q[:, None, :]
+        Qvv = np.einsum("mco,mcd,mdp->mop", AQ, Minv @ (M - np.einsum("mcu,muv,mdv->mcd", s.B, Qloc, s.B)) @ Minv, AQ)
+        Qll = s.Q[:, :, None] * np.eye(s.Q.shape[1]) - Qvv
+        Qxl = -np.einsum("muv,mcv,mcd,mdo->muo", Qloc, s.B, Minv, AQ)
+        # the intersection's derivatives, rays in the group's chain order
+        ph = chunk.photo_index
+        R, O = state.R[ph], state.xyz0[ph]
+        interior = state.interior[state.camera_of_photo[ph]]
+        X = tri.xyz[chunk.point_index]
+        _, dX, dO, drot, dint = _collinearity_jacobians(R, O, interior, X)
+        T = sweep.T[ph]
+        J_x = np.concatenate([dO, np.einsum("mkai,mkij->mkaj", drot, T), dint], 3)  # (m, k, 2, 9)
+        JX = dX.reshape(m, 2 * k, 3)
+        p_plate = 1.0 / s.Q[:, : 2 * k]
+        n_obs = s.Q.shape[1]
+        if chunk.has_control:
+            q_c = s.Q[:, 2 * k:]
+            given = np.array(chunk.given_axes)[None, :] & np.ones((m, 1), dtype=bool)
+            fixed = given & (q_c == 0)
+            p_c = np.where(q_c > 0, 1.0 / np.where(q_c > 0, q_c, 1.0), 0.0)
+        else:
+            fixed = np.zeros((m, 3), dtype=bool)
+            p_c = np.zeros((m, 0))
+        Nx = np.einsum("mri,mr,mrj->mij", JX, p_plate, JX)
+        if chunk.has_control:
+            Nx = Nx + p_c[:, :, None] * np.eye(3)
+        free = ~fixed
+        Nx = np.where(free[:, :, None] & free[:, None, :], Nx, 0.0) + fixed[:, :, None] * np.eye(3)
+        Qm = np.linalg.inv(Nx) * (free[:, :, None] & free[:, None, :])
+        F = np.zeros((m, 3, n_obs))
+        F[:, :, : 2 * k] = np.einsum("mij,mrj,mr->mir", Qm, JX, p_plate)
+        if chunk.has_control:
+            F[:, :, 2 * k:] = Qm * p_c[:, None, :]
+        G = -np.einsum("mika,mkac->mikc", F[:, :, : 2 * k].reshape(m, 3, k, 2), J_x).reshape(m, 3, 9 * k)
+        cross = np.einsum("miu,muo,mjo->mij", G, Qxl, F)
+        out[chunk.point_index] = (np.einsum("miu,muv,mjv->mij", G, Qloc, G) + np.einsum("mio,mop,mjp->mij", F, Qll, F)
+                                  + cross + np.swapaxes(cross, 1, 2))
+    return out
