@@ -103,3 +103,28 @@ def test_command_line_datum_inner(tmp_path):
     assert ok.returncode == 0, ok.stderr
     summary = json.loads((tmp_path / "o2" / "summary.json").read_text())
     assert summary["converged"] and summary["redundancy"] > 0
+
+
+@pytest.mark.parametrize("case, free_count, words", [
+    ("no control", 7, ["translation in X", "scale"]),
+    ("plan control only", 1, ["translation in Z"]),
+    ("height control only", 3, ["translation in X", "translation in Y", "rotation about the Z axis"]),
+    ("two full points", 1, ["rotation about an axis"]),
+])
+def test_each_datum_defect_is_named_and_the_free_network_solves_it(case, free_count, words):
+    p = _strip()
+    full = [int(i) for i in np.flatnonzero(p.points.kind == model.FULL)]
+    kinds = {
+        "no control": {i: model.TIE for i in full},
+        "plan control only": {i: model.PLAN for i in full},
+        "height control only": {i: model.HEIGHT for i in full},
+        "two full points": {i: (model.FULL if n < 2 else model.TIE) for n, i in enumerate(full)},
+    }[case]
+    q = _relabel(p, kinds)
+    with pytest.raises(NumericalFailure) as failure:
+        adjust(q)
+    for word in words:
+        assert word in str(failure.value)
+    r = adjust(q, AdjustmentOptions(datum="inner"))
+    assert r.converged and len(r.free_network) == free_count
+    assert r.checks["max_condition_misclosure_sigma"] < 1e-7
