@@ -1,0 +1,98 @@
+"""Reliability measures of one adjustment: redundancy numbers, w-test, MDB, bias-to-noise ratio.
+
+Per plate coordinate i with a-priori standard deviation sigma_i (a-priori sigma0 = 1: the plate
+sigmas are taken as known, as in precision.py):
+
+* redundancy number ``r_i = qvv_i / q_i`` in [0, 1] (precision.residual_cofactors);
+* normalised residual ``w_i = v_i / sqrt(qvv_i)`` of Baarda's w-test, N(0, 1) without a gross error;
+* minimal detectable bias ``MDB_i = sigma_i delta0 / sqrt(r_i)`` (internal reliability): the
+  smallest gross error the w-test of size alpha0 finds with probability beta0;
+* bias-to-noise ratio ``delta0 sqrt((1 - r_i) / r_i)`` (external reliability): the effect of an
+  undetected MDB_i on all estimated quantities (orientations and points together) in units of
+  their own precision, ``sqrt(dx^T Qxx^-1 dx)``; its effect on the orientations alone is at most
+  this.
+
+``delta0`` is the non-centrality of the w-test, ``z(1 - alpha0/2) + z(beta0)``: 4.13 for Baarda's
+alpha0 = 0.001 (two-sided) and beta0 = 0.80. The far tail of the two-sided test (the mean shifted
+by delta0 yet w below -z(1 - alpha0/2), probability below 1e-9) is neglected, as in Baarda's tables.
+
+A coordinate with ``r_i <= R_ZERO`` is checked by no condition (a tie point left in one photo, a
+height point in one photo): w = nan and MDB = inf, a gross error there cannot be found. Small but
+non-zero redundancy numbers are real and reported as they are: the x coordinate of a tie point in
+two photos of a strip (r ~ 1e-4: the base is along x, only y-parallax is checked) has a finite w
+and an MDB of hundreds of sigma.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+from ..adjustment import AdjustmentOptions, AdjustmentResult
+from ..model import Project
+from ..precision import residual_cofactors
+
+ALPHA0 = 0.001  # size of the w-test, two-sided (Baarda)
+BETA0 = 0.80  # its power against a gross error of the minimal detectable size
+R_ZERO = 1e-9  # a redundancy number at or below this is zero (the coordinate is not checked)
+
+
+def critical_value(alpha0: float = ALPHA0) -> float:
+    """Critical value of the two-sided w-test of size alpha0 (3.29 for 0.001)."""
+    return float(norm.isf(alpha0 / 2))
+
+
+def noncentrality(alpha0: float = ALPHA0, beta0: float = BETA0) -> float:
+    """delta0 = z(1 - alpha0/2) + z(beta0): the mean of w at which the two-sided test of size alpha0
+    rejects with probability beta0 (Baarda 1968; 4.13 for 0.001 and 0.80)."""
+    return float(norm.isf(alpha0 / 2) + norm.ppf(beta0))
+
+
+def minimal_detectable_bias(sigma: np.ndarray, r: np.ndarray, delta0: float) -> np.ndarray:
+    """MDB = sigma delta0 / sqrt(r), in the units of sigma; inf where r <= R_ZERO."""
+    r = np.asarray(r, dtype=float)
+    ok = r > R_ZERO
+    return np.where(ok, np.asarray(sigma) * delta0 / np.sqrt(np.where(ok, r, 1.0)), np.inf)
+
+
+def row_statistic(w: np.ndarray) -> np.ndarray:
+    """The signed w of the larger magnitude of x and y of every row. w: (m, 2) -> (m,); nan where
+    both are nan (the form of residuals.csv's w column)."""
+    a = np.where(np.isnan(w), -1.0, np.abs(w))
+    return w[np.arange(len(w)), np.argmax(a, axis=1)]
+
+
+def row_abs(w: np.ndarray) -> np.ndarray:
+    """max(|w_x|, |w_y|) of every row. (m, 2) -> (m,); -inf where both are nan."""
+    return np.max(np.where(np.isnan(w), -np.inf, np.abs(w)), axis=1, initial=-np.inf)
+
+
+@dataclass
+class PlateReliability:
+    """Reliability of every plate coordinate of one adjustment; arrays (m, 2) (x, y) over the rows
+    of the adjusted project's ImagePoints."""
+
+    redundancy: np.ndarray  # r_i in [0, 1]; 0 for the rows of points without conditions
+    w: np.ndarray  # normalised residuals; nan where r_i <= R_ZERO
+    mdb: np.ndarray  # minimal detectable bias (plate units); inf where r_i <= R_ZERO
+    bnr: np.ndarray  # bias-to-noise ratio (external reliability); inf where r_i <= R_ZERO
+    critical: float
+    delta0: float
+
+
+def plate_reliability(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions(),
+                      alpha0: float = ALPHA0, beta0: float = BETA0) -> PlateReliability:
+    """Redundancy numbers, w, MDB and bias-to-noise ratios of the plate coordinates (module doc).
+    For both methods: at convergence the bundle's solution is the conditions method's, and the
+    cofactors are formed from the conditions at that solution."""
+    cof = residual_cofactors(project, result, options)
+    sigma = project.image_points.sigma_xy
+    r = np.clip(cof.plate / sigma**2, 0.0, 1.0)
+    ok = r > R_ZERO
+    safe_r = np.where(ok, r, 1.0)
+    delta0 = noncentrality(alpha0, beta0)
+    w = np.where(ok, result.plate_residuals / (sigma * np.sqrt(safe_r)), np.nan)
+    bnr = np.where(ok, delta0 * np.sqrt((1.0 - r) / safe_r), np.inf)
+    return PlateReliability(r, w, minimal_detectable_bias(sigma, r, delta0), bnr, critical_value(alpha0), delta0)

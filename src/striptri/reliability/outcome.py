@@ -1,0 +1,244 @@
+"""Options and results of blunder detection, and what both procedures share: removing rows,
+knowing which rows take part, the residuals of rows left out, the per-row results."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..adjustment import AdjustmentResult, observations_of
+from ..camera import project as project_on_plate
+from ..groups import build_batches
+from ..model import GIVEN_AXES, Project
+from ..parameters import State
+from ..triangulation import Triangulated, triangulate
+from .measures import ALPHA0, BETA0, PlateReliability, row_abs, row_statistic
+
+FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED = "", "suspect", "rejected", "dropped"
+FLAGS = (FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED)
+BLUNDER_METHODS = ("snoop", "robust", "off")
+PER_ROUND = ("separated", "single")
+
+
+@dataclass(frozen=True)
+class BlunderOptions:
+    """Options of gross-error detection (striptri.reliability).
+
+    method: "snoop" (data snooping), "robust" (reweighting) or "off" (flag only).
+    alpha0, beta0: size and power of the w-test (critical value, MDB).
+    per_round (snoop): "separated" rejects several well separated rows per round
+    (snooping.select_rejections); "single" one row per round (textbook data snooping).
+    max_rejections: at most this many rows are rejected (None: 10 % of the rows, at least 1); rows
+    still above the critical value are then flagged "suspect".
+    max_rounds: adjustments at most (snoop: testing rounds; robust: reweighting iterations).
+    robust_c: the constant c of the weight function (robust.robust_weight), in units of the
+    studentised gross error. robust_tolerance: reweighting has converged when no weight changes
+    by more than this. min_weight: the smallest weight (keeps the normal equations finite).
+    """
+
+    method: str = "snoop"
+    alpha0: float = ALPHA0
+    beta0: float = BETA0
+    per_round: str = "separated"
+    max_rejections: int | None = None
+    max_rounds: int = 100
+    robust_c: float = 3.0
+    robust_tolerance: float = 0.01
+    min_weight: float = 1e-6
+
+    def __post_init__(self):
+        if self.method not in BLUNDER_METHODS:
+            raise ValueError(f"unknown blunder method {self.method!r}; choose one of {', '.join(BLUNDER_METHODS)}")
+        if self.per_round not in PER_ROUND:
+            raise ValueError(f"per_round must be one of {', '.join(PER_ROUND)}")
+        if not (0 < self.alpha0 < 1 and 0 < self.beta0 < 1):
+            raise ValueError("alpha0 and beta0 must lie in (0, 1)")
+        if self.max_rejections is not None and self.max_rejections < 0:
+            raise ValueError("max_rejections must be non-negative")
+        if self.max_rounds < 1:
+            raise ValueError("max_rounds must be at least 1")
+        if not (self.robust_c > 0 and self.robust_tolerance > 0 and 0 < self.min_weight < 1):
+            raise ValueError("robust_c and robust_tolerance must be positive, min_weight in (0, 1)")
+
+    def rejection_limit(self, m: int) -> int:
+        """The most rows that may be rejected out of m."""
+        return self.max_rejections if self.max_rejections is not None else max(1, int(np.ceil(0.1 * m)))
+
+
+@dataclass
+class Rejection:
+    """One rejected image point: its row in the original ImagePoints, its photo and point index,
+    the round (1-based adjustment) after which it was rejected, and its w (x, y) and MDB (x, y) in
+    that adjustment. Robust method: w holds the studentised estimated gross errors u
+    (robust.studentised_gross_errors) of the last reweighting; MDB is nan."""
+
+    row: int
+    photo_index: int
+    point_index: int
+    round: int
+    w: np.ndarray
+    mdb: np.ndarray
+
+
+@dataclass
+class Round:
+    """One adjustment of the procedure: rows rejected after it (snoop) or rows with a weight below
+    1/2 (robust), the largest row |w| (robust: u), its Gauss-Newton iterations and seconds."""
+
+    rejected: int
+    max_abs_w: float
+    iterations: int
+    seconds: float
+
+
+@dataclass
+class BlunderResult:
+    """The outcome of blunder detection.
+
+    result: the final adjustment, of ``project`` (the rows kept; approximate orientations from the
+    previous round); rows: (m_kept,) the original row of each row of ``project.image_points``.
+    Per row of the *original* ImagePoints, (m, 2) for x and y unless said:
+
+    * w: normalised residual in the final adjustment; nan for rejected and dropped rows and where
+      the coordinate has no redundancy;
+    * redundancy: r_i in the final adjustment (nan for rejected rows);
+    * mdb: minimal detectable bias (plate units) in the final adjustment; inf where r_i = 0, nan
+      for rejected rows (their MDB at rejection is in ``rejected``);
+    * bnr: bias-to-noise ratio, likewise;
+    * v: residual in the final adjustment; for a rejected row the residual it would have there,
+      ``f(x^) - l`` with its point triangulated from the remaining rays (about minus the gross
+      error; nan when the point is no longer determined);
+    * flag: (m,) "" | "suspect" (|w| > critical value, not rejected) | "rejected" | "dropped" (the
+      row's point lost its conditions when other rows of it were rejected);
+    * weights: robust method: the final reweighting weights (1 = full weight); otherwise None.
+
+    rejected: in the order of rejection. rounds: one per adjustment. stopped: why the procedure
+    ended: "clean" (no |w| above the critical value), "limit" (max_rejections), "rounds"
+    (max_rounds; robust: the re-weighting did not converge), "off", or "failure: <message>" (a
+    re-adjustment failed: the rows of that round were taken back and are flagged "suspect").
+    """
+
+    method: str
+    result: AdjustmentResult
+    project: Project
+    rows: np.ndarray
+    w: np.ndarray
+    redundancy: np.ndarray
+    mdb: np.ndarray
+    bnr: np.ndarray
+    v: np.ndarray
+    flag: np.ndarray
+    rejected: list[Rejection]
+    rounds: list[Round]
+    stopped: str
+    critical: float
+    delta0: float
+    weights: np.ndarray | None = None
+    seconds: float = 0.0
+
+    @property
+    def row_w(self) -> np.ndarray:
+        """(m,) the signed w of the larger magnitude of x and y (residuals.csv's w column)."""
+        return row_statistic(self.w)
+
+    @property
+    def rejected_rows(self) -> np.ndarray:
+        return np.array([rej.row for rej in self.rejected], dtype=int)
+
+
+def subset(project: Project, keep: np.ndarray) -> Project:
+    """The project with only the ImagePoints rows where keep is True."""
+    ip = project.image_points
+    return replace(project, image_points=replace(
+        ip, photo_index=ip.photo_index[keep], point_index=ip.point_index[keep], xy=ip.xy[keep],
+        sigma_xy=ip.sigma_xy[keep],
+    ))
+
+
+def warm_start(project: Project, state: State, offset: np.ndarray) -> Project:
+    """The project with an adjusted state as its approximate values, so that a re-adjustment takes
+    few iterations: the free projection centres, every rotation (``R_ground_from_cam`` is only the
+    approximation; observed and fixed angles live in ``photos.angles``, which stays) and the free
+    camera elements. Observed elements (GNSS centres, observed camera elements) keep their observed
+    values, fixed ones their given values. (parameters.with_state replaces centres, angles and
+    camera elements whatever their sigma, which would make the adjusted values the observations.)
+    """
+    ph, cams = project.photos, project.cameras
+    xyz0 = np.where(np.isnan(ph.sigma_xyz0), state.xyz0 + offset, ph.xyz0)
+    interior = np.where(np.isinf(cams.sigma_interior), state.interior, cams.interior)
+    return replace(project, photos=replace(ph, xyz0=xyz0, R_ground_from_cam=state.R.copy()),
+                   cameras=replace(cams, interior=interior))
+
+
+def participating_rows(project: Project) -> np.ndarray:
+    """(m,) True for the rows of points that have conditions (take part in the adjustment)."""
+    part = np.zeros(len(project.image_points), dtype=bool)
+    for batch in build_batches(project):
+        part[batch.image_rows.ravel()] = True
+    return part
+
+
+def triangulate_adjusted(adjusted: Project, result: AdjustmentResult) -> Triangulated:
+    """Ground points of an adjustment, coordinates only (triangulation.triangulate; reduced frame,
+    add result.offset), leaving out the rows of points that cannot be determined: a tie point left
+    with one ray gives two coordinates for three unknowns, on which triangulate meets a singular
+    matrix (numpy LinAlgError) instead of leaving the point undetermined."""
+    s, lay = result.state, result.layout
+    obs = observations_of(adjusted, result.offset)
+    pts = adjusted.points
+    given = np.array([GIVEN_AXES[int(k)] for k in pts.kind], dtype=bool).reshape(-1, 3)
+    aip = adjusted.image_points
+    rays = np.bincount(aip.point_index, minlength=len(pts))
+    use = (2 * rays + given.sum(axis=1) >= 3)[aip.point_index]
+    return triangulate(
+        s.R, s.xyz0, s.interior[s.camera_of_photo], lay.rotation_maps(s), lay.photo_cols, lay.camera_cols,
+        s.camera_of_photo, aip.photo_index[use], aip.point_index[use], result.plate_adjusted[use], aip.sigma_xy[use],
+        len(pts), np.where(given, result.control_adjusted, 0.0), given, obs.q_control,
+    )
+
+
+def predicted_residuals(project: Project, adjusted: Project, result: AdjustmentResult, rows: np.ndarray) -> np.ndarray:
+    """``f(x^) - l`` of rows of ``project`` left out of the adjustment of ``adjusted``: the point
+    triangulated from its adjusted rays (and control), projected into the row's photo with the
+    adjusted orientation. -> (len(rows), 2); nan where the point is not determined."""
+    s = result.state
+    tri = triangulate_adjusted(adjusted, result)
+    ip = project.image_points
+    ph, pt = ip.photo_index[rows], ip.point_index[rows]
+    X = np.where(tri.determined[pt, None], tri.xyz[pt], np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xy = project_on_plate(s.R[ph], s.xyz0[ph], s.interior[s.camera_of_photo[ph]], X)
+    return xy - ip.xy[rows]
+
+
+def blunder_result(method: str, project: Project, adjusted: Project, result: AdjustmentResult,
+                   rel: PlateReliability, rows: np.ndarray, rejected: list[Rejection], rounds: list[Round],
+                   stopped: str, seconds: float, weights: np.ndarray | None = None) -> BlunderResult:
+    """The per-row results over the original rows (BlunderResult) from the final adjustment of the
+    rows ``rows`` of ``project`` (``adjusted``, ``result``, ``rel``)."""
+    m = len(project.image_points)
+    keep = np.zeros(m, dtype=bool)
+    keep[rows] = True
+
+    def spread(values):
+        out = np.full((m, 2), np.nan)
+        out[rows] = values
+        return out
+
+    v = spread(result.plate_residuals)
+    gone = np.flatnonzero(~keep)
+    if len(gone):
+        v[gone] = predicted_residuals(project, adjusted, result, gone)
+    w = spread(rel.w)
+    flag = np.full(m, FLAG_OK, dtype=object)
+    now_part = np.zeros(m, dtype=bool)
+    now_part[rows] = participating_rows(adjusted)
+    flag[keep & participating_rows(project) & ~now_part] = FLAG_DROPPED
+    flag[keep & (row_abs(w) > rel.critical)] = FLAG_SUSPECT
+    flag[~keep] = FLAG_REJECTED
+    return BlunderResult(
+        method=method, result=result, project=adjusted, rows=rows, w=w, redundancy=spread(rel.redundancy),
+        mdb=spread(rel.mdb), bnr=spread(rel.bnr), v=v, flag=flag, rejected=rejected, rounds=rounds,
+        stopped=stopped, critical=rel.critical, delta0=rel.delta0, weights=weights, seconds=seconds,
+    )

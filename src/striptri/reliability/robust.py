@@ -1,0 +1,132 @@
+"""Robust re-weighting (iteratively reweighted least squares), then least squares of the survivors.
+
+1. Adjust with weights p per row (all 1 at first; the row's sigmas become sigma / sqrt(p)).
+2. For every coordinate, u = its studentised estimated gross error
+   (:func:`studentised_gross_errors`); a row's u is the larger of its x and y.
+3. Target weight ``robust_weight(u, c)``; the new weight is the geometric mean of the old weight
+   and the target (damping: undamped, the rays of one point whose w are strongly correlated
+   take turns being down-weighted and the weights cycle for ever).
+4. Repeat from the last orientations until no weight changes by more than ``robust_tolerance``,
+   or the rows whose u exceeds the critical value (the decision of step 5) have stayed the same
+   over ``STABLE_ROUNDS`` re-weightings: the weights of the rows below it still creep towards 1
+   then (the damping halves their logarithm each time), but they are re-adjusted at full weight
+   anyway.
+5. Reject the rows whose u exceeds the critical value of the w-test (the same alpha0 as data
+   snooping), at most ``max_rejections`` (largest first), and adjust the rest at full weight. That
+   adjustment's w, MDB and flags are reported ("suspect" where |w| still exceeds the critical
+   value): reporting a least-squares adjustment of the survivors keeps sigma0, the precision and
+   the w-test meaningful; the re-weighting only finds the rows.
+
+The weight is per row, like the rejection: a gross error of identification spoils x and y.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ..adjustment import AdjustmentOptions, adjust
+from ..errors import NumericalFailure
+from ..model import Project
+from ..precision import residual_cofactors
+from .measures import R_ZERO, critical_value, plate_reliability, row_abs
+from .outcome import BlunderOptions, BlunderResult, Rejection, Round, blunder_result, subset, warm_start
+
+DOWNWEIGHTED = 0.5  # Round.rejected of a re-weighting counts the rows with a weight below this
+STABLE_ROUNDS = 3  # re-weighting stops when the rows above the critical value stay the same this often
+
+
+def robust_weight(u: np.ndarray, c: float) -> np.ndarray:
+    """Danish-type weight function: 1 up to c, then an exponential decay,
+    ``p(u) = 1`` for ``u <= c`` and ``p(u) = exp(1 - (u/c)^2)`` above (continuous at c; 0.05 at
+    2c, 3e-4 at 3c). The exponential down-weighting is that of the Danish method (Krarup, Juhl &
+    Kubik 1980); its exact exponent varies between implementations, this is striptri's. u >= 0 in
+    units of its standard deviation; nan (untestable) -> 1."""
+    u = np.nan_to_num(np.asarray(u, dtype=float), nan=0.0)
+    return np.where(u <= c, 1.0, np.exp(1.0 - (u / c) ** 2))
+
+
+def studentised_gross_errors(v: np.ndarray, qvv: np.ndarray, q_current: np.ndarray, q_prior: np.ndarray) -> np.ndarray:
+    """|estimated gross error| / its standard deviation under the a-priori model, per coordinate.
+
+    In an adjustment where the coordinate has cofactor q' (its a-priori cofactor q divided by its
+    weight) and redundancy number r' = qvv / q', the estimated gross error is ``-v / r'`` (minus the
+    residual the coordinate would have if left out), and the prediction from the other observations
+    has cofactor ``q' (1 - r') / r'``; so ``u = |v / r'| / sqrt(q + q' (1 - r') / r')``. At full
+    weight (q' = q) this is Baarda's |w|; for a down-weighted coordinate it stays what |w| would be
+    at full weight given the rest, instead of shrinking with the weight (which would let a gross
+    error win its weight back). All arrays alike; nan where r' <= R_ZERO.
+    """
+    r = np.clip(qvv / q_current, 0.0, 1.0)
+    ok = r > R_ZERO
+    safe = np.where(ok, r, 1.0)
+    u = np.abs(v / safe) / np.sqrt(q_prior + q_current * (1.0 - safe) / safe)
+    return np.where(ok, u, np.nan)
+
+
+def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
+           blunders: BlunderOptions = BlunderOptions()) -> BlunderResult:
+    """Re-weighting to convergence, rejection, final adjustment at full weight (module doc).
+
+    If the final adjustment of the survivors fails, all rows are adjusted at full weight instead,
+    the candidates are flagged "suspect" and ``stopped`` says why. Raises NumericalFailure when the
+    first adjustment fails.
+    """
+    t_start = time.perf_counter()
+    ip = project.image_points
+    m = len(ip)
+    q_prior = ip.sigma_xy**2
+    crit = critical_value(blunders.alpha0)
+    p = np.ones(m)
+    state = None
+    rounds: list[Round] = []
+    u_row = np.zeros(m)
+    u = np.zeros((m, 2))
+    decisions, stable, converged = None, 0, False
+    for _ in range(blunders.max_rounds):
+        t0 = time.perf_counter()
+        weighted = replace(project, image_points=replace(ip, sigma_xy=ip.sigma_xy / np.sqrt(p)[:, None]))
+        if state is not None:
+            weighted = warm_start(weighted, *state)
+        result = adjust(weighted, options)
+        state = (result.state, result.offset)
+        cof = residual_cofactors(weighted, result, options)
+        u = studentised_gross_errors(result.plate_residuals, cof.plate, weighted.image_points.sigma_xy**2, q_prior)
+        u_row = np.maximum(row_abs(u), 0.0)
+        target = np.maximum(robust_weight(u_row, blunders.robust_c), blunders.min_weight)
+        p_new = np.sqrt(p * target)
+        change = float(np.max(np.abs(p_new - p), initial=0.0))
+        p = p_new
+        rounds.append(Round(int(np.count_nonzero(p < DOWNWEIGHTED)), float(u_row.max(initial=0.0)),
+                            result.iterations, time.perf_counter() - t0))
+        over = frozenset(np.flatnonzero(u_row > crit).tolist())
+        stable = stable + 1 if over == decisions else 0
+        decisions = over
+        if change < blunders.robust_tolerance or stable >= STABLE_ROUNDS:
+            converged = True
+            break
+    over = np.flatnonzero(u_row > crit)
+    cand = over[np.argsort(-u_row[over], kind="stable")][: blunders.rejection_limit(m)]
+    stopped = "limit" if len(over) > len(cand) else "clean" if converged else "rounds"
+    keep = np.ones(m, dtype=bool)
+    keep[cand] = False
+    t0 = time.perf_counter()
+    try:
+        current = warm_start(subset(project, keep), *state)
+        result = adjust(current, options)
+    except NumericalFailure as exc:
+        stopped, keep[:], cand = f"failure: {exc}", True, cand[:0]
+        current = warm_start(project, *state)
+        result = adjust(current, options)
+    rel = plate_reliability(current, result, options, blunders.alpha0, blunders.beta0)
+    rounds.append(Round(0, float(max(row_abs(rel.w).max(initial=0.0), 0.0)), result.iterations,
+                        time.perf_counter() - t0))
+    rejected = [
+        Rejection(int(i), int(ip.photo_index[i]), int(ip.point_index[i]), len(rounds) - 1, u[i].copy(),
+                  np.full(2, np.nan))
+        for i in cand
+    ]
+    return blunder_result("robust", project, current, result, rel, np.flatnonzero(keep), rejected, rounds, stopped,
+                          time.perf_counter() - t_start, weights=np.repeat(p[:, None], 2, axis=1))
