@@ -16,11 +16,20 @@ later outer iteration costs). Iterative solvers start from zero and stop at the 
 1e-12 or after ``--max-inner`` iterations ("n.c." = not converged); their inner iterations are shown.
 ``dense`` is skipped above 7000 unknowns. Time in milliseconds.
 
-    python scripts/bench/bench_solvers.py                 # strips, ~3 min on 2 cores
+BLAS runs single-threaded unless OPENBLAS_NUM_THREADS is set: on a 2-core machine shared with
+other work, OpenBLAS's threads made LAPACK's banded Cholesky 3 to 15 times slower and the figures
+irreproducible; single-threaded they are stable (SuperLU and CHOLMOD with Debian's reference BLAS
+are single-threaded anyway).
+
+    python scripts/bench/bench_solvers.py                 # strips, ~1.5 min on 2 cores
     python scripts/bench/bench_solvers.py --blocks --no-strips
 """
 
 from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy is imported (module doc)
 
 import argparse
 import statistics
@@ -120,7 +129,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     solvers = [s for s in SOLVERS if s != "auto" and (s != "cholmod" or cholmod_available())]
-    print(f"solvers: {', '.join(solvers)}; cholmod {'installed' if cholmod_available() else 'not installed'}")
+    print(f"solvers: {', '.join(solvers)}; cholmod {'installed' if cholmod_available() else 'not installed'}; "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
     print("time per solve in ms: median of later solves (first solve in parentheses where it differs),"
           " [inner iterations]\n")
     if not args.no_strips:
