@@ -88,11 +88,11 @@ def run_striptri(project, true_xyz0, method: str, solver: str, repeats: int, out
     timings = {k: statistics.median(r.timings.get(k, 0.0) for _, r in runs) for k in result.timings}
     xyz0 = result.state.xyz0 + result.offset
     np.savez(out, xyz0=xyz0, R=result.state.R)
-    inner = {}
+    inner = {}  # the solver's counters: inner iterations summed over the outer ones, others as last reported
     for h in result.history:
         for key, value in (h.solver_info or {}).items():
             if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-                inner[key] = inner.get(key, 0) + int(value)
+                inner[key] = inner.get(key, 0) + int(value) if key == "inner_iterations" else int(value)
     return {
         "solver": result.solver,
         "iterations": result.iterations,

@@ -320,7 +320,8 @@ def table(rows) -> str:
             it = str(rep["iterations"]) + ("" if rep.get("converged", True) else " (not converged)")
             extra = rep.get("solver_info_totals") or {}
             if extra:
-                notes.append(f"{case.name} {label}: " + ", ".join(f"{k} {v} in all" for k, v in extra.items()))
+                notes.append(f"{case.name} {label}: " + ", ".join(
+                    f"{k} {v} in all" if k == "inner_iterations" else f"{k} {v}" for k, v in extra.items()))
             if not rep.get("converged", True):
                 notes.append(f"{case.name} {label}: " + stall_note(rep))
             lines.append(
