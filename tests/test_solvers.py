@@ -218,7 +218,7 @@ class SolverSuite:
         assert np.abs(r.state.R - ref.state.R).max() < 1e-9
         assert r.vtpv == pytest.approx(ref.vtpv, rel=1e-9)
         if self.iterative:
-            assert all(h.solver_info["converged"] for h in r.history)
+            assert all(h.solver_info["converged"] and h.solver_info["inner_iterations"] > 0 for h in r.history)
 
 
 class IterativeSuite(SolverSuite):
@@ -283,6 +283,11 @@ class TestBanded(SolverSuite):
         result = self.assert_agrees(N, st)
         assert result.info == {"bandwidth": 17, "border": 3 * n_cameras}
 
+    def test_bandwidth_of_the_real_strip8(self, strip8_dense):
+        project, _ = strip8_dense
+        r = adjust(project, AdjustmentOptions(solver="banded"))
+        assert all(h.solver_info == {"bandwidth": 17, "border": 0} for h in r.history)
+
 
 class TestCholmod(SolverSuite):
     name = "cholmod"
@@ -297,6 +302,11 @@ class TestCholmod(SolverSuite):
         for seed in range(3):
             result = self.assert_agrees(N * (1.0 + seed), st, seed=seed, solver=solver)
         assert result.info["analyses"] == 1
+
+    def test_an_adjustment_analyses_once(self, strip8_dense):
+        project, _ = strip8_dense
+        r = adjust(project, AdjustmentOptions(solver="cholmod"))
+        assert r.iterations > 1 and [h.solver_info["analyses"] for h in r.history] == [1] * r.iterations
 
 
 class TestGaussSeidel(IterativeSuite):
