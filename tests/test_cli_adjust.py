@@ -182,6 +182,9 @@ def test_strip8_columns_in_design_order(strip8_run, name):
     if name == "cameras.csv":
         # only sigmas of the camera elements may follow
         assert all(c.startswith("sigma_") for c in extra), extra
+    elif name == "residuals.csv":
+        # the minimal detectable biases follow the contract's columns
+        assert extra == ["mdb_x", "mdb_y"], extra
     else:
         # at present no extra columns are written; any would have to come after the listed ones
         assert extra == [], extra
@@ -768,3 +771,39 @@ def test_large_grid_coordinates(tmp_path, name):
         for axis, d in (("X", SHIFT["X"]), ("Y", SHIFT["Y"]), ("Z", 0.0)):
             assert num(q1[pid][axis]) - d == pytest.approx(num(q0[pid][axis]), abs=1e-6), (pid, axis)
             assert num(q1[pid][f"sigma_{axis}"]) == pytest.approx(num(q0[pid][f"sigma_{axis}"]), rel=1e-6, abs=1e-9)
+
+
+def test_blunders_snoop_rejects_a_gross_error(tmp_path):
+    """A gross error of 40 sigma on the y coordinate (across the base, well checked) of one plate
+    measurement: --blunders snoop rejects exactly that measurement (flag "rejected" in residuals.csv,
+    its predicted residual about minus the error) and summary.json says so; --blunders off only
+    flags it as suspect."""
+    project = copy_project("block_3x6", tmp_path / "project")
+    path = project / "image_points.csv"
+    lines = path.read_text(encoding="utf-8").splitlines()
+    header = lines[0].split(",")
+    row = 40  # a measurement in the middle of the block
+    fields = lines[row].split(",")
+    fields[header.index("y")] = repr(float(fields[header.index("y")]) + 0.2)  # 40 x 0.005 mm
+    lines[row] = ",".join(fields)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    target = (fields[header.index("photo_id")], fields[header.index("point_id")])
+    clean = run("adjust", DATA / "block_3x6", "--out", tmp_path / "clean")
+    assert clean.returncode == 0, clean.stderr
+    # the clean data have their own measurements above the critical value (the test's size alpha0)
+    baseline = {(r["photo_id"], r["point_id"]) for r in read_table(tmp_path / "clean" / "residuals.csv")[1]
+                if r["flag"] == "suspect"}
+    assert target not in baseline
+    for mode, flag in (("snoop", "rejected"), ("off", "suspect")):
+        out = tmp_path / mode
+        proc = run("adjust", project, "--out", out, "--blunders", mode)
+        assert proc.returncode == 0, proc.stderr
+        _, rows = read_table(out / "residuals.csv")
+        flagged = {(r["photo_id"], r["point_id"]) for r in rows if r["flag"] == flag}
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["blunders"]["method"] == mode
+        assert target in flagged
+        if mode == "snoop":
+            assert flagged - baseline == {target}
+            bad = next(r for r in rows if (r["photo_id"], r["point_id"]) == target)
+            assert abs(float(bad["vy"]) + 0.2) < 0.02

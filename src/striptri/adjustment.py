@@ -468,8 +468,8 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
     d = acc.N.diagonal()
     btk = float(np.max(np.abs(acc.u) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
     try:
-        direct = solvers.make_solver(solvers.SolverOptions(name="sparse" if len(d) > 1500 else "dense"),
-                                     solvers.Structure(len(d)))
+        direct = solvers.make_solver(solvers.SolverOptions(name="auto"),
+                                     solvers.Structure(len(d), sweep.layout.block_starts()))
         if free_network is None:
             dx = direct.solve(acc.N, acc.u).dx
         else:

@@ -165,8 +165,11 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
 @click.option("--point-precision", type=click.Choice(["schmid90", "joint92"]), default="schmid90", show_default=True,
               help="Mean errors of the ground points: orientation part + measurement part (Schmid 90) "
                    "or the rigorous joint form (92).")
+@click.option("--blunders", type=click.Choice(["off", "snoop", "robust"]), default="off", show_default=True,
+              help="Gross errors: off (flag |w| > 3.29 only), snoop (Baarda data snooping: reject, re-adjust) "
+                   "or robust (re-weighting, then least squares of the survivors).")
 @reports_errors
-def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision):
+def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders):
     """Adjust the project in PROJECT_DIR and write the results to --out."""
     import warnings
 
@@ -174,11 +177,16 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        products = run_adjust(project_dir, out_dir, point_precision=point_precision, method=method, solver=solver,
+        products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
+                              method=method, solver=solver,
                               max_iterations=max_iterations, scale_form=scale_form, datum=datum)
     for message in dict.fromkeys(str(w.message) for w in caught):
         click.echo(f"striptri: warning: {message}", err=True)
     s = products.summary
+    b = s["blunders"]
+    if b["method"] != "off" or b["suspect"]:
+        click.echo(f"gross errors ({b['method']}): {b['rejected']} measurements rejected, {b['suspect']} suspect, "
+                   f"{b['dropped']} dropped, in {b['adjustments']} adjustments")
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
     state = "converged" if s["converged"] else "NOT converged"
     click.echo(f"{state} in {s['iterations']} iterations: sigma0 {sigma0}, redundancy {s['redundancy']}, "

@@ -23,7 +23,6 @@ from .io.csvtable import format_csv
 from .io.output import write_output_folder
 from .io.project_reader import RADIANS_PER_UNIT, read_project
 from .model import CHECK, GIVEN_AXES, KIND_NAMES, Project
-from .precision import W_CRITICAL, normalised_residuals, residual_cofactors
 from .rotations import angles_from_R
 from .triangulation import Triangulated, triangulate
 
@@ -37,6 +36,7 @@ class AdjustmentProducts:
     points: Triangulated
     summary: dict
     files: dict
+    blunders: object = None
 
 
 def options_for(project: Project, **overrides) -> AdjustmentOptions:
@@ -50,7 +50,8 @@ def options_for(project: Project, **overrides) -> AdjustmentOptions:
 POINT_PRECISION = ("schmid90", "joint92")
 
 
-def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", **overrides) -> AdjustmentProducts:
+def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders: str = "off",
+               **overrides) -> AdjustmentProducts:
     """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure.
 
     point_precision: "schmid90", the orientation part plus the measurement part (Schmid 87-90), or
@@ -64,7 +65,12 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", **overri
         options = options_for(project, **overrides)
     except ValueError as exc:
         raise InputError(project_dir / "project.toml", None, str(exc)) from exc
-    products = adjust_products(project, options, point_precision)
+    from .solvers import SolverUnavailable
+
+    try:
+        products = adjust_products(project, options, point_precision, blunders)
+    except SolverUnavailable as exc:
+        raise InputError(project_dir / "project.toml", None, str(exc)) from exc
     write_output_folder(out_dir, products.files)
     return products
 
@@ -85,35 +91,59 @@ def structure_figure(project_dir, out_png) -> Path:
     return out_png
 
 
-def adjust_products(project: Project, options: AdjustmentOptions, point_precision: str = "schmid90") -> AdjustmentProducts:
+def adjust_products(project: Project, options: AdjustmentOptions, point_precision: str = "schmid90",
+                    blunders: str = "off") -> AdjustmentProducts:
+    """Adjust (with gross-error detection by ``blunders``: "off", "snoop" or "robust") and build
+    the output files. Photos, points and the summary describe the adjustment of the measurements
+    kept; residuals.csv lists every original measurement with its flag."""
+    from dataclasses import replace as _replace
+
+    from .reliability import BlunderOptions, detect_blunders
+
     if point_precision not in POINT_PRECISION:
         raise ValueError(f"unknown point precision {point_precision!r}; choose one of {', '.join(POINT_PRECISION)}")
-    result = adjust(project, options)
-    points = triangulate_result(project, result)
+    det = detect_blunders(project, options, BlunderOptions(method=blunders))
+    adjusted, result = det.project, det.result
+    points = triangulate_result(adjusted, result)
     if point_precision == "joint92":
-        from dataclasses import replace as _replace
-
         from .precision import joint_point_covariance
 
-        joint = joint_point_covariance(project, result, points, options)
+        joint = joint_point_covariance(adjusted, result, points, options)
         points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
-    cof = residual_cofactors(project, result, options)
-    w = normalised_residuals(result.plate_residuals, cof.plate)
-    summary = summary_of(project, result, points)
+    summary = summary_of(adjusted, result, points)
+    summary["blunders"] = blunder_summary(det)
+    residuals = residual_table(project, det)
     files = {
-        "photos.csv": format_csv(photo_table(project, result)),
-        "cameras.csv": format_csv(camera_table(project, result)),
-        "points.csv": format_csv(point_table(project, result, points)),
-        "residuals.csv": format_csv(residual_table(project, result, w)),
+        "photos.csv": format_csv(photo_table(adjusted, result)),
+        "cameras.csv": format_csv(camera_table(adjusted, result)),
+        "points.csv": format_csv(point_table(adjusted, result, points)),
+        "residuals.csv": format_csv(residuals),
         "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n",
     }
     from .figures import normal_matrix_structure
 
-    structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(project.photos))
-    flags = residual_table(project, result, w)["flag"]  # the flags residuals.csv carries
-    files["report.html"] = report.html_report(project, result, summary, w, points=points, flags=flags,
-                                              figures={"structure": structure})
-    return AdjustmentProducts(project, result, points, summary, files)
+    structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
+    files["report.html"] = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
+                                              flags=det.flag[det.rows], figures={"structure": structure})
+    products = AdjustmentProducts(adjusted, result, points, summary, files)
+    products.blunders = det
+    return products
+
+
+def blunder_summary(det) -> dict:
+    """summary.json's "blunders": the method, the test's critical value and delta0, the counts of
+    rejected / suspect / dropped measurements and the adjustments it took."""
+    flags = np.asarray(det.flag)
+    return {
+        "method": det.method,
+        "critical_value": float(det.critical),
+        "delta0": float(det.delta0),
+        "rejected": int(np.sum(flags == "rejected")),
+        "suspect": int(np.sum(flags == "suspect")),
+        "dropped": int(np.sum(flags == "dropped")),
+        "adjustments": len(det.rounds),
+        "stopped": det.stopped,
+    }
 
 
 def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulated:
@@ -191,20 +221,21 @@ def point_table(project: Project, result: AdjustmentResult, tri: Triangulated) -
     return cols
 
 
-def residual_table(project: Project, result: AdjustmentResult, w: np.ndarray) -> dict:
-    """residuals.csv: v of every plate measurement, the larger normalised residual of its x and y,
-    and a flag "suspect" when |w| exceeds Baarda's critical value 3.29 (alpha0 = 0.001)."""
+def residual_table(project: Project, det) -> dict:
+    """residuals.csv over every original measurement: v (for a rejected one the residual it would
+    have), the larger in magnitude of its normalised residuals w (x, y), the flag ("", "suspect":
+    |w| above the critical value, "rejected", "dropped") and, after the contract's columns, the
+    minimal detectable biases of x and y (plate units)."""
     ip = project.image_points
-    wmax = np.where(np.isnan(w).all(axis=1), np.nan,
-                    np.take_along_axis(w, np.nanargmax(np.nan_to_num(np.abs(w), nan=-1), axis=1)[:, None], 1)[:, 0])
-    flag = np.where(np.abs(np.nan_to_num(wmax)) > W_CRITICAL, "suspect", "")
     return {
         "photo_id": [project.photos.ids[i] for i in ip.photo_index],
         "point_id": [project.points.ids[i] for i in ip.point_index],
-        "vx": result.plate_residuals[:, 0],
-        "vy": result.plate_residuals[:, 1],
-        "w": wmax,
-        "flag": flag,
+        "vx": det.v[:, 0],
+        "vy": det.v[:, 1],
+        "w": det.row_w,
+        "flag": list(det.flag),
+        "mdb_x": det.mdb[:, 0],
+        "mdb_y": det.mdb[:, 1],
     }
 
 

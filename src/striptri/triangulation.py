@@ -160,14 +160,17 @@ def triangulate(
     weighted = given_mask & (q_given > 0)
     for k in np.unique(counts[counts > 0]):
         sel = np.flatnonzero(counts == k)
+        # determined when the rays and the given coordinates (held or weighted) are at least three
+        n_obs = 2 * k + weighted[sel].sum(axis=1)
+        sel = sel[(2 * k + given_mask[sel].sum(axis=1) >= 3) & ((~fixed[sel]).sum(axis=1) <= n_obs)]
+        if len(sel) == 0:
+            continue
+        ok = np.ones(len(sel), dtype=bool)
         rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
         ph = photo_index[rows]
         R, O = R_photo[ph], O_photo[ph]
         interior = interior_photo[ph]
         free = ~fixed[sel]  # (m, 3)
-        n_obs = 2 * k + weighted[sel].sum(axis=1)
-        # determined when the rays and the given coordinates (held or weighted) are at least three
-        ok = (2 * k + given_mask[sel].sum(axis=1) >= 3) & (free.sum(axis=1) <= n_obs)
         X = _initial_points(R, O, interior, xy_plate[rows], xyz_given[sel], given_mask[sel])
         Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
         wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
