@@ -213,7 +213,7 @@ def test_large_projects_show_a_selection(name, products, monkeypatch):
     assert ids[:2] == products.project.photos.ids[:2] and len(set(ids)) == 4
     n = len(products.project.photos)
     assert f"of {n}; photos.csv lists all" in text
-    assert f"the 2 photographs with the most flagged measurements" in text
+    assert "the 2 photographs with the most flagged measurements" in text
 
 
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from . import datum, solvers
 from .covariance import Covariance
 from .errors import NumericalFailure
-from .groups import GroupBatch, build_batches
+from .groups import build_batches
 from .linearise import Observations, linearise
 from .model import Project
 from .normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, whiten

@@ -206,12 +206,13 @@ def initial_state(project: Project, offset: np.ndarray) -> State:
 
 
 def with_state(project: Project, state: State, offset: np.ndarray) -> Project:
-    """The project with its approximate orientations replaced by a state (used for restarts)."""
-    photos = replace(
-        project.photos,
-        xyz0=state.xyz0 + offset,
-        R_ground_from_cam=state.R,
-        angles=angles_from_R(state.R, project.settings.rotation),
-    )
-    cams = replace(project.cameras, interior=state.interior)
-    return replace(project, photos=photos, cameras=cams)
+    """The project with an adjusted state as its approximate values, so that a re-adjustment takes
+    few iterations: the free projection centres, every rotation (``R_ground_from_cam`` is only the
+    approximation; observed and fixed angles live in ``photos.angles``, which stays) and the free
+    camera elements. Observed elements (GNSS centres, observed camera elements) keep their observed
+    values and fixed ones their given values, so the adjusted values never become observations."""
+    ph, cams = project.photos, project.cameras
+    xyz0 = np.where(np.isnan(ph.sigma_xyz0), state.xyz0 + offset, ph.xyz0)
+    interior = np.where(np.isinf(cams.sigma_interior), state.interior, cams.interior)
+    return replace(project, photos=replace(ph, xyz0=xyz0, R_ground_from_cam=state.R.copy()),
+                   cameras=replace(cams, interior=interior))

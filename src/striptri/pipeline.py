@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from . import report
-from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, observations_of
+from .adjustment import AdjustmentOptions, AdjustmentResult, observations_of
 from .errors import InputError
 from .groups import rays_per_point
 from .io.csvtable import format_csv

@@ -796,7 +796,7 @@ class SupernodalInverse(_Engine):
 
     def __init__(self, As: sp.csr_matrix, structure: Structure, numeric: str = "numpy"):
         super().__init__()
-        self.n = n = As.shape[0]
+        self.n = As.shape[0]
         self.name = "cholmod" if numeric == "cholmod" else "sparse"
         sym = self.sym = _symbolic(As, structure)
         self.L = self._cholmod_factor(As) if numeric == "cholmod" else self._numpy_factor(As)

@@ -11,7 +11,7 @@ from ..adjustment import AdjustmentResult, observations_of
 from ..camera import project as project_on_plate
 from ..groups import build_batches
 from ..model import GIVEN_AXES, Project
-from ..parameters import State
+from ..parameters import with_state
 from ..triangulation import Triangulated, triangulate
 from .measures import ALPHA0, BETA0, PlateReliability, row_abs, row_statistic
 
@@ -156,19 +156,7 @@ def subset(project: Project, keep: np.ndarray) -> Project:
     ))
 
 
-def warm_start(project: Project, state: State, offset: np.ndarray) -> Project:
-    """The project with an adjusted state as its approximate values, so that a re-adjustment takes
-    few iterations: the free projection centres, every rotation (``R_ground_from_cam`` is only the
-    approximation; observed and fixed angles live in ``photos.angles``, which stays) and the free
-    camera elements. Observed elements (GNSS centres, observed camera elements) keep their observed
-    values, fixed ones their given values. (parameters.with_state replaces centres, angles and
-    camera elements whatever their sigma, which would make the adjusted values the observations.)
-    """
-    ph, cams = project.photos, project.cameras
-    xyz0 = np.where(np.isnan(ph.sigma_xyz0), state.xyz0 + offset, ph.xyz0)
-    interior = np.where(np.isinf(cams.sigma_interior), state.interior, cams.interior)
-    return replace(project, photos=replace(ph, xyz0=xyz0, R_ground_from_cam=state.R.copy()),
-                   cameras=replace(cams, interior=interior))
+warm_start = with_state  # re-adjustments start from the previous adjusted orientations
 
 
 def participating_rows(project: Project) -> np.ndarray:
