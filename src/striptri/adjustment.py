@@ -335,7 +335,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     converged = False
     v_par = np.zeros(len(pobs))
     vtpv = np.nan
-    for iteration in range(options.max_iterations):
+    for _ in range(options.max_iterations):
         t0 = time.perf_counter()
         sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
         acc = _assemble(sweep, pobs, assembly)
@@ -355,13 +355,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         timings["back_substitution"] += t3 - t2
         crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal()))) if len(dx) else 0.0
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
-        if not np.isfinite(crit) or not np.isfinite(vtpv) or _diverging(history):
-            raise NumericalFailure(
-                f"the adjustment diverged at iteration {iteration + 1} (sum of weighted squared "
-                f"residuals {vtpv:.6g}, largest correction {crit:.3g} times its standard deviation). "
-                "The approximate orientations are probably too far from the truth (check the "
-                "angle convention and units in project.toml), or a gross error spoils the data."
-            )
+        stop_if_diverging(history, "adjustment")
         if crit < options.tolerance:
             converged = True
             break
@@ -439,12 +433,20 @@ def _require_strip_along_x(batches, state: State, max_angle_deg: float = 30.0) -
         )
 
 
-def _diverging(history: list[Iteration]) -> bool:
-    """Corrections growing for four iterations in a row, far beyond a first step."""
-    if len(history) < 5:
-        return False
+def stop_if_diverging(history: list[Iteration], what: str) -> None:
+    """Raise NumericalFailure, explained, when the iteration diverges: non-finite numbers, or
+    corrections growing for four iterations in a row far beyond a first step."""
+    last = history[-1]
     c = [h.max_correction for h in history[-5:]]
-    return all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
+    growing = len(c) == 5 and all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
+    if np.isfinite(last.max_correction) and np.isfinite(last.vtpv) and not growing:
+        return
+    raise NumericalFailure(
+        f"the {what} diverged at iteration {len(history)} (sum of weighted squared residuals "
+        f"{last.vtpv:.6g}, largest correction {last.max_correction:.3g} times its standard deviation). "
+        "The approximate orientations are probably too far from the truth (check the angle "
+        "convention and units in project.toml), or a gross error spoils the data."
+    )
 
 
 def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par: np.ndarray,

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import datum, solvers
-from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, observations_of
+from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, observations_of, stop_if_diverging
 from ..errors import NumericalFailure
 from ..groups import GroupBatch, build_batches
 from ..linearise import Observations
@@ -129,7 +129,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     history: list[Iteration] = []
     converged = False
     vtpv = np.nan
-    for iteration in range(options.max_iterations):
+    for _ in range(options.max_iterations):
         t0 = time.perf_counter()
         normals = problem.assemble(state, xyz)
         t1 = time.perf_counter()
@@ -148,13 +148,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         crit_orientation = float(np.max(np.abs(dx) * np.sqrt(d))) if len(dx) else 0.0
         crit = max(crit_orientation, step.max_point_correction)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
-        if not np.isfinite(crit) or not np.isfinite(vtpv) or _diverging(history):
-            raise NumericalFailure(
-                f"the bundle adjustment diverged at iteration {iteration + 1} (sum of weighted squared "
-                f"residuals {vtpv:.6g}, largest correction {crit:.3g} times its standard deviation). "
-                "The approximate orientations are probably too far from the truth (check the "
-                "angle convention and units in project.toml), or a gross error spoils the data."
-            )
+        stop_if_diverging(history, "bundle adjustment")
         if crit < options.tolerance:
             converged = True
             break
@@ -262,14 +256,6 @@ def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
         f"{problem.unknowns.n_unknowns} point coordinates, and {len(problem.pobs)} observed elements, "
         f"for {problem.layout.n_unknowns} orientation unknowns. Add control or tie points, or fix elements."
     )
-
-
-def _diverging(history: list[Iteration]) -> bool:
-    """Corrections growing for four iterations in a row, far beyond a first step (as adjustment.py)."""
-    if len(history) < 5:
-        return False
-    c = [h.max_correction for h in history[-5:]]
-    return all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
 
 
 def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plate_hat, control_hat, v_par,
