@@ -1,0 +1,301 @@
+"""The instrument-style sequential strip triangulation (Schut's procedures 1 and 2; DESIGN section 8).
+
+The strip model is built photograph by photograph in a *model frame*: the frame of the starting
+photograph (its centre at the origin, ``R = I``), at the scale of the first model's base, which is
+held at the approximate base length. Then the strip model is fitted to the control.
+
+* Procedure 1: dependent relative orientation of photo j to the preceding photo i (5 elements:
+  rotation of j, by and bz; the base component along the plate axis nearest the flight direction
+  held), least squares by coplanarity (Schmid 20); the model (i, j) is intersected from the adjusted
+  rays and scaled about O_i so that the points it shares with the strip model built so far agree with
+  their strip-model coordinates in the least-squares sense (``s = sum d.(P - O_i) / sum d.d``,
+  d = model point - O_i, P = strip-model point); its new points join the strip model.
+* Procedure 2 (Schmid's "(20) & (14)"): the six elements of photo j in one least-squares adjustment of
+  the coplanarity of the points new in model (i, j) and the collinearity of the carried-over points
+  (their strip-model coordinates held). The first model is a relative orientation as in procedure 1,
+  and every step starts from procedure 1's result.
+* Both: a strip model point keeps the coordinates of the model it first appears in.
+* Absolute orientation: 3D similarity to the full, plan and height control (7 parameters, least
+  squares, all given coordinates weighted alike), then optionally the polynomial strip correction
+  (absolute.fit_strip_polynomial) applied to points and centres, after which every photograph is
+  resected (collinearity, six elements) from its corrected points.
+
+``direction``: "forward" starts at the first photograph of photos.csv, "backward" at the last.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..adjustment import AdjustmentResult, Iteration, observations_of
+from ..camera import plate_vector
+from ..conditions import closest_scales
+from ..errors import NumericalFailure
+from ..model import CHECK, GIVEN_AXES, Project
+from ..parameter_observations import build_parameter_observations
+from ..parameters import build_layout, reduction_offset, with_state
+from ..triangulation import intersect_rays
+from .absolute import Similarity, StripPolynomial, fit_similarity, fit_strip_polynomial, umeyama
+from .photo_step import PhotoStep, orient_photo
+
+PROCEDURES = (1, 2)
+DIRECTIONS = ("forward", "backward")
+
+
+@dataclass(frozen=True)
+class SequentialOptions:
+    """procedure: 1 (relative orientation + scale transfer) or 2 (Schmid's (20) & (14));
+    direction: "forward" or "backward"; polynomial_degree: None (similarity only) or 1..3, the degree
+    of the strip correction in the along-strip coordinate; tolerance, max_iterations: of every
+    per-photo adjustment (criterion as adjust())."""
+
+    procedure: int = 1
+    direction: str = "forward"
+    polynomial_degree: int | None = None
+    tolerance: float = 1e-10
+    max_iterations: int = 30
+
+    def __post_init__(self):
+        if self.procedure not in PROCEDURES:
+            raise ValueError(f"unknown procedure {self.procedure!r}; choose 1 or 2")
+        if self.direction not in DIRECTIONS:
+            raise ValueError(f"unknown direction {self.direction!r}; choose forward or backward")
+        if self.polynomial_degree is not None and not 1 <= self.polynomial_degree <= 3:
+            raise ValueError("polynomial_degree must be None or 1, 2 or 3")
+        if self.max_iterations < 1:
+            raise ValueError("max_iterations must be at least 1")
+
+    @staticmethod
+    def from_adjustment_options(options) -> "SequentialOptions":
+        """Read procedure, direction and polynomial_degree from an AdjustmentOptions (defaults where
+        it has no such field), and max_iterations."""
+        return SequentialOptions(
+            procedure=int(getattr(options, "procedure", 1)),
+            direction=getattr(options, "direction", "forward"),
+            polynomial_degree=getattr(options, "polynomial_degree", None),
+            max_iterations=max(getattr(options, "max_iterations", 30), 30),
+        )
+
+
+@dataclass
+class SequentialSolution:
+    """Everything the sequential method computes. Ground coordinates in the reduced frame (+ offset).
+
+    order: photo indices in the order oriented. R_model, xyz0_model: (n, ...) photos in the model
+    frame; xyz_model: (n_pt, 3) the strip model (nan where a point is in no model).
+    steps: the per-photo adjustments (steps[s] orients order[s + 1]; for procedure 2 from the second
+    model on, the relative orientation that started it is in relative_steps). scale_residuals: per step
+    the (k, 3) differences strip model - scaled model at the common points (model frame).
+    similarity, control_residuals (n_pt, 3, given - similarity, nan where not given), polynomial.
+    R_ground, xyz0_ground, xyz_ground: the result in the ground frame.
+    """
+
+    options: SequentialOptions
+    offset: np.ndarray
+    order: np.ndarray
+    R_model: np.ndarray
+    xyz0_model: np.ndarray
+    xyz_model: np.ndarray
+    steps: list[PhotoStep]
+    relative_steps: list[PhotoStep]
+    scale_factors: np.ndarray
+    scale_residuals: list[np.ndarray]
+    similarity: Similarity
+    control_residuals: np.ndarray
+    similarity_iterations: int
+    polynomial: StripPolynomial | None
+    R_ground: np.ndarray
+    xyz0_ground: np.ndarray
+    xyz_ground: np.ndarray
+    resections: list[PhotoStep] = field(default_factory=list)
+
+    @property
+    def vtpv(self) -> float:
+        return float(sum(s.vtpv for s in self.steps))
+
+    @property
+    def redundancy(self) -> int:
+        return int(sum(s.redundancy for s in self.steps))
+
+
+def _single_strip(project: Project) -> None:
+    strips = set(project.photos.strip_ids)
+    if len(strips) > 1:
+        raise NumericalFailure(f"the sequential method triangulates one strip; this project has {len(strips)} "
+                               "strips. Adjust a block with the simultaneous method.")
+    if len(project.photos) < 2:
+        raise NumericalFailure("the sequential method needs at least two photographs")
+
+
+def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_xy, cop_sig, kw, names) -> PhotoStep:
+    """Dependent relative orientation of photo j to photo i (held), robust to rough approximations.
+
+    The held base component (Schut's bx) is the one along the plate axis nearest the base as the
+    plates show it (the base that best satisfies coplanarity with parallel photographs), held at +/-
+    the approximate base length ``|b_cam0|``. Coplanarity has false solutions, so the adjustment is
+    started from eight sets of values: both signs of the held component, the approximate relative
+    rotation ``R_i^T R_j`` or none (consecutive photographs of a strip are nearly parallel), each with
+    the base that best satisfies coplanarity for that rotation (linear in b: the right singular vector
+    of the smallest singular value of the rows ``p_i x R_rel p_j``) or a base along the held axis. Of
+    the converged solutions that put every point in front of both photographs the one with the
+    smallest v^T P v is taken.
+    """
+    b_image = _linear_base(np.eye(3), cop_xy, interior_i, interior_j)
+    held = int(np.argmax(np.abs(b_image)))
+    length = float(np.linalg.norm(b_cam0))
+    first = 1.0 if b_cam0[held] >= 0 else -1.0
+    best, tried = None, 0
+    starts = []
+    for sign in (first, -first):
+        b_axis = np.zeros(3)
+        b_axis[held] = sign * length
+        for R_rel in (R_rel0, np.eye(3)):
+            b_lin = _linear_base(R_rel, cop_xy, interior_i, interior_j)
+            if abs(b_lin[held]) > 0.1:
+                starts.append((R_rel, b_lin * (sign * length / b_lin[held])))
+            starts.append((R_rel, b_axis))
+    for R_rel, b in starts:
+        try:
+            ro = orient_photo("relative", R_i, O_i, interior_i, R_i @ R_rel, O_i + R_i @ b, interior_j, cop_xy,
+                              cop_sig, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 3)), held_axis=held, **kw)
+        except NumericalFailure:
+            continue
+        tried += 1
+        if not ro.converged or not _in_front(R_i, O_i, ro, interior_i, interior_j):
+            continue
+        if best is None or ro.vtpv < best.vtpv * (1 - 1e-9):
+            best = ro
+    if best is None:
+        raise NumericalFailure(f"the relative orientation of photographs {names[0]} and {names[1]} did not converge "
+                               f"to a solution with the points in front of both ({tried} starts tried).")
+    return best
+
+
+def _linear_base(R_rel, cop_xy, interior_i, interior_j) -> np.ndarray:
+    """The unit base (frame of photo i, sign arbitrary) that minimises sum (b . (p_i x R_rel p_j))^2
+    (coplanarity is linear in b once the rotation is given)."""
+    xy = np.asarray(cop_xy).reshape(-1, 2, 2)
+    p_i = plate_vector(xy[:, 0], interior_i)
+    p_j = plate_vector(xy[:, 1], interior_j) @ R_rel.T
+    return np.linalg.svd(np.cross(p_i, p_j))[2][-1]
+
+
+def _in_front(R_i, O_i, ro: PhotoStep, interior_i, interior_j) -> bool:
+    """Every model point of the step lies in front of both photographs (positive ray scales)."""
+    xy = ro.plate_cop.reshape(-1, 2, 2)
+    p = plate_vector(xy, np.stack([interior_i, interior_j]))
+    r = np.einsum("kab,mkb->mka", np.stack([R_i, ro.R_j]), p)
+    s, t, _, _ = closest_scales(np.broadcast_to(ro.O_j - O_i, r[:, 0].shape), r[:, 0], r[:, 1])
+    return bool(np.all(s > 0) and np.all(t > 0))
+
+
+def triangulate_strip(project: Project, options: SequentialOptions = SequentialOptions()) -> SequentialSolution:
+    """Build the strip model photo by photo, then orient it absolutely (module doc)."""
+    _single_strip(project)
+    ph, ip, pts = project.photos, project.image_points, project.points
+    n, n_pt = len(ph), len(pts)
+    offset = reduction_offset(project)
+    Ra, Oa = ph.R_ground_from_cam, ph.xyz0 - offset
+    interior = project.cameras.interior[ph.camera_index]
+    order = np.arange(n) if options.direction == "forward" else np.arange(n)[::-1]
+    row = -np.ones((n, n_pt), dtype=int)
+    row[ip.photo_index, ip.point_index] = np.arange(len(ip))
+
+    Rm = np.zeros((n, 3, 3))
+    Om = np.zeros((n, 3))
+    Rm[order[0]] = np.eye(3)
+    Xm = np.full((n_pt, 3), np.nan)
+    have = np.zeros(n_pt, dtype=bool)
+    steps, relative_steps, scales, scale_res = [], [], [], []
+    kw = dict(tolerance=options.tolerance, max_iterations=options.max_iterations)
+    for s in range(1, n):
+        i, j = order[s - 1], order[s]
+        common = np.flatnonzero((row[i] >= 0) & (row[j] >= 0))
+        if len(common) < 5:
+            raise NumericalFailure(f"photographs {ph.ids[i]} and {ph.ids[j]} share {len(common)} points; a relative "
+                                   "orientation needs at least five.")
+        cop_rows = np.stack([row[i, common], row[j, common]], 1)
+        cop_xy = ip.xy[cop_rows].reshape(-1, 4)
+        cop_sig = ip.sigma_xy[cop_rows].reshape(-1, 4)
+        ro = _relative_orientation(Rm[i], Om[i], interior[i], interior[j], Ra[i].T @ Ra[j], Ra[i].T @ (Oa[j] - Oa[i]),
+                                   cop_xy, cop_sig, kw, (ph.ids[i], ph.ids[j]))
+        # the model (i, j) from the adjusted rays, at the scale of the held base component
+        xy = ro.plate_cop.reshape(-1, 2, 2)
+        Rij = np.stack([Rm[i], ro.R_j])
+        Oij = np.stack([Om[i], ro.O_j])
+        p = plate_vector(xy, interior[[i, j]])
+        r = np.einsum("kab,mkb->mka", Rij, p)
+        X_unit = intersect_rays(np.broadcast_to(Oij, r.shape), r)
+        known = have[common]
+        d = X_unit[known] - Om[i]
+        if s == 1:
+            scale = 1.0
+        elif known.any():
+            P = Xm[common[known]] - Om[i]
+            scale = float(np.sum(d * P) / np.sum(d * d))
+        else:
+            raise NumericalFailure(f"model {ph.ids[i]}-{ph.ids[j]} shares no point with the preceding model: the "
+                                   "scale cannot be carried on.")
+        scales.append(scale)
+        scale_res.append(Xm[common[known]] - (Om[i] + scale * d))
+        O_j = Om[i] + scale * (ro.O_j - Om[i])
+        R_j = ro.R_j
+        new = common[~known]
+        X_new = Om[i] + scale * (X_unit[~known] - Om[i])
+        step = ro
+        if options.procedure == 2 and s > 1:
+            carried = np.flatnonzero(have & (row[j] >= 0))
+            new_rows = np.stack([row[i, new], row[j, new]], 1)
+            step = orient_photo("full", Rm[i], Om[i], interior[i], R_j, O_j, interior[j],
+                                ip.xy[new_rows].reshape(-1, 4), ip.sigma_xy[new_rows].reshape(-1, 4),
+                                ip.xy[row[j, carried]], ip.sigma_xy[row[j, carried]], Xm[carried], **kw)
+            relative_steps.append(ro)
+            R_j, O_j = step.R_j, step.O_j
+            if len(new):
+                xy = step.plate_cop.reshape(-1, 2, 2)
+                p = plate_vector(xy, interior[[i, j]])
+                r = np.einsum("kab,mkb->mka", np.stack([Rm[i], R_j]), p)
+                X_new = intersect_rays(np.broadcast_to(np.stack([Om[i], O_j]), r.shape), r)
+        Rm[j], Om[j] = R_j, O_j
+        Xm[new] = X_new
+        have[new] = True
+        steps.append(step)
+
+    # absolute orientation
+    given = np.array([GIVEN_AXES[int(k)] for k in pts.kind], dtype=bool).reshape(-1, 3)
+    given &= np.isfinite(pts.xyz_given) & have[:, None] & (pts.kind != CHECK)[:, None]
+    xyz_given = pts.xyz_given - offset
+    full = np.flatnonzero(given.all(1))
+    start_m, start_g = Xm[full], xyz_given[full]
+    if len(full) < 3 or np.linalg.svd(start_m - start_m.mean(0), compute_uv=False)[1] < 1e-3 * np.ptp(start_m, 0).max():
+        start_m = np.concatenate([start_m, Om])  # the approximate centres help to start
+        start_g = np.concatenate([start_g, Oa])
+    fit = fit_similarity(np.where(have[:, None], Xm, 0.0), np.where(given, xyz_given, 0.0), given,
+                         umeyama(start_m, start_g))
+    sim = fit.similarity
+    X_g = np.where(have[:, None], sim.apply(np.where(have[:, None], Xm, 0.0)), np.nan)
+    O_g = sim.apply(Om)
+    R_g = sim.R_ground_from_model @ Rm
+    poly, resections = None, []
+    if options.polynomial_degree is not None:
+        poly = fit_strip_polynomial(fit.residuals, np.where(have[:, None], X_g, 0.0), O_g[order],
+                                    options.polynomial_degree)
+        X_g = np.where(have[:, None], X_g + poly.correction(np.where(have[:, None], X_g, 0.0)), np.nan)
+        O_g = O_g + poly.correction(O_g)
+        for j in range(n):
+            seen = np.flatnonzero(have & (row[j] >= 0))
+            rs = orient_photo("full", R_g[j], O_g[j], interior[j], R_g[j], O_g[j], interior[j],
+                              np.zeros((0, 4)), np.zeros((0, 4)), ip.xy[row[j, seen]], ip.sigma_xy[row[j, seen]],
+                              X_g[seen], **kw)
+            R_g[j], O_g[j] = rs.R_j, rs.O_j
+            resections.append(rs)
+    return SequentialSolution(
+        options=options, offset=offset, order=order, R_model=Rm, xyz0_model=Om, xyz_model=Xm, steps=steps,
+        relative_steps=relative_steps, scale_factors=np.array(scales), scale_residuals=scale_res,
+        similarity=sim, control_residuals=fit.residuals, similarity_iterations=fit.iterations, polynomial=poly,
+        R_ground=R_g, xyz0_ground=O_g, xyz_ground=X_g, resections=resections,
+    )
