@@ -205,5 +205,32 @@ def structure(project_dir, out_png):
     click.echo(f"wrote {structure_figure(project_dir, out_png)}")
 
 
+# --------------------------------------------------------------------------- striptri convert
+
+
+@main.command()
+@click.argument("src", type=click.Path())
+@click.option("--to", "target", required=True, type=click.Choice(["colmap", "project"]), help="Format to write.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Folder to write.")
+@click.option("--from", "source", type=click.Choice(["bal", "colmap", "project"]), default=None,
+              help="Format of SRC [detected: a file is BAL, a folder with cameras.txt COLMAP, with cameras.csv a project].")
+@click.option("--pixel-size", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="Plate units per pixel on the COLMAP side: the plate unit of a COLMAP source, the pixel of "
+                   "COLMAP output from a project [1].")
+@click.option("--drop-distortion", is_flag=True, default=False,
+              help="BAL: drop nonzero radial distortion k1, k2 (striptri has no distortion model yet) instead of refusing.")
+@reports_errors
+def convert(src, target, out_dir, source, pixel_size, drop_distortion):
+    """Convert SRC (a BAL problem, a COLMAP text model or a project) to --to in --out (docs/formats.md)."""
+    from striptri.formats.convert import convert as run_convert
+
+    result = run_convert(src, out_dir, target, source_format=source, pixel_size=pixel_size,
+                         drop_distortion=drop_distortion)
+    for note in result.notes:
+        click.echo(f"striptri: note: {note}", err=True)
+    click.echo(f"wrote {result.out_dir} ({result.target_format} from {result.source_format}): {result.n_cameras} cameras, "
+               f"{result.n_photos} photos, {result.n_points} points, {result.n_image_points} image points")
+
+
 if __name__ == "__main__":
     main()

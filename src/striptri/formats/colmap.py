@@ -1,0 +1,315 @@
+"""COLMAP text models: cameras.txt, images.txt, points3D.txt (docs/formats.md).
+
+COLMAP conventions (https://colmap.github.io/format.html):
+
+* ``images.txt``: per image a line ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` (the
+  Hamilton quaternion and translation of ``cam_from_world``: ``P_cam = R X_world + t``) and a line of
+  ``X Y POINT3D_ID`` triples (pixel coordinates, POINT3D_ID -1 when the point has none; the line
+  may be empty);
+* ``cameras.txt``: ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS...``; only ``SIMPLE_PINHOLE`` (f, cx, cy)
+  and ``PINHOLE`` (fx, fy, cx, cy) are read here; any other model is an error that names it;
+* ``points3D.txt``: ``POINT3D_ID X Y Z R G B ERROR (IMAGE_ID POINT2D_IDX)...``;
+* camera frame x right, y down, looking along +z; pixel coordinates with the origin at the
+  top-left corner of the image (the centre of the first pixel is (0.5, 0.5)), y down.
+
+Lines starting with ``#`` are comments. Everything is kept as struct of arrays; the conversion to
+a striptri project is :mod:`striptri.formats.conversions`. Errors are InputError(file, line, reason).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from striptri.errors import InputError
+
+MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4}
+FILES = ("cameras.txt", "images.txt", "points3D.txt")
+
+
+@dataclass(frozen=True)
+class ColmapModel:
+    """A COLMAP reconstruction (text model) as struct of arrays.
+
+    Cameras: camera_ids (ncam,) int; camera_models list[str]; width_height (ncam, 2) int;
+    focal (ncam, 2) fx, fy pixels; principal (ncam, 2) cx, cy pixels (top-left origin).
+    Images: image_ids (nimg,) int; image_names list[str]; image_camera (nimg,) index into cameras;
+    q_cam_from_world (nimg, 4) qw, qx, qy, qz (unit); t_cam_from_world (nimg, 3).
+    Observations (the POINTS2D of images.txt, in file order): obs_image (nobs,) index into images;
+    obs_xy (nobs, 2) pixels; obs_point3d_id (nobs,) int, -1 = no 3D point.
+    Points: point3d_ids (npts,) int; xyz_world (npts, 3); rgb (npts, 3) int; error (npts,).
+    """
+
+    camera_ids: np.ndarray
+    camera_models: list[str]
+    width_height: np.ndarray
+    focal: np.ndarray
+    principal: np.ndarray
+    image_ids: np.ndarray
+    image_names: list[str]
+    image_camera: np.ndarray
+    q_cam_from_world: np.ndarray
+    t_cam_from_world: np.ndarray
+    obs_image: np.ndarray
+    obs_xy: np.ndarray
+    obs_point3d_id: np.ndarray
+    point3d_ids: np.ndarray
+    xyz_world: np.ndarray
+    rgb: np.ndarray
+    error: np.ndarray
+
+
+# --------------------------------------------------------------------------- quaternions
+
+
+def R_from_quaternion(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of Hamilton quaternions (qw, qx, qy, qz), normalised first. (..., 4) -> (..., 3, 3)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = (q[..., i] for i in range(4))
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def quaternion_from_R(R: np.ndarray) -> np.ndarray:
+    """Unit Hamilton quaternion (qw >= 0) of rotation matrices (Shepperd's method). (..., 3, 3) -> (..., 4)."""
+    R = np.asarray(R, dtype=float)
+    tr = np.trace(R, axis1=-2, axis2=-1)
+    d = np.stack([tr, R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]], -1)
+    k = np.argmax(d, axis=-1)
+    q = np.empty(R.shape[:-2] + (4,))
+    r = lambda i, j: R[..., i, j]
+    cand = [
+        np.stack([1 + tr, r(2, 1) - r(1, 2), r(0, 2) - r(2, 0), r(1, 0) - r(0, 1)], -1),
+        np.stack([r(2, 1) - r(1, 2), 1 + 2 * r(0, 0) - tr, r(0, 1) + r(1, 0), r(0, 2) + r(2, 0)], -1),
+        np.stack([r(0, 2) - r(2, 0), r(0, 1) + r(1, 0), 1 + 2 * r(1, 1) - tr, r(1, 2) + r(2, 1)], -1),
+        np.stack([r(1, 0) - r(0, 1), r(0, 2) + r(2, 0), r(1, 2) + r(2, 1), 1 + 2 * r(2, 2) - tr], -1),
+    ]
+    for i in range(4):
+        q = np.where((k == i)[..., None], cand[i], q)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_colmap(folder: str | Path) -> ColmapModel:
+    """Read cameras.txt, images.txt and points3D.txt of folder. Raises InputError; writes nothing."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(folder, None, "COLMAP model folder not found" if not folder.exists() else "is not a folder")
+    cams = _read_cameras(folder / "cameras.txt")
+    imgs = _read_images(folder / "images.txt", cams["index"])
+    pts = _read_points(folder / "points3D.txt", imgs["index"])
+    known = set(pts["ids"])
+    for i, pid in enumerate(imgs["obs_point3d_id"]):
+        if pid != -1 and pid not in known:
+            raise InputError(folder / "images.txt", imgs["obs_lines"][i], f"POINT3D_ID {pid} is not in points3D.txt")
+    return ColmapModel(
+        camera_ids=np.array(cams["ids"], dtype=np.int64),
+        camera_models=cams["models"],
+        width_height=np.array(cams["wh"], dtype=np.int64).reshape(-1, 2),
+        focal=np.array(cams["focal"], dtype=float).reshape(-1, 2),
+        principal=np.array(cams["principal"], dtype=float).reshape(-1, 2),
+        image_ids=np.array(imgs["ids"], dtype=np.int64),
+        image_names=imgs["names"],
+        image_camera=np.array(imgs["camera"], dtype=np.int64),
+        q_cam_from_world=np.array(imgs["q"], dtype=float).reshape(-1, 4),
+        t_cam_from_world=np.array(imgs["t"], dtype=float).reshape(-1, 3),
+        obs_image=np.array(imgs["obs_image"], dtype=np.int64),
+        obs_xy=np.array(imgs["obs_xy"], dtype=float).reshape(-1, 2),
+        obs_point3d_id=np.array(imgs["obs_point3d_id"], dtype=np.int64),
+        point3d_ids=np.array(pts["ids"], dtype=np.int64),
+        xyz_world=np.array(pts["xyz"], dtype=float).reshape(-1, 3),
+        rgb=np.array(pts["rgb"], dtype=np.int64).reshape(-1, 3),
+        error=np.array(pts["error"], dtype=float),
+    )
+
+
+def _lines(path: Path) -> list[tuple[int, str]]:
+    """Physical (1-based number, stripped text) of every line of path."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(path, raw[: exc.start].count(b"\n") + 1, "not valid UTF-8 text") from None
+    return [(n, line.strip()) for n, line in enumerate(text.splitlines(), start=1)]
+
+
+def _data(lines):
+    return [(n, s) for n, s in lines if s and not s.startswith("#")]
+
+
+def _int(path, line, name, token) -> int:
+    try:
+        return int(token)
+    except ValueError:
+        raise InputError(path, line, f"{name} '{token}' is not an integer") from None
+
+
+def _float(path, line, name, token) -> float:
+    try:
+        value = float(token)
+    except ValueError:
+        raise InputError(path, line, f"{name} '{token}' is not a number") from None
+    if not math.isfinite(value):
+        raise InputError(path, line, f"{name} '{token}' is not a finite number")
+    return value
+
+
+def _read_cameras(path: Path) -> dict:
+    out = {"ids": [], "models": [], "wh": [], "focal": [], "principal": [], "index": {}}
+    for n, text in _data(_lines(path)):
+        tokens = text.split()
+        if len(tokens) < 4:
+            raise InputError(path, n, "camera line must be 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...'")
+        cid = _int(path, n, "CAMERA_ID", tokens[0])
+        model = tokens[1]
+        if model not in MODELS:
+            raise InputError(path, n, f"camera model {model} is not supported (only SIMPLE_PINHOLE and PINHOLE; "
+                                      "distortion models need striptri's camera model issue)")
+        params = [_float(path, n, f"{model} parameter", t) for t in tokens[4:]]
+        if len(params) != MODELS[model]:
+            raise InputError(path, n, f"{model} has {MODELS[model]} parameters, found {len(params)}")
+        if cid in out["index"]:
+            raise InputError(path, n, f"CAMERA_ID {cid} occurs twice")
+        f = (params[0], params[0]) if model == "SIMPLE_PINHOLE" else (params[0], params[1])
+        if min(f) <= 0:
+            raise InputError(path, n, f"focal length must be > 0, found {params[:len(params) - 2]}")
+        out["index"][cid] = len(out["ids"])
+        out["ids"].append(cid)
+        out["models"].append(model)
+        out["wh"].append((_int(path, n, "WIDTH", tokens[2]), _int(path, n, "HEIGHT", tokens[3])))
+        out["focal"].append(f)
+        out["principal"].append(tuple(params[-2:]))
+    return out
+
+
+def _read_images(path: Path, camera_index: dict) -> dict:
+    out = {"ids": [], "names": [], "camera": [], "q": [], "t": [], "index": {},
+           "obs_image": [], "obs_xy": [], "obs_point3d_id": [], "obs_lines": []}
+    lines = _lines(path)
+    i = 0
+    while i < len(lines):
+        n, text = lines[i]
+        i += 1
+        if not text or text.startswith("#"):
+            continue
+        tokens = text.split(maxsplit=9)
+        if len(tokens) != 10:
+            raise InputError(path, n, "image line must be 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'")
+        iid = _int(path, n, "IMAGE_ID", tokens[0])
+        if iid in out["index"]:
+            raise InputError(path, n, f"IMAGE_ID {iid} occurs twice")
+        q = [_float(path, n, name, t) for name, t in zip(("QW", "QX", "QY", "QZ"), tokens[1:5])]
+        if abs(math.sqrt(sum(v * v for v in q)) - 1.0) > 1e-6:
+            raise InputError(path, n, "the quaternion QW QX QY QZ is not of unit length")
+        t = [_float(path, n, name, tok) for name, tok in zip(("TX", "TY", "TZ"), tokens[5:8])]
+        cid = _int(path, n, "CAMERA_ID", tokens[8])
+        if cid not in camera_index:
+            raise InputError(path, n, f"CAMERA_ID {cid} is not in cameras.txt")
+        k = len(out["ids"])
+        out["index"][iid] = k
+        out["ids"].append(iid)
+        out["q"].append(q)
+        out["t"].append(t)
+        out["camera"].append(camera_index[cid])
+        out["names"].append(tokens[9])
+        # the POINTS2D line follows directly (it may be empty)
+        if i >= len(lines):
+            break
+        n2, text2 = lines[i]
+        i += 1
+        values = text2.split()
+        if len(values) % 3:
+            raise InputError(path, n2, "POINTS2D line must hold triples 'X Y POINT3D_ID'")
+        for j in range(0, len(values), 3):
+            out["obs_image"].append(k)
+            out["obs_xy"].append((_float(path, n2, "X", values[j]), _float(path, n2, "Y", values[j + 1])))
+            out["obs_point3d_id"].append(_int(path, n2, "POINT3D_ID", values[j + 2]))
+            out["obs_lines"].append(n2)
+    return out
+
+
+def _read_points(path: Path, image_index: dict) -> dict:
+    out = {"ids": [], "xyz": [], "rgb": [], "error": []}
+    seen: set[int] = set()
+    for n, text in _data(_lines(path)):
+        tokens = text.split()
+        if len(tokens) < 8 or (len(tokens) - 8) % 2:
+            raise InputError(path, n, "point line must be 'POINT3D_ID X Y Z R G B ERROR (IMAGE_ID POINT2D_IDX)...'")
+        pid = _int(path, n, "POINT3D_ID", tokens[0])
+        if pid in seen:
+            raise InputError(path, n, f"POINT3D_ID {pid} occurs twice")
+        seen.add(pid)
+        for j in range(8, len(tokens), 2):
+            if _int(path, n, "IMAGE_ID", tokens[j]) not in image_index:
+                raise InputError(path, n, f"track names IMAGE_ID {tokens[j]}, which is not in images.txt")
+        out["ids"].append(pid)
+        out["xyz"].append([_float(path, n, name, t) for name, t in zip("XYZ", tokens[1:4])])
+        out["rgb"].append([_int(path, n, name, t) for name, t in zip("RGB", tokens[4:7])])
+        out["error"].append(_float(path, n, "ERROR", tokens[7]))
+    return out
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def colmap_files(m: ColmapModel) -> dict[str, str]:
+    """Text of cameras.txt, images.txt and points3D.txt of m (floats by repr; tracks from the
+    observations with a 3D point)."""
+    cams = ["# Camera list with one line of data per camera:",
+            "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
+            f"# Number of cameras: {len(m.camera_ids)}"]
+    for k, cid in enumerate(m.camera_ids):
+        fx, fy = m.focal[k]
+        params = [fx] if m.camera_models[k] == "SIMPLE_PINHOLE" else [fx, fy]
+        params += list(m.principal[k])
+        cams.append(" ".join([str(int(cid)), m.camera_models[k], str(int(m.width_height[k, 0])),
+                              str(int(m.width_height[k, 1]))] + [repr(float(v)) for v in params]))
+    point2d_idx = np.zeros(len(m.obs_image), dtype=np.int64)
+    imgs = ["# Image list with two lines of data per image:",
+            "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
+            "#   POINTS2D[] as (X, Y, POINT3D_ID)",
+            (f"# Number of images: {len(m.image_ids)}, mean observations per image: "
+             f"{len(m.obs_image) / max(len(m.image_ids), 1):.6g}")]
+    order = np.argsort(m.obs_image, kind="stable")
+    starts = np.searchsorted(m.obs_image[order], np.arange(len(m.image_ids) + 1))
+    for k, iid in enumerate(m.image_ids):
+        values = list(m.q_cam_from_world[k]) + list(m.t_cam_from_world[k])
+        imgs.append(" ".join([str(int(iid))] + [repr(float(v)) for v in values]
+                             + [str(int(m.camera_ids[m.image_camera[k]])), m.image_names[k]]))
+        rows = order[starts[k] : starts[k + 1]]
+        point2d_idx[rows] = np.arange(len(rows))
+        imgs.append(" ".join(f"{float(m.obs_xy[r, 0])!r} {float(m.obs_xy[r, 1])!r} {int(m.obs_point3d_id[r])}"
+                             for r in rows))
+    has3d = np.flatnonzero(m.obs_point3d_id != -1)
+    by_point = {}
+    for r in has3d[np.argsort(m.obs_point3d_id[has3d], kind="stable")]:
+        by_point.setdefault(int(m.obs_point3d_id[r]), []).append(r)
+    n_obs = len(has3d)
+    pts = ["# 3D point list with one line of data per point:",
+           "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
+           f"# Number of points: {len(m.point3d_ids)}, mean track length: {n_obs / max(len(m.point3d_ids), 1):.6g}"]
+    for k, pid in enumerate(m.point3d_ids):
+        track = " ".join(f"{int(m.image_ids[m.obs_image[r]])} {int(point2d_idx[r])}" for r in by_point.get(int(pid), []))
+        fields = [str(int(pid))] + [repr(float(v)) for v in m.xyz_world[k]] + [str(int(v)) for v in m.rgb[k]]
+        fields.append(repr(float(m.error[k])))
+        pts.append(" ".join(fields) + (" " + track if track else ""))
+    return {"cameras.txt": "\n".join(cams) + "\n", "images.txt": "\n".join(imgs) + "\n",
+            "points3D.txt": "\n".join(pts) + "\n"}

@@ -1,0 +1,294 @@
+"""Conversions between BAL problems, COLMAP models and striptri projects (docs/formats.md).
+
+No file is opened here. A :class:`Scene` is a :class:`striptri.model.Project` plus approximate
+ground coordinates of its object points (BAL and COLMAP carry them; a striptri project carries only
+the given coordinates of control points).
+
+Frames:
+
+* striptri: ``R_ground_from_cam`` maps the camera vector ``p = (x - xp, y - yp, -c)`` (diapositive,
+  y up, the camera looks along -z) to the ground; centre ``O``.
+* BAL: ``P = R_bal X + t``, the camera looks down -z, y up, pixels from the image centre: the
+  same camera frame, so ``R_ground_from_cam = R_bal^T``, ``O = -R_bal^T t``, ``c = f``,
+  ``xp = yp = 0`` and plate coordinates = BAL pixels (plate unit: pixel).
+* COLMAP: ``P = R_cw X + t``, x right, y down, looking along +z, pixels from the top-left corner,
+  y down. With ``D = diag(1, -1, -1)``: ``R_cw = D R_ground_from_cam^T``, ``t = -R_cw O``; with s
+  plate units per pixel and an image of W x H pixels: ``x = (u - W/2) s``, ``y = (H/2 - v) s``,
+  ``c = f s``, ``xp = (cx - W/2) s``, ``yp = (H/2 - cy) s``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from striptri import model, rotations
+from striptri.camera import ray_ground
+from striptri.errors import InputError
+from striptri.formats.bal import BalProblem
+from striptri.formats.colmap import ColmapModel, R_from_quaternion, quaternion_from_R
+
+# striptri camera frame (y up, looking along -z) from the COLMAP camera frame (y down, along +z).
+D_STRIPTRI_FROM_COLMAP = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A project and approximate ground coordinates of its object points.
+
+    xyz_ground: (n_points, 3), nan where not known. plate_units_per_pixel: the pixel size in plate
+    units when the plate coordinates came from pixels (BAL: 1.0), else None. notes: what the
+    conversion dropped or assumed, in words for the user.
+    """
+
+    project: model.Project
+    xyz_ground: np.ndarray
+    plate_units_per_pixel: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class ColmapNames:
+    """striptri ids of COLMAP objects (kept in the side file striptri_ids.csv): COLMAP id -> id."""
+
+    cameras: dict[int, str] = field(default_factory=dict)
+    points: dict[int, str] = field(default_factory=dict)
+    strips: dict[int, str] = field(default_factory=dict)  # image id -> strip_id
+
+
+# --------------------------------------------------------------------------- BAL
+
+
+def bal_distortion_pixels(bal: BalProblem) -> np.ndarray:
+    """Per camera, the largest displacement (pixels) the BAL radial distortion causes at the
+    camera's observed points: f |k1 r^2 + k2 r^4| |p| with p = xy / f (the undistorted radius
+    approximated by the observed one). -> (ncam,)."""
+    cam = bal.camera_index
+    p = bal.xy_pixel / bal.f[cam, None]
+    r2 = np.sum(p * p, axis=1)
+    shift = np.abs(bal.k1[cam] * r2 + bal.k2[cam] * r2 * r2) * np.sqrt(r2) * np.abs(bal.f[cam])
+    out = np.zeros(bal.n_cameras)
+    np.maximum.at(out, cam, shift)
+    return out
+
+
+def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
+    """A striptri project of a BAL problem: one camera and one photo per BAL camera, one tie point
+    per BAL point, plate coordinates = BAL pixels, sigma 1 pixel, free-network datum.
+
+    striptri's camera model has no radial distortion yet: a camera with k1 or k2 != 0 is refused
+    (InputError at the camera's line) unless drop_distortion, which drops k1, k2 and says so in
+    Scene.notes with the largest displacement it causes. A BAL focal length must be > 0."""
+    path = bal.path or Path("<BAL problem>")
+    distorted = np.flatnonzero((bal.k1 != 0) | (bal.k2 != 0))
+    shift = bal_distortion_pixels(bal)
+    notes = []
+    if len(distorted) and not drop_distortion:
+        i = int(distorted[0])
+        raise InputError(path, int(bal.camera_lines[i]),
+                         f"camera {i} has radial distortion k1 = {float(bal.k1[i])!r}, k2 = {float(bal.k2[i])!r} "
+                         f"({len(distorted)} of {bal.n_cameras} cameras have some; largest displacement "
+                         f"{shift.max():.3g} px); striptri's camera model has no distortion yet: convert "
+                         "with --drop-distortion to drop it")
+    if len(distorted):
+        notes.append(f"radial distortion k1, k2 of {len(distorted)} cameras dropped (striptri has no distortion "
+                     f"model yet); it displaced observed points by up to {shift.max():.3g} px")
+    bad_f = np.flatnonzero(bal.f <= 0)
+    if len(bad_f):
+        i = int(bad_f[0])
+        raise InputError(path, int(bal.camera_lines[i]),
+                         f"camera {i} (parameters from this line): focal length f = {float(bal.f[i])!r} is not > 0")
+    pair = bal.camera_index * max(bal.n_points, 1) + bal.point_index
+    _, first, counts = np.unique(pair, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        k = int(first[np.argmax(counts > 1)])
+        raise InputError(path, None, f"camera {bal.camera_index[k]} observes point {bal.point_index[k]} more than once")
+    R_cw = bal.R_cam_from_world()
+    R_gc = np.swapaxes(R_cw, -1, -2)
+    xyz0 = -np.einsum("nij,nj->ni", R_gc, bal.t_cam_from_world)
+    ncam, npts, nobs = bal.n_cameras, bal.n_points, bal.n_observations
+    cams = [str(i) for i in range(ncam)]
+    project = model.Project(
+        cameras=model.Cameras(
+            ids=cams,
+            interior=np.stack([bal.f, np.zeros(ncam), np.zeros(ncam)], 1),
+            sigma_interior=np.full((ncam, 3), np.nan),
+        ),
+        photos=_photos(cams, np.arange(ncam), [""] * ncam, xyz0, R_gc),
+        image_points=model.ImagePoints(
+            photo_index=bal.camera_index.copy(), point_index=bal.point_index.copy(),
+            xy=bal.xy_pixel.copy(), sigma_xy=np.ones((nobs, 2)),
+        ),
+        points=_tie_points([str(j) for j in range(npts)]),
+        settings=model.ProjectSettings(sigma_image=1.0, datum="inner"),
+        source=bal.path,
+    )
+    return Scene(project=project, xyz_ground=bal.xyz_world.copy(), plate_units_per_pixel=1.0, notes=notes)
+
+
+# --------------------------------------------------------------------------- COLMAP -> project
+
+
+def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: ColmapNames | None = None,
+                      source: Path | None = None) -> Scene:
+    """A striptri project of a COLMAP model (frames in the module doc). pixel_size: plate units per
+    pixel (1.0: plate coordinates in pixels). Photo ids are the image names; camera and point ids
+    from names, else the COLMAP ids. Every COLMAP point is a tie point; observations without a 3D
+    point are left out (counted in notes). Image sigma: one pixel. Raises InputError for a PINHOLE
+    camera with fx != fy (striptri has one principal distance)."""
+    names = names or ColmapNames()
+    where = Path(source) / "cameras.txt" if source is not None else Path("cameras.txt")
+    s = _check_pixel_size(pixel_size)
+    fx, fy = colmap.focal[:, 0], colmap.focal[:, 1]
+    unequal = np.flatnonzero(np.abs(fx - fy) > 1e-12 * np.abs(fx))
+    if len(unequal):
+        k = int(unequal[0])
+        raise InputError(where, None, f"camera {colmap.camera_ids[k]}: PINHOLE with fx = {float(fx[k])!r} "
+                                      f"!= fy = {float(fy[k])!r}; striptri's camera has one principal distance")
+    half = colmap.width_height / 2.0
+    interior = np.stack([fx * s, (colmap.principal[:, 0] - half[:, 0]) * s,
+                         (half[:, 1] - colmap.principal[:, 1]) * s], 1)
+    R_cw = R_from_quaternion(colmap.q_cam_from_world)
+    R_gc = np.swapaxes(R_cw, -1, -2) @ D_STRIPTRI_FROM_COLMAP
+    xyz0 = -np.einsum("nji,nj->ni", R_cw, colmap.t_cam_from_world)
+    keep = colmap.obs_point3d_id != -1
+    point_row = {int(pid): j for j, pid in enumerate(colmap.point3d_ids)}
+    obs_image = colmap.obs_image[keep]
+    obs_point = np.array([point_row[int(p)] for p in colmap.obs_point3d_id[keep]], dtype=np.int64)
+    cam = colmap.image_camera[obs_image]
+    uv = colmap.obs_xy[keep]
+    xy = np.stack([(uv[:, 0] - half[cam, 0]) * s, (half[cam, 1] - uv[:, 1]) * s], 1)
+    pair = obs_image * max(len(point_row), 1) + obs_point
+    _, first, counts = np.unique(pair, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        k = int(first[np.argmax(counts > 1)])
+        raise InputError(Path(source or ".") / "images.txt", None,
+                         f"image {colmap.image_names[obs_image[k]]} observes 3D point "
+                         f"{colmap.obs_point3d_id[keep][k]} more than once")
+    if len(set(colmap.image_names)) != len(colmap.image_names):
+        raise InputError(Path(source or ".") / "images.txt", None, "two images have the same NAME (the photo id)")
+    notes = []
+    if (~keep).sum():
+        notes.append(f"{int((~keep).sum())} image points without a 3D point left out")
+    project = model.Project(
+        cameras=model.Cameras(
+            ids=[names.cameras.get(int(c), str(int(c))) for c in colmap.camera_ids],
+            interior=interior, sigma_interior=np.full((len(colmap.camera_ids), 3), np.nan),
+        ),
+        photos=_photos(list(colmap.image_names), colmap.image_camera.copy(),
+                       [names.strips.get(int(i), "") for i in colmap.image_ids], xyz0, R_gc),
+        image_points=model.ImagePoints(photo_index=obs_image, point_index=obs_point, xy=xy,
+                                       sigma_xy=np.full((len(xy), 2), s)),
+        points=_tie_points([names.points.get(int(p), str(int(p))) for p in colmap.point3d_ids]),
+        settings=model.ProjectSettings(sigma_image=s, datum="inner"),
+        source=source,
+    )
+    return Scene(project=project, xyz_ground=colmap.xyz_world.copy(), plate_units_per_pixel=s, notes=notes)
+
+
+# --------------------------------------------------------------------------- project -> COLMAP
+
+
+def project_to_colmap(project: model.Project, xyz_ground: np.ndarray | None = None,
+                      pixel_size: float = 1.0) -> tuple[ColmapModel, ColmapNames, list[str]]:
+    """A COLMAP model (SIMPLE_PINHOLE cameras) of project, its striptri names, and notes.
+
+    xyz_ground: coordinates of the object points (nan = unknown); default approximate_points(project).
+    Points without coordinates are not written; their image points get POINT3D_ID -1. pixel_size:
+    plate units per pixel. Image size per camera: the smallest even W, H (pixels) whose centre-origin
+    frame holds every measurement and the principal point, plus one pixel of margin."""
+    s = _check_pixel_size(pixel_size)
+    xyz = approximate_points(project) if xyz_ground is None else np.asarray(xyz_ground, dtype=float)
+    cams, photos, ip = project.cameras, project.photos, project.image_points
+    ncam = len(cams)
+    cam_of_obs = photos.camera_index[ip.photo_index]
+    extent = np.zeros((ncam, 2))
+    np.maximum.at(extent, cam_of_obs, np.abs(ip.xy))
+    extent = np.maximum(extent, np.abs(cams.interior[:, 1:3]))
+    wh = 2 * (np.ceil(extent / s).astype(np.int64) + 1)
+    half = wh / 2.0
+    focal = np.repeat(cams.interior[:, :1] / s, 2, axis=1)
+    principal = np.stack([half[:, 0] + cams.interior[:, 1] / s, half[:, 1] - cams.interior[:, 2] / s], 1)
+    R_cw = D_STRIPTRI_FROM_COLMAP @ np.swapaxes(photos.R_ground_from_cam, -1, -2)
+    t = -np.einsum("nij,nj->ni", R_cw, photos.xyz0)
+    known = np.all(np.isfinite(xyz), axis=1)
+    point3d_id = np.full(len(project.points), -1, dtype=np.int64)
+    point3d_id[known] = np.arange(1, known.sum() + 1)
+    uv = np.stack([ip.xy[:, 0] / s + half[cam_of_obs, 0], half[cam_of_obs, 1] - ip.xy[:, 1] / s], 1)
+    colmap = ColmapModel(
+        camera_ids=np.arange(1, ncam + 1), camera_models=["SIMPLE_PINHOLE"] * ncam, width_height=wh,
+        focal=focal, principal=principal,
+        image_ids=np.arange(1, len(photos) + 1), image_names=list(photos.ids),
+        image_camera=photos.camera_index.copy(), q_cam_from_world=quaternion_from_R(R_cw), t_cam_from_world=t,
+        obs_image=ip.photo_index.copy(), obs_xy=uv, obs_point3d_id=point3d_id[ip.point_index],
+        point3d_ids=point3d_id[known], xyz_world=xyz[known],
+        rgb=np.full((int(known.sum()), 3), 128, dtype=np.int64), error=np.zeros(int(known.sum())),
+    )
+    names = ColmapNames(
+        cameras={k + 1: cid for k, cid in enumerate(cams.ids)},
+        points={int(point3d_id[j]): project.points.ids[j] for j in np.flatnonzero(known)},
+        strips={k + 1: sid for k, sid in enumerate(photos.strip_ids)},
+    )
+    notes = []
+    lost = np.flatnonzero(~known)
+    if len(lost):
+        notes.append(f"{len(lost)} points without ground coordinates (fewer than two rays and not given) "
+                     f"written without a 3D point: {', '.join(project.points.ids[j] for j in lost[:5])}"
+                     + (" ..." if len(lost) > 5 else ""))
+    if np.any(project.points.kind != model.TIE):
+        notes.append("COLMAP has no control: point kinds, given coordinates and sigmas are not written")
+    return colmap, names, notes
+
+
+def approximate_points(project: model.Project) -> np.ndarray:
+    """Ground coordinates of every object point: the given X, Y, Z when all three are given, else
+    the least-squares intersection of its rays from the photos' (approximate) orientations; nan for
+    a point with fewer than two rays. -> (n_points, 3)."""
+    ip, ph, pts = project.image_points, project.photos, project.points
+    n = len(pts)
+    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], ip.xy,
+                   project.cameras.interior[ph.camera_index[ip.photo_index]])
+    rh = r / np.linalg.norm(r, axis=1, keepdims=True)
+    P = np.eye(3) - rh[:, :, None] * rh[:, None, :]
+    lhs = np.zeros((n, 3, 3))
+    rhs = np.zeros((n, 3))
+    np.add.at(lhs, ip.point_index, P)
+    np.add.at(rhs, ip.point_index, np.einsum("mij,mj->mi", P, ph.xyz0[ip.photo_index]))
+    rays = np.bincount(ip.point_index, minlength=n)
+    ok = rays >= 2
+    xyz = np.full((n, 3), np.nan)
+    if ok.any():
+        xyz[ok] = np.linalg.solve(lhs[ok], rhs[ok][..., None])[..., 0]
+    given = np.all(np.isfinite(pts.xyz_given), axis=1)
+    xyz[given] = pts.xyz_given[given]
+    return xyz
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _check_pixel_size(pixel_size: float) -> float:
+    s = float(pixel_size)
+    if not (math.isfinite(s) and s > 0):
+        raise ValueError(f"pixel size must be a finite number > 0, got {pixel_size!r}")
+    return s
+
+
+def _photos(ids, camera_index, strip_ids, xyz0, R_gc) -> model.Photos:
+    """Photos with free (approximate) orientations; angles omega-phi-kappa of R_ground_from_cam."""
+    n = len(ids)
+    angles = rotations.opk_from_R(R_gc)
+    return model.Photos(
+        ids=list(ids), camera_index=np.asarray(camera_index, dtype=np.int64), strip_ids=list(strip_ids),
+        xyz0=np.asarray(xyz0, dtype=float), R_ground_from_cam=rotations.R_from_opk(angles), angles=angles,
+        sigma_xyz0=np.full((n, 3), np.nan), sigma_angles=np.full((n, 3), np.nan),
+    )
+
+
+def _tie_points(ids) -> model.ObjectPoints:
+    n = len(ids)
+    return model.ObjectPoints(ids=list(ids), kind=np.full(n, model.TIE, dtype=np.int64),
+                              xyz_given=np.full((n, 3), np.nan), sigma_given=np.full((n, 3), np.nan))

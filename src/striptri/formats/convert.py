@@ -1,0 +1,143 @@
+"""The convert pipeline: read a BAL problem, a COLMAP text model or a striptri project, write it as
+a COLMAP text model or a striptri project folder (atomically; docs/formats.md).
+
+Side files written next to the standard ones:
+
+* COLMAP output: ``striptri_ids.csv`` (table, colmap_id, striptri_id, strip_id), the striptri ids of
+  cameras and points and the strip of each image, read back when present (COLMAP ignores it);
+* project output: ``approx_points.csv`` (point_id, X, Y, Z), the approximate ground coordinates of
+  the points (BAL, COLMAP, or given/intersected for a project); read_project does not read it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from striptri.errors import InputError
+from striptri.formats.bal import read_bal
+from striptri.formats.colmap import colmap_files, read_colmap
+from striptri.formats.conversions import (
+    ColmapNames,
+    Scene,
+    approximate_points,
+    bal_to_project,
+    colmap_to_project,
+    project_to_colmap,
+)
+from striptri.io.csvtable import format_csv, read_csv
+from striptri.io.output import write_output_folder
+from striptri.io.project_reader import read_project
+from striptri.io.project_writer import project_files
+
+SOURCE_FORMATS = ("bal", "colmap", "project")
+TARGET_FORMATS = ("colmap", "project")
+IDS_FILE = "striptri_ids.csv"
+APPROX_POINTS_FILE = "approx_points.csv"
+
+@dataclass(frozen=True)
+class ConvertResult:
+    out_dir: Path
+    source_format: str
+    target_format: str
+    n_cameras: int
+    n_photos: int
+    n_points: int
+    n_image_points: int
+    notes: list[str] = field(default_factory=list)
+
+def detect_format(src: str | Path) -> str:
+    """bal for a file, colmap for a folder with cameras.txt, project for one with cameras.csv."""
+    src = Path(src)
+    if src.is_file():
+        return "bal"
+    if (src / "cameras.txt").is_file():
+        return "colmap"
+    if (src / "cameras.csv").is_file():
+        return "project"
+    raise InputError(src, None, "not found" if not src.exists() else
+                     "cannot tell the format (a BAL file, a COLMAP folder with cameras.txt, or a project "
+                     "folder with cameras.csv); give --from")
+
+def read_scene(src: str | Path, source_format: str | None = None, pixel_size: float | None = None,
+               drop_distortion: bool = False) -> tuple[str, Scene]:
+    """Read src in source_format (detected when None) as a Scene. pixel_size: plate units per
+    pixel for a COLMAP source (default 1)."""
+    src = Path(src)
+    fmt = source_format or detect_format(src)
+    if fmt == "bal":
+        return fmt, bal_to_project(read_bal(src), drop_distortion=drop_distortion)
+    if fmt == "colmap":
+        model_ = read_colmap(src)
+        return fmt, colmap_to_project(model_, 1.0 if pixel_size is None else pixel_size, _read_names(src), src)
+    if fmt == "project":
+        project = read_project(src)
+        return fmt, Scene(project=project, xyz_ground=approximate_points(project))
+    raise ValueError(f"unknown source format {fmt!r}; one of {SOURCE_FORMATS}")
+
+def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | None = None,
+            pixel_size: float | None = None, drop_distortion: bool = False) -> ConvertResult:
+    """Convert src to the format `to` in out_dir (written whole or not at all).
+
+    pixel_size (plate units per pixel) applies to the COLMAP side: the plate unit of a COLMAP source,
+    and for COLMAP output the pixel size of a project source (default 1; a BAL or COLMAP source
+    keeps its own)."""
+    if to not in TARGET_FORMATS:
+        raise ValueError(f"unknown target format {to!r}; one of {TARGET_FORMATS}")
+    fmt, scene = read_scene(src, source_format, pixel_size, drop_distortion)
+    project = scene.project
+    notes = list(scene.notes)
+    if to == "project":
+        files = project_files(project)
+        files[APPROX_POINTS_FILE] = format_csv({
+            "point_id": project.points.ids, "X": scene.xyz_ground[:, 0], "Y": scene.xyz_ground[:, 1],
+            "Z": scene.xyz_ground[:, 2],
+        })
+    else:
+        s = scene.plate_units_per_pixel or (1.0 if pixel_size is None else pixel_size)
+        colmap, names, more = project_to_colmap(project, scene.xyz_ground, s)
+        notes += more
+        files = colmap_files(colmap)
+        files[IDS_FILE] = _names_csv(names)
+    out = write_output_folder(out_dir, files)
+    return ConvertResult(out_dir=out, source_format=fmt, target_format=to, n_cameras=len(project.cameras),
+                         n_photos=len(project.photos), n_points=len(project.points),
+                         n_image_points=len(project.image_points), notes=notes)
+
+def _names_csv(names: ColmapNames) -> str:
+    table, colmap_id, striptri_id, strip = [], [], [], []
+    for kind, mapping in (("camera", names.cameras), ("point", names.points)):
+        for k, v in mapping.items():
+            table.append(kind), colmap_id.append(k), striptri_id.append(v), strip.append("")
+    for k, v in names.strips.items():
+        table.append("image"), colmap_id.append(k), striptri_id.append(""), strip.append(v)
+    return format_csv({"table": table, "colmap_id": colmap_id, "striptri_id": striptri_id, "strip_id": strip})
+
+def _read_names(folder: Path) -> ColmapNames:
+    """striptri ids from folder/striptri_ids.csv when it exists (else empty: COLMAP ids are used)."""
+    path = folder / IDS_FILE
+    if not path.exists():
+        return ColmapNames()
+    table = read_csv(path)
+    kinds = table.strings("table")
+    ids = table.strings("colmap_id")
+    names = table.strings("striptri_id", allow_empty=True)
+    strips = table.optional_strings("strip_id")
+    out = ColmapNames()
+    for i, (kind, cid, name, strip) in enumerate(zip(kinds, ids, names, strips)):
+        try:
+            key = int(cid)
+        except ValueError:
+            raise table.error(i, f"colmap_id '{cid}' is not an integer") from None
+        if kind == "camera":
+            out.cameras[key] = name
+        elif kind == "point":
+            out.points[key] = name
+        elif kind == "image":
+            out.strips[key] = strip
+        else:
+            raise table.error(i, f"table '{kind}' is not camera, point or image")
+    return out
+
+
+__all__ = ["SOURCE_FORMATS", "TARGET_FORMATS", "ConvertResult", "convert", "detect_format", "read_scene"]
