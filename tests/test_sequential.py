@@ -115,7 +115,7 @@ def test_result_fields_follow_their_definitions():
     N = r.N.toarray()
     assert np.count_nonzero(N) <= 36 * len(project.photos)
     assert np.all(np.linalg.eigvalsh(N) > 0)
-    sig_xyz, sig_ang = r.photo_mean_errors("omega-phi-kappa")
+    sig_xyz, _ = r.photo_mean_errors("omega-phi-kappa")
     assert np.all(np.isfinite(sig_xyz)) and np.all(sig_xyz > 0)
     assert r.checks["absolute_orientation_redundancy"] > 0
     # the pipeline's triangulation takes the result as it takes a simultaneous one

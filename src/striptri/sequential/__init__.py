@@ -8,7 +8,13 @@
 """
 
 from .result import adjust_sequential, result_of, sequential_approximations
-from .strip import DIRECTIONS, PROCEDURES, SequentialOptions, SequentialSolution, triangulate_strip
+from .strip import (
+    DIRECTIONS,
+    PROCEDURES,
+    SequentialOptions,
+    SequentialSolution,
+    triangulate_strip,
+)
 
 __all__ = [
     "DIRECTIONS",

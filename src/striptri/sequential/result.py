@@ -40,20 +40,22 @@ from ..parameters import State, build_layout, with_state
 from .strip import SequentialOptions, SequentialSolution, triangulate_strip
 
 
-def adjust_sequential(project: Project, options=SequentialOptions()) -> AdjustmentResult:
+def adjust_sequential(project: Project, options=None) -> AdjustmentResult:
     """Schut's sequential strip triangulation as an AdjustmentResult (module doc). ``options``: a
     SequentialOptions, or an AdjustmentOptions (SequentialOptions.from_adjustment_options)."""
     t0 = time.perf_counter()
-    if not isinstance(options, SequentialOptions):
+    if options is None:
+        options = SequentialOptions()
+    elif not isinstance(options, SequentialOptions):
         options = SequentialOptions.from_adjustment_options(options)
     sol = triangulate_strip(project, options)
     return result_of(project, sol, time.perf_counter() - t0)
 
 
-def sequential_approximations(project: Project, options: SequentialOptions = SequentialOptions()) -> Project:
+def sequential_approximations(project: Project, options: SequentialOptions | None = None) -> Project:
     """The project with the approximate orientations replaced by the sequential result (free centres
     and all rotations; observed and fixed elements keep their values, parameters.with_state)."""
-    sol = triangulate_strip(project, options)
+    sol = triangulate_strip(project, options or SequentialOptions())
     state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(),
                   camera_of_photo=project.photos.camera_index.copy())
     return with_state(project, state, sol.offset)

@@ -25,21 +25,23 @@ held at the approximate base length. Then the strip model is fitted to the contr
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
-from ..adjustment import AdjustmentResult, Iteration, observations_of
 from ..camera import plate_vector
 from ..conditions import closest_scales
 from ..errors import NumericalFailure
 from ..model import CHECK, GIVEN_AXES, Project
-from ..parameter_observations import build_parameter_observations
-from ..parameters import build_layout, reduction_offset, with_state
+from ..parameters import reduction_offset
 from ..triangulation import intersect_rays
-from .absolute import Similarity, StripPolynomial, fit_similarity, fit_strip_polynomial, umeyama
+from .absolute import (
+    Similarity,
+    StripPolynomial,
+    fit_similarity,
+    fit_strip_polynomial,
+    umeyama,
+)
 from .photo_step import PhotoStep, orient_photo
 
 PROCEDURES = (1, 2)
@@ -70,7 +72,7 @@ class SequentialOptions:
             raise ValueError("max_iterations must be at least 1")
 
     @staticmethod
-    def from_adjustment_options(options) -> "SequentialOptions":
+    def from_adjustment_options(options) -> SequentialOptions:
         """Read procedure, direction and polynomial_degree from an AdjustmentOptions (defaults where
         it has no such field), and max_iterations."""
         return SequentialOptions(
@@ -193,8 +195,9 @@ def _in_front(R_i, O_i, ro: PhotoStep, interior_i, interior_j) -> bool:
     return bool(np.all(s > 0) and np.all(t > 0))
 
 
-def triangulate_strip(project: Project, options: SequentialOptions = SequentialOptions()) -> SequentialSolution:
+def triangulate_strip(project: Project, options: SequentialOptions | None = None) -> SequentialSolution:
     """Build the strip model photo by photo, then orient it absolutely (module doc)."""
+    options = options or SequentialOptions()
     _single_strip(project)
     ph, ip, pts = project.photos, project.image_points, project.points
     n, n_pt = len(ph), len(pts)
@@ -211,7 +214,7 @@ def triangulate_strip(project: Project, options: SequentialOptions = SequentialO
     Xm = np.full((n_pt, 3), np.nan)
     have = np.zeros(n_pt, dtype=bool)
     steps, relative_steps, scales, scale_res = [], [], [], []
-    kw = dict(tolerance=options.tolerance, max_iterations=options.max_iterations)
+    kw = {"tolerance": options.tolerance, "max_iterations": options.max_iterations}
     for s in range(1, n):
         i, j = order[s - 1], order[s]
         common = np.flatnonzero((row[i] >= 0) & (row[j] >= 0))
