@@ -1,7 +1,7 @@
 """Benchmark of striptri's adjustment against pycolmap's bundle adjustment (Ceres).
 
-    python scripts/bench/bench_adjust.py            # all cases (about 10 minutes on 2 cores)
-    python scripts/bench/bench_adjust.py --quick    # the 100-photo cases only
+    python scripts/bench/bench_adjust.py            # all cases: 8 minutes on 2 idle cores, 13 at load 5
+    python scripts/bench/bench_adjust.py --quick    # the 100-photo cases only (30 s)
     python scripts/bench/bench_adjust.py --cases strip-1000 block-1000 --solvers sparse cholmod
 
 Cases (scripts/bench/adjust_cases.py): strips of 100, 1,000 and 10,000 photos, blocks of 100 (5 x 20) and
@@ -324,6 +324,12 @@ def table(rows) -> str:
                     f"{k} {v} in all" if k == "inner_iterations" else f"{k} {v}" for k, v in extra.items()))
             if not rep.get("converged", True):
                 notes.append(f"{case.name} {label}: " + stall_note(rep))
+            if engine == "pycolmap":
+                notes.append(
+                    f"{case.name} pycolmap: Ceres cost {rep['initial_cost']:.6g} -> {rep['final_cost']:.6g} "
+                    f"(vTPv = 2 x final cost), {rep['termination']}, Ceres' own time {rep['ceres_seconds']:.2f} s, "
+                    f"building the Reconstruction {rep['build_seconds']:.2f} s"
+                )
             lines.append(
                 f"| {name} | {n_unknowns} | {label} | {it} | {fmt(c, '.1f')} | {fmt(a, '.1f')} | {fmt(s, '.1f')} "
                 f"| {rep['seconds']:.2f} | {rep['cpu_seconds']:.2f} | {peak} | {rep['rms_centres']:.4f} | {fmt(sigma0, '.4f')} | {rep['vtpv']:.6g} | {ratio} |"
@@ -335,7 +341,8 @@ def table(rows) -> str:
         "without building the Reconstruction in Python). CPU s: the same in CPU time of the run's process; every run "
         "is single-threaded, so this is what it would take alone on the machine, and the ratio uses it. peak MiB: "
         "peak resident memory of the run's own process (VmHWM; ru_maxrss would include the parent's, see "
-        "adjust_worker.py); (Δ): above its size after loading the project and the libraries."
+        "adjust_worker.py); (Δ): above its size after loading the project and the libraries. pycolmap's vTPv is twice "
+        "Ceres' final cost (one pixel is one sigma) and its sigma0 uses striptri's redundancy."
     )
     if notes:
         text += "\n\nnotes:\n" + "\n".join("- " + n for n in notes)
