@@ -149,7 +149,8 @@ def _rough(project, truth, position_error, kappa_error_deg, seed=5):
 @pytest.mark.parametrize("position_error, kappa_error", [(200.0, 10.0), (800.0, 60.0)])
 @pytest.mark.parametrize("procedure", [1, 2])
 def test_init_sequential_reaches_the_simultaneous_solution_from_rough_values(procedure, position_error, kappa_error):
-    """(800 m, 60 deg): the plain adjustment does not converge from these values (measured)."""
+    """From (800 m, 60 deg) the plain adjustment took 23 iterations on this strip (and failed for other
+    noise draws); from the sequential values every case takes 4."""
     project, truth = _strip(seed=3, sigma_image=0.005)
     reference = adjust(project)
     rough = _rough(project, truth, position_error, kappa_error)
