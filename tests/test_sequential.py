@@ -181,3 +181,14 @@ def test_too_little_control_is_explained():
     project, _ = _strip(seed=6, layout="none")
     with pytest.raises(NumericalFailure, match="absolute orientation"):
         adjust_sequential(project)
+
+
+def test_polynomial_degree_is_lowered_to_the_control_positions_along_the_strip():
+    """sparse-height: full points in pairs across the strip at its two ends only, so X and Y get a
+    line at most, Z (heights at every k-th column) the full degree; the correction stays sane."""
+    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=10), control=sim.ControlDesign(layout="sparse-height"))
+    project, _ = sim.simulate_project("strip", sim.SimulateOptions(design, sim.NoiseOptions(sigma_image=0.005)), 7)
+    sol = triangulate_strip(project, SequentialOptions(procedure=2, polynomial_degree=3))
+    assert [len(c) for c in sol.polynomial.coefficients] == [2, 2, 4]
+    plain = triangulate_strip(project, SequentialOptions(procedure=2))
+    assert np.abs(sol.xyz0_ground - plain.xyz0_ground).max() < 2.0  # metres, at 1500 m

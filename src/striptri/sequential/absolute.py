@@ -111,7 +111,8 @@ def fit_strip_polynomial(residuals: np.ndarray, xyz_ground: np.ndarray, centres_
     residuals: (n, 3) given - similarity (nan where not given); xyz_ground: (n, 3) the points after
     the similarity; centres_ground: (n_photos, 3) in strip order, which defines the strip axis (first
     to last centre, horizontal). Each axis gets its own least-squares polynomial of ``degree``, lowered
-    to (number of distinct u values - 1) where the control has fewer positions along the strip.
+    to (number of distinct positions along the strip - 1) where the control has fewer; positions less
+    than half a base apart count as one, so that control in pairs across the strip does not raise it.
     """
     axis = centres_ground[-1] - centres_ground[0]
     axis[2] = 0.0
@@ -119,15 +120,18 @@ def fit_strip_polynomial(residuals: np.ndarray, xyz_ground: np.ndarray, centres_
     axis = axis / (2 * half)
     origin = centres_ground.mean(0)
     poly = StripPolynomial(origin, axis, half, ((), (), ()))
+    # positions along the strip closer than half a base count as one (control in pairs across the strip)
+    tol = 0.5 * float(np.median(np.linalg.norm(np.diff(centres_ground, axis=0), axis=1))) / half
     coefs = []
     for a in range(3):
         sel = np.isfinite(residuals[:, a])
-        u = poly.u(xyz_ground[sel])
-        distinct = len(np.unique(np.round(u, 3)))
+        u = np.sort(poly.u(xyz_ground[sel]))
+        distinct = int(len(u) > 0) + int(np.sum(np.diff(u) > tol))
         deg = min(degree, distinct - 1)
         if deg < 0:
             coefs.append(())
             continue
+        u = poly.u(xyz_ground[sel])
         V = np.polynomial.polynomial.polyvander(u, deg)
         coefs.append(tuple(np.linalg.lstsq(V, residuals[sel, a], rcond=None)[0]))
     return StripPolynomial(origin, axis, half, tuple(coefs))
