@@ -74,7 +74,8 @@ class SequentialOptions:
     @staticmethod
     def from_adjustment_options(options) -> SequentialOptions:
         """Read procedure, direction and polynomial_degree from an AdjustmentOptions (defaults where
-        it has no such field), and max_iterations."""
+        it has no such field); its max_iterations, raised to at least 30, limits every per-photo
+        adjustment (a few iterations each, but some of the relative orientation's starts need more)."""
         return SequentialOptions(
             procedure=int(getattr(options, "procedure", 1)),
             direction=getattr(options, "direction", "forward"),
