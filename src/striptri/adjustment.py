@@ -261,7 +261,9 @@ def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork
 
 
 def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
-                      project: Project, offset, free_network=None) -> solvers.SolveResult:
+                      project: Project, offset, free_network=None, diagnose: bool = True) -> solvers.SolveResult:
+    """Solve N dx = -u; a datum defect (tested before the first solve and whenever the solver
+    finds N singular) or any other singularity is explained as a NumericalFailure."""
     if free_network is not None:
         try:
             return _solve_free_network(acc, solver, free_network)
@@ -270,7 +272,7 @@ def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, stat
                 "the free network's normal equations are singular beyond the datum: some "
                 "orientation element is not determined by the measurements."
             ) from exc
-    defects = datum.diagnose(acc, state, layout, offset=offset)
+    defects = datum.diagnose(acc, state, layout, offset=offset) if diagnose else []
     if defects:
         raise NumericalFailure(datum.explain(defects))
     try:
@@ -343,7 +345,8 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         t_conditions = sweep.seconds
         if free_network is not None:
             free_network = free_network.at(state, layout, acc.N)
-        solved = _solve_or_explain(acc, solver, state, layout, project, offset, free_network)
+        solved = _solve_or_explain(acc, solver, state, layout, project, offset, free_network,
+                                   diagnose=not history)
         dx = solved.dx
         t2 = time.perf_counter()
         plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
@@ -356,7 +359,7 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
         crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal()))) if len(dx) else 0.0
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
         stop_if_diverging(history, "adjustment")
-        if crit < options.tolerance:
+        if has_converged(history, options.tolerance):
             converged = True
             break
 
@@ -431,6 +434,20 @@ def _require_strip_along_x(batches, state: State, max_angle_deg: float = 30.0) -
             "XZ projection of their rays degenerates for a strip not flown along X. Use the "
             "direction-free form (--scale-form 3d, the default)."
         )
+
+
+ROUNDING_FLOOR = 1e-6  # corrections below this (in standard deviations) that stop shrinking are round-off
+
+
+def has_converged(history: list[Iteration], tolerance: float) -> bool:
+    """The stated criterion: the largest correction is below ``tolerance`` times the standard
+    deviation the element would have if all others were known; or the iteration has reached the
+    round-off floor of double precision (below ROUNDING_FLOOR and no longer halving), which for
+    very long strips with coordinates of thousands of kilometres lies above the tolerance."""
+    c = history[-1].max_correction
+    if c < tolerance:
+        return True
+    return len(history) >= 2 and c < ROUNDING_FLOOR and c > 0.5 * history[-2].max_correction
 
 
 def stop_if_diverging(history: list[Iteration], what: str) -> None:

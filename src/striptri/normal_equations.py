@@ -164,19 +164,21 @@ class PatternAccumulator:
         pat = self.pattern
         self.wPw += float(np.sum(ww * ww))
         self.gPg += float(np.sum(gw * gw))
-        Nloc = np.einsum("mca,mcb->mab", Bw, Bw).reshape(m, k, 9, k, 9)
+        full_cols = np.concatenate(
+            [6 * photo[..., None] + np.arange(6), 6 * pat.n_photos + 3 * cam[..., None] + np.arange(3)], -1
+        )  # (m, k, 9)
+        if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
+            Bw = Bw.reshape(m, -1, k, 9)[..., :6].reshape(m, -1, 6 * k)
+            full_cols = full_cols[..., :6]
+        width = full_cols.shape[-1]
+        Nloc = np.einsum("mca,mcb->mab", Bw, Bw).reshape(m, k, width, k, width)
         pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
         flat = (pos_pp[..., None] * 36 + np.arange(36)).ravel()
         block = Nloc[:, :, :6, :, :6].transpose(0, 1, 3, 2, 4).reshape(-1)
         self.pp += np.bincount(flat, weights=block, minlength=len(self.pp))
-        full_cols = np.concatenate(
-            [6 * photo[..., None] + np.arange(6), 6 * pat.n_photos + 3 * cam[..., None] + np.arange(3)], -1
-        ).reshape(m, 9 * k)
+        full_cols = full_cols.reshape(m, k * width)
         uloc = np.einsum("mca,mc->ma", Bw, ww)
         ugloc = np.einsum("mca,mc->ma", Bw, gw)
-        if not pat.with_cameras:
-            photo_part = (np.arange(9 * k) % 9) < 6
-            full_cols, uloc, ugloc = full_cols[:, photo_part], uloc[:, photo_part], ugloc[:, photo_part]
         self.u_full += np.bincount(full_cols.ravel(), weights=uloc.ravel(), minlength=pat.n_full)
         self.ug_full += np.bincount(full_cols.ravel(), weights=ugloc.ravel(), minlength=pat.n_full)
         if pat.with_cameras:

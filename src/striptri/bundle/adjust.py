@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import datum, solvers
-from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, observations_of, stop_if_diverging
+from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, has_converged, observations_of, stop_if_diverging
 from ..errors import NumericalFailure
 from ..groups import GroupBatch, build_batches
 from ..linearise import Observations
@@ -149,7 +149,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         crit = max(crit_orientation, step.max_point_correction)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
         stop_if_diverging(history, "bundle adjustment")
-        if crit < options.tolerance:
+        if has_converged(history, options.tolerance):
             converged = True
             break
 
