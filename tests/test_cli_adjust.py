@@ -19,6 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -807,3 +808,27 @@ def test_blunders_snoop_rejects_a_gross_error(tmp_path):
             assert flagged - baseline == {target}
             bad = next(r for r in rows if (r["photo_id"], r["point_id"]) == target)
             assert abs(float(bad["vy"]) + 0.2) < 0.02
+
+
+def test_sequential_method_and_init_from_the_command_line(tmp_path):
+    """--method sequential writes the same files (method "sequential" in summary.json); forward and
+    backward differ; --init sequential gives the simultaneous solution; a block and --blunders
+    snoop are refused with explanations."""
+    photos = {}
+    for direction in ("forward", "backward"):
+        out = tmp_path / direction
+        proc = run("adjust", DATA / "strip8", "--out", out, "--method", "sequential", "--direction", direction)
+        assert proc.returncode == 0, proc.stderr
+        assert json.loads((out / "summary.json").read_text())["method"] == "sequential"
+        photos[direction] = np.array([[num(r[c]) for c in ("X0", "Y0", "Z0")] for r in read_table(out / "photos.csv")[1]])
+    assert np.abs(photos["forward"] - photos["backward"]).max() > 1e-4
+    plain = run("adjust", DATA / "strip8", "--out", tmp_path / "plain")
+    init = run("adjust", DATA / "strip8", "--out", tmp_path / "init", "--init", "sequential")
+    assert plain.returncode == 0 and init.returncode == 0, init.stderr
+    a = np.array([[num(r[c]) for c in ("X0", "Y0", "Z0")] for r in read_table(tmp_path / "plain" / "photos.csv")[1]])
+    b = np.array([[num(r[c]) for c in ("X0", "Y0", "Z0")] for r in read_table(tmp_path / "init" / "photos.csv")[1]])
+    np.testing.assert_allclose(b, a, atol=1e-6)
+    block = run("adjust", DATA / "block_3x6", "--out", tmp_path / "block", "--method", "sequential")
+    assert block.returncode == 1 and "one strip" in block.stderr and "Traceback" not in block.stderr
+    snoop = run("adjust", DATA / "strip8", "--out", tmp_path / "s", "--method", "sequential", "--blunders", "snoop")
+    assert snoop.returncode == 2 and "simultaneous" in snoop.stderr

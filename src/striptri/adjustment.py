@@ -32,7 +32,9 @@ from .parameter_observations import ParameterObservations, build_parameter_obser
 from .parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .rotations import angles_jacobian
 
-METHODS = ("conditions", "bundle")
+METHODS = ("conditions", "bundle", "sequential")
+# approximate values: as given in photos.csv, or from the sequential method (rough values suffice)
+INITS = ("given", "sequential")
 DENSE_QXX_LIMIT = 5000  # unknowns up to which AdjustmentResult.Qxx forms the dense N^-1
 # "control": the datum comes from control and observed elements (a defect is an error);
 # "inner": a free network, the directions the control leaves free fixed by inner constraints.
@@ -56,8 +58,20 @@ class AdjustmentOptions:
     scale_form: str = "3d"
     condition_transform: object = None
     datum: str = "control"
+    init: str = "given"
+    procedure: int = 1
+    direction: str = "forward"
+    polynomial_degree: int | None = None
 
     def __post_init__(self):
+        if self.init not in INITS:
+            raise ValueError(f"unknown init {self.init!r}; choose one of {', '.join(INITS)}")
+        if self.method == "sequential" or self.init == "sequential":
+            from .sequential import SequentialOptions
+
+            SequentialOptions.from_adjustment_options(self)  # validates procedure, direction, degree
+        if self.method == "sequential" and self.datum != "control":
+            raise ValueError("the sequential method takes its datum from control; --datum inner is not for it")
         if self.datum not in DATUMS:
             raise ValueError(f"unknown datum {self.datum!r}; choose one of {', '.join(DATUMS)}")
         if self.datum != "control" and self.method == "bundle":
@@ -294,6 +308,14 @@ def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, stat
 def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
     """Adjust all photographs of the project simultaneously: Schmid's method of conditions, or with
     ``options.method == "bundle"`` the collinearity bundle adjustment (striptri.bundle)."""
+    if options.init == "sequential" and options.method != "sequential":
+        from .sequential import SequentialOptions, sequential_approximations
+
+        project = sequential_approximations(project, SequentialOptions.from_adjustment_options(options))
+    if options.method == "sequential":
+        from .sequential import adjust_sequential
+
+        return adjust_sequential(project, options)
     if options.method == "bundle":
         from .bundle import adjust_bundle  # striptri.bundle imports this module
 

@@ -168,8 +168,18 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
 @click.option("--blunders", type=click.Choice(["off", "snoop", "robust"]), default="off", show_default=True,
               help="Gross errors: off (flag |w| > 3.29 only), snoop (Baarda data snooping: reject, re-adjust) "
                    "or robust (re-weighting, then least squares of the survivors).")
+@click.option("--procedure", type=click.Choice(["1", "2"]), default=None,
+              help="Sequential method: Schut's procedure 1 (relative orientation, scale transfer) or 2 "
+                   "(six elements by coplanarity and carried-over points) [1].")
+@click.option("--direction", type=click.Choice(["forward", "backward"]), default=None,
+              help="Sequential method: start from the first or the last photo [forward].")
+@click.option("--polynomial-degree", type=click.IntRange(1, 3), default=None,
+              help="Sequential method: polynomial strip correction after the similarity [none].")
+@click.option("--init", type=click.Choice(["given", "sequential"]), default=None,
+              help="Approximate values: as given, or from the sequential method (rough values suffice).")
 @reports_errors
-def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders):
+def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders,
+           procedure, direction, polynomial_degree, init):
     """Adjust the project in PROJECT_DIR and write the results to --out."""
     import warnings
 
@@ -178,7 +188,9 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
-                              method=method, solver=solver,
+                              method=method, solver=solver, init=init, direction=direction,
+                              procedure=None if procedure is None else int(procedure),
+                              polynomial_degree=polynomial_degree,
                               max_iterations=max_iterations, scale_form=scale_form, datum=datum)
     for message in dict.fromkeys(str(w.message) for w in caught):
         click.echo(f"striptri: warning: {message}", err=True)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from . import report
-from .adjustment import AdjustmentOptions, AdjustmentResult, observations_of
+from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, observations_of
 from .errors import InputError
 from .groups import rays_per_point
 from .io.csvtable import format_csv
@@ -63,6 +63,7 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
     project = read_project(project_dir)
     try:
         options = options_for(project, **overrides)
+        check_products_options(options, point_precision, blunders)
     except ValueError as exc:
         raise InputError(project_dir / "project.toml", None, str(exc)) from exc
     from .solvers import SolverUnavailable
@@ -100,9 +101,11 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
 
     from .reliability import BlunderOptions, detect_blunders
 
-    if point_precision not in POINT_PRECISION:
-        raise ValueError(f"unknown point precision {point_precision!r}; choose one of {', '.join(POINT_PRECISION)}")
-    det = detect_blunders(project, options, BlunderOptions(method=blunders))
+    check_products_options(options, point_precision, blunders)
+    if options.method == "sequential":
+        det = _without_tests(project, adjust(project, options))
+    else:
+        det = detect_blunders(project, options, BlunderOptions(method=blunders))
     adjusted, result = det.project, det.result
     points = triangulate_result(adjusted, result)
     if point_precision == "joint92":
@@ -130,18 +133,41 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     return products
 
 
+def check_products_options(options: AdjustmentOptions, point_precision: str, blunders: str) -> None:
+    """ValueError for option combinations the products cannot honour."""
+    if point_precision not in POINT_PRECISION:
+        raise ValueError(f"unknown point precision {point_precision!r}; choose one of {', '.join(POINT_PRECISION)}")
+    if options.method == "sequential" and (blunders != "off" or point_precision != "schmid90"):
+        raise ValueError("gross-error detection and the joint point precision (92) need a simultaneous "
+                         "adjustment; with --method sequential use --blunders off")
+
+
+def _without_tests(project: Project, result: AdjustmentResult):
+    """The residuals of a sequential adjustment without w-tests: its normal matrix is not that of a
+    simultaneous adjustment, so normalised residuals and MDBs would mean nothing (docs/sequential.md)."""
+    from types import SimpleNamespace
+
+    m = len(project.image_points)
+    nan = np.full((m, 2), np.nan)
+    return SimpleNamespace(
+        method="off", critical=float("nan"), delta0=float("nan"), project=project, result=result,
+        rows=np.arange(m), v=result.plate_residuals, w=nan, row_w=np.full(m, np.nan), mdb=nan,
+        flag=np.array([""] * m, dtype=object), rounds=[], stopped="not tested (sequential method)",
+    )
+
+
 def blunder_summary(det) -> dict:
     """summary.json's "blunders": the method, the test's critical value and delta0, the counts of
     rejected / suspect / dropped measurements and the adjustments it took."""
     flags = np.asarray(det.flag)
     return {
         "method": det.method,
-        "critical_value": float(det.critical),
-        "delta0": float(det.delta0),
+        "critical_value": _finite_or_none(float(det.critical)),
+        "delta0": _finite_or_none(float(det.delta0)),
         "rejected": int(np.sum(flags == "rejected")),
         "suspect": int(np.sum(flags == "suspect")),
         "dropped": int(np.sum(flags == "dropped")),
-        "adjustments": len(det.rounds),
+        "adjustments": max(len(det.rounds), 1),
         "stopped": det.stopped,
     }
 
