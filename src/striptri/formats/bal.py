@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from striptri.errors import InputError
+from striptri.io.csvtable import read_input_bytes
 from striptri.rotations import exp_so3
 
 
@@ -92,14 +93,7 @@ def bal_cost(problem: BalProblem) -> float:
 def read_bal(path: str | Path) -> BalProblem:
     """Read a BAL problem file (module doc). Raises InputError(file, line, reason); writes nothing."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, None, "is a folder, not a BAL problem file") from None
-    except OSError as exc:
-        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    raw = read_input_bytes(path, "is a folder, not a BAL problem file")
     try:
         text = raw.decode("ascii")
     except UnicodeDecodeError as exc:

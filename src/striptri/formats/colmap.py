@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from striptri.errors import InputError
+from striptri.io.csvtable import read_input_bytes
 
 MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4}
 FILES = ("cameras.txt", "images.txt", "points3D.txt")
@@ -138,12 +139,7 @@ def read_colmap(folder: str | Path) -> ColmapModel:
 
 def _lines(path: Path) -> list[tuple[int, str]]:
     """Physical (1-based number, stripped text) of every line of path."""
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except OSError as exc:
-        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    raw = read_input_bytes(path)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -118,17 +118,22 @@ def _parse_finite(text: str, fail) -> float:
     return value
 
 
-def read_csv(path: str | Path) -> CsvTable:
-    """Read one CSV table (rules in the module docstring). Missing file -> InputError(path, None, ...)."""
-    path = Path(path)
+def read_input_bytes(path: Path, folder_reason: str = "is a folder, not a file") -> bytes:
+    """The bytes of an input file; a missing, unreadable or folder path -> InputError(path, None, ...)."""
     try:
-        raw = path.read_bytes()
+        return path.read_bytes()
     except FileNotFoundError:
         raise InputError(path, None, "file not found") from None
     except IsADirectoryError:
-        raise InputError(path, None, "is a folder, not a file") from None
+        raise InputError(path, None, folder_reason) from None
     except OSError as exc:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+
+
+def read_csv(path: str | Path) -> CsvTable:
+    """Read one CSV table (rules in the module docstring). Missing file -> InputError(path, None, ...)."""
+    path = Path(path)
+    raw = read_input_bytes(path)
     text = _decode_utf8(path, raw)
     return _parse(path, text)
 
