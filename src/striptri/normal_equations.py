@@ -16,7 +16,7 @@ from .linearise import GroupSystem
 
 def whiten(system: GroupSystem):
     """L^-1 B, L^-1 w, L^-1 g and L for each group (M = A Q A^T = L L^T). Batched."""
-    M = np.einsum("mco,mo,mdo->mcd", system.A, system.Q, system.A)
+    M = np.matmul(system.A * system.Q[:, None, :], np.swapaxes(system.A, 1, 2))
     L = np.linalg.cholesky(M)
     Bw = np.linalg.solve(L, system.B)
     wg = np.linalg.solve(L, np.stack([system.w, system.g], -1))
@@ -171,14 +171,15 @@ class PatternAccumulator:
             Bw = Bw.reshape(m, -1, k, 9)[..., :6].reshape(m, -1, 6 * k)
             full_cols = full_cols[..., :6]
         width = full_cols.shape[-1]
-        Nloc = np.einsum("mca,mcb->mab", Bw, Bw).reshape(m, k, width, k, width)
+        BwT = np.swapaxes(Bw, 1, 2)
+        Nloc = np.matmul(BwT, Bw).reshape(m, k, width, k, width)  # batched BLAS, not einsum
         pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
         flat = (pos_pp[..., None] * 36 + np.arange(36)).ravel()
         block = Nloc[:, :, :6, :, :6].transpose(0, 1, 3, 2, 4).reshape(-1)
         self.pp += np.bincount(flat, weights=block, minlength=len(self.pp))
         full_cols = full_cols.reshape(m, k * width)
-        uloc = np.einsum("mca,mc->ma", Bw, ww)
-        ugloc = np.einsum("mca,mc->ma", Bw, gw)
+        ug = np.matmul(BwT, np.stack([ww, gw], -1))
+        uloc, ugloc = ug[..., 0], ug[..., 1]
         self.u_full += np.bincount(full_cols.ravel(), weights=uloc.ravel(), minlength=pat.n_full)
         self.ug_full += np.bincount(full_cols.ravel(), weights=ugloc.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
