@@ -244,5 +244,63 @@ def convert(src, target, out_dir, source, pixel_size, drop_distortion):
                f"{result.n_photos} photos, {result.n_points} points, {result.n_image_points} image points")
 
 
+# --------------------------------------------------------------------------- striptri compare
+
+
+class _ManyValues(click.Option):
+    """An option with multiple=True that also takes several values after one flag:
+    ``--photos 4 8 16`` as well as ``--photos 4 --photos 8``. The values run to the next option."""
+
+    def add_to_parser(self, parser, ctx):
+        result = super().add_to_parser(parser, ctx)
+        for name in self.opts:
+            option = parser._long_opt.get(name) or parser._short_opt.get(name)
+            if option is not None:
+                previous = option.process
+
+                def process(value, state, previous=previous, prefixes=option.prefixes):
+                    previous(value, state)
+                    while state.rargs and not any(state.rargs[0].startswith(p) for p in prefixes):
+                        previous(state.rargs.pop(0), state)
+
+                option.process = process
+        return result
+
+
+@main.command()
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder to write.")
+@click.option("--methods", multiple=True, cls=_ManyValues, default=None,
+              type=click.Choice(["seq1-forward", "seq1-backward", "seq2-forward", "seq2-backward", "conditions", "bundle"]),
+              help="Methods to compare [all six].")
+@click.option("--photos", multiple=True, cls=_ManyValues, type=click.IntRange(4, 999), default=None,
+              help="Strip lengths in photos [4 8 16 32].")
+@click.option("--layouts", multiple=True, cls=_ManyValues, type=click.Choice(["cantilever", "ends", "every-k"]), default=None,
+              help="Control layouts [cantilever ends].")
+@click.option("--sigma-image", "sigma_images", multiple=True, cls=_ManyValues, type=click.FloatRange(min=0.0), default=None,
+              help="Plate noise, plate units [0.005].")
+@click.option("--trials", type=click.IntRange(min=1), default=10, show_default=True, help="Trials per configuration.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Study seed.")
+@click.option("--every-k", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Layout every-k: full control at every k-th nadir.")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Local worker processes [all cores].")
+@click.option("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786): run the trials there.")
+@reports_errors
+def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every_k, workers, scheduler):
+    """Method-comparison study (DESIGN section 9; docs/study.md) written to --out."""
+    from striptri.study import StudyOptions, run_compare
+    from striptri.study.progress import StderrProgress
+
+    given = {"methods": methods, "photos": photos, "layouts": layouts, "sigma_images": sigma_images}
+    options = StudyOptions(trials=trials, seed=seed, every_k=every_k,
+                           **{k: tuple(v) for k, v in given.items() if v})
+    progress = StderrProgress()
+    try:
+        result = run_compare(out_dir, options, workers=workers, scheduler=scheduler, progress=progress)
+    finally:
+        progress.close()
+    failed = f", {result.n_failed} failed" if result.n_failed else ""
+    click.echo(f"{len(result.rows)} adjustments{failed} -> {result.out_dir}")
+
+
 if __name__ == "__main__":
     main()
