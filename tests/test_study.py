@@ -161,3 +161,31 @@ def test_the_simultaneous_result_does_not_depend_on_the_photo_order(method):
     xyz_a = a.state.xyz0 + a.offset
     xyz_b = (b.state.xyz0 + b.offset)[::-1]
     np.testing.assert_allclose(xyz_b, xyz_a, rtol=0, atol=1e-6)
+
+
+def test_the_compare_command_takes_lists_after_one_flag(tmp_path):
+    from click.testing import CliRunner
+
+    from striptri.cli import main
+
+    out = tmp_path / "cli"
+    res = CliRunner().invoke(main, ["compare", "--out", str(out), "--methods", "seq1-forward", "conditions",
+                                    "--photos", "4", "5", "--layouts", "cantilever", "--trials", "1", "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    rows = _read(out / "study.csv")
+    assert sorted({(r["method"], r["n_photos"]) for r in rows}) == [
+        ("conditions", "4"), ("conditions", "5"), ("sequential", "4"), ("sequential", "5")]
+
+
+def test_a_scheduler_without_dask_is_a_clear_input_error(tmp_path, monkeypatch):
+    import sys
+
+    from click.testing import CliRunner
+
+    from striptri.cli import main
+
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import fails as if not installed
+    res = CliRunner().invoke(main, ["compare", "--out", str(tmp_path / "x"), "--photos", "4", "--trials", "1",
+                                    "--scheduler", "tcp://127.0.0.1:1"])
+    assert res.exit_code == 2
+    assert "dask.distributed" in res.output and not (tmp_path / "x").exists()
