@@ -1,0 +1,628 @@
+"""DBAT (Damped Bundle Adjustment Toolbox, Börlin & Grussenmeyer) script projects: reader and
+conversion to a striptri project (docs/formats.md, section DBAT).
+
+A DBAT project is an XML *script* (``<document dbat_script_version=...>``) whose ``<input>`` names
+
+* ``<ctrl_pts><file format="id,label,x,y,z[,sxyz | ,sx,sy,sz]">``: control points (fixed when no
+  sigma column);
+* ``<images><file format="id,path">``: the images;
+* ``<image_pts><file format="im,id,x,y[,sxy | ,sx,sy]" [sxy="1"]>``: image points in pixels,
+  origin at the top-left corner of the image, y down;
+* ``<prior_eo><file format="id,x,y,z,omega,phi,kappa" units="degrees">``: approximate exterior
+  orientation (optional);
+* ``<cameras>``: a ``<camera>`` element inline or ``<file>`` naming a camera XML
+  (``<document dbat_camera_version=...>``).
+
+Text files: one record a line, comma-separated, ``#`` starts a comment. Relative paths are taken
+from the ``base_dir`` of ``<input>`` (``$HERE`` = the script's folder, ``$HOME``; ``$DBAT`` cannot
+be resolved here). The operations ``set_bundle_estimate_params`` (which camera parameters are
+estimated) and ``set_datum`` are read; the others (resection, intersection, ...) are ignored.
+
+Camera (DBAT's units, normally mm): ``sensor`` "W,H" or "auto,H" / "W,auto" (the missing side from
+the image size and aspect), ``image`` "width,height" pixels, ``aspect`` = pixel height / pixel
+width, ``cc`` principal distance (default ``focal``), ``pp`` principal point measured from the
+top-left image corner, x right, y down (default: the sensor centre), ``K`` (K1, K2, K3) and ``P``
+(P1, P2) of DBAT's backward (photogrammetric) Brown model (default 0).
+
+Pixel centre convention: DBAT scales pixel coordinates to the sensor without a half-pixel shift;
+its default principal point, half the sensor, is pixel coordinate (W/2, H/2), so the image corner
+is (0, 0) and the centre of the top-left pixel is (0.5, 0.5). Plate coordinates (mm, x right, y
+up, origin at the principal point): ``x = col * pw - px``, ``y = py - row * ph``.
+
+Malformed input: :class:`InputError` naming the file and the line.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.parsers import expat
+
+import numpy as np
+
+from striptri import model, rotations
+from striptri.errors import InputError
+from striptri.formats.conversions import Scene
+from striptri.io.csvtable import read_input_bytes
+
+DISTORTION_NAMES = ("K1", "K2", "K3", "P1", "P2")
+IO_NAMES = ("cc", "px", "py", "as", "sk") + DISTORTION_NAMES
+
+
+@dataclass(frozen=True)
+class DbatCamera:
+    """One DBAT camera. Lengths in ``unit`` (mm): cc, pp (from the top-left corner, y down),
+    sensor (W, H), pixel_size (width, height). image_size (width, height) pixels. K (3,), P (2,):
+    DBAT's distortion coefficients K1..K3, P1, P2. estimated: IO_NAMES -> estimated in the script."""
+
+    id: str
+    name: str
+    unit: str
+    cc: float
+    pp: tuple[float, float]
+    sensor: tuple[float, float]
+    image_size: tuple[int, int]
+    aspect: float
+    skew: float
+    K: np.ndarray
+    P: np.ndarray
+    model: int | None
+    estimated: dict[str, bool]
+    source: Path | None = None
+    line: int | None = None
+
+    @property
+    def pixel_size(self) -> tuple[float, float]:
+        return (self.sensor[0] / self.image_size[0], self.sensor[1] / self.image_size[1])
+
+    @property
+    def principal_point_pixels(self) -> tuple[float, float]:
+        """The principal point in pixel coordinates (column, row), corner origin."""
+        pw, ph = self.pixel_size
+        return (self.pp[0] / pw, self.pp[1] / ph)
+
+    def distortion(self) -> dict[str, float]:
+        return dict(zip(DISTORTION_NAMES, [float(v) for v in self.K[:3]] + [float(v) for v in self.P[:2]]))
+
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.K != 0) or np.any(self.P != 0))
+
+    def estimates_distortion(self) -> bool:
+        return any(self.estimated.get(n, False) for n in DISTORTION_NAMES)
+
+
+@dataclass(frozen=True)
+class DbatProject:
+    """A DBAT script project as struct of arrays.
+
+    image_ids, image_names: (nim,). Image points: ip_image (image ids), ip_point (point ids),
+    ip_xy (m, 2) pixels (corner origin, y down), ip_sigma (m, 2) pixels, ip_lines (m,) file lines.
+    Control: ctrl_ids, ctrl_labels, ctrl_xyz (n, 3), ctrl_sigma (n, 3) (nan = fixed).
+    Prior EO: prior_ids, prior_xyz (k, 3), prior_angles (k, 3) radians (DBAT omega, phi, kappa).
+    datum: the set_datum operation (e.g. {"type": "depend", "ref_cam": "1", "ref_base": "longest"})
+    or None; datum_note: the text of meta/datum, if any.
+    """
+
+    path: Path
+    name: str
+    project_unit: str
+    camera: DbatCamera
+    image_ids: list[str]
+    image_names: list[str]
+    ip_image: list[str]
+    ip_point: list[str]
+    ip_xy: np.ndarray
+    ip_sigma: np.ndarray
+    ip_lines: np.ndarray
+    ip_file: Path | None
+    ctrl_ids: list[str]
+    ctrl_labels: list[str]
+    ctrl_xyz: np.ndarray
+    ctrl_sigma: np.ndarray
+    prior_ids: list[str] = field(default_factory=list)
+    prior_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    prior_angles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    datum: dict | None = None
+    datum_note: str = ""
+
+    @property
+    def n_images(self) -> int:
+        return len(self.image_ids)
+
+    @property
+    def n_points(self) -> int:
+        return len(set(self.ip_point))
+
+    @property
+    def n_image_points(self) -> int:
+        return len(self.ip_point)
+
+    @property
+    def n_control(self) -> int:
+        return len(self.ctrl_ids)
+
+
+# --------------------------------------------------------------------------- minimal XML tree with lines
+
+
+@dataclass
+class _El:
+    tag: str
+    attrib: dict
+    line: int
+    children: list = field(default_factory=list)
+    text: str = ""
+
+    def find(self, tag):
+        for c in self.children:
+            if c.tag == tag:
+                return c
+        return None
+
+    def findall(self, tag):
+        return [c for c in self.children if c.tag == tag]
+
+    @property
+    def value(self) -> str:
+        return self.text.strip()
+
+
+def _parse_xml(path: Path) -> _El:
+    raw = read_input_bytes(path, "is a folder, not a DBAT XML file")
+    parser = expat.ParserCreate()
+    stack: list[_El] = []
+    root: list[_El] = []
+
+    def start(tag, attrib):
+        el = _El(tag, dict(attrib), parser.CurrentLineNumber)
+        if stack:
+            stack[-1].children.append(el)
+        else:
+            root.append(el)
+        stack.append(el)
+
+    def end(tag):
+        stack.pop()
+
+    def chars(data):
+        if stack:
+            stack[-1].text += data
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = end
+    parser.CharacterDataHandler = chars
+    try:
+        parser.Parse(raw, True)
+    except expat.ExpatError as exc:
+        raise InputError(path, exc.lineno, f"not well-formed XML: {expat.ErrorString(exc.code)}") from None
+    if not root:
+        raise InputError(path, None, "no XML element")
+    return root[0]
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _numbers(path, el: _El, n: int | None, what: str) -> list[float]:
+    toks = [t.strip() for t in el.value.split(",")]
+    if n is not None and len(toks) != n:
+        raise InputError(path, el.line, f"<{el.tag}> {what}: expected {n} comma-separated numbers, found '{el.value}'")
+    return [_number(path, el.line, f"<{el.tag}>", t) for t in toks]
+
+
+def _number(path, line, what, tok) -> float:
+    try:
+        v = float(tok)
+    except ValueError:
+        raise InputError(path, line, f"{what} '{tok}' is not a number") from None
+    if not math.isfinite(v):
+        raise InputError(path, line, f"{what} '{tok}' is not a finite number")
+    return v
+
+
+def _resolve(base: Path, here: Path, text: str) -> Path:
+    text = text.strip().replace("$HERE", str(here)).replace("$HOME", os.path.expanduser("~"))
+    p = Path(text)
+    return p if p.is_absolute() else base / p
+
+
+def _base_dir(el: _El, here: Path, path: Path) -> Path:
+    b = el.attrib.get("base_dir")
+    if b is None:
+        return here
+    if "$DBAT" in b:
+        raise InputError(path, el.line, "base_dir uses $DBAT (the DBAT installation), which striptri cannot resolve")
+    return _resolve(here, here, b)
+
+
+def _read_table(path: Path, fmt: str, fmt_line: int, script: Path, required: tuple[str, ...]):
+    """Rows of a comma-separated DBAT text file with the columns of `fmt`. -> (columns, [(line, fields)])."""
+    cols = [c.strip().lower() for c in fmt.split(",")]
+    missing = [c for c in required if c not in cols]
+    if missing:
+        raise InputError(script, fmt_line, f"format '{fmt}' lacks column(s) {', '.join(missing)}")
+    raw = read_input_bytes(path, "is a folder, not a DBAT data file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(path, raw[: exc.start].count(b"\n") + 1, "not valid UTF-8 text") from None
+    rows = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        body = line.split("#", 1)[0].strip()
+        if not body:
+            continue
+        fields = [f.strip() for f in body.split(",")]
+        if len(fields) != len(cols):
+            raise InputError(path, n, f"expected {len(cols)} comma-separated fields ({fmt}), found {len(fields)}")
+        rows.append((n, dict(zip(cols, fields))))
+    return cols, rows
+
+
+def _id(path, line, tok) -> str:
+    try:
+        v = float(tok)
+    except ValueError:
+        return tok
+    return str(int(v)) if v.is_integer() else tok
+
+
+def _bool(path, el: _El) -> bool:
+    v = el.value.lower()
+    if v in ("true", "1", "yes", "on"):
+        return True
+    if v in ("false", "0", "no", "off"):
+        return False
+    raise InputError(path, el.line, f"<{el.tag}> must be true or false, found '{el.value}'")
+
+
+# --------------------------------------------------------------------------- camera
+
+
+def _read_camera(path: Path, cam: _El, estimated: dict[str, bool]) -> DbatCamera:
+    def get(tag):
+        return cam.find(tag)
+
+    img_el = get("image")
+    if img_el is None:
+        raise InputError(path, cam.line, "<camera> has no <image> (width,height in pixels)")
+    w, h = _numbers(path, img_el, 2, "image size")
+    if w <= 0 or h <= 0 or not float(w).is_integer() or not float(h).is_integer():
+        raise InputError(path, img_el.line, f"image size must be positive integers, found '{img_el.value}'")
+    aspect = _numbers(path, get("aspect"), 1, "aspect")[0] if get("aspect") is not None else 1.0
+    sens_el = get("sensor")
+    if sens_el is None:
+        raise InputError(path, cam.line, "<camera> has no <sensor> (width,height)")
+    toks = [t.strip().lower() for t in sens_el.value.split(",")]
+    if len(toks) != 2 or toks == ["auto", "auto"]:
+        raise InputError(path, sens_el.line, f"<sensor> must be 'W,H', 'auto,H' or 'W,auto', found '{sens_el.value}'")
+    if toks[0] == "auto":
+        sh = _number(path, sens_el.line, "<sensor> height", toks[1])
+        ph = sh / h
+        sw = ph / aspect * w
+    elif toks[1] == "auto":
+        sw = _number(path, sens_el.line, "<sensor> width", toks[0])
+        pw = sw / w
+        sh = pw * aspect * h
+    else:
+        sw = _number(path, sens_el.line, "<sensor> width", toks[0])
+        sh = _number(path, sens_el.line, "<sensor> height", toks[1])
+    if sw <= 0 or sh <= 0:
+        raise InputError(path, sens_el.line, "sensor size must be > 0")
+    focal = _numbers(path, get("focal"), 1, "focal")[0] if get("focal") is not None else None
+    if get("cc") is not None:
+        cc = _numbers(path, get("cc"), 1, "camera constant")[0]
+    elif focal is not None:
+        cc = focal
+    else:
+        raise InputError(path, cam.line, "<camera> has neither <cc> nor <focal>")
+    pp = tuple(_numbers(path, get("pp"), 2, "principal point")) if get("pp") is not None else (sw / 2, sh / 2)
+    nK = int(_numbers(path, get("nK"), 1, "nK")[0]) if get("nK") is not None else 3
+    nP = int(_numbers(path, get("nP"), 1, "nP")[0]) if get("nP") is not None else 2
+    K = np.zeros(3)
+    P = np.zeros(2)
+    if get("K") is not None:
+        k = _numbers(path, get("K"), None, "K")
+        if len(k) > 3:
+            raise InputError(path, get("K").line, f"more than 3 radial coefficients K ({len(k)})")
+        K[: len(k)] = k
+    if get("P") is not None:
+        p = _numbers(path, get("P"), None, "P")
+        if len(p) > 2:
+            raise InputError(path, get("P").line, f"more than 2 decentering coefficients P ({len(p)})")
+        P[: len(p)] = p
+    est = {n: e for n, e in estimated.items()}
+    for i in range(nK, 3):
+        est[f"K{i + 1}"] = False
+    for i in range(nP, 2):
+        est[f"P{i + 1}"] = False
+    return DbatCamera(
+        id=get("id").value if get("id") is not None else "1",
+        name=get("name").value if get("name") is not None else "",
+        unit=get("unit").value if get("unit") is not None else "mm",
+        cc=cc, pp=(float(pp[0]), float(pp[1])), sensor=(sw, sh), image_size=(int(w), int(h)),
+        aspect=aspect, skew=_numbers(path, get("skew"), 1, "skew")[0] if get("skew") is not None else 0.0,
+        K=K, P=P, model=int(_numbers(path, get("model"), 1, "model")[0]) if get("model") is not None else None,
+        estimated=est, source=path, line=cam.line,
+    )
+
+
+def _estimated(path: Path, ops: _El | None) -> dict[str, bool]:
+    est = {n: False for n in IO_NAMES}
+    if ops is None:
+        return est
+    alias = {"cc": ("cc",), "pp": ("px", "py"), "px": ("px",), "py": ("py",), "aspect": ("as",),
+             "skew": ("sk",), "k": ("K1", "K2", "K3"), "p": ("P1", "P2"),
+             **{n.lower(): (n,) for n in DISTORTION_NAMES}}
+    for op in ops.findall("operation"):
+        sbep = op.find("set_bundle_estimate_params")
+        io = sbep.find("io") if sbep is not None else None
+        if io is None:
+            continue
+        for el in io.children:
+            if el.tag == "all":
+                v = _bool(path, el)
+                est = {n: v for n in IO_NAMES}
+            elif el.tag.lower() in alias:
+                v = _bool(path, el)
+                for n in alias[el.tag.lower()]:
+                    est[n] = v
+            elif el.tag != "c":
+                raise InputError(path, el.line, f"unknown camera parameter <{el.tag}> in set_bundle_estimate_params")
+    return est
+
+
+def read_dbat_camera(camera_xml_path: str | Path) -> DbatCamera:
+    """Read a DBAT camera file (``<document dbat_camera_version=...><cameras><camera>``), e.g. the
+    calibrated camera DBAT writes to its result folder. Exactly one camera; nothing estimated."""
+    path = Path(camera_xml_path)
+    root = _parse_xml(path)
+    cams = root.find("cameras")
+    found = cams.findall("camera") if cams is not None else []
+    if len(found) != 1:
+        raise InputError(path, (cams or root).line, f"{len(found)} <camera> elements; expected exactly one")
+    return _read_camera(path, found[0], {n: False for n in IO_NAMES})
+
+
+# --------------------------------------------------------------------------- reader
+
+
+def read_dbat(script_xml_path: str | Path) -> DbatProject:
+    """Read a DBAT script project (module doc). Raises InputError(file, line, reason)."""
+    path = Path(script_xml_path)
+    here = path.resolve().parent
+    root = _parse_xml(path)
+    if root.tag != "document":
+        raise InputError(path, root.line, f"not a DBAT script: root element <{root.tag}>, expected <document>")
+    inp = root.find("input")
+    if inp is None:
+        raise InputError(path, root.line, "DBAT script has no <input> section")
+    base = _base_dir(inp, here, path)
+    meta = root.find("meta")
+    name = meta.find("name").value if meta is not None and meta.find("name") is not None else path.stem
+    unit = meta.find("project_unit").value if meta is not None and meta.find("project_unit") is not None else ""
+    datum_note = " ".join(meta.find("datum").value.split()) if meta is not None and meta.find("datum") is not None else ""
+    ops = root.find("operations")
+    estimated = _estimated(path, ops)
+
+    def files(section: str, required: bool):
+        sec = inp.find(section)
+        if sec is None:
+            if required:
+                raise InputError(path, inp.line, f"<input> has no <{section}>")
+            return []
+        fs = sec.findall("file")
+        if required and not fs:
+            raise InputError(path, sec.line, f"<{section}> names no <file>")
+        return fs
+
+    # cameras
+    cams_el = inp.find("cameras")
+    if cams_el is None:
+        raise InputError(path, inp.line, "<input> has no <cameras>")
+    cam_els = [(path, c) for c in cams_el.findall("camera")]
+    for f in cams_el.findall("file"):
+        cpath = _resolve(base, here, f.value)
+        croot = _parse_xml(cpath)
+        cc = croot.find("cameras")
+        cam_els += [(cpath, c) for c in (cc.findall("camera") if cc is not None else [])]
+    if len(cam_els) != 1:
+        raise InputError(path, cams_el.line, f"{len(cam_els)} cameras; the reader handles exactly one camera")
+    camera = _read_camera(cam_els[0][0], cam_els[0][1], estimated)
+
+    # images
+    image_ids, image_names = [], []
+    for f in files("images", True):
+        fpath = _resolve(base, here, f.value)
+        _, rows = _read_table(fpath, f.attrib.get("format", "id,path"), f.line, path, ("id", "path"))
+        for n, r in rows:
+            iid = _id(fpath, n, r["id"])
+            if iid in image_ids:
+                raise InputError(fpath, n, f"image id {iid} given twice")
+            image_ids.append(iid)
+            image_names.append(r["path"].replace("\\", "/").rsplit("/", 1)[-1])
+
+    # image points
+    ip_image, ip_point, xy, sig, lines = [], [], [], [], []
+    ip_file = None
+    known = set(image_ids)
+    seen = set()
+    for f in files("image_pts", True):
+        fpath = ip_file = _resolve(base, here, f.value)
+        cols, rows = _read_table(fpath, f.attrib.get("format", "im,id,x,y"), f.line, path, ("im", "id", "x", "y"))
+        default = f.attrib.get("sxy")
+        default_s = _number(path, f.line, "sxy attribute", default) if default is not None else 1.0
+        for n, r in rows:
+            im, pt = _id(fpath, n, r["im"]), _id(fpath, n, r["id"])
+            if im not in known:
+                raise InputError(fpath, n, f"image id {im} is not in the image list")
+            if (im, pt) in seen:
+                raise InputError(fpath, n, f"image {im} measures point {pt} twice")
+            seen.add((im, pt))
+            x, y = _number(fpath, n, "x", r["x"]), _number(fpath, n, "y", r["y"])
+            if "sxy" in r:
+                s = _number(fpath, n, "sxy", r["sxy"])
+                sx = sy = s
+            elif "sx" in r and "sy" in r:
+                sx, sy = _number(fpath, n, "sx", r["sx"]), _number(fpath, n, "sy", r["sy"])
+            else:
+                sx = sy = default_s
+            if sx <= 0 or sy <= 0:
+                raise InputError(fpath, n, "image point sigma must be > 0")
+            ip_image.append(im)
+            ip_point.append(pt)
+            xy.append((x, y))
+            sig.append((sx, sy))
+            lines.append(n)
+
+    # control points
+    c_ids, c_labels, c_xyz, c_sig = [], [], [], []
+    for f in files("ctrl_pts", False):
+        fpath = _resolve(base, here, f.value)
+        cols, rows = _read_table(fpath, f.attrib.get("format", "id,label,x,y,z"), f.line, path, ("id", "x", "y", "z"))
+        for n, r in rows:
+            cid = _id(fpath, n, r["id"])
+            if cid in c_ids:
+                raise InputError(fpath, n, f"control point {cid} given twice")
+            c_ids.append(cid)
+            c_labels.append(r.get("label", ""))
+            c_xyz.append([_number(fpath, n, a, r[a]) for a in "xyz"])
+            if "sxyz" in r:
+                c_sig.append([_number(fpath, n, "sxyz", r["sxyz"])] * 3)
+            elif all(k in r for k in ("sx", "sy", "sz")):
+                c_sig.append([_number(fpath, n, k, r[k]) for k in ("sx", "sy", "sz")])
+            else:
+                c_sig.append([math.nan] * 3)
+            if any(s <= 0 for s in c_sig[-1]):
+                raise InputError(fpath, n, "control point sigma must be > 0 (leave the column out for fixed points)")
+
+    # prior EO
+    p_ids, p_xyz, p_ang = [], [], []
+    for f in files("prior_eo", False):
+        fpath = _resolve(base, here, f.value)
+        units = f.attrib.get("units", "radians").lower()
+        if units not in ("degrees", "radians"):
+            raise InputError(path, f.line, f"prior_eo units '{units}': expected degrees or radians")
+        _, rows = _read_table(fpath, f.attrib.get("format", "id,x,y,z,omega,phi,kappa"), f.line, path,
+                              ("id", "x", "y", "z", "omega", "phi", "kappa"))
+        for n, r in rows:
+            p_ids.append(_id(fpath, n, r["id"]))
+            p_xyz.append([_number(fpath, n, a, r[a]) for a in "xyz"])
+            ang = [_number(fpath, n, a, r[a]) for a in ("omega", "phi", "kappa")]
+            p_ang.append([math.radians(a) for a in ang] if units == "degrees" else ang)
+
+    # datum
+    datum = None
+    if ops is not None:
+        for op in ops.findall("operation"):
+            sd = op.find("set_datum")
+            if sd is not None:
+                datum = {"type": sd.value, **sd.attrib}
+
+    return DbatProject(
+        path=path, name=name, project_unit=unit, camera=camera, image_ids=image_ids, image_names=image_names,
+        ip_image=ip_image, ip_point=ip_point, ip_xy=np.asarray(xy, dtype=float).reshape(-1, 2),
+        ip_sigma=np.asarray(sig, dtype=float).reshape(-1, 2), ip_lines=np.asarray(lines, dtype=np.int64),
+        ip_file=ip_file, ctrl_ids=c_ids, ctrl_labels=c_labels, ctrl_xyz=np.asarray(c_xyz, dtype=float).reshape(-1, 3),
+        ctrl_sigma=np.asarray(c_sig, dtype=float).reshape(-1, 3), prior_ids=p_ids,
+        prior_xyz=np.asarray(p_xyz, dtype=float).reshape(-1, 3), prior_angles=np.asarray(p_ang, dtype=float).reshape(-1, 3),
+        datum=datum, datum_note=datum_note,
+    )
+
+
+# --------------------------------------------------------------------------- conversion
+
+
+def pixels_to_plate(camera: DbatCamera, xy_pixel: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (column, row; corner origin, y down) -> plate mm (x right, y up, origin at
+    the principal point): x = col * pw - px, y = py - row * ph (no half-pixel shift, module doc)."""
+    xy_pixel = np.asarray(xy_pixel, dtype=float)
+    pw, ph = camera.pixel_size
+    return np.stack([xy_pixel[..., 0] * pw - camera.pp[0], camera.pp[1] - xy_pixel[..., 1] * ph], axis=-1)
+
+
+def dbat_to_project(dbat: DbatProject, drop_distortion: bool = False) -> Scene:
+    """A striptri project of a DBAT project; Scene.project is the model.Project.
+
+    Plate coordinates in mm (pixels_to_plate, principal point taken as origin so xp = yp = 0),
+    c = DBAT's cc, image sigmas scaled by the pixel size, control fixed (nan) or weighted as read.
+    striptri's camera model has no distortion yet: a camera with nonzero or estimated K/P is
+    refused (InputError at the camera) unless drop_distortion, which drops them and says so in
+    Scene.notes (as the BAL converter's --drop-distortion). Approximate orientations come from
+    prior_eo when present (DBAT's angles, convention unverified: see notes), else they are left
+    at nan and must come from elsewhere."""
+    cam = dbat.camera
+    notes: list[str] = []
+    dist = cam.distortion()
+    est_dist = [n for n in DISTORTION_NAMES if cam.estimated.get(n)]
+    if cam.has_distortion() or est_dist:
+        nonzero = ", ".join(f"{k} = {v!r}" for k, v in dist.items() if v != 0) or "all zero"
+        what = f"distortion {nonzero}" + (f"; estimated by the script: {', '.join(est_dist)}" if est_dist else "")
+        if not drop_distortion:
+            raise InputError(cam.source or dbat.path, cam.line,
+                             f"camera '{cam.name}' has {what}; striptri's camera model has no distortion yet: "
+                             "convert with drop_distortion (--drop-distortion) to drop it")
+        notes.append(f"DBAT distortion dropped (striptri has no distortion model yet): {what}")
+    if abs(cam.aspect - 1.0) > 0 or cam.skew != 0:
+        notes.append(f"aspect {cam.aspect!r} and skew {cam.skew!r} are applied to the pixel size only; "
+                     "striptri does not estimate them")
+    if any(cam.estimated.get(n) for n in ("cc", "px", "py")):
+        notes.append("DBAT estimates " + ", ".join(n for n in ("cc", "px", "py") if cam.estimated.get(n))
+                     + "; the converted camera is held fixed (set sigmas to estimate it)")
+
+    photo_of = {iid: i for i, iid in enumerate(dbat.image_ids)}
+    point_ids = list(dict.fromkeys(list(dbat.ctrl_ids) + list(dbat.ip_point)))
+    point_of = {pid: j for j, pid in enumerate(point_ids)}
+    n = len(point_ids)
+    kind = np.full(n, model.TIE, dtype=np.int64)
+    xyz_given = np.full((n, 3), np.nan)
+    sigma_given = np.full((n, 3), np.nan)
+    for k, cid in enumerate(dbat.ctrl_ids):
+        j = point_of[cid]
+        kind[j] = model.FULL
+        xyz_given[j] = dbat.ctrl_xyz[k]
+        sigma_given[j] = dbat.ctrl_sigma[k]
+
+    nim = dbat.n_images
+    xyz0 = np.full((nim, 3), np.nan)
+    angles = np.zeros((nim, 3))
+    prior = {pid: k for k, pid in enumerate(dbat.prior_ids)}
+    have = [i for i, iid in enumerate(dbat.image_ids) if iid in prior]
+    for i in have:
+        k = prior[dbat.image_ids[i]]
+        xyz0[i] = dbat.prior_xyz[k]
+        angles[i] = dbat.prior_angles[k]
+    if have:
+        notes.append(f"approximate orientations of {len(have)} of {nim} images from prior_eo; DBAT's "
+                     "omega-phi-kappa taken as striptri's without verification of the convention")
+    if len(have) < nim:
+        notes.append(f"{nim - len(have)} images have no approximate orientation: approximations must come from "
+                     "elsewhere (striptri's sequential/resection is not for close range)")
+    R = rotations.R_from_opk(angles)
+    pw, ph = cam.pixel_size
+    photos = model.Photos(
+        ids=list(dbat.image_names), camera_index=np.zeros(nim, dtype=np.int64), strip_ids=[""] * nim,
+        xyz0=xyz0, R_ground_from_cam=R, angles=angles,
+        sigma_xyz0=np.full((nim, 3), np.nan), sigma_angles=np.full((nim, 3), np.nan),
+    )
+    if dbat.datum:
+        notes.append(f"DBAT datum: {dbat.datum}; striptri's datum setting is 'control' if control points "
+                     "exist, else 'inner' (DBAT's datum by the first camera is not reproduced)")
+    project = model.Project(
+        cameras=model.Cameras(ids=[cam.id], interior=np.array([[cam.cc, 0.0, 0.0]]),
+                              sigma_interior=np.full((1, 3), np.nan)),
+        photos=photos,
+        image_points=model.ImagePoints(
+            photo_index=np.array([photo_of[i] for i in dbat.ip_image], dtype=np.int64),
+            point_index=np.array([point_of[p] for p in dbat.ip_point], dtype=np.int64),
+            xy=pixels_to_plate(cam, dbat.ip_xy),
+            sigma_xy=dbat.ip_sigma * np.array([pw, ph]),
+        ),
+        points=model.ObjectPoints(ids=point_ids, kind=kind, xyz_given=xyz_given, sigma_given=sigma_given),
+        settings=model.ProjectSettings(angle_unit="deg", sigma_image=float(np.median(dbat.ip_sigma) * pw)
+                                       if dbat.n_image_points else 0.005,
+                                       datum="control" if dbat.n_control else "inner"),
+        source=dbat.path,
+    )
+    return Scene(project=project, xyz_ground=xyz_given.copy(), plate_units_per_pixel=float(pw), notes=notes)

@@ -1,0 +1,164 @@
+"""DBAT script reader (striptri.formats.dbat) on the DBAT demo projects and on malformed input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from striptri import model
+from striptri.errors import InputError
+from striptri.formats.dbat import (
+    dbat_to_project,
+    pixels_to_plate,
+    read_dbat,
+    read_dbat_camera,
+)
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+CAMCAL = REAL / "dbat_camcal" / "script"
+ROMA = REAL / "dbat_roma" / "script"
+needs_camcal = pytest.mark.skipif(not (CAMCAL / "camcaldemo.xml").exists(), reason="DBAT camcal data absent")
+needs_roma = pytest.mark.skipif(not (ROMA / "romabundledemo.xml").exists(), reason="DBAT roma data absent")
+
+
+@needs_camcal
+def test_camcal_counts_and_camera():
+    d = read_dbat(CAMCAL / "camcaldemo.xml")
+    assert (d.n_images, d.n_points, d.n_image_points, d.n_control) == (21, 100, 2074, 4)
+    assert d.image_names[0] == "P8250021.JPG"
+    assert np.all(d.ip_sigma == 0.1)
+    assert d.ctrl_ids == ["1001", "1002", "1003", "1004"]
+    assert np.all(np.isnan(d.ctrl_sigma))  # fixed
+    assert d.ctrl_xyz[1].tolist() == [1.0, 1.0, 0.0]
+    c = d.camera
+    # script camera: focal 7.5, sensor auto,5.43764 for 2272 x 1704 px, default pp = sensor centre
+    assert c.cc == 7.5 and c.image_size == (2272, 1704)
+    assert c.pixel_size[1] == pytest.approx(0.0031911, abs=5e-8)
+    assert c.pp == pytest.approx((2272 / 2 * c.pixel_size[0], 1704 / 2 * c.pixel_size[1]))
+    assert c.principal_point_pixels == pytest.approx((1136.0, 852.0))
+    assert all(c.estimated[n] for n in ("cc", "px", "py", "as", "K1", "K2", "K3", "P1", "P2"))
+    assert not c.estimated["sk"]
+    assert d.datum is None and "fixed control points" in d.datum_note
+
+
+@needs_camcal
+def test_camcal_result_camera_equals_report():
+    c = read_dbat_camera(CAMCAL / "result" / "c4040z.xml")  # values of result/report.txt
+    assert c.cc == pytest.approx(7.457, abs=5e-4)
+    assert c.pp == pytest.approx((3.61546, 2.61329), abs=5e-6)
+    assert c.sensor == pytest.approx((7.25301, 5.43764), abs=5e-6)
+    assert c.pixel_size == pytest.approx((0.00319235, 0.0031911), abs=5e-9)
+    assert c.distortion() == pytest.approx({"K1": 0.00458861, "K2": -4.51351e-05, "K3": -2.05253e-06,
+                                            "P1": -6.12803e-05, "P2": -4.41171e-05}, rel=1e-5)
+
+
+@needs_roma
+def test_roma_counts_camera_prior_and_datum():
+    d = read_dbat(ROMA / "romabundledemo.xml")
+    assert (d.n_images, d.n_points, d.n_image_points, d.n_control) == (60, 26321, 90561, 0)
+    assert np.all(d.ip_sigma == 1.0)  # sxy="1" attribute
+    c = d.camera
+    assert (c.cc, c.pp, c.sensor, c.image_size) == (24.3581, (18.1143, 12.0), (36.0, 24.0), (5616, 3744))
+    assert c.pixel_size == pytest.approx((0.00641026, 0.00641026), abs=5e-9)
+    assert c.distortion() == {"K1": 2.174e-4, "K2": -1.518e-7, "K3": 0.0, "P1": 0.0, "P2": 0.0}
+    est = {n for n, v in c.estimated.items() if v}
+    assert est == {"cc", "px", "py", "K1", "K2"}  # report: "Calibration: yes (cc px py K1 K2)"
+    assert d.datum == {"type": "depend", "ref_cam": "1", "ref_base": "longest"}
+    assert len(d.prior_ids) == 60
+    assert np.degrees(d.prior_angles[0]) == pytest.approx([39.43, 7.46, 99.59])
+    r = read_dbat_camera(ROMA / "result" / "EOS5DMarkII.xml")  # result/report.txt values
+    assert r.cc == pytest.approx(24.5425, abs=5e-5)
+    assert r.pp == pytest.approx((18.0816, 12.0164), abs=5e-5)
+    assert (r.distortion()["K1"], r.distortion()["K2"]) == pytest.approx((0.000221523, -1.86985e-07), rel=1e-5)
+
+
+@needs_roma
+def test_roma_conversion_refuses_or_drops_distortion():
+    d = read_dbat(ROMA / "romabundledemo.xml")
+    with pytest.raises(InputError, match="distortion") as e:
+        dbat_to_project(d)
+    assert e.value.line is not None
+    scene = dbat_to_project(d, drop_distortion=True)
+    p = scene.project
+    assert isinstance(p, model.Project)
+    assert len(p.photos) == 60 and len(p.points) == 26321 and len(p.image_points) == 90561
+    assert p.cameras.interior.tolist() == [[24.3581, 0.0, 0.0]]
+    assert any("dropped" in n for n in scene.notes)
+    assert p.settings.datum == "inner"
+    assert p.photos.xyz0[0].tolist() == [1.86, -19.22, -6.49]
+
+
+def _camera(**kw):
+    from striptri.formats.dbat import DbatCamera
+    base = dict(id="1", name="t", unit="mm", cc=10.0, pp=(5.0, 4.0), sensor=(10.0, 8.0), image_size=(1000, 800),
+                aspect=1.0, skew=0.0, K=np.zeros(3), P=np.zeros(2), model=3, estimated={})
+    base.update(kw)
+    return DbatCamera(**base)
+
+
+def test_pixel_to_plate_hand_example():
+    # 1000 x 800 px on a 10 x 8 mm sensor: 0.01 mm pixels; pp (5.2, 3.9) mm = pixel (520, 390).
+    cam = _camera(pp=(5.2, 3.9))
+    xy = pixels_to_plate(cam, np.array([[520.0, 390.0], [0.0, 0.0], [1000.0, 800.0], [620.5, 290.25]]))
+    expected = [[0.0, 0.0], [-5.2, 3.9], [4.8, -4.1], [1.005, 0.9975]]
+    assert xy == pytest.approx(np.array(expected), abs=1e-12)
+
+
+def _write_project(tmp: Path, *, script_extra="", pts="1,7,10.5,20.5,0.5\n", camera_xml=None):
+    (tmp / "images.txt").write_text("# id, path\n1, a/IMG1.JPG\n2, a/IMG2.JPG\n")
+    (tmp / "pts.txt").write_text("# im,id,x,y,sxy\n" + pts)
+    cam = camera_xml or ("<camera><id>1</id><unit>mm</unit><sensor>10,8</sensor><image>1000,800</image>"
+                         "<focal>10</focal></camera>")
+    (tmp / "s.xml").write_text(
+        '<?xml version="1.0"?>\n<document>\n<input base_dir="$HERE">\n'
+        '<images><file format="id,path">images.txt</file></images>\n'
+        '<image_pts><file format="im,id,x,y,sxy">pts.txt</file></image_pts>\n'
+        f"<cameras>{cam}</cameras>\n{script_extra}</input>\n</document>\n")
+    return tmp / "s.xml"
+
+
+def test_small_project_converts(tmp_path):
+    s = _write_project(tmp_path, pts="1,7,500,400,0.5\n2,7,600,300,0.5\n")
+    d = read_dbat(s)
+    assert d.image_names == ["IMG1.JPG", "IMG2.JPG"]
+    scene = dbat_to_project(d)
+    assert scene.project.image_points.xy == pytest.approx(np.array([[0.0, 0.0], [1.0, 1.0]]))
+    assert scene.project.image_points.sigma_xy[0] == pytest.approx(np.array([0.005, 0.005]))
+    assert math.isnan(scene.project.photos.xyz0[0, 0])
+    assert any("must come from elsewhere" in n for n in scene.notes)
+
+
+def test_malformed_xml_names_line(tmp_path):
+    s = _write_project(tmp_path)
+    s.write_text(s.read_text().replace("</cameras>", "</camera>"))
+    with pytest.raises(InputError) as e:
+        read_dbat(s)
+    assert e.value.line == 6 and "XML" in e.value.reason
+
+
+def test_malformed_measurement_names_line(tmp_path):
+    s = _write_project(tmp_path, pts="1,7,10,20,0.5\n2,7,abc,20,0.5\n")
+    with pytest.raises(InputError) as e:
+        read_dbat(s)
+    assert e.value.path.endswith("pts.txt") and e.value.line == 3 and "not a number" in e.value.reason
+    s = _write_project(tmp_path, pts="1,7,10,20\n")
+    with pytest.raises(InputError) as e:
+        read_dbat(s)
+    assert e.value.line == 2 and "fields" in e.value.reason
+    s = _write_project(tmp_path, pts="9,7,10,20,1\n")
+    with pytest.raises(InputError, match="not in the image list"):
+        read_dbat(s)
+
+
+def test_bad_camera_and_missing_file(tmp_path):
+    s = _write_project(tmp_path, camera_xml="<camera>\n<sensor>10</sensor><image>1000,800</image><focal>1</focal></camera>")
+    with pytest.raises(InputError) as e:
+        read_dbat(s)
+    assert e.value.line == 7 and "sensor" in e.value.reason
+    s = _write_project(tmp_path)
+    (tmp_path / "pts.txt").unlink()
+    with pytest.raises(InputError, match="file not found"):
+        read_dbat(s)
