@@ -93,8 +93,9 @@ def test_roma_conversion_refuses_or_drops_distortion():
 
 def _camera(**kw):
     from striptri.formats.dbat import DbatCamera
-    base = dict(id="1", name="t", unit="mm", cc=10.0, pp=(5.0, 4.0), sensor=(10.0, 8.0), image_size=(1000, 800),
-                aspect=1.0, skew=0.0, K=np.zeros(3), P=np.zeros(2), model=3, estimated={})
+    base = {"id": "1", "name": "t", "unit": "mm", "cc": 10.0, "pp": (5.0, 4.0), "sensor": (10.0, 8.0),
+            "image_size": (1000, 800), "aspect": 1.0, "skew": 0.0, "K": np.zeros(3), "P": np.zeros(2),
+            "model": 3, "estimated": {}}
     base.update(kw)
     return DbatCamera(**base)
 

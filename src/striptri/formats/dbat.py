@@ -450,7 +450,7 @@ def read_dbat(script_xml_path: str | Path) -> DbatProject:
     seen = set()
     for f in files("image_pts", True):
         fpath = ip_file = _resolve(base, here, f.value)
-        cols, rows = _read_table(fpath, f.attrib.get("format", "im,id,x,y"), f.line, path, ("im", "id", "x", "y"))
+        _, rows = _read_table(fpath, f.attrib.get("format", "im,id,x,y"), f.line, path, ("im", "id", "x", "y"))
         default = f.attrib.get("sxy")
         default_s = _number(path, f.line, "sxy attribute", default) if default is not None else 1.0
         for n, r in rows:
@@ -480,7 +480,7 @@ def read_dbat(script_xml_path: str | Path) -> DbatProject:
     c_ids, c_labels, c_xyz, c_sig = [], [], [], []
     for f in files("ctrl_pts", False):
         fpath = _resolve(base, here, f.value)
-        cols, rows = _read_table(fpath, f.attrib.get("format", "id,label,x,y,z"), f.line, path, ("id", "x", "y", "z"))
+        _, rows = _read_table(fpath, f.attrib.get("format", "id,label,x,y,z"), f.line, path, ("id", "x", "y", "z"))
         for n, r in rows:
             cid = _id(fpath, n, r["id"])
             if cid in c_ids:
