@@ -163,3 +163,41 @@ def test_bad_camera_and_missing_file(tmp_path):
     (tmp_path / "pts.txt").unlink()
     with pytest.raises(InputError, match="file not found"):
         read_dbat(s)
+
+
+@needs_camcal
+def test_pixel_convention_reproduces_dbat_result():
+    """DBAT's result camera and camera stations reproject camcal's fixed control points onto their
+    measured pixels through pixels_to_plate (no half-pixel shift) and R_from_opk, with DBAT's
+    backward Brown correction applied to the measurements; a 0.5 px shift leaves a 0.5 px bias."""
+    from striptri.rotations import R_from_opk
+
+    d = read_dbat(CAMCAL / "camcaldemo.xml")
+    cam = read_dbat_camera(CAMCAL / "result" / "c4040z.xml")
+    # camera_stations.txt: x, y, z, omega, phi, kappa (radians, although its header says degrees)
+    eo = np.loadtxt(CAMCAL / "result" / "camera_stations.txt", delimiter=",", usecols=range(2, 8))
+    R = R_from_opk(eo[:, 3:])
+    ctrl = dict(zip(d.ctrl_ids, d.ctrl_xyz))
+    keep = [k for k, p in enumerate(d.ip_point) if p in ctrl]
+    im = np.array([d.image_ids.index(d.ip_image[k]) for k in keep])
+    X = np.array([ctrl[d.ip_point[k]] for k in keep])
+    Pc = np.einsum("nji,nj->ni", R[im], X - eo[im, :3])
+    ideal = -cam.cc * Pc[:, :2] / Pc[:, 2:3]
+    K1, K2, K3 = cam.K
+    P1, P2 = cam.P
+    ph = cam.pixel_size[1]
+
+    def bias(shift):
+        x, y = pixels_to_plate(cam, d.ip_xy[keep] + shift).T
+        r2 = x * x + y * y
+        f = K1 * r2 + K2 * r2**2 + K3 * r2**3
+        xc = x + x * f + P1 * (r2 + 2 * x * x) + 2 * P2 * x * y
+        yc = y + y * f + 2 * P1 * x * y + P2 * (r2 + 2 * y * y)
+        res = (np.stack([xc, yc], 1) - ideal) / ph
+        return res.mean(0), np.sqrt(np.mean(res**2))
+
+    mean, rms = bias(0.0)
+    assert len(keep) == 84
+    assert np.all(np.abs(mean) < 0.05) and rms < 0.5
+    mean_half, _ = bias(0.5)
+    assert abs(mean_half[1]) > 0.4
