@@ -106,6 +106,11 @@ def test_pixel_to_plate_hand_example():
     xy = pixels_to_plate(cam, np.array([[520.0, 390.0], [0.0, 0.0], [1000.0, 800.0], [620.5, 290.25]]))
     expected = [[0.0, 0.0], [-5.2, 3.9], [4.8, -4.1], [1.005, 0.9975]]
     assert xy == pytest.approx(np.array(expected), abs=1e-12)
+    # aspect 0.8 (pixel height / width): ph 0.01 mm, x scaled by 1/0.8 about pp (6.0, 4.0) mm
+    cam = _camera(pp=(6.0, 4.0), sensor=(12.5, 8.0), aspect=0.8)
+    xy = pixels_to_plate(cam, np.array([[600.0, 400.0], [700.0, 300.0]]))
+    assert xy == pytest.approx(np.array([[0.0, 0.0], [1.25, 1.0]]), abs=1e-12)
+    assert cam.pixel_size == pytest.approx((0.0125, 0.01))
 
 
 def _write_project(tmp: Path, *, script_extra="", pts="1,7,10.5,20.5,0.5\n", camera_xml=None):
