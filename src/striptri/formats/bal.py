@@ -122,8 +122,8 @@ def read_bal(path: str | Path) -> BalProblem:
         cam = _index(path, n, "camera", tokens[0], ncam)
         pt = _index(path, n, "point", tokens[1], npts)
         camera_index[i], point_index[i] = cam, pt
-        xy[i, 0] = _number(path, n, "x", tokens[2])
-        xy[i, 1] = _number(path, n, "y", tokens[3])
+        xy[i, 0] = parse_number(path, n, "x", tokens[2])
+        xy[i, 1] = parse_number(path, n, "y", tokens[3])
 
     n_params = 9 * ncam + 3 * npts
     values = np.empty(n_params)
@@ -134,7 +134,7 @@ def read_bal(path: str | Path) -> BalProblem:
             if k == n_params:
                 raise InputError(path, n, f"more numbers than the {n_params} parameters of {ncam} cameras and {npts} points")
             what = "camera parameter" if k < 9 * ncam else "point coordinate"
-            values[k] = _number(path, n, what, tok)
+            values[k] = parse_number(path, n, what, tok)
             value_lines[k] = n
             k += 1
     if k < n_params:
@@ -176,7 +176,8 @@ def _index(path: Path, line: int, name: str, token: str, n: int) -> int:
     return value
 
 
-def _number(path: Path, line: int, name: str, token: str) -> float:
+def parse_number(path: Path, line: int, name: str, token: str) -> float:
+    """A finite float from a token, or InputError(path, line) naming the field."""
     try:
         value = float(token)
     except ValueError:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from striptri.errors import InputError
+from striptri.formats.bal import parse_number
 from striptri.io.csvtable import read_input_bytes
 
 MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4}
@@ -158,14 +159,7 @@ def _int(path, line, name, token) -> int:
         raise InputError(path, line, f"{name} '{token}' is not an integer") from None
 
 
-def _float(path, line, name, token) -> float:
-    try:
-        value = float(token)
-    except ValueError:
-        raise InputError(path, line, f"{name} '{token}' is not a number") from None
-    if not math.isfinite(value):
-        raise InputError(path, line, f"{name} '{token}' is not a finite number")
-    return value
+_float = parse_number  # one parser of numbers for the text formats (formats.bal)
 
 
 def _read_cameras(path: Path) -> dict:
