@@ -25,7 +25,7 @@ def duplicated_strip(seed=0, shift=(0.3, 0.2, 0.1)):
     pid_truth = [t.point_ids.index(p.points.ids[i]) for i in seen]
     X = t.xyz_ground[pid_truth]
     xy = proj(np.broadcast_to(R, (len(seen), 3, 3)), np.broadcast_to(O, (len(seen), 3)),
-              np.broadcast_to(p.cameras.interior[0], (len(seen), 3)), X) + rng.normal(0, 0.005, (len(seen), 2))
+              np.broadcast_to(p.cameras.interior[0, :3], (len(seen), 3)), X) + rng.normal(0, 0.005, (len(seen), 2))
     n = len(p.photos)
     ph = p.photos
     Rapprox = R @ R_from_opk(np.radians(rng.normal(0, 0.5, 3)))

@@ -302,7 +302,7 @@ def test_colmap_reads_pinhole_and_empty_points_line(tmp_path):
     assert list(m.obs_point3d_id) == [7, -1] and list(m.obs_image) == [0, 0]
     scene = colmap_to_project(m)
     assert len(scene.project.image_points) == 1 and "without a 3D point" in scene.notes[0]
-    np.testing.assert_allclose(scene.project.cameras.interior, [[50.0, 0.0, 0.0]])
+    np.testing.assert_allclose(scene.project.cameras.interior[:, :3], [[50.0, 0.0, 0.0]])
     np.testing.assert_allclose(scene.project.image_points.xy, [[10 - 50, 40 - 20]])
 
 

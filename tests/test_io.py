@@ -265,7 +265,7 @@ def test_sigma_meanings(tmp_path):
     toml = '[units]\nangles = "gon"\n[defaults]\nsigma_image = 0.003\n'
     p = read_project(make_folder(tmp_path, cameras_csv=cameras, photos_csv=photos, control_csv=control,
                                  image_points_csv=images, project_toml=toml))
-    assert_same_array(p.cameras.sigma_interior, [[np.inf, np.nan, 0.01]])
+    assert_same_array(p.cameras.sigma_interior[:, :3], [[np.inf, np.nan, 0.01]])
     assert_same_array(p.photos.sigma_xyz0[0], [np.nan, 0.0, 0.1])
     assert_same_array(p.photos.sigma_angles[0], [np.nan, 0.0, 0.01 * math.pi / 200.0])
     assert np.all(np.isnan(p.photos.sigma_xyz0[1]))
@@ -328,12 +328,14 @@ BAD_CASES = {
     "Z without Z": ({"control_csv": "point_id,kind,X,Y,Z\nA,z,1,2,\n"}, "control.csv", 2, ["Z", "needs Z"]),
     "check without X": (
         {"control_csv": "point_id,kind,X,Y,Z\nA,XYZ,1,2,3\nK,Check,,2,3\n"}, "control.csv", 3, ["check", "needs X"]),
-    "k1 nonzero": (
-        {"cameras_csv": "camera_id,c,xp,yp,k1,k2\nC1,152,0,0,,\nC2,152,0,0,0,1e-5\n"}, "cameras.csv", 3,
-        ["k2", "radial distortion k1, k2 is not supported yet (planned: camera model issue)"]),
-    "k1 to be estimated": (
-        {"cameras_csv": "camera_id,c,xp,yp,sigma_k1\nC1,152,0,0,free\n"}, "cameras.csv", 2,
-        ["radial distortion"]),
+    "unknown distortion convention": (
+        {"cameras_csv": "camera_id,c,xp,yp,k1,distortion\nC1,152,0,0,,\nC2,152,0,0,1e-5,forward\n"}, "cameras.csv", 3,
+        ["distortion must be 'plate'", "'image'", "not 'forward'"]),
+    "affinity in the image convention": (
+        {"cameras_csv": "camera_id,c,xp,yp,distortion,sigma_b1\nC1,152,0,0,image,free\n"}, "cameras.csv", 2,
+        ["b1, b2", "plate convention"]),
+    "k2 not a number": (
+        {"cameras_csv": "camera_id,c,xp,yp,k1,k2\nC1,152,0,0,,x\n"}, "cameras.csv", 2, ["k2", "'x'"]),
     "non-numeric": (
         {"photos_csv": GOOD["photos.csv"].replace("600,", "6OO,")}, "photos.csv", 3, ["X0", "'6OO'", "not a number"]),
     "nan value": (

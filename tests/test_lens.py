@@ -148,3 +148,14 @@ def test_conventions_agree_when_distortion_is_zero():
     b = ideal_from_observed(xy, prm, IMAGE)
     np.testing.assert_allclose(a.xy, xy, atol=1e-14)
     np.testing.assert_allclose(b.xy, xy, atol=1e-12)
+
+
+@pytest.mark.parametrize("convention", [PLATE, IMAGE])
+def test_observed_from_ideal_inverts_ideal_from_observed(convention):
+    rng = np.random.default_rng(8 + convention)
+    xy, prm = (plate_camera if convention == PLATE else image_camera)(rng, 100)
+    if convention == IMAGE:
+        prm[:, lens.B1:] = 0.0
+    ideal = ideal_from_observed(xy, prm, convention).xy
+    np.testing.assert_allclose(lens.observed_from_ideal(ideal, prm, convention), xy, rtol=0,
+                               atol=1e-11 * np.abs(xy).max())

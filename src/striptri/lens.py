@@ -91,12 +91,19 @@ def _inv2(J):
     return inv / det[..., None, None], det
 
 
-def ideal_from_observed(xy: np.ndarray, params: np.ndarray, convention: np.ndarray) -> IdealPoints:
-    """Ideal plate points of observed (or adjusted) plate coordinates. xy: (..., 2);
-    params: (..., NCP); convention: (...,) PLATE or IMAGE, broadcast alike."""
+def ideal_from_observed(xy: np.ndarray, params: np.ndarray, convention: np.ndarray,
+                        xy_measured: np.ndarray | None = None) -> IdealPoints:
+    """Ideal plate points of observed or adjusted plate coordinates xy (..., 2); params
+    (..., NCP); convention (...,) PLATE or IMAGE, broadcast alike.
+
+    xy_measured: the measurements when xy are adjusted observations ``l + v``. The plate
+    convention evaluates its correction at the measurement and adds the residual, which lives in
+    the refined coordinates: ``ideal = refine(l) + v``; the image convention undistorts ``l + v``.
+    """
     xy, params = np.asarray(xy, dtype=float), np.asarray(params, dtype=float)
     shape = np.broadcast_shapes(xy.shape[:-1], params.shape[:-1], np.shape(convention))
     xy = np.broadcast_to(xy, shape + (2,))
+    measured = xy if xy_measured is None else np.broadcast_to(np.asarray(xy_measured, dtype=float), shape + (2,))
     params = np.broadcast_to(params, shape + (NCP,))
     image = np.broadcast_to(np.asarray(convention) == IMAGE, shape)
     out_xy = np.empty(shape + (2,))
@@ -105,7 +112,9 @@ def ideal_from_observed(xy: np.ndarray, params: np.ndarray, convention: np.ndarr
     converged = np.ones(shape, dtype=bool)
     plate = ~image
     if plate.any():
-        _plate_refinement(xy[plate], params[plate], out_xy, d_obs, d_cam, plate)
+        _plate_refinement(measured[plate], params[plate], out_xy, d_obs, d_cam, plate)
+        if xy_measured is not None:
+            out_xy[plate] += xy[plate] - measured[plate]
     if image.any():
         converged[image] = _undistort(xy[image], params[image], out_xy, d_obs, d_cam, image)
     return IdealPoints(out_xy, d_obs, d_cam, converged)
@@ -162,6 +171,39 @@ def _undistort(xy, prm, out_xy, d_obs, d_cam, where):
     return ok
 
 
+def observed_from_ideal(xy_ideal: np.ndarray, params: np.ndarray, convention: np.ndarray,
+                        iterations: int = 50) -> np.ndarray:
+    """The measurements whose ideal plate points are xy_ideal: the inverse of
+    :func:`ideal_from_observed` (for simulators and converters). Image convention: the forward
+    distortion ``xp + c brown(n)``; plate convention: Newton's method on the refinement, which
+    converges where the correction does not fold back. (..., 2) -> (..., 2)."""
+    xy_ideal, params = np.asarray(xy_ideal, dtype=float), np.asarray(params, dtype=float)
+    shape = np.broadcast_shapes(xy_ideal.shape[:-1], params.shape[:-1], np.shape(convention))
+    xy_ideal = np.broadcast_to(xy_ideal, shape + (2,))
+    params = np.broadcast_to(params, shape + (NCP,))
+    image = np.broadcast_to(np.asarray(convention) == IMAGE, shape)
+    out = np.empty(shape + (2,))
+    if image.any():
+        prm = params[image]
+        c, pp = prm[:, C], prm[:, XP:YP + 1]
+        out[image] = pp + c[:, None] * brown((xy_ideal[image] - pp) / c[:, None], prm)[0]
+    plate = ~image
+    if plate.any():
+        prm, target = params[plate], xy_ideal[plate]
+        xy = target.copy()
+        for _ in range(iterations):
+            ideal = ideal_from_observed(xy, prm, PLATE)
+            # the refinement depends on x - xp, y - yp: d refined / d measured = I - d refined / d (xp, yp)
+            J = np.eye(2) - ideal.d_camera[:, :, XP:YP + 1]
+            inv, _ = _inv2(J)
+            step = np.einsum("mij,mj->mi", inv, ideal.xy - target)
+            xy = xy - step
+            if np.abs(step).max(initial=0.0) <= 1e-15 * (1.0 + np.abs(target).max(initial=0.0)):
+                break
+        out[plate] = xy
+    return out
+
+
 @dataclass
 class ProjectionTerms:
     """The bundle method's view (module doc): for each ray the observation in the residual space,
@@ -179,9 +221,10 @@ class ProjectionTerms:
 
 
 def projection_terms(pred_ideal: np.ndarray, xy_obs: np.ndarray, params: np.ndarray,
-                     convention: np.ndarray) -> ProjectionTerms:
+                     convention: np.ndarray, xy_measured: np.ndarray | None = None) -> ProjectionTerms:
     """Residual-space terms of ideal projections pred_ideal (..., 2) (``xp - c m_x/m_z``, ...)
-    and measurements xy_obs (..., 2); params (..., NCP); convention (...,), broadcast alike."""
+    and observations xy_obs (..., 2); params (..., NCP); convention (...,), broadcast alike.
+    xy_measured: the measurements when xy_obs are adjusted observations (ideal_from_observed)."""
     pred_ideal, xy_obs = np.asarray(pred_ideal, dtype=float), np.asarray(xy_obs, dtype=float)
     shape = np.broadcast_shapes(pred_ideal.shape[:-1], xy_obs.shape[:-1], params.shape[:-1], np.shape(convention))
     pred_ideal = np.broadcast_to(pred_ideal, shape + (2,))
@@ -197,7 +240,8 @@ def projection_terms(pred_ideal: np.ndarray, xy_obs: np.ndarray, params: np.ndar
     d_cam = np.zeros(shape + (2, NCP))
     plate = ~image
     if plate.any():
-        ideal = ideal_from_observed(xy_obs[plate], params[plate], PLATE)
+        meas = None if xy_measured is None else np.broadcast_to(xy_measured, shape + (2,))[plate]
+        ideal = ideal_from_observed(xy_obs[plate], params[plate], PLATE, meas)
         obs[plate] = ideal.xy
         pred[plate] = pred_ideal[plate]
         d_ideal[plate] = np.eye(2)

@@ -10,11 +10,13 @@ unchanged) so that the 2x2 ... blocks M = A Q A^T are well conditioned.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .camera import plate_vector
+from .errors import NumericalFailure
+from .lens import NCP, ideal_from_observed
 from .conditions import collinearity, ray_chain, ray_conditions
 from .groups import COLLINEARITY, GroupBatch
 from .parameters import State, UnknownLayout
@@ -63,19 +65,46 @@ def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_
     return np.concatenate(parts_l, 1), np.concatenate(parts_h, 1), np.concatenate(parts_q, 1)
 
 
-def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d"):
-    """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised."""
+def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d",
+             with_lens: bool = True, plate_measured=None):
+    """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised, with
+    ``d_interior`` (m, nc, k, NCP) with respect to all camera elements (striptri.lens).
+
+    The conditions see the ideal plate points of the observations (lens.ideal_from_observed);
+    their derivatives are carried on to the observations and the camera elements by the chain
+    rule. with_lens=False skips the camera model (allowed only when no additional parameter is
+    nonzero or estimated: the ideal points are then the observations). plate_measured: the
+    measurements (all image rows) when plate_hat are adjusted observations (lens doc: the plate
+    convention corrects the measurement and adds the residual).
+    """
     xy = plate_hat[batch.image_rows]
     R = state.R[batch.photo_index]
     O = state.xyz0[batch.photo_index]
-    interior = state.interior[state.camera_of_photo[batch.photo_index]]
+    params, conv = state.camera_terms(batch.photo_index)
     X = control_hat[batch.point_index]
+    meas = None if plate_measured is None else plate_measured[batch.image_rows]
+    ideal = ideal_from_observed(xy, params, conv, meas) if with_lens else None
+    if ideal is not None:
+        if not ideal.converged.all():
+            raise NumericalFailure(
+                "the lens distortion of some measurements cannot be inverted (the distortion "
+                "polynomial folds back inside the measured area): check k1, k2, k3 of the image-"
+                "convention cameras or their starting values")
+        xy = ideal.xy
     if batch.family == COLLINEARITY:
-        return collinearity(xy, R, O, interior, X)
-    p = plate_vector(xy, interior)
-    r = np.einsum("mkij,mkj->mki", R, p)
-    rc = ray_conditions(r, O, X, batch.given_axes, scale_form)
-    return ray_chain(rc, R, p)
+        lin = collinearity(xy, R, O, params[..., :3], X)
+    else:
+        p = plate_vector(xy, params[..., :3])
+        r = np.einsum("mkij,mkj->mki", R, p)
+        rc = ray_conditions(r, O, X, batch.given_axes, scale_form)
+        lin = ray_chain(rc, R, p)
+    d_camera = np.zeros(lin.d_interior.shape[:-1] + (NCP,))
+    d_camera[..., :3] = lin.d_interior
+    if ideal is None:
+        return replace(lin, d_interior=d_camera)
+    d_camera += np.einsum("mcka,mkan->mckn", lin.d_plate, ideal.d_camera)
+    d_plate = np.einsum("mcka,mkab->mckb", lin.d_plate, ideal.d_obs)
+    return replace(lin, d_plate=d_plate, d_interior=d_camera)
 
 
 def linearise(
@@ -95,7 +124,7 @@ def linearise(
     callable(batch) -> (m, nc, nc) invertible matrices that recombine each group's conditions
     (used by the tests to show the result does not depend on it).
     """
-    lin = evaluate(batch, state, plate_hat, control_hat, scale_form)
+    lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate)
     m, nc = lin.g.shape
     k = batch.k
     l, l_hat, Q = group_observations(batch, obs, plate_hat, control_hat)
@@ -106,11 +135,14 @@ def linearise(
 
     T = rotation_maps[batch.photo_index]  # (m, k, 3, 3)
     d_rot = np.einsum("mcki,mkij->mckj", lin.d_rot, T)
-    B = np.concatenate([lin.d_centre, d_rot, lin.d_interior], 3).reshape(m, nc, 9 * k)
+    width = 6 + layout.camera_width
     cam = state.camera_of_photo[batch.photo_index]
-    cols = np.concatenate(
-        [layout.photo_cols[batch.photo_index], layout.camera_cols[cam]], 2
-    ).reshape(m, 9 * k)
+    B_parts, col_parts = [lin.d_centre, d_rot], [layout.photo_cols[batch.photo_index]]
+    if layout.camera_width:
+        B_parts.append(lin.d_interior)
+        col_parts.append(layout.camera_cols[cam])
+    B = np.concatenate(B_parts, 3).reshape(m, nc, width * k)
+    cols = np.concatenate(col_parts, 2).reshape(m, width * k)
 
     g = lin.g
     scale = 1.0 / np.sqrt(np.einsum("mco,mo,mco->mc", A, Q, A))

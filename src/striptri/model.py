@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .lens import NCP, PLATE
+
 # Object point kinds (column `kind` of control.csv; TIE for points only measured on the plates).
 TIE, HEIGHT, PLAN, FULL, CHECK = 0, 1, 2, 3, 4
 KIND_NAMES = {TIE: "tie", HEIGHT: "Z", PLAN: "XY", FULL: "XYZ", CHECK: "check"}
@@ -38,12 +40,31 @@ ANGLE_UNITS = ("deg", "gon", "rad")
 
 @dataclass(frozen=True)
 class Cameras:
-    """Interior orientation per camera. interior: (ncam, 3) columns c, xp, yp (plate units).
-    sigma_interior: (ncam, 3), nan = held fixed, > 0 = observed, inf = free."""
+    """Interior orientation and additional parameters per camera (striptri.lens).
+
+    interior: (ncam, NCP) columns lens.CAMERA_ELEMENTS (c, xp, yp, k1, k2, k3, p1, p2, b1, b2);
+    sigma_interior: (ncam, NCP), nan = held fixed, > 0 = observed, inf = free;
+    convention: (ncam,) lens.PLATE or lens.IMAGE, where the distortion acts.
+    Tables with only the first columns (c, xp, yp) are padded: distortion 0 and held fixed.
+    """
 
     ids: list[str]
     interior: np.ndarray
     sigma_interior: np.ndarray
+    convention: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = len(self.ids)
+        interior = np.zeros((n, NCP))
+        sigma = np.full((n, NCP), np.nan)
+        given = np.asarray(self.interior, dtype=float).reshape(n, -1)
+        given_sigma = np.asarray(self.sigma_interior, dtype=float).reshape(n, -1)
+        interior[:, : given.shape[1]] = given
+        sigma[:, : given_sigma.shape[1]] = given_sigma
+        conv = np.full(n, PLATE, dtype=int) if self.convention is None else np.asarray(self.convention, dtype=int)
+        object.__setattr__(self, "interior", interior)
+        object.__setattr__(self, "sigma_interior", sigma)
+        object.__setattr__(self, "convention", conv.reshape(n).copy())
 
     def __len__(self) -> int:
         return len(self.ids)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .lens import NCP
 from .linearise import GroupSystem
 
 
@@ -66,9 +67,10 @@ class NormalAccumulator:
 class BlockPattern:
     """The block sparsity pattern of N in the full parameter space, computed once per adjustment.
 
-    Full space: 6 columns per photo (centre, rotation unknowns), then 3 per camera (c, xp, yp).
-    A group couples every pair of its photos (6x6 blocks) and, when cameras are estimated, each of
-    its photos with each of their cameras (6x3) and those cameras with each other (3x3). Each
+    Full space: 6 columns per photo (centre, rotation unknowns), then NCP per camera
+    (lens.CAMERA_ELEMENTS). A group couples every pair of its photos (6x6 blocks) and, when
+    cameras are estimated, each of its photos with each of their cameras (6 x NCP) and those
+    cameras with each other (NCP x NCP). Each
     iteration fills the blocks' numbers (:class:`PatternAccumulator`) and the reduced N of the
     free unknowns is ``S^T N_full S`` with the 0/1 selection S of ``selection_matrix`` (fixed
     elements dropped, tied elements summed).
@@ -89,7 +91,7 @@ class BlockPattern:
         self.pc = np.unique(np.concatenate(pc)) if pc else np.zeros(0, dtype=np.int64)
         self.cc = np.unique(np.concatenate(cc + [np.arange(n_cameras, dtype=np.int64) * (n_cameras + 1)])) \
             if with_cameras else np.zeros(0, dtype=np.int64)
-        self.n_full = 6 * n_photos + 3 * n_cameras
+        self.n_full = 6 * n_photos + NCP * n_cameras
         self._rows, self._cols = self._full_indices()
 
     @staticmethod
@@ -115,24 +117,30 @@ class BlockPattern:
         if self.with_cameras:
             nc = self.n_cameras
             p, c = np.divmod(self.pc, nc)
-            i, j = np.meshgrid(np.arange(6), np.arange(3), indexing="ij")
+            i, j = np.meshgrid(np.arange(6), np.arange(NCP), indexing="ij")
             r_pc = (6 * p[:, None, None] + i).ravel()
-            c_pc = (6 * n + 3 * c[:, None, None] + j).ravel()
+            c_pc = (6 * n + NCP * c[:, None, None] + j).ravel()
             rows += [r_pc, c_pc]
             cols += [c_pc, r_pc]
             ca, cb = np.divmod(self.cc, nc)
-            i3, j3 = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
-            rows.append((6 * n + 3 * ca[:, None, None] + i3).ravel())
-            cols.append((6 * n + 3 * cb[:, None, None] + j3).ravel())
+            i3, j3 = np.meshgrid(np.arange(NCP), np.arange(NCP), indexing="ij")
+            rows.append((6 * n + NCP * ca[:, None, None] + i3).ravel())
+            cols.append((6 * n + NCP * cb[:, None, None] + j3).ravel())
         return np.concatenate(rows), np.concatenate(cols)
 
     def matrix(self, pp, pc, cc) -> sp.csr_matrix:
-        """N_full from the block data: pp (nb, 6, 6), pc (nbpc, 6, 3), cc (nbcc, 3, 3)."""
+        """N_full from the block data: pp (nb, 6, 6), pc (nbpc, 6, NCP), cc (nbcc, NCP, NCP)."""
         data = [pp.ravel()]
         if self.with_cameras:
             data += [pc.ravel(), pc.ravel(), cc.ravel()]
         data = np.concatenate(data)
         return sp.csr_matrix((data, (self._rows, self._cols)), shape=(self.n_full, self.n_full))
+
+
+def ray_columns(pattern: BlockPattern, photo: np.ndarray, cam: np.ndarray) -> np.ndarray:
+    """Full-space columns (m, k, 6 + NCP) of each ray's photo and camera elements."""
+    return np.concatenate(
+        [6 * photo[..., None] + np.arange(6), 6 * pattern.n_photos + NCP * cam[..., None] + np.arange(NCP)], -1)
 
 
 def selection_matrix(photo_cols: np.ndarray, camera_cols: np.ndarray, n_unknowns: int) -> sp.csr_matrix:
@@ -150,8 +158,8 @@ class PatternAccumulator:
     def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
         self.pattern, self.S = pattern, S
         self.pp = np.zeros(len(pattern.pp) * 36)
-        self.pc = np.zeros(len(pattern.pc) * 18)
-        self.cc = np.zeros(len(pattern.cc) * 9)
+        self.pc = np.zeros(len(pattern.pc) * 6 * NCP)
+        self.cc = np.zeros(len(pattern.cc) * NCP * NCP)
         self.u_full = np.zeros(pattern.n_full)
         self.ug_full = np.zeros(pattern.n_full)
         self.wPw = 0.0
@@ -159,16 +167,15 @@ class PatternAccumulator:
         self.extra = NormalAccumulator(S.shape[1])
 
     def add_groups(self, Bw, ww, gw, photo, cam) -> None:
-        """Bw: (m, nc, 9k) whitened B with 9 columns per ray (6 photo, 3 camera); photo, cam: (m, k)."""
+        """Bw: (m, nc, wk) whitened B with w columns per ray (6 photo, then NCP camera when the
+        cameras are estimated); photo, cam: (m, k)."""
         m, k = photo.shape
         pat = self.pattern
         self.wPw += float(np.sum(ww * ww))
         self.gPg += float(np.sum(gw * gw))
-        full_cols = np.concatenate(
-            [6 * photo[..., None] + np.arange(6), 6 * pat.n_photos + 3 * cam[..., None] + np.arange(3)], -1
-        )  # (m, k, 9)
+        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + NCP)
         if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
-            Bw = Bw.reshape(m, -1, k, 9)[..., :6].reshape(m, -1, 6 * k)
+            Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
             full_cols = full_cols[..., :6]
         width = full_cols.shape[-1]
         BwT = np.swapaxes(Bw, 1, 2)
@@ -183,10 +190,10 @@ class PatternAccumulator:
         self.u_full += np.bincount(full_cols.ravel(), weights=uloc.ravel(), minlength=pat.n_full)
         self.ug_full += np.bincount(full_cols.ravel(), weights=ugloc.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
-            flat = (pos_pc[..., None] * 18 + np.arange(18)).ravel()
+            flat = (pos_pc[..., None] * 6 * NCP + np.arange(6 * NCP)).ravel()
             block = Nloc[:, :, :6, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
             self.pc += np.bincount(flat, weights=block, minlength=len(self.pc))
-            flat = (pos_cc[..., None] * 9 + np.arange(9)).ravel()
+            flat = (pos_cc[..., None] * NCP * NCP + np.arange(NCP * NCP)).ravel()
             block = Nloc[:, :, 6:, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
             self.cc += np.bincount(flat, weights=block, minlength=len(self.cc))
 
@@ -196,7 +203,7 @@ class PatternAccumulator:
 
     def finish(self) -> "PatternAccumulator":
         pat, S = self.pattern, self.S
-        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, 3), self.cc.reshape(-1, 3, 3))
+        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, NCP), self.cc.reshape(-1, NCP, NCP))
         self.N = (S.T @ N_full @ S).tocsr() + self.extra.N
         self.N.sum_duplicates()
         self.u = S.T @ self.u_full + self.extra.u

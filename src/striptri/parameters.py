@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .lens import NCP, PLATE, has_distortion
 from .model import Project
 from .rotations import R_from_angles, angles_from_R, angles_jacobian, exp_so3
 
@@ -29,8 +30,18 @@ class State:
 
     R: np.ndarray
     xyz0: np.ndarray
-    interior: np.ndarray
+    interior: np.ndarray  # (ncam, NCP) lens.CAMERA_ELEMENTS
     camera_of_photo: np.ndarray
+    convention: np.ndarray | None = None  # (ncam,) lens.PLATE / lens.IMAGE (None: all PLATE)
+
+    def __post_init__(self):
+        if self.convention is None:
+            object.__setattr__(self, "convention", np.full(len(self.interior), PLATE, dtype=int))
+
+    def camera_terms(self, photo_index: np.ndarray):
+        """Camera elements (..., NCP) and conventions (...,) of the photos photo_index (...)."""
+        cam = self.camera_of_photo[photo_index]
+        return self.interior[cam], self.convention[cam]
 
     def updated(self, layout: "UnknownLayout", dx: np.ndarray) -> "State":
         """Apply a correction vector (DESIGN section 4: x <- x (+) dx)."""
@@ -42,17 +53,28 @@ class State:
         R = self.R @ exp_so3(d_rot)
         R = layout.restore_fixed_angles(R)
         interior = self.interior + dxp[layout.camera_cols]
-        return State(R=R, xyz0=xyz0, interior=interior, camera_of_photo=self.camera_of_photo)
+        return State(R=R, xyz0=xyz0, interior=interior, camera_of_photo=self.camera_of_photo,
+                     convention=self.convention)
 
 
 @dataclass(frozen=True)
 class UnknownLayout:
     photo_cols: np.ndarray  # (n, 6) int, -1 = fixed
-    camera_cols: np.ndarray  # (ncam, 3) int, -1 = fixed
+    camera_cols: np.ndarray  # (ncam, NCP) int, -1 = fixed
     n_unknowns: int
     convention: str
     angle_fixed: np.ndarray  # (n, 3) bool
     fixed_angles: np.ndarray  # (n, 3) radians (used where angle_fixed)
+
+    @property
+    def camera_width(self) -> int:
+        """Camera columns per ray in the linearised equations: NCP when some camera element is
+        estimated, else 0 (the rays then carry only their photo's 6 columns)."""
+        return NCP if bool((self.camera_cols >= 0).any()) else 0
+
+    def lens_in_play(self, state: "State") -> bool:
+        """True when some additional parameter (k, p, b) is nonzero or estimated."""
+        return has_distortion(state.interior, self.camera_cols >= 0)
 
     @property
     def partial_rotation(self) -> np.ndarray:
@@ -165,10 +187,10 @@ def build_layout(project: Project) -> UnknownLayout:
             if not all_fixed and not fixed_ang[i, a]:
                 photo_cols[i, 3 + a] = col
                 col += 1
-    camera_cols = -np.ones((len(cams), 3), dtype=int)
+    camera_cols = -np.ones((len(cams), NCP), dtype=int)
     free_or_observed = ~np.isnan(cams.sigma_interior) & ~(cams.sigma_interior == 0)
     for j in range(len(cams)):
-        for e in range(3):
+        for e in range(NCP):
             if free_or_observed[j, e]:
                 camera_cols[j, e] = col
                 col += 1
@@ -202,6 +224,7 @@ def initial_state(project: Project, offset: np.ndarray) -> State:
         xyz0=xyz0,
         interior=project.cameras.interior.copy(),
         camera_of_photo=project.photos.camera_index.copy(),
+        convention=project.cameras.convention.copy(),
     )
 
 

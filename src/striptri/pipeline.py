@@ -22,6 +22,7 @@ from .groups import rays_per_point
 from .io.csvtable import format_csv
 from .io.output import write_output_folder
 from .io.project_reader import RADIANS_PER_UNIT, read_project
+from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, GIVEN_AXES, KIND_NAMES, Project
 from .rotations import angles_from_R
 from .triangulation import Triangulated, triangulate
@@ -182,7 +183,7 @@ def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulat
         s.R, s.xyz0, s.interior[s.camera_of_photo], lay.rotation_maps(s), lay.photo_cols, lay.camera_cols,
         s.camera_of_photo, ip.photo_index, ip.point_index, result.plate_adjusted, ip.sigma_xy,
         len(project.points), np.where(given_mask, result.control_adjusted, 0.0), given_mask, obs.q_control,
-        result.covariance,
+        result.covariance, convention_photo=s.convention[s.camera_of_photo], xy_measured=ip.xy,
     )
 
 
@@ -222,12 +223,15 @@ def camera_table(project: Project, result: AdjustmentResult) -> dict:
     sig = result.camera_mean_errors()
     estimated = result.layout.camera_cols >= 0
     cols = {"camera_id": cams.ids}
-    for e, name in enumerate(("c", "xp", "yp")):
-        cols[name] = result.state.interior[:, e]
-    cols["k1"] = np.zeros(len(cams))
-    cols["k2"] = np.zeros(len(cams))
-    for e, name in enumerate(("c", "xp", "yp")):
-        cols[f"sigma_{name}"] = np.where(estimated[:, e], sig[:, e], np.nan)
+    # the contract's columns (c, xp, yp, k1, k2, their sigmas), then the other additional
+    # parameters, the distortion convention and their sigmas (docs/camera-model.md)
+    for first, last in ((0, 5), (5, len(CAMERA_ELEMENTS))):
+        for e in range(first, last):
+            cols[CAMERA_ELEMENTS[e]] = result.state.interior[:, e]
+        if first:
+            cols["distortion"] = [CONVENTION_NAMES[int(c)] for c in result.state.convention]
+        for e in range(first, last):
+            cols[f"sigma_{CAMERA_ELEMENTS[e]}"] = np.where(estimated[:, e], sig[:, e], np.nan)
     return cols
 
 

@@ -91,7 +91,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
     form no group). Returns (n_points, 3, 3) cofactors (times sigma0^2 for covariances).
     """
     from .groups import build_batches
-    from .triangulation import _collinearity_jacobians
+    from .triangulation import ray_terms
 
     obs = observations_of(project, result.offset)
     sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
@@ -111,11 +111,16 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         # the intersection's derivatives, rays in the group's chain order
         ph = chunk.photo_index
         R, O = state.R[ph], state.xyz0[ph]
-        interior = state.interior[state.camera_of_photo[ph]]
+        params, conv = state.camera_terms(ph)
         X = tri.xyz[chunk.point_index]
-        _, dX, dO, drot, dint = _collinearity_jacobians(R, O, interior, X)
+        rows = chunk.image_rows
+        _, dX, dO, drot, dcam = ray_terms(R, O, params, conv, X, result.plate_adjusted[rows], obs.plate[rows],
+                                          result.layout.lens_in_play(state))
         T = sweep.T[ph]
-        J_x = np.concatenate([dO, np.einsum("mkai,mkij->mkaj", drot, T), dint], 3)  # (m, k, 2, 9)
+        J_parts = [dO, np.einsum("mkai,mkij->mkaj", drot, T)]
+        if result.layout.camera_width:
+            J_parts.append(dcam)
+        J_x = np.concatenate(J_parts, 3)  # (m, k, 2, 6 + camera_width): the columns of s.cols
         JX = dX.reshape(m, 2 * k, 3)
         p_plate = 1.0 / s.Q[:, : 2 * k]
         n_obs = s.Q.shape[1]
@@ -137,7 +142,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         F[:, :, : 2 * k] = np.einsum("mij,mrj,mr->mir", Qm, JX, p_plate)
         if chunk.has_control:
             F[:, :, 2 * k:] = Qm * p_c[:, None, :]
-        G = -np.einsum("mika,mkac->mikc", F[:, :, : 2 * k].reshape(m, 3, k, 2), J_x).reshape(m, 3, 9 * k)
+        G = -np.einsum("mika,mkac->mikc", F[:, :, : 2 * k].reshape(m, 3, k, 2), J_x).reshape(m, 3, -1)
         cross = np.einsum("miu,muo,mjo->mij", G, Qxl, F)
         out[chunk.point_index] = (np.einsum("miu,muv,mjv->mij", G, Qloc, G) + np.einsum("mio,mop,mjp->mij", F, Qll, F)
                                   + cross + np.swapaxes(cross, 1, 2))

@@ -19,6 +19,7 @@ import numpy as np
 
 from .camera import plate_vector, project, ray_ground
 from .conditions import coplanarity, ray_chain, RayConditions
+from .lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
 from .rotations import skew
 
 
@@ -133,10 +134,25 @@ def _collinearity_jacobians(R, O, interior, X):
     return xy, dX, -dX, drot, dint
 
 
+def ray_terms(R, O, params, convention, X, xy_obs, xy_measured=None, with_lens: bool = True):
+    """Collinearity of rays (m, k) in the residual space of the camera model (striptri.lens):
+    residual ``obs - pred`` (m, k, 2) and the derivatives of the prediction with respect to X,
+    the centre, the rotation vector (m, k, 2, 3) and the camera elements (m, k, 2, NCP).
+    params: (m, k, NCP); convention: (m, k); X: (m, 3); xy_obs, xy_measured: as
+    lens.projection_terms. with_lens=False: no additional parameter is nonzero or estimated."""
+    pred, dX, dO, drot, dint = _collinearity_jacobians(R, O, params[..., :3], X)
+    if not with_lens:
+        dcam = np.zeros(dint.shape[:-1] + (NCP,))
+        dcam[..., :3] = dint
+        return xy_obs - pred, dX, dO, drot, dcam
+    t = projection_terms(pred, xy_obs, params, convention, xy_measured)
+    return t.obs - t.pred, t.d_ideal @ dX, t.d_ideal @ dO, t.d_ideal @ drot, t.d_camera
+
+
 def triangulate(
     R_photo, O_photo, interior_photo, rotation_maps, photo_cols, camera_cols, camera_of_photo,
     photo_index, point_index, xy_plate, sigma_xy, n_points, xyz_given, given_mask, q_given, Qxx=None,
-    iterations: int = 6,
+    iterations: int = 6, convention_photo=None, xy_measured=None,
 ) -> Triangulated:
     """Least-squares coordinates of every point from its rays, with given coordinates.
 
@@ -147,8 +163,18 @@ def triangulate(
     a dense array or a covariance.Covariance) is given, an orientation part ``G Qxx G^T`` with ``G = -(J^T P J + P_given)^-1 J^T P J_orient``
     (Schmid 87-90), both without the factor sigma0^2.
 
-    R_photo, O_photo: per photo; photo_index, point_index, xy_plate, sigma_xy: per image point.
+    R_photo, O_photo: per photo; interior_photo (n_photos, NCP) and convention_photo (n_photos,)
+    the camera elements and lens convention of each photo's camera (striptri.lens; None: plate);
+    photo_index, point_index, xy_plate, sigma_xy, xy_measured: per image point (xy_measured: the
+    measurements when xy_plate are adjusted observations, see lens.ideal_from_observed).
     """
+    interior_photo = np.asarray(interior_photo, dtype=float)
+    if interior_photo.shape[-1] < NCP:
+        interior_photo = np.concatenate(
+            [interior_photo, np.zeros(interior_photo.shape[:-1] + (NCP - interior_photo.shape[-1],))], -1)
+    if convention_photo is None:
+        convention_photo = np.zeros(len(interior_photo), dtype=int)
+    with_lens = has_distortion(interior_photo) or bool((np.asarray(camera_cols)[..., DISTORTION_ELEMENTS] >= 0).any())
     xyz = np.full((n_points, 3), np.nan)
     cov_m = np.zeros((n_points, 3, 3))
     cov_o = np.zeros((n_points, 3, 3))
@@ -169,19 +195,21 @@ def triangulate(
         rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
         ph = photo_index[rows]
         R, O = R_photo[ph], O_photo[ph]
-        interior = interior_photo[ph]
+        interior, conv = interior_photo[ph], convention_photo[ph]
+        xy_obs = xy_plate[rows]
+        meas = None if xy_measured is None else xy_measured[rows]
         free = ~fixed[sel]  # (m, 3)
-        X = _initial_points(R, O, interior, xy_plate[rows], xyz_given[sel], given_mask[sel])
+        xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
+        X = _initial_points(R, O, interior[..., :3], xy_ray, xyz_given[sel], given_mask[sel])
         Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
         wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
         for _ in range(iterations):
-            pred, dX, *_ = _collinearity_jacobians(R, O, interior, X)
-            res = xy_plate[rows] - pred  # (m, k, 2)
+            res, dX, *_ = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
             Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
             gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - X)
             Nx, gx = _hold(Nx, gx, free)
             X = X + np.linalg.solve(Nx, gx[..., None])[..., 0]
-        pred, dX, dO, drot, dint = _collinearity_jacobians(R, O, interior, X)
+        _, dX, dO, drot, dint = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
         Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
         Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
         Qm = np.linalg.inv(Nx) * (free[:, :, None] & free[:, None, :])
@@ -191,14 +219,14 @@ def triangulate(
         if Qxx is not None and n_unknowns_of(Qxx):
             T = rotation_maps[ph]
             drot_u = np.einsum("mkai,mkij->mkaj", drot, T)
-            J = np.concatenate([dO, drot_u, dint], 3)  # (m, k, 2, 9)
-            cols = np.concatenate([photo_cols[ph], camera_cols[camera_of_photo[ph]]], 2)  # (m, k, 9)
+            J = np.concatenate([dO, drot_u, dint], 3)  # (m, k, 2, 6 + NCP)
+            cols = np.concatenate([photo_cols[ph], camera_cols[camera_of_photo[ph]]], 2)  # (m, k, 6 + NCP)
             m = len(sel)
             JX = dX.reshape(m, 2 * k, 3)
             G_rows = -np.einsum("mij,mrj,mr->mir", Qm, JX, wxy.reshape(m, 2 * k))  # dX/d(plate)
-            # rows 2j, 2j+1 of the plate coordinates depend on the 9 unknowns of ray j only
-            Gfull = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J).reshape(m, 3, 9 * k)
-            colflat = cols.reshape(m, 9 * k)
+            # rows 2j, 2j+1 of the plate coordinates depend on the unknowns of ray j only
+            Gfull = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J).reshape(m, 3, -1)
+            colflat = cols.reshape(m, -1)
             Qloc = qxx_entries(Qxx, colflat[:, :, None], colflat[:, None, :])  # -1 reads zeros
             Qo = np.einsum("mic,mcd,mjd->mij", Gfull, Qloc, Gfull)
             cov_o[sel[ok]] = Qo[ok]

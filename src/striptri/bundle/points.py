@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import ray_ground
+from ..lens import ideal_from_observed
 from ..groups import GroupBatch
 from ..linearise import Observations
 from ..model import GIVEN_AXES, Project
@@ -102,8 +103,9 @@ def initial_points(batches: list[GroupBatch], state: State, obs: Observations, u
 
 def _rays(chunk: GroupBatch, state: State, obs: Observations):
     ph = chunk.photo_index
-    interior = state.interior[state.camera_of_photo[ph]]
-    return state.xyz0[ph], ray_ground(state.R[ph], obs.plate[chunk.image_rows], interior)
+    params, conv = state.camera_terms(ph)
+    xy = ideal_from_observed(obs.plate[chunk.image_rows], params, conv).xy
+    return state.xyz0[ph], ray_ground(state.R[ph], xy, params[..., :3])
 
 
 def _height_on_ray(O0, r0, xy_given, z_fallback: float) -> np.ndarray:

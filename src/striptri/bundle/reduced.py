@@ -3,8 +3,8 @@
 For a chunk of m points seen by k photos each, the whitened observation equations are
 ``Jc dx + Jp dX = e + v~`` (plate coordinates, ``e = (l - f(x^, X^)) / sigma``) plus
 ``dX = (given - X^) + v~`` times ``1/sigma`` for weighted control coordinates. Per point, with
-its orientation unknowns ``c`` (the 9 columns of each of its rays: centre, rotation unknowns,
-camera c, xp, yp; -1 = held) and its coordinates ``p``:
+its orientation unknowns ``c`` (the columns of each of its rays: centre, rotation unknowns and,
+when cameras are estimated, the NCP camera elements; -1 = held) and its coordinates ``p``:
 
     N_pp = Jp^T Jp + P_control          b_p = Jp^T e + P_control (given - X^)
     N_cp = Jc^T Jp                      b_c = Jc^T e
@@ -25,20 +25,18 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..groups import GroupBatch
+from ..lens import NCP, projection_terms
 from ..linearise import Observations
-from ..normal_equations import BlockPattern, selection_matrix
+from ..normal_equations import BlockPattern, ray_columns, selection_matrix
 from ..parameters import State, UnknownLayout
 from .collinearity import collinearity_jacobians
 from .points import PointUnknowns
-
-N_RAY = 9  # orientation columns per ray: centre (3), rotation unknowns (3), camera c, xp, yp
-
 
 @dataclass
 class PointChunk:
     """A chunk of m points with k rays each, linearised and whitened (module doc).
 
-    cols: (m, k, 9) global columns (-1 = held); Jc: (m, k, 2, 9); Jp: (m, k, 2, 3); e: (m, k, 2);
+    cols: (m, k, w) global columns (-1 = held); Jc: (m, k, 2, w) (w = 6 + layout.camera_width); Jp: (m, k, 2, 3); e: (m, k, 2);
     sigma: (m, k, 2) plate standard deviations; N_pp: (m, 3, 3); b_p: (m, 3); free: (m, 3);
     weight: (m, 3) control weights; control_misclosure: (m, 3) given - X^ (0 where not weighted).
     """
@@ -59,7 +57,7 @@ class PointChunk:
     def N_cp(self) -> np.ndarray:
         """(m, 9k, 3), rows in the order of ``cols.reshape(m, 9k)``."""
         m, k = self.e.shape[:2]
-        return np.einsum("mkai,mkaj->mkij", self.Jc, self.Jp).reshape(m, N_RAY * k, 3)
+        return np.einsum("mkai,mkaj->mkij", self.Jc, self.Jp).reshape(m, -1, 3)
 
     def sum_of_squares(self) -> float:
         """e^T e of the plate and control observations at the linearisation point."""
@@ -74,16 +72,30 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     """
     ph, rows, pt = batch.photo_index, batch.image_rows, batch.point_index
     cam = state.camera_of_photo[ph]
+    params, conv = state.camera_terms(ph)
     X = xyz[pt]
-    jac = collinearity_jacobians(state.R[ph], state.xyz0[ph], state.interior[cam], X[:, None, :])
-    d_rot = jac.d_rot @ rotation_maps[ph]  # (m, k, 2, 3): w.r.t. the photo's rotation unknowns
+    jac = collinearity_jacobians(state.R[ph], state.xyz0[ph], params[..., :3], X[:, None, :])
+    d_point, d_centre, d_rot = jac.d_point, jac.d_centre, jac.d_rot @ rotation_maps[ph]
+    xy_obs = obs.plate[rows]
+    if layout.lens_in_play(state):  # residual space and derivatives of the camera model (lens.py)
+        terms = projection_terms(jac.xy, xy_obs, params, conv)
+        d_point, d_centre, d_rot = terms.d_ideal @ d_point, terms.d_ideal @ d_centre, terms.d_ideal @ d_rot
+        d_camera, e = terms.d_camera, terms.obs - terms.pred
+    else:
+        d_camera = np.zeros(jac.d_interior.shape[:-1] + (NCP,))
+        d_camera[..., :3] = jac.d_interior
+        e = xy_obs - jac.xy
     sigma = np.sqrt(obs.q_plate[rows])
     s = (1.0 / sigma)[..., None]
-    Jc = np.concatenate([jac.d_centre, d_rot, jac.d_interior], -1) * s
+    parts, col_parts = [d_centre, d_rot], [layout.photo_cols[ph]]
+    if layout.camera_width:
+        parts.append(d_camera)
+        col_parts.append(layout.camera_cols[cam])
+    Jc = np.concatenate(parts, -1) * s
     free = unknowns.free[pt]
-    Jp = jac.d_point * s * free[:, None, None, :]
-    e = (obs.plate[rows] - jac.xy) / sigma
-    cols = np.concatenate([layout.photo_cols[ph], layout.camera_cols[cam]], -1)
+    Jp = d_point * s * free[:, None, None, :]
+    e = e / sigma
+    cols = np.concatenate(col_parts, -1)
     weight = unknowns.weight[pt]
     control_misclosure = np.where(weight > 0, unknowns.given[pt] - X, 0.0)
     N_pp = np.einsum("mkai,mkaj->mij", Jp, Jp)
@@ -102,8 +114,9 @@ def reduce_points(chunk: PointChunk):
     N_loc = -(Y @ np.swapaxes(N_cp, 1, 2))
     N_cc = np.einsum("mkai,mkaj->kmij", chunk.Jc, chunk.Jc)  # rays of a point: block diagonal
     ray = np.arange(k)
-    N_loc.reshape(m, k, N_RAY, k, N_RAY)[:, ray, :, ray, :] += N_cc
-    b_c = np.einsum("mkai,mka->mki", chunk.Jc, chunk.e).reshape(m, N_RAY * k)
+    width = chunk.Jc.shape[-1]
+    N_loc.reshape(m, k, width, k, width)[:, ray, :, ray, :] += N_cc
+    b_c = np.einsum("mkai,mka->mki", chunk.Jc, chunk.e).reshape(m, width * k)
     b_loc = b_c - np.einsum("mci,mi->mc", Y, chunk.b_p)
     reduced = np.einsum("mi,mij,mj->m", chunk.b_p, N_pp_inv, chunk.b_p)
     return N_loc, b_loc, reduced
@@ -115,7 +128,7 @@ def point_corrections(chunk: PointChunk, dx: np.ndarray):
     m, k = chunk.e.shape[:2]
     dxp = np.concatenate([dx, [0.0]])
     dx_loc = dxp[chunk.cols]  # (m, k, 9); column -1 reads 0
-    rhs = chunk.b_p - np.einsum("mci,mc->mi", chunk.N_cp, dx_loc.reshape(m, N_RAY * k))
+    rhs = chunk.b_p - np.einsum("mci,mc->mi", chunk.N_cp, dx_loc.reshape(m, -1))
     dX = np.linalg.solve(chunk.N_pp, rhs[..., None])[..., 0]
     v_plate = (np.einsum("mkai,mki->mka", chunk.Jc, dx_loc) + np.einsum("mkai,mi->mka", chunk.Jp, dX)
                - chunk.e)
@@ -145,8 +158,8 @@ class ReducedNormals:
         self.pattern, self.S = pattern, S
         self.n = S.shape[1]
         self.pp = np.zeros(len(pattern.pp) * 36)
-        self.pc = np.zeros(len(pattern.pc) * 18)
-        self.cc = np.zeros(len(pattern.cc) * 9)
+        self.pc = np.zeros(len(pattern.pc) * 6 * NCP)
+        self.cc = np.zeros(len(pattern.cc) * NCP * NCP)
         self.b_full = np.zeros(pattern.n_full)
         self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.ug = np.zeros(self.n)
@@ -162,19 +175,18 @@ class ReducedNormals:
         cam = camera_of_photo[photo]
         m, k = photo.shape
         pat = self.pattern
-        N5 = N_loc.reshape(m, k, N_RAY, k, N_RAY)
+        width = chunk.Jc.shape[-1]
+        N5 = N_loc.reshape(m, k, width, k, width)
         pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
         self.pp += _scatter(pos_pp, N5[:, :, :6, :, :6], 36, len(self.pp))
-        full_cols = np.concatenate(
-            [6 * photo[..., None] + np.arange(6), 6 * pat.n_photos + 3 * cam[..., None] + np.arange(3)], -1
-        )  # (m, k, 9)
-        b3 = b_loc.reshape(m, k, N_RAY)
+        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + NCP)
+        b3 = b_loc.reshape(m, k, width)
         if not pat.with_cameras:
             full_cols, b3 = full_cols[..., :6], b3[..., :6]
         self.b_full += np.bincount(full_cols.ravel(), weights=b3.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
-            self.pc += _scatter(pos_pc, N5[:, :, :6, :, 6:], 18, len(self.pc))
-            self.cc += _scatter(pos_cc, N5[:, :, 6:, :, 6:], 9, len(self.cc))
+            self.pc += _scatter(pos_pc, N5[:, :, :6, :, 6:], 6 * NCP, len(self.pc))
+            self.cc += _scatter(pos_cc, N5[:, :, 6:, :, 6:], NCP * NCP, len(self.cc))
         self.ee += chunk.sum_of_squares()
         self.reduced += float(np.sum(reduced))
 
@@ -186,7 +198,7 @@ class ReducedNormals:
 
     def finish(self) -> "ReducedNormals":
         pat, S = self.pattern, self.S
-        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, 3), self.cc.reshape(-1, 3, 3))
+        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, NCP), self.cc.reshape(-1, NCP, NCP))
         N = (S.T @ N_full @ S).tocsr()
         b = S.T @ self.b_full
         for J, cols, e in self.rows:

@@ -29,6 +29,7 @@ import numpy as np
 
 from striptri import model, rotations
 from striptri.errors import InputError
+from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
 from striptri.adjustment import DATUMS, METHODS
 from striptri.io.csvtable import CsvTable, read_csv
 from striptri.solvers import SOLVERS
@@ -193,23 +194,34 @@ def _toml_line(text: str, section: str, key: str) -> int | None:
 
 
 def _read_cameras(table: CsvTable) -> model.Cameras:
-    """cameras.csv: camera_id, c, xp, yp[, k1, k2][, sigma_c, sigma_xp, sigma_yp, sigma_k1, sigma_k2]."""
+    """cameras.csv: camera_id, c, xp, yp[, k1, k2, k3, p1, p2, b1, b2][, distortion]
+    [, sigma_<element> ...] (docs/camera-model.md). Additional parameters default to 0, held."""
     table.require("camera_id", "c", "xp", "yp")
     ids = table.strings("camera_id")
     _check_unique(table, "camera_id", ids)
-    interior = np.column_stack([table.floats(n) for n in ("c", "xp", "yp")]).reshape(-1, 3)
+    n = len(ids)
+    interior = np.zeros((n, NCP))
+    interior[:, :3] = np.column_stack([table.floats(name) for name in ("c", "xp", "yp")]).reshape(-1, 3)
     for i in np.flatnonzero(interior[:, 0] <= 0):
         raise table.error(i, f"principal distance c must be > 0 (got {table.rows[i][table.header.index('c')]})")
-    for name in ("k1", "k2", "sigma_k1", "sigma_k2"):
-        values = table.optional_floats(name, keywords={"free": math.inf} if name.startswith("sigma") else None)
-        for i in np.flatnonzero(np.nan_to_num(values, nan=0.0) != 0):
-            raise table.error(
-                i, f"{name}: radial distortion k1, k2 is not supported yet (planned: camera model issue)"
-            )
+    for j, name in enumerate(CAMERA_ELEMENTS[3:], start=3):
+        interior[:, j] = np.nan_to_num(table.optional_floats(name), nan=0.0)
     sigma = np.column_stack(
-        [_sigma_column(table, f"sigma_{n}", zero_means_fixed=True, free_word=True) for n in ("c", "xp", "yp")]
-    ).reshape(-1, 3)
-    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma)
+        [_sigma_column(table, f"sigma_{name}", zero_means_fixed=True, free_word=True) for name in CAMERA_ELEMENTS]
+    ).reshape(-1, NCP)
+    convention = np.zeros(n, dtype=int)
+    for i, word in enumerate(table.optional_strings("distortion", "plate")):
+        word = word.strip().lower() or "plate"
+        if word not in CONVENTIONS:
+            raise table.error(i, f"distortion must be 'plate' (the measured coordinates are corrected, "
+                                 f"DBAT/photogrammetry) or 'image' (applied to the projected point, "
+                                 f"BAL/COLMAP/OpenCV), not '{word}'")
+        convention[i] = CONVENTIONS[word]
+    affine = (interior[:, B1:] != 0) | ~np.isnan(sigma[:, B1:])
+    for i in np.flatnonzero((convention == IMAGE) & affine.any(axis=1)):
+        raise table.error(i, "b1, b2 (affinity, shear) belong to the plate convention; with distortion = image "
+                             "they must be empty or 0 and held")
+    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma, convention=convention)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from striptri import model
+from striptri.lens import CAMERA_ELEMENTS, CONVENTION_NAMES, has_distortion
 from striptri.io.csvtable import format_csv
 from striptri.io.output import write_output_folder
 from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES, RADIANS_PER_UNIT
@@ -85,11 +86,16 @@ def settings_toml(settings: model.ProjectSettings) -> str:
 
 
 def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
-    """cameras.csv: sigma nan -> empty (held fixed), inf -> 'free'."""
+    """cameras.csv: sigma nan -> empty (held fixed), inf -> 'free'. The additional parameters and
+    the distortion convention are written only when some camera uses them."""
     columns: dict[str, Sequence] = {"camera_id": cameras.ids}
-    for j, name in enumerate(("c", "xp", "yp")):
+    extended = has_distortion(cameras.interior, ~np.isnan(cameras.sigma_interior)) or bool(np.any(cameras.convention))
+    names = CAMERA_ELEMENTS if extended else CAMERA_ELEMENTS[:3]
+    for j, name in enumerate(names):
         columns[name] = cameras.interior[:, j]
-    for j, name in enumerate(("c", "xp", "yp")):
+    if extended:
+        columns["distortion"] = [CONVENTION_NAMES[int(c)] for c in cameras.convention]
+    for j, name in enumerate(names):
         columns[f"sigma_{name}"] = [_camera_sigma(s) for s in cameras.sigma_interior[:, j]]
     return columns
 

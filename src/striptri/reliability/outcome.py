@@ -8,11 +8,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..adjustment import AdjustmentResult, observations_of
-from ..camera import project as project_on_plate
 from ..groups import build_batches
 from ..model import GIVEN_AXES, Project
 from ..parameters import with_state
-from ..triangulation import Triangulated, triangulate
+from ..triangulation import Triangulated, ray_terms, triangulate
 from .measures import ALPHA0, BETA0, PlateReliability, row_abs, row_statistic
 
 FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED = "", "suspect", "rejected", "dropped"
@@ -183,6 +182,7 @@ def triangulate_adjusted(adjusted: Project, result: AdjustmentResult) -> Triangu
         s.R, s.xyz0, s.interior[s.camera_of_photo], lay.rotation_maps(s), lay.photo_cols, lay.camera_cols,
         s.camera_of_photo, aip.photo_index[use], aip.point_index[use], result.plate_adjusted[use], aip.sigma_xy[use],
         len(pts), np.where(given, result.control_adjusted, 0.0), given, obs.q_control,
+        convention_photo=s.convention[s.camera_of_photo], xy_measured=aip.xy[use],
     )
 
 
@@ -195,9 +195,11 @@ def predicted_residuals(project: Project, adjusted: Project, result: AdjustmentR
     ip = project.image_points
     ph, pt = ip.photo_index[rows], ip.point_index[rows]
     X = np.where(tri.determined[pt, None], tri.xyz[pt], np.nan)
+    params, conv = s.camera_terms(ph)
     with np.errstate(invalid="ignore", divide="ignore"):
-        xy = project_on_plate(s.R[ph], s.xyz0[ph], s.interior[s.camera_of_photo[ph]], X)
-    return xy - ip.xy[rows]
+        res, *_ = ray_terms(s.R[ph][:, None], s.xyz0[ph][:, None], params[:, None], conv[:, None], X,
+                            ip.xy[rows][:, None], with_lens=result.layout.lens_in_play(s))
+    return -res[:, 0]
 
 
 def blunder_result(method: str, project: Project, adjusted: Project, result: AdjustmentResult,

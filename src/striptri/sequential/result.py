@@ -37,7 +37,7 @@ from ..conditions import collinearity
 from ..model import Project
 from ..parameter_observations import build_parameter_observations
 from ..parameters import State, build_layout, with_state
-from .strip import SequentialOptions, SequentialSolution, triangulate_strip
+from .strip import SequentialOptions, SequentialSolution, distortion_free, triangulate_strip
 
 
 def adjust_sequential(project: Project, options=None) -> AdjustmentResult:
@@ -48,6 +48,7 @@ def adjust_sequential(project: Project, options=None) -> AdjustmentResult:
         options = SequentialOptions()
     elif not isinstance(options, SequentialOptions):
         options = SequentialOptions.from_adjustment_options(options)
+    project = distortion_free(project)
     sol = triangulate_strip(project, options)
     return result_of(project, sol, time.perf_counter() - t0)
 
@@ -56,14 +57,14 @@ def sequential_approximations(project: Project, options: SequentialOptions | Non
     """The project with the approximate orientations replaced by the sequential result (free centres
     and all rotations; observed and fixed elements keep their values, parameters.with_state)."""
     sol = triangulate_strip(project, options or SequentialOptions())
-    state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(),
+    state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(), convention=project.cameras.convention.copy(),
                   camera_of_photo=project.photos.camera_index.copy())
     return with_state(project, state, sol.offset)
 
 
 def _reprojection(project: Project, sol: SequentialSolution) -> np.ndarray:
     ip = project.image_points
-    interior = project.cameras.interior[project.photos.camera_index]
+    interior = project.cameras.interior[project.photos.camera_index, :3]
     X = sol.xyz_ground[ip.point_index]
     ok = np.isfinite(X).all(1)
     v = np.zeros_like(ip.xy)
@@ -75,7 +76,7 @@ def _reprojection(project: Project, sol: SequentialSolution) -> np.ndarray:
 def _conditional_normal_matrix(project: Project, sol: SequentialSolution, layout, state: State) -> sp.csr_matrix:
     """Block-diagonal N (module doc): per photo B^T P B of collinearity with its points held."""
     ip = project.image_points
-    interior = project.cameras.interior[project.photos.camera_index]
+    interior = project.cameras.interior[project.photos.camera_index, :3]
     X = sol.xyz_ground[ip.point_index]
     ok = np.isfinite(X).all(1)
     T = layout.rotation_maps(state)
@@ -104,7 +105,7 @@ def _conditional_normal_matrix(project: Project, sol: SequentialSolution, layout
 
 def result_of(project: Project, sol: SequentialSolution, seconds: float = 0.0) -> AdjustmentResult:
     layout = build_layout(project)
-    state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(),
+    state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(), convention=project.cameras.convention.copy(),
                   camera_of_photo=project.photos.camera_index.copy())
     obs = observations_of(project, sol.offset)
     n_pobs = len(build_parameter_observations(project, sol.offset))

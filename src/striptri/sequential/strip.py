@@ -25,13 +25,14 @@ held at the approximate base length. Then the strip model is fitted to the contr
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..camera import plate_vector
 from ..conditions import closest_scales
 from ..errors import NumericalFailure
+from ..lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
 from ..model import CHECK, GIVEN_AXES, Project
 from ..parameters import reduction_offset
 from ..triangulation import intersect_rays
@@ -196,15 +197,36 @@ def _in_front(R_i, O_i, ro: PhotoStep, interior_i, interior_j) -> bool:
     return bool(np.all(s > 0) and np.all(t > 0))
 
 
+def distortion_free(project: Project) -> Project:
+    """The project with its measurements replaced by their ideal plate points (striptri.lens) and
+    the additional parameters set to 0: the sequential method holds the camera, so the camera
+    model is applied once, before the strip is built (docs/camera-model.md)."""
+    cams, ip = project.cameras, project.image_points
+    free = ~np.isnan(cams.sigma_interior[:, DISTORTION_ELEMENTS]) & (cams.sigma_interior[:, DISTORTION_ELEMENTS] != 0)
+    if free.any():
+        raise NumericalFailure("the sequential method holds the camera; it cannot estimate lens distortion. "
+                               "Use the conditions or bundle method for self-calibration.")
+    if not has_distortion(cams.interior):
+        return project
+    cam = project.photos.camera_index[ip.photo_index]
+    ideal = ideal_from_observed(ip.xy, cams.interior[cam], cams.convention[cam])
+    if not ideal.converged.all():
+        raise NumericalFailure("the lens distortion of some measurements cannot be inverted")
+    interior = cams.interior.copy()
+    interior[:, DISTORTION_ELEMENTS] = 0.0
+    return replace(project, image_points=replace(ip, xy=ideal.xy), cameras=replace(cams, interior=interior))
+
+
 def triangulate_strip(project: Project, options: SequentialOptions | None = None) -> SequentialSolution:
     """Build the strip model photo by photo, then orient it absolutely (module doc)."""
     options = options or SequentialOptions()
     _single_strip(project)
+    project = distortion_free(project)
     ph, ip, pts = project.photos, project.image_points, project.points
     n, n_pt = len(ph), len(pts)
     offset = reduction_offset(project)
     Ra, Oa = ph.R_ground_from_cam, ph.xyz0 - offset
-    interior = project.cameras.interior[ph.camera_index]
+    interior = project.cameras.interior[ph.camera_index, :3]
     order = np.arange(n) if options.direction == "forward" else np.arange(n)[::-1]
     row = -np.ones((n, n_pt), dtype=int)
     row[ip.photo_index, ip.point_index] = np.arange(len(ip))

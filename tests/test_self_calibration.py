@@ -1,0 +1,151 @@
+"""Self-calibration with the camera model of striptri.lens, in both distortion conventions.
+
+* the linearised conditions (B with respect to all ten camera elements, A with respect to the
+  observations) against central differences, as test_jacobians does for the exterior elements;
+* noise-free data: the adjustment recovers the true additional parameters and orientations;
+* with noise: the method of conditions equals the bundle method (module doc of test_bundle:
+  both minimise the same v^T P v; the plate convention's residuals live in the refined
+  coordinates in both, the image convention's in the measured ones).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from test_jacobians import assert_jacobian
+
+from striptri import lens, model
+from striptri import simulate as sim
+from striptri.adjustment import AdjustmentOptions, adjust, observations_of
+from striptri.groups import build_batches
+from striptri.lens import IMAGE, NCP, PLATE
+from striptri.linearise import evaluate, linearise
+from striptri.parameters import build_layout, initial_state, reduction_offset
+
+H = 1500.0
+FREE = ("k1", "k2", "p1", "p2")
+
+
+def true_lens(convention: int) -> np.ndarray:
+    """Additional parameters of a wide-angle aerial camera (c = 152 mm): radial distortion of
+    about 40 um at 100 mm from the principal point, decentering of a few um, a small affinity."""
+    prm = np.zeros(NCP)
+    if convention == PLATE:
+        prm[lens.K1], prm[lens.K2], prm[lens.P1], prm[lens.P2], prm[lens.B1] = 4e-8, -1e-12, 2e-7, -1.5e-7, 3e-5
+    else:  # normalised coordinates: r_n = r / c
+        prm[lens.K1], prm[lens.K2], prm[lens.P1], prm[lens.P2] = 9e-4, -5e-4, 3e-5, -2e-5
+    return prm
+
+
+def calibration_project(convention: int, noise: sim.NoiseOptions, seed: int = 3, free=FREE):
+    """A 3 x 5 block with 60 % sidelap over rough terrain, every-2 control; the measurements carry
+    the true lens; the camera's chosen elements are free, starting from 0. -> (project, truth, prm)."""
+    design = sim.SyntheticDesign(
+        flight=sim.FlightDesign(n_photos=5, n_strips=3, sidelap=0.6),
+        terrain=sim.TerrainDesign(relief=150.0),
+        points=sim.PointDesign(extra_ties_per_model=12),
+        control=sim.ControlDesign(layout="every-k", every_k=2),
+    )
+    truth = sim.make_truth(design, np.random.default_rng(seed))
+    project = sim.perturb(truth, noise, np.random.default_rng(seed + 1000))
+    prm = np.concatenate([truth.interior, true_lens(convention)[3:]])
+    ip = project.image_points
+    measured = lens.observed_from_ideal(ip.xy, prm, convention)
+    sigma = np.full((1, NCP), np.nan)
+    start = prm.copy()  # held elements at their true values, free additional parameters from 0
+    for name in free:
+        e = lens.CAMERA_ELEMENTS.index(name)
+        sigma[0, e] = np.inf
+        start[e] = start[e] if e < 3 else 0.0
+    cams = model.Cameras(project.cameras.ids, start[None, :], sigma, np.array([convention]))
+    return replace(project, cameras=cams, image_points=replace(ip, xy=measured)), truth, prm
+
+
+@pytest.mark.parametrize("convention", [PLATE, IMAGE])
+def test_linearised_conditions_with_the_camera_model(convention):
+    free = FREE + ("c", "xp", "yp", "k3") + (("b1", "b2") if convention == PLATE else ())
+    project, _, prm = calibration_project(convention, sim.NoiseOptions(), free=free)
+    # evaluate away from zero: the true lens, slightly changed
+    cams = replace(project.cameras, interior=(prm * (1 + 0.1 * np.arange(NCP) / NCP))[None, :])
+    project = replace(project, cameras=cams)
+    offset = reduction_offset(project)
+    state = initial_state(project, offset)
+    layout = build_layout(project)
+    assert layout.camera_width == NCP and (layout.camera_cols >= 0).sum() == len(free)
+    T = layout.rotation_maps(state)
+    obs = observations_of(project, offset)
+    rng = np.random.default_rng(9)
+    plate_hat = obs.plate + rng.normal(0, 1e-3, obs.plate.shape)
+    control_hat = obs.control
+    steps = {"c": 1e-3, "xp": 1e-3, "yp": 1e-3, "k1": 1e-10, "k2": 1e-14, "k3": 1e-19, "p1": 1e-9, "p2": 1e-9,
+             "b1": 1e-6, "b2": 1e-6}
+    if convention == IMAGE:
+        steps.update(k1=1e-6, k2=1e-6, k3=1e-6, p1=1e-7, p2=1e-7)
+    cam_cols = layout.camera_cols[0]
+    for batch in build_batches(project)[:4]:
+        system = linearise(batch, state, layout, T, obs, plate_hat, control_hat)
+        m, nc = system.g.shape
+        lin0 = evaluate(batch, state, plate_hat, control_hat, plate_measured=obs.plate)
+        scale = system.g / lin0.g
+        width = 6 + NCP
+        B_cam = system.B.reshape(m, nc, batch.k, width)[..., 6:].sum(axis=2)  # one camera
+        analytic, numeric = [], []
+        for e, name in enumerate(lens.CAMERA_ELEMENTS):
+            if cam_cols[e] < 0:
+                continue
+            d = np.zeros(layout.n_unknowns)
+            d[cam_cols[e]] = steps[name]
+            gp = evaluate(batch, state.updated(layout, d), plate_hat, control_hat, plate_measured=obs.plate).g
+            gm = evaluate(batch, state.updated(layout, -d), plate_hat, control_hat, plate_measured=obs.plate).g
+            # in units of the element's step, so that each column has the weight of a change in it
+            numeric.append(scale * (gp - gm) / 2)
+            analytic.append(B_cam[..., e] * steps[name])
+        assert_jacobian(np.stack(analytic, -1), np.stack(numeric, -1), 1)
+
+        k = batch.k
+
+        def g_of_plate(lvec):
+            ph = plate_hat.copy()
+            ph[batch.image_rows] = lvec.reshape(m, k, 2)
+            return scale * evaluate(batch, state, ph, control_hat, plate_measured=obs.plate).g
+
+        l0 = plate_hat[batch.image_rows].reshape(m, 2 * k)
+        cols = []
+        for j in range(2 * k):
+            h = np.zeros_like(l0)
+            h[:, j] = 1e-4
+            cols.append((g_of_plate(l0 + h) - g_of_plate(l0 - h)) / 2e-4)
+        assert_jacobian(system.A[:, :, : 2 * k], np.stack(cols, -1), 1)
+
+
+@pytest.mark.parametrize("convention", [PLATE, IMAGE])
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_noise_free_self_calibration_recovers_the_lens(convention, method):
+    project, truth, prm = calibration_project(convention, sim.NoiseOptions(sigma_image=0.0, stated_sigma_image=0.005, sigma_control_xy=0.0,
+                                                                            sigma_control_z=0.0))
+    result = adjust(project, AdjustmentOptions(method=method))
+    assert result.converged
+    got = result.state.interior[0]
+    for name in FREE:
+        e = lens.CAMERA_ELEMENTS.index(name)
+        assert abs(got[e] - prm[e]) <= 1e-7 * abs(prm[e]), (name, got[e], prm[e])
+    centres = result.state.xyz0 + result.offset
+    assert np.abs(centres - truth.xyz0).max() < 1e-7 * H
+
+
+@pytest.mark.parametrize("convention", [PLATE, IMAGE])
+def test_conditions_equal_bundle_with_self_calibration(convention):
+    project, _, _ = calibration_project(convention, sim.NoiseOptions(), seed=5)
+    a = adjust(project, AdjustmentOptions(method="conditions"))
+    b = adjust(project, AdjustmentOptions(method="bundle"))
+    assert a.converged and b.converged
+    assert a.redundancy == b.redundancy
+    np.testing.assert_allclose(a.vtpv, b.vtpv, rtol=1e-7)
+    np.testing.assert_allclose(a.state.xyz0, b.state.xyz0, rtol=0, atol=1e-6 * H)
+    sig = a.camera_mean_errors()[0]
+    cols = a.layout.camera_cols[0] >= 0
+    diff = np.abs(a.state.interior[0] - b.state.interior[0])[cols] / sig[cols]
+    assert diff.max() < 1e-5, diff
+    np.testing.assert_allclose(a.plate_adjusted, b.plate_adjusted, rtol=0, atol=1e-6 * 0.005)
