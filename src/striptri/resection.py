@@ -1,0 +1,112 @@
+"""Spatial resection: the orientation of one photograph from known ground points (approximations
+for close-range projects that come without them, e.g. DBAT's camera calibration).
+
+A closed-form start, then Gauss-Newton on the collinearity equations (Schmid 14):
+
+* coplanar points (a calibration sheet): the plane-to-plate homography ``H ~ R^T [e1 e2 X0 - O]``
+  from the direct linear transformation, split into the rotation and the centre (Zhang 2000);
+* points in general position (six or more): the 3 x 4 direct linear transformation
+  ``P ~ R^T [I | -O]``, its left 3 x 3 block made a rotation by the polar decomposition.
+
+Plate coordinates are ideal (striptri.lens.ideal_from_observed) and reduced to the principal
+point; the camera looks down its -z axis (DESIGN section 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .bundle.collinearity import collinearity_jacobians
+from .rotations import exp_so3
+
+
+@dataclass(frozen=True)
+class Resection:
+    """R_ground_from_cam (3, 3), centre (3,), rms: plate residual RMS after refinement, iterations."""
+
+    R: np.ndarray
+    centre: np.ndarray
+    rms: float
+    iterations: int
+
+
+def _dlt_rows(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rows of the DLT ``dst x (P src) = 0`` for homogeneous src (n, a) and dst (n, 3)."""
+    n, a = src.shape
+    rows = np.zeros((2 * n, 3 * a))
+    rows[0::2, 0:a] = dst[:, 2:3] * src
+    rows[0::2, 2 * a:3 * a] = -dst[:, 0:1] * src
+    rows[1::2, a:2 * a] = dst[:, 2:3] * src
+    rows[1::2, 2 * a:3 * a] = -dst[:, 1:2] * src
+    return rows
+
+
+def _nearest_rotation(M: np.ndarray) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def _closed_form(xy: np.ndarray, X: np.ndarray, c: float):
+    """(R_ground_from_cam, centre) from the linear solution (module doc)."""
+    rays = np.column_stack([xy / c, -np.ones(len(xy))])  # camera-frame directions, z = -1
+    centroid = X.mean(axis=0)
+    _, s, Vt = np.linalg.svd(X - centroid)
+    planar = s[2] <= 1e-3 * s[0]
+    if planar:
+        e1, e2 = Vt[0], Vt[1]
+        e3 = np.cross(e1, e2)
+        uv = (X - centroid) @ np.column_stack([e1, e2])
+        scale = np.abs(uv).max()
+        src = np.column_stack([uv / scale, np.ones(len(X))])
+        H = np.linalg.svd(_dlt_rows(src, rays))[2][-1].reshape(3, 3)
+        H = H @ np.diag([1 / scale, 1 / scale, 1.0])
+        m = src @ np.diag([scale, scale, 1.0]) @ H.T
+        if np.median(m[:, 2]) > 0:  # points in front: m_z < 0
+            H = -H
+        lam = 2.0 / (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
+        r1, r2, t = lam * H[:, 0], lam * H[:, 1], lam * H[:, 2]
+        Rt = _nearest_rotation(np.column_stack([r1, r2, np.cross(r1, r2)]) @ np.vstack([e1, e2, e3]))
+        return Rt.T, centroid - Rt.T @ t
+    if len(X) < 6:
+        raise ValueError("a resection from points in general position needs six of them (four if coplanar)")
+    scale = np.abs(X - centroid).max()
+    src = np.column_stack([(X - centroid) / scale, np.ones(len(X))])
+    P = np.linalg.svd(_dlt_rows(src, rays))[2][-1].reshape(3, 4)
+    m = src @ P.T
+    if np.median(m[:, 2]) > 0:
+        P = -P
+    M = P[:, :3] / scale
+    Rt = _nearest_rotation(M)
+    s = np.trace(Rt.T @ M) / 3.0
+    centre = centroid - np.linalg.solve(M, P[:, 3]) if abs(s) > 0 else centroid
+    return Rt.T, centre
+
+
+def resect(xy: np.ndarray, X: np.ndarray, c: float, iterations: int = 20) -> Resection:
+    """Orientation of a photo from n >= 4 (coplanar) or >= 6 ground points X (n, 3) measured at ideal
+    plate coordinates xy (n, 2) reduced to the principal point, principal distance c.
+    Raises ValueError when the points do not determine the orientation."""
+    xy, X = np.asarray(xy, dtype=float), np.asarray(X, dtype=float)
+    if len(X) < 4:
+        raise ValueError(f"a resection needs at least four known points, this photo has {len(X)}")
+    R, O = _closed_form(xy, X, c)
+    interior = np.array([c, 0.0, 0.0])
+    rms = np.inf
+    for it in range(1, iterations + 1):
+        jac = collinearity_jacobians(R, O, interior, X)
+        e = (xy - jac.xy).ravel()
+        J = np.concatenate([jac.d_centre, jac.d_rot], -1).reshape(-1, 6)
+        dx = np.linalg.lstsq(J, e, rcond=None)[0]
+        O = O + dx[:3]
+        R = R @ exp_so3(dx[3:])
+        rms = float(np.sqrt(np.mean(e**2)))
+        if np.abs(dx[:3]).max() <= 1e-12 * (1 + np.abs(O).max()) and np.abs(dx[3:]).max() <= 1e-12:
+            break
+    jac = collinearity_jacobians(R, O, interior, X)
+    rms = float(np.sqrt(np.mean((xy - jac.xy) ** 2)))
+    if not np.all(np.isfinite(R)) or np.any(np.einsum("ji,nj->ni", R, X - O)[:, 2] >= 0):
+        raise ValueError("the resection puts some known points behind the camera")
+    return Resection(R=R, centre=O, rms=rms, iterations=it)
