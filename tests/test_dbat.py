@@ -8,13 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri import model
+from striptri import lens, model
+from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.errors import InputError
 from striptri.formats.dbat import (
     dbat_to_project,
     pixels_to_plate,
     read_dbat,
     read_dbat_camera,
+    striptri_camera,
 )
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
@@ -76,19 +78,28 @@ def test_roma_counts_camera_prior_and_datum():
 
 
 @needs_roma
-def test_roma_conversion_refuses_or_drops_distortion():
+def test_roma_conversion_keeps_the_camera_model_and_the_datum():
     d = read_dbat(ROMA / "romabundledemo.xml")
-    with pytest.raises(InputError, match="distortion") as e:
-        dbat_to_project(d)
-    assert e.value.line is not None
-    scene = dbat_to_project(d, drop_distortion=True)
+    scene = dbat_to_project(d)
     p = scene.project
     assert isinstance(p, model.Project)
     assert len(p.photos) == 60 and len(p.points) == 26321 and len(p.image_points) == 90561
-    assert p.cameras.interior[:, :3].tolist() == [[24.3581, 0.0, 0.0]]
-    assert any("dropped" in n for n in scene.notes)
-    assert p.settings.datum == "inner"
+    # c, principal point at the origin of the plate frame, K1, K2 of the camera file; plate convention
+    assert p.cameras.interior[0].tolist() == [24.3581, 0.0, 0.0, 2.174e-4, -1.518e-7, 0.0, 0.0, 0.0, 0.0, 0.0]
+    assert p.cameras.convention.tolist() == [0]
+    # the script estimates c, xp, yp, K1, K2 (aspect, skew, P and K3 held)
+    assert np.isinf(p.cameras.sigma_interior[0, :5]).all() and np.isnan(p.cameras.sigma_interior[0, 5:]).all()
     assert p.photos.xyz0[0].tolist() == [1.86, -19.22, -6.49]
+    # DBAT's datum "depend": the first camera held, one coordinate of the camera farthest from it
+    assert (p.photos.sigma_xyz0[0] == 0).all() and (p.photos.sigma_angles[0] == 0).all()
+    assert np.sum(p.photos.sigma_xyz0 == 0) == 4 and np.sum(p.photos.sigma_angles == 0) == 3
+    far = int(np.argmax(np.linalg.norm(p.photos.xyz0 - p.photos.xyz0[0], axis=1)))
+    axis = int(np.argmax(np.abs(p.photos.xyz0[far] - p.photos.xyz0[0])))
+    assert p.photos.sigma_xyz0[far, axis] == 0
+    assert any("depend" in n for n in scene.notes)
+    dropped = dbat_to_project(d, drop_distortion=True)
+    assert dropped.project.cameras.interior[0, 3:].tolist() == [0.0] * 7
+    assert any("dropped" in n for n in dropped.notes)
 
 
 def _camera(**kw):
@@ -106,11 +117,16 @@ def test_pixel_to_plate_hand_example():
     xy = pixels_to_plate(cam, np.array([[520.0, 390.0], [0.0, 0.0], [1000.0, 800.0], [620.5, 290.25]]))
     expected = [[0.0, 0.0], [-5.2, 3.9], [4.8, -4.1], [1.005, 0.9975]]
     assert xy == pytest.approx(np.array(expected), abs=1e-12)
-    # aspect 0.8 (pixel height / width): ph 0.01 mm, x scaled by 1/0.8 about pp (6.0, 4.0) mm
+    # aspect 0.8 (pixel height / width): ph 0.01 mm on the plate; the camera model scales x by
+    # 1/0.8 about the principal point (6.0, 4.0) mm (b1 = 0.25)
     cam = _camera(pp=(6.0, 4.0), sensor=(12.5, 8.0), aspect=0.8)
     xy = pixels_to_plate(cam, np.array([[600.0, 400.0], [700.0, 300.0]]))
-    assert xy == pytest.approx(np.array([[0.0, 0.0], [1.25, 1.0]]), abs=1e-12)
+    assert xy == pytest.approx(np.array([[0.0, 0.0], [1.0, 1.0]]), abs=1e-12)
     assert cam.pixel_size == pytest.approx((0.0125, 0.01))
+    prm = striptri_camera(cam)
+    assert prm[lens.B1] == pytest.approx(0.25) and prm[lens.XP] == 0.0 and prm[lens.YP] == 0.0
+    ideal = lens.ideal_from_observed(xy, prm, lens.PLATE).xy
+    assert ideal == pytest.approx(np.array([[0.0, 0.0], [1.25, 1.0]]), abs=1e-12)
 
 
 def _write_project(tmp: Path, *, script_extra="", pts="1,7,10.5,20.5,0.5\n", camera_xml=None):
@@ -134,7 +150,7 @@ def test_small_project_converts(tmp_path):
     assert scene.project.image_points.xy == pytest.approx(np.array([[0.0, 0.0], [1.0, 1.0]]))
     assert scene.project.image_points.sigma_xy[0] == pytest.approx(np.array([0.005, 0.005]))
     assert math.isnan(scene.project.photos.xyz0[0, 0])
-    assert any("must come from elsewhere" in n for n in scene.notes)
+    assert any("must come from elsewhere" in n for n in scene.notes)  # no control to resect from
 
 
 def test_malformed_xml_names_line(tmp_path):
@@ -173,8 +189,9 @@ def test_bad_camera_and_missing_file(tmp_path):
 @needs_camcal
 def test_pixel_convention_reproduces_dbat_result():
     """DBAT's result camera and camera stations reproject camcal's fixed control points onto their
-    measured pixels through pixels_to_plate (no half-pixel shift) and R_from_opk, with DBAT's
-    backward Brown correction applied to the measurements; a 0.5 px shift leaves a 0.5 px bias."""
+    measured pixels through pixels_to_plate (no half-pixel shift), striptri_camera (DBAT's
+    parameters in the plate convention) and R_from_opk without bias; the alternatives leave one:
+    a 0.5 px shift, a sign change of P2, the aspect applied before the principal point."""
     from striptri.rotations import R_from_opk
 
     d = read_dbat(CAMCAL / "camcaldemo.xml")
@@ -187,22 +204,103 @@ def test_pixel_convention_reproduces_dbat_result():
     im = np.array([d.image_ids.index(d.ip_image[k]) for k in keep])
     X = np.array([ctrl[d.ip_point[k]] for k in keep])
     Pc = np.einsum("nji,nj->ni", R[im], X - eo[im, :3])
-    ideal = -cam.cc * Pc[:, :2] / Pc[:, 2:3]
-    K1, K2, K3 = cam.K
-    P1, P2 = cam.P
     ph = cam.pixel_size[1]
 
-    def bias(shift):
-        x, y = pixels_to_plate(cam, d.ip_xy[keep] + shift).T
-        r2 = x * x + y * y
-        f = K1 * r2 + K2 * r2**2 + K3 * r2**3
-        xc = x + x * f + P1 * (r2 + 2 * x * x) + 2 * P2 * x * y
-        yc = y + y * f + 2 * P1 * x * y + P2 * (r2 + 2 * y * y)
-        res = (np.stack([xc, yc], 1) - ideal) / ph
-        return res.mean(0), np.sqrt(np.mean(res**2))
+    def bias(shift=0.0, p2=1.0, aspect_first=False):
+        prm = striptri_camera(cam, reference=d.camera)
+        prm[lens.P2] *= p2
+        if aspect_first:  # (1 + as) col ph - px instead of (1 + as)(col ph - px)
+            prm[lens.XP] += cam.pp[0] * (1 - cam.aspect)
+        xy = pixels_to_plate(d.camera, d.ip_xy[keep] + shift)
+        ideal = lens.ideal_from_observed(xy, prm, lens.PLATE).xy
+        res = (ideal - (prm[1:3] - cam.cc * Pc[:, :2] / Pc[:, 2:3])) / ph
+        return np.abs(res.mean(0)).max()
 
-    mean, rms = bias(0.0)
     assert len(keep) == 84
-    assert np.all(np.abs(mean) < 0.05) and rms < 0.5
-    mean_half, _ = bias(0.5)
-    assert abs(mean_half[1]) > 0.4
+    assert bias() < 0.01
+    assert bias(shift=0.5) > 0.4 and bias(p2=-1.0) > 0.3 and bias(aspect_first=True) > 0.3
+
+
+def _half_unit(text: str) -> float:
+    """Half a unit in the last printed digit of a number ("18.0816" -> 5e-5, "-4.5e-05" -> 5e-7)."""
+    mantissa, _, exponent = text.lower().partition("e")
+    decimals = len(mantissa.partition(".")[2])
+    return 0.5 * 10.0 ** (-decimals + (int(exponent) if exponent else 0))
+
+
+def _dbat_report(path: Path) -> dict:
+    """sigma0, redundancy and the camera's (value, deviation) pairs of a DBAT report file."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    out: dict = {"camera": {}}
+    name = None
+    for i, line in enumerate(lines):
+        t = line.strip()
+        if t.startswith("Sigma0:") and "sigma0" not in out:
+            out["sigma0"] = float(t.split(":")[1])
+        elif t.startswith("Redundancy") and "redundancy" not in out:
+            out["redundancy"] = int(t.split()[1])
+        elif t.startswith(("Camera Constant:", "px - ", "py - ", "K1 - ", "K2 - ", "K3 - ", "P1 - ", "P2 - ", "as - ")):
+            name = {"Camera": "cc"}.get(t.split()[0], t.split()[0])
+        elif name and t.startswith("Value:"):
+            out["camera"][name] = [float(t.split()[1]), None, _half_unit(t.split()[1])]
+        elif name and t.startswith("Deviation:"):
+            out["camera"][name][1] = float(t.split()[1])
+            name = None
+        elif t.startswith("Precisions / Standard Deviations"):
+            break
+        elif t.endswith(":"):  # another parameter's heading
+            name = None
+    return out
+
+
+def _dbat_elements(d, prm) -> dict:
+    """DBAT's names and values of striptri's camera elements (inverse of striptri_camera)."""
+    x0, y0 = d.camera.pp
+    return {"cc": prm[lens.C], "px": x0 + prm[lens.XP], "py": y0 - prm[lens.YP], "K1": prm[lens.K1],
+            "K2": prm[lens.K2], "K3": prm[lens.K3], "P1": prm[lens.P1], "P2": prm[lens.P2], "as": prm[lens.B1]}
+
+
+@needs_camcal
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_camcal_reproduces_dbat(method):
+    """DBAT's camera calibration: sigma0 1.6148 and redundancy 3725 of its report, every estimated
+    camera parameter within a hundredth of its standard deviation of DBAT's value and the standard
+    deviations within 1 %. Approximations by resection (the script has none)."""
+    d = read_dbat(CAMCAL / "camcaldemo.xml")
+    want = _dbat_report(CAMCAL / "result" / "report.txt")
+    result = adjust(dbat_to_project(d).project, AdjustmentOptions(method=method))
+    assert result.converged
+    assert result.redundancy == want["redundancy"] == 3725
+    assert f"{result.sigma0:.4f}" == f"{want['sigma0']:.4f}" == "1.6148"
+    got = _dbat_elements(d, result.state.interior[0])
+    sig = result.camera_mean_errors()[0]
+    sig_of = dict(zip(["cc", "px", "py", "K1", "K2", "K3", "P1", "P2", "as"], sig[[0, 1, 2, 3, 4, 5, 6, 7, 8]]))
+    assert set(want["camera"]) == set(got)
+    for name, (value, deviation, printed) in want["camera"].items():
+        # DBAT prints six significant digits: the value agrees to that or to 1 % of its deviation
+        assert abs(got[name] - value) <= max(0.01 * deviation, printed), (name, got[name], value, deviation)
+        assert sig_of[name] == pytest.approx(deviation, rel=0.01), name
+
+
+@needs_roma
+def test_roma_reproduces_dbat():
+    """DBAT's 60-image block: sigma0 0.582769 px and redundancy 101,801 with self-calibration of c,
+    xp, yp, K1, K2 and DBAT's datum (first camera and one coordinate of the longest base), by the
+    default method; c, px, py, K1, K2 within a hundredth of their standard deviations
+    (or DBAT's printed digits), and the standard deviations within 1 %."""
+    d = read_dbat(ROMA / "romabundledemo.xml")
+    want = _dbat_report(ROMA / "result" / "report.txt")
+    result = adjust(dbat_to_project(d).project)
+    assert result.converged
+    assert result.redundancy == want["redundancy"] == 101801
+    # sxy = 1 px: sigma0 is in pixels; DBAT prints six significant digits
+    assert f"{result.sigma0:.6f}" == f"{want['sigma0']:.6f}" == "0.582769"
+    got = _dbat_elements(d, result.state.interior[0])
+    sig = result.camera_mean_errors()[0]
+    sig_of = dict(zip(["cc", "px", "py", "K1", "K2"], sig[:5]))
+    for name, (value, deviation, printed) in want["camera"].items():
+        if deviation is None:  # held by the script
+            assert got[name] == value, name
+            continue
+        assert abs(got[name] - value) <= max(0.01 * deviation, printed), (name, got[name], value, deviation)
+        assert sig_of[name] == pytest.approx(deviation, rel=0.01), name

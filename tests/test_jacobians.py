@@ -150,21 +150,23 @@ def _ray_cases():
     for kind in KINDS:
         for k in (1, 2, 3, 4):
             for form, rotate in (("3d", False), ("3d", True), ("xz", False)):
-                yield kind, k, form, rotate
+                yield kind, k, form, rotate, False
+        for k in (3, 4, 5):  # the hub layout of chains that no order saves (groups.untangle_chains)
+            yield kind, k, "3d", True, True
 
 
-@pytest.mark.parametrize("kind, k, form, rotate", list(_ray_cases()))
-def test_ray_conditions(kind, k, form, rotate):
+@pytest.mark.parametrize("kind, k, form, rotate, star", list(_ray_cases()))
+def test_ray_conditions(kind, k, form, rotate, star):
     rng = np.random.default_rng([4, k, model.GIVEN_AXES[KINDS[kind]].count(True), rotate])
     r, O, X = strip_geometry(rng, 6, k, rotate)
     axes = model.GIVEN_AXES[KINDS[kind]]
-    rc = conditions.ray_conditions(r, O, X, axes, form)
+    rc = conditions.ray_conditions(r, O, X, axes, form, star)
     nc = max(0, 2 * k - (3 - sum(axes)))
     assert rc.g.shape == (6, nc)
     assert rc.d_r.shape == (6, nc, k, 3) and rc.d_O.shape == (6, nc, k, 3) and rc.d_X.shape == (6, nc, 3)
     if nc == 0:
         return
-    g = lambda rr, OO, XX: conditions.ray_conditions(rr, OO, XX, axes, form).g  # noqa: E731
+    g = lambda rr, OO, XX: conditions.ray_conditions(rr, OO, XX, axes, form, star).g  # noqa: E731
     assert_jacobian(rc.d_r, numeric_jacobian(lambda x: g(x, O, X), r, 1e-3), 1)
     assert_jacobian(rc.d_O, numeric_jacobian(lambda x: g(r, x, X), O, 1e-2), 1)
     assert_jacobian(rc.d_X, numeric_jacobian(lambda x: g(r, O, x), X, 1e-2), 1)
@@ -182,13 +184,13 @@ def test_ray_conditions_vanish_for_consistent_rays():
     X = np.stack([rng.uniform(500, 800, m), rng.uniform(-500, 500, m), rng.uniform(-50, 50, m)], -1)
     r = (X[:, None, :] - O) * 0.1
     for kind in KINDS.values():
-        for form in ("3d", "xz"):
-            g = conditions.ray_conditions(r, O, X, model.GIVEN_AXES[kind], form).g
+        for form, star in (("3d", False), ("xz", False), ("3d", True)):
+            g = conditions.ray_conditions(r, O, X, model.GIVEN_AXES[kind], form, star).g
             # round-off of b . (r1 x r2) with |b| |r|^2 ~ 1e8: far below 1e-6
             assert np.abs(g).max() < 1e-6
             r_bad = r.copy()
             r_bad[:, 1, 1] += 0.01  # the second ray misses the point
-            g_bad = conditions.ray_conditions(r_bad, O, X + 1.0, model.GIVEN_AXES[kind], form).g
+            g_bad = conditions.ray_conditions(r_bad, O, X + 1.0, model.GIVEN_AXES[kind], form, star).g
             assert np.abs(g_bad).max() > 1e-3
 
 

@@ -134,7 +134,7 @@ class RayConditions:
 SCALE_FORMS = ("3d", "xz")
 
 
-def ray_conditions(r, O, X, given_axes, scale_form: str = "3d") -> RayConditions:
+def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = False) -> RayConditions:
     """Conditions of one point seen by k >= 1 photos along its chain, with d given coordinates.
 
     r, O: (m, k, 3) rays and centres in chain order; X: (m, 3) given coordinates (ignored where
@@ -152,6 +152,12 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d") -> RayConditions
       the ray with that vertical), so that 2k - (3 - d) conditions hold for every k.
 
     The count is 2k - (3 - d) whenever that is positive (DESIGN section 3).
+
+    star: the first ray is a hub instead of the start of a path (for points whose rays cannot be
+    ordered so that neighbours meet at a useful angle, groups.untangle_chains): coplanarities of
+    the pairs (1, j), j = 2..k, and scale transfers "scale of r_1 from the pair (1, 2) equals its
+    scale from the pair (1, j)", j = 3..k; the same number of independent conditions, so the same
+    adjustment (docs/decisions.md).
     """
     m, k, _ = r.shape
     gx, gy, gz = given_axes
@@ -165,15 +171,30 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d") -> RayConditions
     if scale_form not in SCALE_FORMS:
         raise ValueError(f"unknown scale form {scale_form!r}")
 
-    for i in range(k - 1):
-        b = O[:, i + 1] - O[:, i]
-        g, dg_b, dg_r1, dg_r2 = coplanarity(b, r[:, i], r[:, i + 1])
+    pairs = [(0, j) for j in range(1, k)] if star else [(i, i + 1) for i in range(k - 1)]
+    for i, j in pairs:
+        b = O[:, j] - O[:, i]
+        g, dg_b, dg_r1, dg_r2 = coplanarity(b, r[:, i], r[:, j])
         dr, dO, dX = new_row()
-        dr[:, i], dr[:, i + 1] = dg_r1, dg_r2
-        dO[:, i], dO[:, i + 1] = -dg_b, dg_b
+        dr[:, i], dr[:, j] = dg_r1, dg_r2
+        dO[:, i], dO[:, j] = -dg_b, dg_b
         rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
 
-    for i in range(1, k - 1):
+    if star and k >= 3:
+        s1, _, ds1, _ = pair_scales(O[:, 1] - O[:, 0], r[:, 0], r[:, 1])
+        for j in range(2, k):
+            # scale of r_0 from the pair (0, 1) minus its scale from the pair (0, j)
+            sj, _, dsj, _ = pair_scales(O[:, j] - O[:, 0], r[:, 0], r[:, j])
+            dr, dO, dX = new_row()
+            dr[:, 0] = ds1[1] - dsj[1]
+            dr[:, 1] = ds1[2]
+            dr[:, j] = -dsj[2]
+            dO[:, 0] = -ds1[0] + dsj[0]
+            dO[:, 1] = ds1[0]
+            dO[:, j] = -dsj[0]
+            rows_g.append(s1 - sj), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+
+    for i in range(1, k - 1) if not star else ():
         # scale of r_i from the pair (i-1, i) (second ray) minus its scale from (i, i+1) (first ray)
         b1 = O[:, i] - O[:, i - 1]
         b2 = O[:, i + 1] - O[:, i]

@@ -7,9 +7,11 @@ given axes) form one batch so that their conditions are evaluated at once.
 Chain order: the photos of a point are taken in photo-table order, which for a strip is flight
 order and for a block strip after strip (consecutive photos give the long, well-conditioned bases
 of DESIGN section 3; a pair from neighbouring strips has the strip spacing as its base). Where two
-photos of a chain stand almost at the same place (a re-flown or repeated exposure), the
-coplanarity of their nearly parallel rays would degenerate: such chains are reordered so that
-consecutive bases stay long (:func:`untangle_chains`).
+photos of a chain see the point along nearly parallel rays (a re-flown or repeated exposure, two
+close-range photos taken from almost the same place), the coplanarity of those rays and the scale
+transfer across them would degenerate: such chains are reordered so that rays one or two places
+apart in the chain meet at a useful angle (:func:`untangle_chains`). The angles come from the
+approximate orientations; without them, from the distances between the projection centres.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ class GroupBatch:
     family: COLLINEARITY (full control) or RAYS (tie, height, plan). k: rays per group.
     given_axes: which of X, Y, Z are given (all False for ties). point_index: (m,).
     image_rows: (m, k) rows of the ImagePoints table in chain order. photo_index: (m, k).
-    n_conditions: conditions per group.
+    n_conditions: conditions per group. star: the chain's first ray is a hub (conditions.ray_conditions).
     """
 
     family: str
@@ -40,6 +42,7 @@ class GroupBatch:
     image_rows: np.ndarray
     photo_index: np.ndarray
     n_conditions: int
+    star: bool = False
 
     @property
     def has_control(self) -> bool:
@@ -54,7 +57,7 @@ class GroupBatch:
             sl = slice(start, start + size)
             yield GroupBatch(
                 self.family, self.k, self.given_axes, self.point_index[sl], self.image_rows[sl],
-                self.photo_index[sl], self.n_conditions,
+                self.photo_index[sl], self.n_conditions, self.star,
             )
 
 
@@ -79,6 +82,7 @@ def build_batches(project: Project) -> list[GroupBatch]:
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     kinds = adjusted_kind(project.points.kind)
     reference_base = _typical_base(project)
+    rays = approximate_rays(project)
     batches = []
     for kind in (FULL, PLAN, HEIGHT, TIE):
         for k in np.unique(counts[(kinds == kind) & (counts > 0)]):
@@ -88,23 +92,45 @@ def build_batches(project: Project) -> list[GroupBatch]:
                 continue
             sel = np.flatnonzero((kinds == kind) & (counts == k))
             rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+            star = np.zeros(len(sel), dtype=bool)
             if k >= 2 and kind != FULL:
-                rows = untangle_chains(rows, ip.photo_index, project.photos.xyz0, reference_base)
-            batches.append(
-                GroupBatch(
-                    family=COLLINEARITY if kind == FULL else RAYS,
-                    k=k,
-                    given_axes=GIVEN_AXES[kind],
-                    point_index=sel,
-                    image_rows=rows,
-                    photo_index=ip.photo_index[rows],
-                    n_conditions=nc,
+                rows, star = untangle_chains(rows, ip.photo_index, project.photos.xyz0, reference_base, rays)
+            for is_star in (False, True):
+                pick = star == is_star
+                if not pick.any():
+                    continue
+                batches.append(
+                    GroupBatch(
+                        family=COLLINEARITY if kind == FULL else RAYS,
+                        k=k,
+                        given_axes=GIVEN_AXES[kind],
+                        point_index=sel[pick],
+                        image_rows=rows[pick],
+                        photo_index=ip.photo_index[rows[pick]],
+                        n_conditions=nc,
+                        star=is_star,
+                    )
                 )
-            )
     return batches
 
 
 SHORT_BASE = 0.1  # a consecutive base below this fraction of the typical base is degenerate
+MIN_RAY_ANGLE = np.radians(2.0)  # rays meeting at a smaller angle are nearly parallel
+
+
+def approximate_rays(project: Project) -> np.ndarray | None:
+    """Unit ground directions (m_ip, 3) of the measurements at the approximate orientations (through
+    the camera model), or None when some photo has no approximate orientation."""
+    from .camera import ray_ground
+    from .lens import ideal_from_observed
+
+    ph, ip, cams = project.photos, project.image_points, project.cameras
+    if not (np.isfinite(ph.xyz0).all() and np.isfinite(ph.R_ground_from_cam).all()) or len(ip) == 0:
+        return None
+    cam = ph.camera_index[ip.photo_index]
+    ideal = ideal_from_observed(ip.xy, cams.interior[cam], cams.convention[cam])
+    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], ideal.xy, cams.interior[cam, :3])
+    return r / np.linalg.norm(r, axis=1)[:, None]
 
 
 def _typical_base(project: Project) -> float:
@@ -115,37 +141,61 @@ def _typical_base(project: Project) -> float:
     return float(np.median(np.linalg.norm(np.diff(xyz0, axis=0), axis=1)))
 
 
-def _near(centres: np.ndarray, limit: float, span: int = 2) -> np.ndarray:
-    """(m,) True where two photos at most ``span`` places apart in the chain stand closer than limit."""
-    bad = np.zeros(len(centres), dtype=bool)
-    for lag in range(1, min(span, centres.shape[1] - 1) + 1):
-        d = np.linalg.norm(centres[:, lag:] - centres[:, :-lag], axis=2)
-        bad |= (d < limit).any(axis=1)
+def _separation(rows, photo_index, xyz0, reference_base, rays) -> np.ndarray | None:
+    """(m, k, k) separation of the chains' photos in units of "too close" (below 1 is degenerate):
+    the smaller of the rays' angle over MIN_RAY_ANGLE and the centres' distance over SHORT_BASE
+    times the typical base, of those available (module doc); None when neither is."""
+    parts = []
+    if rays is not None:
+        r = rays[rows]
+        parts.append(np.arccos(np.clip(np.einsum("mai,mbi->mab", r, r), -1.0, 1.0)) / MIN_RAY_ANGLE)
+    if reference_base > 0 and np.isfinite(xyz0).all():
+        c = xyz0[photo_index[rows]]
+        parts.append(np.linalg.norm(c[:, :, None] - c[:, None, :], axis=3) / (SHORT_BASE * reference_base))
+    if not parts:
+        return None
+    return np.minimum.reduce(parts)
+
+
+def _near(sep: np.ndarray, limit: float, span: int = 2) -> np.ndarray:
+    """(m,) True where two photos at most ``span`` places apart in the chain are separated by less
+    than limit. sep: (m, k, k) in chain order."""
+    bad = np.zeros(len(sep), dtype=bool)
+    k = sep.shape[1]
+    for lag in range(1, min(span, k - 1) + 1):
+        idx = np.arange(k - lag)
+        bad |= (sep[:, idx, idx + lag] < limit).any(axis=1)
     return bad
 
 
-def untangle_chains(rows: np.ndarray, photo_index: np.ndarray, xyz0: np.ndarray, reference_base: float) -> np.ndarray:
-    """Reorder the chains (m, k) of image rows in which two photos that stand almost at the same
-    place (closer than SHORT_BASE times the typical base) are one or two places apart.
+def untangle_chains(rows: np.ndarray, photo_index: np.ndarray, xyz0: np.ndarray, reference_base: float,
+                    rays: np.ndarray | None = None) -> np.ndarray:
+    """Reorder the chains (m, k) of image rows in which two rays one or two places apart are nearly
+    parallel: they meet at less than MIN_RAY_ANGLE (rays: unit ground directions per image row,
+    approximate_rays), or their photos stand closer than SHORT_BASE times the typical base.
 
     Neighbours give a coplanarity of nearly parallel rays; two places apart they make the scale
     transfer of the photo between them compare a scale with itself. Both conditions degenerate.
     Such chains are rebuilt greedily, vectorised over them: from each possible first photo in
-    turn, take next the first photo (in table order) far from the last two taken, else the one
-    farthest from them; keep the first start that gives a chain without close photos nearby.
+    turn, take next the first photo (in table order) well separated from the last two taken, else
+    the best separated; keep the first start that gives a chain without close photos nearby.
+    Chains of three or more rays that no order saves become stars (conditions.ray_conditions).
+    Returns the rows (m, k) and star (m,) bool.
     """
-    limit = SHORT_BASE * reference_base
-    if reference_base <= 0 or rows.shape[1] < 2:
-        return rows
-    centres = xyz0[photo_index[rows]]  # (m, k, 3)
-    bad = np.flatnonzero(_near(centres, limit))
+    star = np.zeros(len(rows), dtype=bool)
+    if rows.shape[1] < 2:
+        return rows, star
+    sep_all = _separation(rows, photo_index, xyz0, reference_base, rays)
+    if sep_all is None:
+        return rows, star
+    limit = 1.0
+    bad = np.flatnonzero(_near(sep_all, limit))
     if len(bad) == 0:
-        return rows
+        return rows, star
     rows = rows.copy()
-    c = centres[bad]
-    m, k, _ = c.shape
+    dist = sep_all[bad]  # (m, k, k)
+    m, k = dist.shape[:2]
     ar = np.arange(m)
-    dist = np.linalg.norm(c[:, :, None] - c[:, None, :], axis=3)  # (m, k, k)
     best = np.tile(np.arange(k), (m, 1))
     unresolved = np.ones(m, dtype=bool)
     for start in range(k):
@@ -162,13 +212,26 @@ def untangle_chains(rows: np.ndarray, photo_index: np.ndarray, xyz0: np.ndarray,
             nxt = np.where(first_ok >= 0, first_ok, farthest)
             order[:, step] = nxt
             taken[ar, nxt] = True
-        good = unresolved & ~_near(np.take_along_axis(c, order[..., None], axis=1), limit)
+        reordered = np.take_along_axis(np.take_along_axis(dist, order[:, :, None], axis=1), order[:, None, :], axis=2)
+        good = unresolved & ~_near(reordered, limit)
         best[good] = order[good]
         unresolved &= ~good
         if not unresolved.any():
             break
+    if k >= 3 and unresolved.any():
+        # no path avoids them: a star around the photo best separated from all others, its best
+        # separated partner second, the rest in table order
+        u = np.flatnonzero(unresolved)
+        d = dist[u] + np.where(np.eye(k, dtype=bool), np.inf, 0.0)
+        hub = np.argmax(d.min(axis=2), axis=1)
+        partner = np.argmax(np.where(np.isinf(d[np.arange(len(u)), hub]), -np.inf, d[np.arange(len(u)), hub]), axis=1)
+        rank = np.tile(np.arange(k, dtype=float), (len(u), 1)) + 2.0
+        rank[np.arange(len(u)), hub] = 0.0
+        rank[np.arange(len(u)), partner] = 1.0
+        best[u] = np.argsort(rank, axis=1, kind="stable")
+        star[bad[u]] = True
     rows[bad] = np.take_along_axis(rows[bad], best, axis=1)
-    return rows
+    return rows, star
 
 
 def rays_per_point(project: Project) -> np.ndarray:

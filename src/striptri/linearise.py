@@ -96,7 +96,7 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     else:
         p = plate_vector(xy, params[..., :3])
         r = np.einsum("mkij,mkj->mki", R, p)
-        rc = ray_conditions(r, O, X, batch.given_axes, scale_form)
+        rc = ray_conditions(r, O, X, batch.given_axes, scale_form, batch.star)
         lin = ray_chain(rc, R, p)
     d_camera = np.zeros(lin.d_interior.shape[:-1] + (NCP,))
     d_camera[..., :3] = lin.d_interior

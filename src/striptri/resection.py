@@ -110,3 +110,68 @@ def resect(xy: np.ndarray, X: np.ndarray, c: float, iterations: int = 20) -> Res
     if not np.all(np.isfinite(R)) or np.any(np.einsum("ji,nj->ni", R, X - O)[:, 2] >= 0):
         raise ValueError("the resection puts some known points behind the camera")
     return Resection(R=R, centre=O, rms=rms, iterations=it)
+
+
+def resect_missing(project, max_rounds: int = 50):
+    """The project with approximate orientations for the photos that have none (nan centre):
+    photos are resected, in rounds, from the full control points and the tie points intersected
+    from photos already oriented (two rays or more), as DBAT's spatial_resection and
+    forward_intersection do. Measurements are taken through the camera model at the cameras'
+    current values. -> (project, notes). Raises NumericalFailure naming the photos left over."""
+    from dataclasses import replace
+
+    from .camera import ray_ground
+    from .errors import NumericalFailure
+    from .lens import ideal_from_observed
+    from .model import FULL
+    from .triangulation import intersect_rays
+
+    ph, ip, pts, cams = project.photos, project.image_points, project.points, project.cameras
+    todo = ~np.isfinite(ph.xyz0).all(axis=1)
+    if not todo.any():
+        return project, []
+    cam = ph.camera_index[ip.photo_index]
+    params = cams.interior[cam]
+    xy = ideal_from_observed(ip.xy, params, cams.convention[cam]).xy - params[:, 1:3]
+    known = np.where(((pts.kind == FULL) & np.isfinite(pts.xyz_given).all(axis=1))[:, None], pts.xyz_given, np.nan)
+    xyz0, R = ph.xyz0.copy(), ph.R_ground_from_cam.copy()
+    oriented = ~todo
+    done_by_resection = 0
+    for _ in range(max_rounds):
+        progress = False
+        for i in np.flatnonzero(~oriented):
+            rows = np.flatnonzero((ip.photo_index == i) & np.isfinite(known[ip.point_index]).all(axis=1))
+            try:
+                res = resect(xy[rows], known[ip.point_index[rows]], float(cams.interior[ph.camera_index[i], 0]))
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            xyz0[i], R[i], oriented[i] = res.centre, res.R, True
+            done_by_resection += 1
+            progress = True
+        # intersect the points seen by two or more oriented photos
+        use = oriented[ip.photo_index] & ~np.isfinite(known[ip.point_index]).all(axis=1)
+        counts = np.bincount(ip.point_index[use], minlength=len(pts))
+        for k in np.unique(counts[counts >= 2]):
+            sel = np.flatnonzero(counts == k)
+            order = np.lexsort((ip.photo_index[use], ip.point_index[use]))
+            rows_all = np.flatnonzero(use)[order]
+            pt_sorted = ip.point_index[rows_all]
+            rows = rows_all[np.isin(pt_sorted, sel)].reshape(len(sel), k)
+            p = ip.photo_index[rows]
+            c = cams.interior[ph.camera_index[p], 0]
+            r = ray_ground(R[p], xy[rows], np.stack([c, np.zeros_like(c), np.zeros_like(c)], -1))
+            known[sel] = intersect_rays(xyz0[p], r)
+            progress = True
+        if oriented.all() or not progress:
+            break
+    if not oriented.all():
+        left = [ph.ids[i] for i in np.flatnonzero(~oriented)]
+        raise NumericalFailure(f"no approximate orientation for {len(left)} photos ({', '.join(left[:5])}"
+                               f"{', ...' if len(left) > 5 else ''}): they see fewer than four known points "
+                               "(coplanar) or six (in general position); give approximate orientations")
+    from .rotations import angles_from_R
+
+    angles = np.where(todo[:, None], angles_from_R(R, project.settings.rotation), ph.angles)
+    photos = replace(ph, xyz0=xyz0, R_ground_from_cam=R, angles=angles)
+    return replace(project, photos=photos), [f"approximate orientations of {done_by_resection} photos by spatial "
+                                             "resection from control and intersected points"]

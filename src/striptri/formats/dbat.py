@@ -40,14 +40,16 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from xml.parsers import expat
 
 import numpy as np
 
-from striptri import model, rotations
-from striptri.errors import InputError
+from striptri import lens, model, rotations
+from striptri.errors import InputError, NumericalFailure
+from striptri.lens import NCP
+from striptri.resection import resect_missing
 from striptri.formats.conversions import Scene
 from striptri.io.csvtable import read_input_bytes
 
@@ -538,45 +540,80 @@ def read_dbat(script_xml_path: str | Path) -> DbatProject:
 # --------------------------------------------------------------------------- conversion
 
 
+def plate_origin(camera: DbatCamera) -> tuple[float, float]:
+    """Where the plate origin lies in DBAT's scaled sensor coordinates (col * ph, row * ph): chosen
+    so that DBAT's principal point is xp = yp = 0 (module doc)."""
+    return camera.pp[0], camera.pp[1]
+
+
 def pixels_to_plate(camera: DbatCamera, xy_pixel: np.ndarray) -> np.ndarray:
     """Pixel coordinates (column, row; corner origin, y down) -> plate mm (x right, y up, origin at
-    the principal point): x = (col * ph - px) / aspect, y = py - row * ph, ph = sensor H / image H
-    (no half-pixel shift; with aspect 1, x = col * pw - px). Checked against DBAT's own result on
-    camcal (tests/test_dbat.py): the aspect scales x about the principal point."""
+    the camera's principal point): ``x = col * ph - px``, ``y = py - row * ph``, ph = sensor H /
+    image H, no half-pixel shift. The aspect acts in the camera model (b1 = 1/aspect - 1, about
+    the principal point: ``(1 + b1)(x - xp)``). Checked against DBAT's own result on camcal
+    (tests/test_dbat.py)."""
     xy_pixel = np.asarray(xy_pixel, dtype=float)
     ph = camera.pixel_size[1]
-    x = (xy_pixel[..., 0] * ph - camera.pp[0]) / camera.aspect
-    return np.stack([x, camera.pp[1] - xy_pixel[..., 1] * ph], axis=-1)
+    x0, y0 = plate_origin(camera)
+    return np.stack([xy_pixel[..., 0] * ph - x0, y0 - xy_pixel[..., 1] * ph], axis=-1)
+
+
+# DBAT's interior names -> striptri's camera elements (lens.CAMERA_ELEMENTS)
+_ELEMENT_OF = {"cc": "c", "px": "xp", "py": "yp", "K1": "k1", "K2": "k2", "K3": "k3", "P1": "p1", "P2": "p2",
+               "as": "b1", "sk": "b2"}
+
+
+def striptri_camera(camera: DbatCamera, reference: DbatCamera | None = None) -> np.ndarray:
+    """striptri's camera elements (NCP,) of a DBAT camera, plate convention, plate frame of
+    ``reference`` (default: the camera itself; pixels_to_plate of the reference camera).
+
+    K, P and the skew carry over unchanged (DBAT's reprojection of camcal's control through its own
+    result decides it: a sign change of P2 leaves a 0.32 px bias in y), b1 = 1/aspect - 1 (DBAT's
+    'as', scaling x about the principal point); the principal point: ``xp = px - x0``,
+    ``yp = y0 - py`` with (x0, y0) the reference's plate origin."""
+    ref = reference or camera
+    x0, y0 = plate_origin(ref)
+    b1 = 1.0 / camera.aspect - 1.0
+    prm = np.zeros(NCP)
+    prm[lens.C] = camera.cc
+    prm[lens.XP] = camera.pp[0] - x0
+    prm[lens.YP] = y0 - camera.pp[1]
+    prm[lens.K1:lens.K3 + 1] = camera.K
+    prm[lens.P1], prm[lens.P2] = camera.P
+    prm[lens.B1], prm[lens.B2] = b1, camera.skew
+    return prm
 
 
 def dbat_to_project(dbat: DbatProject, drop_distortion: bool = False) -> Scene:
     """A striptri project of a DBAT project; Scene.project is the model.Project.
 
-    Plate coordinates in mm (pixels_to_plate, principal point taken as origin so xp = yp = 0),
-    c = DBAT's cc, image sigmas scaled by the pixel size, control fixed (nan) or weighted as read.
-    striptri's camera model has no distortion yet: a camera with nonzero or estimated K/P is
-    refused (InputError at the camera) unless drop_distortion, which drops them and says so in
-    Scene.notes (as the BAL converter's --drop-distortion). Approximate orientations come from
-    prior_eo when present (DBAT's omega-phi-kappa is striptri's), else they are left at nan and
-    must come from elsewhere."""
+    Plate coordinates in mm (pixels_to_plate), the camera in the plate convention with DBAT's
+    model 3 (striptri_camera; its estimated elements free, the others held), image sigmas scaled
+    by the pixel height, control fixed (nan) or weighted as read. drop_distortion: hold K, P at 0
+    (a pinhole camera; said in Scene.notes). Approximate orientations come from prior_eo when
+    present (DBAT's omega-phi-kappa is striptri's); the images without one are resected from the
+    control (resection.resect_missing, as the script's spatial_resection). DBAT's datum
+    ``depend`` (the first camera and one coordinate of the longest base held) becomes held
+    elements of photos.csv (:func:`_depend_datum`)."""
     cam = dbat.camera
     notes: list[str] = []
-    dist = cam.distortion()
-    est_dist = [n for n in DISTORTION_NAMES if cam.estimated.get(n)]
-    if cam.has_distortion() or est_dist:
+    if cam.model not in (None, 3):
+        notes.append(f"DBAT lens model {cam.model} read as model 3 (backward Brown, aspect before and skew after "
+                     "the distortion); the other models differ in the order of aspect and skew")
+    prm = striptri_camera(cam)
+    sigma = np.full(NCP, np.nan)
+    for name, element in _ELEMENT_OF.items():
+        if cam.estimated.get(name):
+            sigma[lens.CAMERA_ELEMENTS.index(element)] = math.inf
+    if drop_distortion:
+        dist = cam.distortion()
         nonzero = ", ".join(f"{k} = {v!r}" for k, v in dist.items() if v != 0) or "all zero"
-        what = f"distortion {nonzero}" + (f"; estimated by the script: {', '.join(est_dist)}" if est_dist else "")
-        if not drop_distortion:
-            raise InputError(cam.source or dbat.path, cam.line,
-                             f"camera '{cam.name}' has {what}; striptri's camera model has no distortion yet: "
-                             "convert with drop_distortion (--drop-distortion) to drop it")
-        notes.append(f"DBAT distortion dropped (striptri has no distortion model yet): {what}")
-    if abs(cam.aspect - 1.0) > 0 or cam.skew != 0:
-        notes.append(f"aspect {cam.aspect!r} applied to the plate x coordinates, skew {cam.skew!r} ignored; "
-                     "striptri does not estimate them")
-    if any(cam.estimated.get(n) for n in ("cc", "px", "py")):
-        notes.append("DBAT estimates " + ", ".join(n for n in ("cc", "px", "py") if cam.estimated.get(n))
-                     + "; the converted camera is held fixed (set sigmas to estimate it)")
+        prm[lens.K1:lens.P2 + 1] = 0.0
+        sigma[lens.K1:lens.P2 + 1] = np.nan
+        notes.append(f"DBAT distortion dropped (drop_distortion): {nonzero}")
+    est = [n for n in _ELEMENT_OF if cam.estimated.get(n)]
+    if est:
+        notes.append("camera elements estimated as in the script: " + ", ".join(_ELEMENT_OF[n] for n in est))
 
     photo_of = {iid: i for i, iid in enumerate(dbat.image_ids)}
     point_ids = list(dict.fromkeys(list(dbat.ctrl_ids) + list(dbat.ip_point)))
@@ -604,8 +641,8 @@ def dbat_to_project(dbat: DbatProject, drop_distortion: bool = False) -> Scene:
         notes.append(f"approximate orientations of {len(have)} of {nim} images from prior_eo (DBAT's "
                      "omega-phi-kappa is striptri's omega-phi-kappa)")
     if len(have) < nim:
-        notes.append(f"{nim - len(have)} images have no approximate orientation: approximations must come from "
-                     "elsewhere (striptri's sequential/resection is not for close range)")
+        notes.append(f"{nim - len(have)} images have no approximate orientation in the script: resected from the "
+                     "control (DBAT's spatial_resection)")
     R = rotations.R_from_opk(angles)
     pw, ph = cam.pixel_size
     photos = model.Photos(
@@ -613,23 +650,55 @@ def dbat_to_project(dbat: DbatProject, drop_distortion: bool = False) -> Scene:
         xyz0=xyz0, R_ground_from_cam=R, angles=angles,
         sigma_xyz0=np.full((nim, 3), np.nan), sigma_angles=np.full((nim, 3), np.nan),
     )
-    if dbat.datum:
-        notes.append(f"DBAT datum: {dbat.datum}; striptri's datum setting is 'control' if control points "
-                     "exist, else 'inner' (DBAT's datum by the first camera is not reproduced)")
+    datum = "control" if dbat.n_control else "inner"
+    if dbat.datum and dbat.datum.get("type") == "depend":
+        photos, note = _depend_datum(dbat, photos)
+        notes.append(note)
+        datum = "control"
+    elif dbat.datum:
+        notes.append(f"DBAT datum {dbat.datum} is not reproduced; striptri's datum is '{datum}'")
     project = model.Project(
-        cameras=model.Cameras(ids=[cam.id], interior=np.array([[cam.cc, 0.0, 0.0]]),
-                              sigma_interior=np.full((1, 3), np.nan)),
+        cameras=model.Cameras(ids=[cam.id], interior=prm[None, :], sigma_interior=sigma[None, :],
+                              convention=np.array([lens.PLATE])),
         photos=photos,
         image_points=model.ImagePoints(
             photo_index=np.array([photo_of[i] for i in dbat.ip_image], dtype=np.int64),
             point_index=np.array([point_of[p] for p in dbat.ip_point], dtype=np.int64),
             xy=pixels_to_plate(cam, dbat.ip_xy),
-            sigma_xy=dbat.ip_sigma * np.array([pw, ph]),
+            sigma_xy=dbat.ip_sigma * ph,
         ),
         points=model.ObjectPoints(ids=point_ids, kind=kind, xyz_given=xyz_given, sigma_given=sigma_given),
-        settings=model.ProjectSettings(angle_unit="deg", sigma_image=float(np.median(dbat.ip_sigma) * pw)
+        settings=model.ProjectSettings(angle_unit="deg", sigma_image=float(np.median(dbat.ip_sigma) * ph)
                                        if dbat.n_image_points else 0.005,
-                                       datum="control" if dbat.n_control else "inner"),
+                                       datum=datum),
         source=dbat.path,
     )
-    return Scene(project=project, xyz_ground=xyz_given.copy(), plate_units_per_pixel=float(pw), notes=notes)
+    if len(have) < nim:
+        try:
+            project, more = resect_missing(project)
+            notes += more
+        except NumericalFailure as exc:
+            notes.append(f"{exc}; approximations must come from elsewhere")
+    return Scene(project=project, xyz_ground=xyz_given.copy(), plate_units_per_pixel=float(ph), notes=notes)
+
+
+def _depend_datum(dbat: DbatProject, photos: model.Photos):
+    """DBAT's ``set_datum depend`` (ref_cam, ref_base="longest"): the six elements of the reference
+    camera held, and of the camera farthest from it (its prior position) the base component of
+    largest magnitude held too: six plus one, the minimal datum of a free network with the scale
+    from the longest base. -> (photos with sigma 0 on those elements, a note)."""
+    ref_id = str(dbat.datum.get("ref_cam", dbat.image_ids[0]))
+    if ref_id not in dbat.image_ids:
+        raise InputError(dbat.path, None, f"set_datum names ref_cam '{ref_id}', which is not an image id")
+    i = dbat.image_ids.index(ref_id)
+    if not np.isfinite(photos.xyz0).all():
+        raise InputError(dbat.path, None, "set_datum depend needs approximate positions of every camera (prior_eo)")
+    base = photos.xyz0 - photos.xyz0[i]
+    j = int(np.argmax(np.linalg.norm(base, axis=1)))
+    axis = int(np.argmax(np.abs(base[j])))
+    sx, sa = photos.sigma_xyz0.copy(), photos.sigma_angles.copy()
+    sx[i], sa[i] = 0.0, 0.0
+    sx[j, axis] = 0.0
+    note = (f"DBAT datum 'depend': camera {photos.ids[i]} held (6 elements) and {'XYZ'[axis]}0 of camera "
+            f"{photos.ids[j]} (the longest base, {np.linalg.norm(base[j]):.3f} {dbat.project_unit}) held")
+    return replace(photos, sigma_xyz0=sx, sigma_angles=sa), note
