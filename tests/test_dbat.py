@@ -304,3 +304,30 @@ def test_roma_reproduces_dbat():
             continue
         assert abs(got[name] - value) <= max(0.01 * deviation, printed), (name, got[name], value, deviation)
         assert sig_of[name] == pytest.approx(deviation, rel=0.01), name
+
+
+@needs_camcal
+def test_convert_and_adjust_camcal_from_the_command_line(tmp_path):
+    """striptri convert (DBAT detected from the .xml) then striptri adjust: the same sigma0, and
+    cameras.csv carries the camera model (plate convention) in and out."""
+    import json
+
+    from click.testing import CliRunner
+
+    from striptri.cli import main
+    from striptri.io import read_project
+
+    runner = CliRunner()
+    conv = runner.invoke(main, ["convert", str(CAMCAL / "camcaldemo.xml"), "--to", "project", "--out",
+                                str(tmp_path / "p")])
+    assert conv.exit_code == 0, conv.output
+    assert "project from dbat" in conv.output
+    p = read_project(tmp_path / "p")
+    assert p.cameras.convention.tolist() == [lens.PLATE]
+    assert np.isinf(p.cameras.sigma_interior[0, :9]).all() and np.isnan(p.cameras.sigma_interior[0, 9])
+    run = runner.invoke(main, ["adjust", str(tmp_path / "p"), "--out", str(tmp_path / "o")])
+    assert run.exit_code == 0, run.output
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert f"{summary['sigma0']:.4f}" == "1.6148" and summary["redundancy"] == 3725
+    header = (tmp_path / "o" / "cameras.csv").read_text().splitlines()[0].split(",")
+    assert header[:6] == ["camera_id", "c", "xp", "yp", "k1", "k2"] and "b1" in header and "distortion" in header

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from striptri import model
+from striptri import lens, model
 from striptri.camera import project as striptri_project
 from striptri.cli import main
 from striptri.errors import InputError
@@ -172,25 +172,36 @@ def test_bal_missing_file(tmp_path):
 
 
 def _striptri_projection(scene):
+    """Predicted plate coordinates through striptri's camera model (collinearity, then the lens)."""
     p = scene.project
     ip = p.image_points
     ph = ip.photo_index
-    return striptri_project(p.photos.R_ground_from_cam[ph], p.photos.xyz0[ph],
-                            p.cameras.interior[p.photos.camera_index[ph]], scene.xyz_ground[ip.point_index])
+    cam = p.photos.camera_index[ph]
+    ideal = striptri_project(p.photos.R_ground_from_cam[ph], p.photos.xyz0[ph], p.cameras.interior[cam, :3],
+                             scene.xyz_ground[ip.point_index])
+    return lens.projection_terms(ideal, ip.xy, p.cameras.interior[cam], p.cameras.convention[cam]).pred
 
 
-def test_bal_to_project_projection_equals_bal(tmp_path):
-    """With k1 = k2 = 0, striptri's collinearity (Schmid 14) on the converted photos gives BAL's
-    predicted pixels, and plate coordinates are the observed pixels."""
+@pytest.mark.parametrize("k1, k2", [(0.0, 0.0), (-0.2, 0.05)])
+def test_bal_to_project_projection_equals_bal(tmp_path, k1, k2):
+    """striptri's collinearity (Schmid 14) and camera model (image convention, k1, k2 normalised)
+    on the converted photos give BAL's predicted pixels; plate coordinates are the observed
+    pixels; f, k1, k2 are free, the principal point held."""
     path = tmp_path / "p.txt"
-    path.write_text(synthetic_bal_text())
+    path.write_text(synthetic_bal_text(k1=k1, k2=k2))
     bal = read_bal(path)
     scene = bal_to_project(bal)
-    assert scene.notes == []
     np.testing.assert_allclose(_striptri_projection(scene), bal_predict(bal), rtol=0, atol=1e-9)
     np.testing.assert_array_equal(scene.project.image_points.xy, bal.xy_pixel)
-    np.testing.assert_array_equal(scene.project.cameras.interior[:, 0], bal.f)
+    cams = scene.project.cameras
+    np.testing.assert_array_equal(cams.interior[:, 0], bal.f)
+    np.testing.assert_array_equal(cams.interior[:, lens.K1], bal.k1)
+    assert np.all(cams.convention == lens.IMAGE)
+    assert np.isinf(cams.sigma_interior[:, [lens.C, lens.K1, lens.K2]]).all()
+    assert np.isnan(cams.sigma_interior[:, [lens.XP, lens.YP, lens.K3, lens.P1, lens.P2]]).all()
     assert np.all(scene.project.points.kind == model.TIE)
+    # the datum: the first camera and one coordinate of the farthest one held
+    assert (scene.project.photos.sigma_xyz0 == 0).sum() == 4 and (scene.project.photos.sigma_angles == 0).sum() == 3
 
 
 @needs(LADYBUG)
@@ -201,16 +212,14 @@ def test_bal_ladybug_geometry_with_distortion_zeroed():
     np.testing.assert_allclose(_striptri_projection(scene), bal_predict(undistorted), rtol=0, atol=1e-8)
 
 
-def test_bal_distortion_refused_or_dropped(tmp_path):
+def test_bal_distortion_dropped_on_request(tmp_path):
     path = tmp_path / "d.txt"
     path.write_text(synthetic_bal_text(k1=-0.2))
     bal = read_bal(path)
-    with pytest.raises(InputError) as info:
-        bal_to_project(bal)
-    assert info.value.line == 1 + 24 + 1  # first parameter line of camera 0
-    assert "--drop-distortion" in info.value.reason
     scene = bal_to_project(bal, drop_distortion=True)
-    assert len(scene.notes) == 1 and "dropped" in scene.notes[0]
+    assert any("dropped" in n for n in scene.notes)
+    assert np.all(scene.project.cameras.interior[:, lens.K1:] == 0)
+    assert np.isnan(scene.project.cameras.sigma_interior[:, lens.K1:]).all()
 
 
 # --------------------------------------------------------------------------- COLMAP
@@ -309,7 +318,7 @@ def test_colmap_reads_pinhole_and_empty_points_line(tmp_path):
 @pytest.mark.parametrize(
     "cams, imgs, pts, file, line, reason",
     [
-        ("1 OPENCV 100 80 50 50 50 40 0 0 0 0\n", IMGS, PTS, "cameras.txt", 1, "camera model OPENCV is not supported"),
+        ("1 FOV 100 80 50 50 50 40 0.1\n", IMGS, PTS, "cameras.txt", 1, "camera model FOV is not supported"),
         ("1 PINHOLE 100 80 50 50 50\n", IMGS, PTS, "cameras.txt", 1, "PINHOLE has 4 parameters"),
         (CAMS, IMGS.replace("1 a.jpg", "3 a.jpg"), PTS, "images.txt", 2, "CAMERA_ID 3 is not in cameras.txt"),
         (CAMS, IMGS.replace("1 1 0 0 0", "1 2 0 0 0"), PTS, "images.txt", 2, "not of unit length"),
@@ -340,17 +349,12 @@ def test_convert_command_end_to_end(tmp_path):
     bal_path.write_text(synthetic_bal_text(k1=-0.1))
     runner = CliRunner()
 
-    refused = runner.invoke(main, ["convert", str(bal_path), "--to", "project", "--out", str(tmp_path / "p")])
-    assert refused.exit_code == 2 and "line 26" in refused.output and "--drop-distortion" in refused.output
-    assert not (tmp_path / "p").exists()
-
-    ok = runner.invoke(main, ["convert", str(bal_path), "--to", "project", "--out", str(tmp_path / "p"),
-                              "--drop-distortion"])
+    ok = runner.invoke(main, ["convert", str(bal_path), "--to", "project", "--out", str(tmp_path / "p")])
     assert ok.exit_code == 0, ok.output
-    assert "dropped" in ok.output
     p = read_project(tmp_path / "p")
     assert (len(p.photos), len(p.points), len(p.image_points)) == (4, 6, 24)
-    assert p.settings.datum == "inner" and p.settings.sigma_image == 1.0
+    assert p.settings.datum == "control" and p.settings.sigma_image == 1.0
+    assert p.cameras.interior[0, lens.K1] == -0.1 and p.cameras.convention[0] == lens.IMAGE
     assert (tmp_path / "p" / "approx_points.csv").is_file()
 
     to_colmap = runner.invoke(main, ["convert", str(tmp_path / "p"), "--to", "colmap", "--out", str(tmp_path / "c")])
@@ -388,3 +392,37 @@ def test_convert_strip8_with_pixel_size(tmp_path):
     np.testing.assert_allclose(b.photos.angles, a.photos.angles, rtol=0, atol=1e-12)
     np.testing.assert_allclose(b.cameras.interior, a.cameras.interior, rtol=0, atol=1e-9)
     assert back.n_image_points == len(a.image_points)
+
+
+def _colmap_opencv_pixels(fx, cx, cy, k1, k2, p1, p2, P):
+    """COLMAP's OPENCV projection written out (camera looks along +z, v down) of camera-frame points P."""
+    u, v = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
+    r2 = u * u + v * v
+    radial = k1 * r2 + k2 * r2 * r2
+    du = u * radial + 2 * p1 * u * v + p2 * (r2 + 2 * u * u)
+    dv = v * radial + 2 * p2 * u * v + p1 * (r2 + 2 * v * v)
+    return np.column_stack([fx * (u + du) + cx, fx * (v + dv) + cy])
+
+
+def test_colmap_opencv_camera_equals_striptri_image_convention():
+    """An OPENCV camera read into striptri (k1, k2, p1, p2 mapped, image convention) projects every
+    point to COLMAP's own pixel, and writing it back gives the same parameters."""
+    from striptri.formats.colmap import ColmapModel
+    from striptri.formats.conversions import colmap_to_project, project_to_colmap
+
+    rng = np.random.default_rng(4)
+    fx, cx, cy, dist = 800.0, 331.0, 242.0, (-0.12, 0.03, 0.002, -0.0015)
+    P = np.column_stack([rng.uniform(-2, 2, (20, 2)), rng.uniform(4, 8, 20)])
+    uv = _colmap_opencv_pixels(fx, cx, cy, *dist, P)
+    m = ColmapModel(
+        camera_ids=np.array([1]), camera_models=["OPENCV"], width_height=np.array([[640, 480]]),
+        focal=np.array([[fx, fx]]), principal=np.array([[cx, cy]]), distortion=np.array([dist]),
+        image_ids=np.array([1]), image_names=["a"], image_camera=np.array([0]),
+        q_cam_from_world=np.array([[1.0, 0, 0, 0]]), t_cam_from_world=np.zeros((1, 3)),
+        obs_image=np.zeros(20, dtype=int), obs_xy=uv, obs_point3d_id=np.arange(1, 21),
+        point3d_ids=np.arange(1, 21), xyz_world=P, rgb=np.zeros((20, 3), dtype=int), error=np.zeros(20))
+    scene = colmap_to_project(m)
+    np.testing.assert_allclose(_striptri_projection(scene), scene.project.image_points.xy, rtol=0, atol=1e-9)
+    back, _, _ = project_to_colmap(scene.project, scene.xyz_ground)
+    assert back.camera_models == ["OPENCV"]
+    np.testing.assert_allclose(back.distortion, [dist], rtol=0, atol=1e-15)

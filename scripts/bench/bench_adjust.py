@@ -302,7 +302,7 @@ def table(rows) -> str:
     for case, n_unknowns, results, repeats in rows:
         colmap = results.get(("pycolmap", "-"), {})
         for (engine, solver), rep in results.items():
-            label = f"pycolmap (Ceres, SPARSE_SCHUR)" if engine == "pycolmap" else f"{engine} / {solver}"
+            label = "pycolmap (Ceres, SPARSE_SCHUR)" if engine == "pycolmap" else f"{engine} / {solver}"
             name = case.name + (f" (median of {repeats})" if repeats > 1 else "")
             if "seconds" not in rep:
                 lines.append(f"| {name} | {n_unknowns} | {label} | {rep.get('skipped') or 'failed: ' + rep.get('failed', '?')} "

@@ -48,12 +48,17 @@ class AdjustmentOptions:
     scale_form: "3d" (direction-free closest-approach scales) or "xz" (Schmid 94).
     condition_transform: optional callable(GroupBatch) -> (m, nc, nc) invertible matrices that
     rescale/recombine each group's conditions (the result must not depend on it).
+    tolerance: converged when every correction is below this fraction of its standard deviation.
+    cost_tolerance: bundle method only, 0 = off: also converged when a step lowers the sum of
+    squares by less than this fraction (Ceres' function tolerance; for problems with directions
+    so weak that corrections stay large while the cost no longer changes, e.g. BAL problems).
     """
 
     method: str = "conditions"
     solver: str = "auto"
     max_iterations: int = 30
     tolerance: float = 1e-8
+    cost_tolerance: float = 0.0
     chunk_size: int = 4096
     scale_form: str = "3d"
     condition_transform: object = None
@@ -239,7 +244,8 @@ class Assembly:
         chunks = (
             (c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size)
         )
-        pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks)
+        pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
+                               layout.camera_elements)
         return Assembly(pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns))
 
 

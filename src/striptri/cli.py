@@ -224,16 +224,18 @@ def structure(project_dir, out_png):
 @click.argument("src", type=click.Path())
 @click.option("--to", "target", required=True, type=click.Choice(["colmap", "project"]), help="Format to write.")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Folder to write.")
-@click.option("--from", "source", type=click.Choice(["bal", "colmap", "project"]), default=None,
-              help="Format of SRC [detected: a file is BAL, a folder with cameras.txt COLMAP, with cameras.csv a project].")
+@click.option("--from", "source", type=click.Choice(["bal", "colmap", "dbat", "project"]), default=None,
+              help="Format of SRC [detected: an .xml file is a DBAT script, another file BAL, a folder with "
+                   "cameras.txt COLMAP, with cameras.csv a project].")
 @click.option("--pixel-size", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="Plate units per pixel on the COLMAP side: the plate unit of a COLMAP source, the pixel of "
                    "COLMAP output from a project [1].")
 @click.option("--drop-distortion", is_flag=True, default=False,
-              help="BAL: drop nonzero radial distortion k1, k2 (striptri has no distortion model yet) instead of refusing.")
+              help="BAL, DBAT: hold the distortion at 0 (a pinhole camera) instead of keeping it.")
 @reports_errors
 def convert(src, target, out_dir, source, pixel_size, drop_distortion):
-    """Convert SRC (a BAL problem, a COLMAP text model or a project) to --to in --out (docs/formats.md)."""
+    """Convert SRC (a BAL problem, a COLMAP text model, a DBAT script or a project) to --to in --out
+    (docs/formats.md)."""
     from striptri.formats.convert import convert as run_convert
 
     result = run_convert(src, out_dir, target, source_format=source, pixel_size=pixel_size,

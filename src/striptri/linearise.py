@@ -139,8 +139,9 @@ def linearise(
     cam = state.camera_of_photo[batch.photo_index]
     B_parts, col_parts = [lin.d_centre, d_rot], [layout.photo_cols[batch.photo_index]]
     if layout.camera_width:
-        B_parts.append(lin.d_interior)
-        col_parts.append(layout.camera_cols[cam])
+        elements = layout.camera_elements
+        B_parts.append(lin.d_interior[..., elements])
+        col_parts.append(layout.camera_cols[cam][..., elements])
     B = np.concatenate(B_parts, 3).reshape(m, nc, width * k)
     cols = np.concatenate(col_parts, 2).reshape(m, width * k)
 

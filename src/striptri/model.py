@@ -111,13 +111,16 @@ class ObjectPoints:
 
     kind: (np,) codes TIE, HEIGHT, PLAN, FULL, CHECK. xyz_given: (np, 3), nan where not given
     (check points carry their reference coordinates here). sigma_given: (np, 3), nan = held
-    fixed, > 0 = weighted control (an observation of the point's group).
+    fixed, > 0 = weighted control (an observation of the point's group). xyz_approx: (np, 3)
+    approximate coordinates (approx_points.csv; nan or None = none): starting values for the
+    bundle method, never observations.
     """
 
     ids: list[str]
     kind: np.ndarray
     xyz_given: np.ndarray
     sigma_given: np.ndarray
+    xyz_approx: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)

@@ -69,16 +69,20 @@ class BlockPattern:
 
     Full space: 6 columns per photo (centre, rotation unknowns), then NCP per camera
     (lens.CAMERA_ELEMENTS). A group couples every pair of its photos (6x6 blocks) and, when
-    cameras are estimated, each of its photos with each of their cameras (6 x NCP) and those
-    cameras with each other (NCP x NCP). Each
+    cameras are estimated, each of its photos with each of their cameras (6 x w) and those
+    cameras with each other (w x w), w the camera elements estimated in some camera
+    (UnknownLayout.camera_elements). Each
     iteration fills the blocks' numbers (:class:`PatternAccumulator`) and the reduced N of the
     free unknowns is ``S^T N_full S`` with the 0/1 selection S of ``selection_matrix`` (fixed
     elements dropped, tied elements summed).
     """
 
-    def __init__(self, n_photos: int, n_cameras: int, with_cameras: bool, chunks):
-        """chunks: iterable of (photo_index (m, k), camera_index (m, k)) of all group chunks."""
+    def __init__(self, n_photos: int, n_cameras: int, with_cameras: bool, chunks, camera_elements=None):
+        """chunks: iterable of (photo_index (m, k), camera_index (m, k)) of all group chunks;
+        camera_elements: the camera elements in the blocks (default all NCP)."""
         self.n_photos, self.n_cameras, self.with_cameras = n_photos, n_cameras, with_cameras
+        self.camera_elements = np.arange(NCP) if camera_elements is None else np.asarray(camera_elements, dtype=int)
+        self.camera_width = len(self.camera_elements)
         pp, pc, cc = [], [], []
         for photo, cam in chunks:
             pp.append(np.unique(self._keys(photo, photo, n_photos)))
@@ -117,19 +121,20 @@ class BlockPattern:
         if self.with_cameras:
             nc = self.n_cameras
             p, c = np.divmod(self.pc, nc)
-            i, j = np.meshgrid(np.arange(6), np.arange(NCP), indexing="ij")
+            el = self.camera_elements
+            i, j = np.meshgrid(np.arange(6), el, indexing="ij")
             r_pc = (6 * p[:, None, None] + i).ravel()
             c_pc = (6 * n + NCP * c[:, None, None] + j).ravel()
             rows += [r_pc, c_pc]
             cols += [c_pc, r_pc]
             ca, cb = np.divmod(self.cc, nc)
-            i3, j3 = np.meshgrid(np.arange(NCP), np.arange(NCP), indexing="ij")
+            i3, j3 = np.meshgrid(el, el, indexing="ij")
             rows.append((6 * n + NCP * ca[:, None, None] + i3).ravel())
             cols.append((6 * n + NCP * cb[:, None, None] + j3).ravel())
         return np.concatenate(rows), np.concatenate(cols)
 
     def matrix(self, pp, pc, cc) -> sp.csr_matrix:
-        """N_full from the block data: pp (nb, 6, 6), pc (nbpc, 6, NCP), cc (nbcc, NCP, NCP)."""
+        """N_full from the block data: pp (nb, 6, 6), pc (nbpc, 6, w), cc (nbcc, w, w)."""
         data = [pp.ravel()]
         if self.with_cameras:
             data += [pc.ravel(), pc.ravel(), cc.ravel()]
@@ -138,9 +143,10 @@ class BlockPattern:
 
 
 def ray_columns(pattern: BlockPattern, photo: np.ndarray, cam: np.ndarray) -> np.ndarray:
-    """Full-space columns (m, k, 6 + NCP) of each ray's photo and camera elements."""
+    """Full-space columns (m, k, 6 + w) of each ray's photo and camera elements (BlockPattern)."""
     return np.concatenate(
-        [6 * photo[..., None] + np.arange(6), 6 * pattern.n_photos + NCP * cam[..., None] + np.arange(NCP)], -1)
+        [6 * photo[..., None] + np.arange(6), 6 * pattern.n_photos + NCP * cam[..., None] + pattern.camera_elements],
+        -1)
 
 
 def selection_matrix(photo_cols: np.ndarray, camera_cols: np.ndarray, n_unknowns: int) -> sp.csr_matrix:
@@ -158,8 +164,8 @@ class PatternAccumulator:
     def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
         self.pattern, self.S = pattern, S
         self.pp = np.zeros(len(pattern.pp) * 36)
-        self.pc = np.zeros(len(pattern.pc) * 6 * NCP)
-        self.cc = np.zeros(len(pattern.cc) * NCP * NCP)
+        self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
+        self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
         self.u_full = np.zeros(pattern.n_full)
         self.ug_full = np.zeros(pattern.n_full)
         self.wPw = 0.0
@@ -173,7 +179,7 @@ class PatternAccumulator:
         pat = self.pattern
         self.wPw += float(np.sum(ww * ww))
         self.gPg += float(np.sum(gw * gw))
-        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + NCP)
+        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + w)
         if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
             Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
             full_cols = full_cols[..., :6]
@@ -190,10 +196,11 @@ class PatternAccumulator:
         self.u_full += np.bincount(full_cols.ravel(), weights=uloc.ravel(), minlength=pat.n_full)
         self.ug_full += np.bincount(full_cols.ravel(), weights=ugloc.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
-            flat = (pos_pc[..., None] * 6 * NCP + np.arange(6 * NCP)).ravel()
+            w = pat.camera_width
+            flat = (pos_pc[..., None] * 6 * w + np.arange(6 * w)).ravel()
             block = Nloc[:, :, :6, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
             self.pc += np.bincount(flat, weights=block, minlength=len(self.pc))
-            flat = (pos_cc[..., None] * NCP * NCP + np.arange(NCP * NCP)).ravel()
+            flat = (pos_cc[..., None] * w * w + np.arange(w * w)).ravel()
             block = Nloc[:, :, 6:, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
             self.cc += np.bincount(flat, weights=block, minlength=len(self.cc))
 
@@ -203,7 +210,8 @@ class PatternAccumulator:
 
     def finish(self) -> "PatternAccumulator":
         pat, S = self.pattern, self.S
-        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, NCP), self.cc.reshape(-1, NCP, NCP))
+        w = pat.camera_width
+        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w), self.cc.reshape(len(pat.cc), w, w))
         self.N = (S.T @ N_full @ S).tocsr() + self.extra.N
         self.N.sum_duplicates()
         self.u = S.T @ self.u_full + self.extra.u

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .lens import NCP, PLATE, has_distortion
+from .lens import CAMERA_ELEMENTS, NCP, PLATE, has_distortion
 from .model import Project
 from .rotations import R_from_angles, angles_from_R, angles_jacobian, exp_so3
 
@@ -67,10 +67,16 @@ class UnknownLayout:
     fixed_angles: np.ndarray  # (n, 3) radians (used where angle_fixed)
 
     @property
+    def camera_elements(self) -> np.ndarray:
+        """Indices (lens.CAMERA_ELEMENTS) of the camera elements estimated in some camera: the
+        camera columns each ray carries in the linearised equations."""
+        return np.flatnonzero((self.camera_cols >= 0).any(axis=0))
+
+    @property
     def camera_width(self) -> int:
-        """Camera columns per ray in the linearised equations: NCP when some camera element is
-        estimated, else 0 (the rays then carry only their photo's 6 columns)."""
-        return NCP if bool((self.camera_cols >= 0).any()) else 0
+        """Camera columns per ray in the linearised equations (0: cameras held, the rays carry only
+        their photo's 6 columns)."""
+        return len(self.camera_elements)
 
     def lens_in_play(self, state: "State") -> bool:
         """True when some additional parameter (k, p, b) is nonzero or estimated."""
@@ -125,7 +131,7 @@ class UnknownLayout:
         for i, cid in enumerate(camera_ids):
             for e, col in enumerate(self.camera_cols[i]):
                 if col >= 0:
-                    labels[col] = f"camera {cid} {('c', 'xp', 'yp')[e]}"
+                    labels[col] = f"camera {cid} {CAMERA_ELEMENTS[e]}"
         return labels
 
 

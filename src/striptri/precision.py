@@ -119,7 +119,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         T = sweep.T[ph]
         J_parts = [dO, np.einsum("mkai,mkij->mkaj", drot, T)]
         if result.layout.camera_width:
-            J_parts.append(dcam)
+            J_parts.append(dcam[..., result.layout.camera_elements])
         J_x = np.concatenate(J_parts, 3)  # (m, k, 2, 6 + camera_width): the columns of s.cols
         JX = dX.reshape(m, 2 * k, 3)
         p_plate = 1.0 / s.Q[:, : 2 * k]

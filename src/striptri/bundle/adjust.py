@@ -26,9 +26,11 @@ points' Jacobian).
 from __future__ import annotations
 
 import time
+import copy
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from .. import datum, solvers
 from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, has_converged, observations_of, stop_if_diverging
@@ -39,7 +41,7 @@ from ..model import Project
 from ..parameter_observations import ParameterObservations, build_parameter_observations
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
-from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections
+from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
 
 METHOD = "bundle"
 
@@ -84,12 +86,12 @@ class _Problem:
         self.initial_state = initial_state(project, self.offset)
         self.pattern, self.S = block_pattern(self.batches, self.initial_state, self.layout, options.chunk_size)
 
-    def chunks(self, state: State, xyz: np.ndarray):
-        """Linearised point chunks at (state, xyz)."""
+    def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0):
+        """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp."""
         T = self.layout.rotation_maps(state)
         for batch in self.batches:
             for chunk in batch.chunks(self.options.chunk_size):
-                yield linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns, xyz)
+                yield linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns, xyz, damping)
 
     def parameter_rows(self, state: State):
         """Whitened observation equations of the observed elements: J (p, 3), cols, e (p,)."""
@@ -97,12 +99,22 @@ class _Problem:
         s = self.pobs.sigma
         return grad / s[:, None], cols, self.pobs.misclosure(f) / s
 
+    def cost(self, state: State, xyz: np.ndarray) -> float:
+        """The sum of squares e^T e at (state, xyz) (normals.ee without the normals)."""
+        total = 0.0
+        for batch in self.batches:
+            for chunk in batch.chunks(self.options.chunk_size):
+                total += residual_sum_of_squares(chunk, state, self.layout, self.obs, self.unknowns, xyz)
+        if len(self.pobs):
+            total += float(np.sum(self.parameter_rows(state)[2] ** 2))
+        return total
+
     def normals(self) -> ReducedNormals:
         return ReducedNormals(self.pattern, self.S)
 
-    def assemble(self, state: State, xyz: np.ndarray) -> ReducedNormals:
+    def assemble(self, state: State, xyz: np.ndarray, damping: float = 0.0) -> ReducedNormals:
         normals = self.normals()
-        for chunk in self.chunks(state, xyz):
+        for chunk in self.chunks(state, xyz, damping):
             normals.add_points(chunk, state.camera_of_photo)
         if len(self.pobs):
             normals.add_rows(*self.parameter_rows(state))
@@ -115,7 +127,9 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     problem = _Problem(project, options)
     layout, obs, pobs = problem.layout, problem.obs, problem.pobs
     state = problem.initial_state
-    xyz = initial_points(problem.batches, state, obs, problem.unknowns, options.chunk_size)
+    approx = project.points.xyz_approx
+    xyz = initial_points(problem.batches, state, obs, problem.unknowns, options.chunk_size,
+                         None if approx is None else approx - problem.offset)
     timings = {"initial_points": time.perf_counter() - t_start, "linearisation_and_reduction": 0.0,
                "solve": 0.0, "back_substitution": 0.0}
     if problem.redundancy < 0:
@@ -129,27 +143,77 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     history: list[Iteration] = []
     converged = False
     vtpv = np.nan
-    for _ in range(options.max_iterations):
+    # Gauss-Newton, with Levenberg-Marquardt damping only when a step fails (docs/solvers.md): a step
+    # that raises the sum of squares (or meets a point in a camera's plane, or a numerically
+    # singular system) is taken again from where it started with lam * diag(N) added to the point
+    # blocks and to the reduced camera system; lam follows Nielsen's rule on the ratio of the actual
+    # to the predicted reduction, and drops back to 0 (plain Gauss-Newton) below LM_FLOOR.
+    lam, nu = 0.0, 2.0
+    normals = _assemble_or_none(problem, state, xyz)
+    if normals is None:
+        raise NumericalFailure("a point lies in the plane of a camera at the approximations (its projection is "
+                               "undefined); check the approximate orientations and points")
+    while len(history) < options.max_iterations:
         t0 = time.perf_counter()
-        normals = problem.assemble(state, xyz)
-        t1 = time.perf_counter()
-        solved = _solve_or_explain(normals, solver, state, problem)
-        dx = solved.dx
-        t2 = time.perf_counter()
-        step = _back_substitute(problem, state, xyz, dx)
-        plate_hat, control_hat, v_par, vtpv = step.plate_hat, step.control_hat, step.v_par, step.vtpv
-        xyz = step.xyz
-        state = state.updated(layout, dx)
-        t3 = time.perf_counter()
-        timings["linearisation_and_reduction"] += t1 - t0
-        timings["solve"] += t2 - t1
-        timings["back_substitution"] += t3 - t2
         d = normals.N.diagonal()
+        damped = normals
+        if lam > 0.0:
+            damped = copy.copy(normals)
+            damped.N = (normals.N + lam * sp.diags(np.maximum(normals.d, d))).tocsr()
+        try:
+            solved = _solve_or_explain(damped, solver, state, problem)
+        except NumericalFailure:
+            if not history or lam * nu > LM_MAX:
+                raise
+            # numerically singular away from the start (a weak direction): damp it more
+            lam, nu = max(lam * nu, LM_START), 2.0 * nu
+            normals = problem.assemble(state, xyz, lam)
+            continue
+        dx = solved.dx
+        t1 = time.perf_counter()
+        step = _back_substitute(problem, state, xyz, dx, lam)
+        trial_state = state.updated(layout, dx)
+        if lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
+            trial = _assemble_or_none(problem, trial_state, step.xyz)
+            trial_ee = trial.ee if trial is not None else np.inf
+        else:  # damped: only the sum of squares, the normals follow with the next damping
+            trial, trial_ee = None, problem.cost(trial_state, step.xyz)
+        t2 = time.perf_counter()
+        predicted = normals.ee - step.vtpv
+        actual = normals.ee - trial_ee
+        lam_step = lam
+        if actual < -ROUND_OFF * normals.ee or not np.isfinite(actual):
+            # a worse step: back to where it started, more damping
+            if lam * nu > LM_MAX:
+                raise NumericalFailure(
+                    "the bundle adjustment cannot reduce the sum of squares from here: Levenberg-Marquardt "
+                    f"damping grew past {LM_MAX:g} without a better step (poor approximate orientations or "
+                    "points, or points crossing the plane of a camera)")
+            lam, nu = max(lam * nu, LM_START), 2.0 * nu
+            normals = problem.assemble(state, xyz, lam)
+            timings["linearisation_and_reduction"] += t2 - t1
+            continue
+        if lam > 0.0:
+            rho = actual / predicted if predicted > 0 else 1.0
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            lam = lam if lam >= LM_FLOOR else 0.0
+        nu = 2.0
+        plate_hat, control_hat, v_par, vtpv = step.plate_hat, step.control_hat, step.v_par, step.vtpv
+        flat = options.cost_tolerance > 0 and 0 <= actual <= options.cost_tolerance * normals.ee
+        state, xyz = trial_state, step.xyz
+        normals = trial if trial is not None and lam == 0.0 else problem.assemble(state, xyz, lam)
+        t3 = time.perf_counter()
+        timings["solve"] += t1 - t0
+        timings["back_substitution"] += t2 - t1
+        timings["linearisation_and_reduction"] += t3 - t2
         crit_orientation = float(np.max(np.abs(dx) * np.sqrt(d))) if len(dx) else 0.0
         crit = max(crit_orientation, step.max_point_correction)
-        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
-        stop_if_diverging(history, "bundle adjustment")
-        if has_converged(history, options.tolerance):
+        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
+                                 solver_info={**solved.info, **({"damping": lam} if lam else {})}))
+        if lam == 0.0:
+            stop_if_diverging(history, "bundle adjustment")
+        # a damped step is shortened: its small corrections do not show convergence
+        if (lam_step == 0.0 and has_converged(history, options.tolerance)) or flat:
             converged = True
             break
 
@@ -188,6 +252,25 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     return BundleSolution(result=result, xyz_points=xyz, n_point_unknowns=problem.unknowns.n_unknowns)
 
 
+LM_START = 1e-4  # first Levenberg-Marquardt factor after a failed step
+LM_MAX = 1e8  # beyond this the step is a gradient step of nothing; give up
+LM_FLOOR = 1e-9  # below this the damping is dropped (plain Gauss-Newton again)
+ROUND_OFF = 1e-10  # a rise of the sum of squares below this fraction is round-off, not a worse step
+
+
+def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
+    """The reduced normals, or None where the linearisation is not finite (a point in the plane of
+    a camera makes its 3x3 block singular)."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        try:
+            normals = problem.assemble(state, xyz)
+        except np.linalg.LinAlgError:
+            return None
+    if not np.isfinite(normals.ee):
+        return None
+    return normals
+
+
 @dataclass
 class _Step:
     xyz: np.ndarray
@@ -198,14 +281,14 @@ class _Step:
     max_point_correction: float
 
 
-def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray) -> _Step:
+def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray, damping: float = 0.0) -> _Step:
     """Point corrections and the adjusted observations l + v of the linearised step (v from
     ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``)."""
     obs = problem.obs
     xyz_new = xyz.copy()
     plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
     vtpv, crit = 0.0, 0.0
-    for chunk in problem.chunks(state, xyz):
+    for chunk in problem.chunks(state, xyz, damping):
         dX, v_plate, v_control = point_corrections(chunk, dx)
         pt, rows = chunk.batch.point_index, chunk.batch.image_rows
         xyz_new[pt] = xyz[pt] + dX

@@ -69,10 +69,11 @@ def point_unknowns(project: Project, batches: list[GroupBatch], obs: Observation
 
 
 def initial_points(batches: list[GroupBatch], state: State, obs: Observations, unknowns: PointUnknowns,
-                   chunk_size: int) -> np.ndarray:
+                   chunk_size: int, approx: np.ndarray | None = None) -> np.ndarray:
     """Starting coordinates (n_pt, 3), reduced frame, nan for points that take no part.
 
-    Given coordinates (held or weighted) start at their given values. The others: the
+    Given coordinates (held or weighted) start at their given values; then approximate
+    coordinates (approx, reduced frame, nan = none: ObjectPoints.xyz_approx). The others: the
     least-squares intersection of the point's rays from the approximate orientations
     (triangulation.intersect_rays) when it has two or more; for a plan point on one photo, the
     point of its ray nearest the vertical through the given X, Y (or, for a ray too close to the
@@ -91,6 +92,8 @@ def initial_points(batches: list[GroupBatch], state: State, obs: Observations, u
             else:
                 X = np.full((len(pt), 3), np.nan)
                 single.append((chunk, O[:, 0], r[:, 0]))
+            if approx is not None:
+                X = np.where(np.isfinite(approx[pt]).all(axis=1)[:, None], approx[pt], X)
             xyz[pt] = np.where(given_any[pt], unknowns.given[pt], X)
     if single:
         z_known = xyz[:, 2][np.isfinite(xyz[:, 2])]

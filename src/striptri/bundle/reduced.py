@@ -4,7 +4,7 @@ For a chunk of m points seen by k photos each, the whitened observation equation
 ``Jc dx + Jp dX = e + v~`` (plate coordinates, ``e = (l - f(x^, X^)) / sigma``) plus
 ``dX = (given - X^) + v~`` times ``1/sigma`` for weighted control coordinates. Per point, with
 its orientation unknowns ``c`` (the columns of each of its rays: centre, rotation unknowns and,
-when cameras are estimated, the NCP camera elements; -1 = held) and its coordinates ``p``:
+when cameras are estimated, the camera elements estimated in some camera; -1 = held) and its coordinates ``p``:
 
     N_pp = Jp^T Jp + P_control          b_p = Jp^T e + P_control (given - X^)
     N_cp = Jc^T Jp                      b_c = Jc^T e
@@ -65,10 +65,11 @@ class PointChunk:
 
 
 def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rotation_maps: np.ndarray,
-                     obs: Observations, unknowns: PointUnknowns, xyz: np.ndarray) -> PointChunk:
+                     obs: Observations, unknowns: PointUnknowns, xyz: np.ndarray, damping: float = 0.0) -> PointChunk:
     """Whitened observation equations of a chunk of points at (x^, X^).
 
     rotation_maps: (n_photos, 3, 3) of UnknownLayout.rotation_maps; xyz: (n_pt, 3) current points.
+    damping: Levenberg-Marquardt factor, ``N_pp + damping diag(N_pp)`` (0: Gauss-Newton).
     """
     ph, rows, pt = batch.photo_index, batch.image_rows, batch.point_index
     cam = state.camera_of_photo[ph]
@@ -89,8 +90,9 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     s = (1.0 / sigma)[..., None]
     parts, col_parts = [d_centre, d_rot], [layout.photo_cols[ph]]
     if layout.camera_width:
-        parts.append(d_camera)
-        col_parts.append(layout.camera_cols[cam])
+        elements = layout.camera_elements
+        parts.append(d_camera[..., elements])
+        col_parts.append(layout.camera_cols[cam][..., elements])
     Jc = np.concatenate(parts, -1) * s
     free = unknowns.free[pt]
     Jp = d_point * s * free[:, None, None, :]
@@ -100,8 +102,33 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     control_misclosure = np.where(weight > 0, unknowns.given[pt] - X, 0.0)
     N_pp = np.einsum("mkai,mkaj->mij", Jp, Jp)
     N_pp += (weight + ~free)[:, :, None] * np.eye(3)
+    if damping:
+        N_pp += damping * np.einsum("mii->mi", N_pp)[:, :, None] * (free[:, :, None] * np.eye(3))
     b_p = np.einsum("mkai,mka->mi", Jp, e) + weight * control_misclosure
     return PointChunk(batch, cols, Jc, Jp, e, sigma, N_pp, b_p, free, weight, control_misclosure)
+
+
+def residual_sum_of_squares(batch: GroupBatch, state: State, layout: UnknownLayout, obs: Observations,
+                            unknowns: PointUnknowns, xyz: np.ndarray) -> float:
+    """Sum of the squared whitened residuals (plate and weighted control) of a chunk at (x^, X^),
+    without derivatives (the trial steps of the damped iteration); inf where a point lies in the
+    plane of a camera."""
+    ph, rows, pt = batch.photo_index, batch.image_rows, batch.point_index
+    params, conv = state.camera_terms(ph)
+    X = xyz[pt]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m = np.einsum("mkji,mkj->mki", state.R[ph], X[:, None, :] - state.xyz0[ph])
+        pred = params[..., 1:3] - params[..., :1] * m[..., :2] / m[..., 2:3]
+        xy_obs = obs.plate[rows]
+        if layout.lens_in_play(state):
+            terms = projection_terms(pred, xy_obs, params, conv)
+            e = terms.obs - terms.pred
+        else:
+            e = xy_obs - pred
+        total = float(np.sum((e / np.sqrt(obs.q_plate[rows])) ** 2))
+    weight = unknowns.weight[pt]
+    total += float(np.sum(weight * np.where(weight > 0, unknowns.given[pt] - X, 0.0) ** 2))
+    return total if np.isfinite(total) else np.inf
 
 
 def reduce_points(chunk: PointChunk):
@@ -158,9 +185,10 @@ class ReducedNormals:
         self.pattern, self.S = pattern, S
         self.n = S.shape[1]
         self.pp = np.zeros(len(pattern.pp) * 36)
-        self.pc = np.zeros(len(pattern.pc) * 6 * NCP)
-        self.cc = np.zeros(len(pattern.cc) * NCP * NCP)
+        self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
+        self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
         self.b_full = np.zeros(pattern.n_full)
+        self.d_full = np.zeros(pattern.n_full)  # diag of the camera normals before the points' reduction
         self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.ug = np.zeros(self.n)
         self.gPg = 0.0
@@ -179,14 +207,17 @@ class ReducedNormals:
         N5 = N_loc.reshape(m, k, width, k, width)
         pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
         self.pp += _scatter(pos_pp, N5[:, :, :6, :, :6], 36, len(self.pp))
-        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + NCP)
+        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
         b3 = b_loc.reshape(m, k, width)
+        d3 = np.einsum("mkai,mkai->mki", chunk.Jc, chunk.Jc)  # diagonal of N_cc before the reduction
         if not pat.with_cameras:
-            full_cols, b3 = full_cols[..., :6], b3[..., :6]
+            full_cols, b3, d3 = full_cols[..., :6], b3[..., :6], d3[..., :6]
         self.b_full += np.bincount(full_cols.ravel(), weights=b3.ravel(), minlength=pat.n_full)
+        self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
-            self.pc += _scatter(pos_pc, N5[:, :, :6, :, 6:], 6 * NCP, len(self.pc))
-            self.cc += _scatter(pos_cc, N5[:, :, 6:, :, 6:], NCP * NCP, len(self.cc))
+            w = pat.camera_width
+            self.pc += _scatter(pos_pc, N5[:, :, :6, :, 6:], 6 * w, len(self.pc))
+            self.cc += _scatter(pos_cc, N5[:, :, 6:, :, 6:], w * w, len(self.cc))
         self.ee += chunk.sum_of_squares()
         self.reduced += float(np.sum(reduced))
 
@@ -198,7 +229,8 @@ class ReducedNormals:
 
     def finish(self) -> "ReducedNormals":
         pat, S = self.pattern, self.S
-        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(-1, 6, NCP), self.cc.reshape(-1, NCP, NCP))
+        w = pat.camera_width
+        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w), self.cc.reshape(len(pat.cc), w, w))
         N = (S.T @ N_full @ S).tocsr()
         b = S.T @ self.b_full
         for J, cols, e in self.rows:
@@ -211,6 +243,12 @@ class ReducedNormals:
             N = N + sp.coo_matrix((JJ[pair], (r, c)), shape=(self.n, self.n)).tocsr()
         N.sum_duplicates()
         self.N, self.b = N, b
+        # Levenberg-Marquardt scaling: the diagonal of J^T J of the orientation unknowns (points not
+        # yet eliminated), with the parameter observations' share
+        self.d = S.T @ self.d_full
+        for J, cols, _ in self.rows:
+            valid = cols >= 0
+            self.d += np.bincount(cols[valid], weights=(J * J)[valid], minlength=self.n)
         return self
 
 
@@ -223,5 +261,6 @@ def _scatter(pos: np.ndarray, blocks: np.ndarray, size: int, length: int) -> np.
 def block_pattern(batches, state: State, layout: UnknownLayout, chunk_size: int):
     """The block pattern of the reduced camera system and the selection S, computed once."""
     chunks = ((c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size))
-    pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks)
+    pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
+                           layout.camera_elements)
     return pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)

@@ -1,8 +1,10 @@
-"""Formats people already have (docs/formats.md): BAL problems and COLMAP text models, read into
+"""Formats people already have (docs/formats.md): BAL problems, COLMAP text models and DBAT script
+projects, read into
 struct-of-arrays records and converted to and from :class:`striptri.model.Project`.
 
 * :mod:`striptri.formats.bal` - BAL reader and the BAL cost function;
 * :mod:`striptri.formats.colmap` - COLMAP cameras.txt / images.txt / points3D.txt reader and writer;
+* :mod:`striptri.formats.dbat` - DBAT script projects (camera, measurements, control, datum) -> project;
 * :mod:`striptri.formats.conversions` - BAL -> project, COLMAP <-> project (no file I/O);
 * :mod:`striptri.formats.convert` - the ``striptri convert`` pipeline.
 """
@@ -24,9 +26,11 @@ from striptri.formats.conversions import (
     project_to_colmap,
 )
 from striptri.formats.convert import ConvertResult, convert, detect_format, read_scene
+from striptri.formats.dbat import DbatCamera, DbatProject, dbat_to_project, read_dbat, read_dbat_camera
 
 __all__ = [
-    "BalProblem", "ColmapModel", "ColmapNames", "ConvertResult", "Scene", "approximate_points", "bal_cost",
+    "BalProblem", "ColmapModel", "ColmapNames", "ConvertResult", "DbatCamera", "DbatProject", "Scene",
+    "approximate_points", "bal_cost", "dbat_to_project", "read_dbat", "read_dbat_camera",
     "bal_predict", "bal_residuals", "bal_to_project", "colmap_files", "colmap_to_project", "convert",
     "detect_format", "project_to_colmap", "read_bal", "read_colmap", "read_scene",
 ]

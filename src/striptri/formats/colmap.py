@@ -28,7 +28,16 @@ from striptri.errors import InputError
 from striptri.formats.bal import parse_number
 from striptri.io.csvtable import read_input_bytes
 
-MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4}
+MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8}
+# where each model keeps fx, fy, cx, cy and the distortion k1, k2, p1, p2 in its parameter list
+# (None: not in the model, 0; fy None: fy = fx)
+_LAYOUT = {
+    "SIMPLE_PINHOLE": (0, None, 1, 2, (None, None, None, None)),
+    "PINHOLE": (0, 1, 2, 3, (None, None, None, None)),
+    "SIMPLE_RADIAL": (0, None, 1, 2, (3, None, None, None)),
+    "RADIAL": (0, None, 1, 2, (3, 4, None, None)),
+    "OPENCV": (0, 1, 2, 3, (4, 5, 6, 7)),
+}
 FILES = ("cameras.txt", "images.txt", "points3D.txt")
 
 
@@ -37,7 +46,8 @@ class ColmapModel:
     """A COLMAP reconstruction (text model) as struct of arrays.
 
     Cameras: camera_ids (ncam,) int; camera_models list[str]; width_height (ncam, 2) int;
-    focal (ncam, 2) fx, fy pixels; principal (ncam, 2) cx, cy pixels (top-left origin).
+    focal (ncam, 2) fx, fy pixels; principal (ncam, 2) cx, cy pixels (top-left origin);
+    distortion (ncam, 4) k1, k2, p1, p2 of COLMAP's OpenCV model (0 where the model has none).
     Images: image_ids (nimg,) int; image_names list[str]; image_camera (nimg,) index into cameras;
     q_cam_from_world (nimg, 4) qw, qx, qy, qz (unit); t_cam_from_world (nimg, 3).
     Observations (the POINTS2D of images.txt, in file order): obs_image (nobs,) index into images;
@@ -62,6 +72,11 @@ class ColmapModel:
     xyz_world: np.ndarray
     rgb: np.ndarray
     error: np.ndarray
+    distortion: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.distortion is None:
+            object.__setattr__(self, "distortion", np.zeros((len(self.camera_ids), 4)))
 
 
 # --------------------------------------------------------------------------- quaternions
@@ -123,6 +138,7 @@ def read_colmap(folder: str | Path) -> ColmapModel:
         width_height=np.array(cams["wh"], dtype=np.int64).reshape(-1, 2),
         focal=np.array(cams["focal"], dtype=float).reshape(-1, 2),
         principal=np.array(cams["principal"], dtype=float).reshape(-1, 2),
+        distortion=np.array(cams["distortion"], dtype=float).reshape(-1, 4),
         image_ids=np.array(imgs["ids"], dtype=np.int64),
         image_names=imgs["names"],
         image_camera=np.array(imgs["camera"], dtype=np.int64),
@@ -163,7 +179,7 @@ _float = parse_number  # one parser of numbers for the text formats (formats.bal
 
 
 def _read_cameras(path: Path) -> dict:
-    out = {"ids": [], "models": [], "wh": [], "focal": [], "principal": [], "index": {}}
+    out = {"ids": [], "models": [], "wh": [], "focal": [], "principal": [], "distortion": [], "index": {}}
     for n, text in _data(_lines(path)):
         tokens = text.split()
         if len(tokens) < 4:
@@ -171,22 +187,23 @@ def _read_cameras(path: Path) -> dict:
         cid = _int(path, n, "CAMERA_ID", tokens[0])
         model = tokens[1]
         if model not in MODELS:
-            raise InputError(path, n, f"camera model {model} is not supported (only SIMPLE_PINHOLE and PINHOLE; "
-                                      "distortion models need striptri's camera model issue)")
+            raise InputError(path, n, f"camera model {model} is not supported (one of {', '.join(MODELS)})")
         params = [_float(path, n, f"{model} parameter", t) for t in tokens[4:]]
         if len(params) != MODELS[model]:
             raise InputError(path, n, f"{model} has {MODELS[model]} parameters, found {len(params)}")
         if cid in out["index"]:
             raise InputError(path, n, f"CAMERA_ID {cid} occurs twice")
-        f = (params[0], params[0]) if model == "SIMPLE_PINHOLE" else (params[0], params[1])
+        ifx, ify, icx, icy, idist = _LAYOUT[model]
+        f = (params[ifx], params[ifx if ify is None else ify])
         if min(f) <= 0:
-            raise InputError(path, n, f"focal length must be > 0, found {params[:len(params) - 2]}")
+            raise InputError(path, n, f"focal length must be > 0, found {f}")
         out["index"][cid] = len(out["ids"])
         out["ids"].append(cid)
         out["models"].append(model)
         out["wh"].append((_int(path, n, "WIDTH", tokens[2]), _int(path, n, "HEIGHT", tokens[3])))
         out["focal"].append(f)
-        out["principal"].append(tuple(params[-2:]))
+        out["principal"].append((params[icx], params[icy]))
+        out["distortion"].append(tuple(0.0 if i is None else params[i] for i in idist))
     return out
 
 
@@ -267,9 +284,15 @@ def colmap_files(m: ColmapModel) -> dict[str, str]:
             "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
             f"# Number of cameras: {len(m.camera_ids)}"]
     for k, cid in enumerate(m.camera_ids):
-        fx, fy = m.focal[k]
-        params = [fx] if m.camera_models[k] == "SIMPLE_PINHOLE" else [fx, fy]
-        params += list(m.principal[k])
+        model = m.camera_models[k]
+        ifx, ify, icx, icy, idist = _LAYOUT[model]
+        params = [0.0] * MODELS[model]
+        params[ifx], params[icx], params[icy] = m.focal[k, 0], m.principal[k, 0], m.principal[k, 1]
+        if ify is not None:
+            params[ify] = m.focal[k, 1]
+        for value, i in zip(m.distortion[k], idist):
+            if i is not None:
+                params[i] = value
         cams.append(" ".join([str(int(cid)), m.camera_models[k], str(int(m.width_height[k, 0])),
                               str(int(m.width_height[k, 1]))] + [repr(float(v)) for v in params]))
     point2d_idx = np.zeros(len(m.obs_image), dtype=np.int64)

@@ -20,12 +20,12 @@ Frames:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from striptri import model, rotations
+from striptri import lens, model, rotations
 from striptri.camera import ray_ground
 from striptri.errors import InputError
 from striptri.formats.bal import BalProblem
@@ -79,23 +79,20 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
     """A striptri project of a BAL problem: one camera and one photo per BAL camera, one tie point
     per BAL point, plate coordinates = BAL pixels, sigma 1 pixel, free-network datum.
 
-    striptri's camera model has no radial distortion yet: a camera with k1 or k2 != 0 is refused
-    (InputError at the camera's line) unless drop_distortion, which drops k1, k2 and says so in
-    Scene.notes with the largest displacement it causes. A BAL focal length must be > 0."""
+    The camera is BAL's: principal distance f, principal point at the image centre (held), radial
+    distortion k1, k2 in the image convention (lens.IMAGE: applied to the projected point in
+    normalised coordinates, BAL's ``f (1 + k1 |p|^2 + k2 |p|^4) p``). f, k1 and k2 are free, as in
+    the BAL problem. Datum: the first camera and one coordinate of the camera farthest from it
+    held (dbat.photo_datum), a minimal datum for both methods; the cost at the minimum does not
+    depend on it. drop_distortion: k1 = k2 = 0, held (a pinhole camera; said in Scene.notes with
+    the largest displacement it causes). A BAL focal length must be > 0."""
     path = bal.path or Path("<BAL problem>")
     distorted = np.flatnonzero((bal.k1 != 0) | (bal.k2 != 0))
     shift = bal_distortion_pixels(bal)
     notes = []
-    if len(distorted) and not drop_distortion:
-        i = int(distorted[0])
-        raise InputError(path, int(bal.camera_lines[i]),
-                         f"camera {i} has radial distortion k1 = {float(bal.k1[i])!r}, k2 = {float(bal.k2[i])!r} "
-                         f"({len(distorted)} of {bal.n_cameras} cameras have some; largest displacement "
-                         f"{shift.max():.3g} px); striptri's camera model has no distortion yet: convert "
-                         "with --drop-distortion to drop it")
-    if len(distorted):
-        notes.append(f"radial distortion k1, k2 of {len(distorted)} cameras dropped (striptri has no distortion "
-                     f"model yet); it displaced observed points by up to {shift.max():.3g} px")
+    if len(distorted) and drop_distortion:
+        notes.append(f"radial distortion k1, k2 of {len(distorted)} cameras dropped (--drop-distortion); it "
+                     f"displaced observed points by up to {shift.max():.3g} px")
     bad_f = np.flatnonzero(bal.f <= 0)
     if len(bad_f):
         i = int(bad_f[0])
@@ -111,21 +108,32 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
     xyz0 = -np.einsum("nij,nj->ni", R_gc, bal.t_cam_from_world)
     ncam, npts, nobs = bal.n_cameras, bal.n_points, bal.n_observations
     cams = [str(i) for i in range(ncam)]
+    photos = _photos(cams, np.arange(ncam), [""] * ncam, xyz0, R_gc)
+    if ncam >= 2:
+        from striptri.formats.dbat import photo_datum
+
+        photos, note = photo_datum(photos, 0, "units")
+        notes.append(note)
+    interior = np.zeros((ncam, lens.NCP))
+    sigma = np.full((ncam, lens.NCP), np.nan)
+    interior[:, lens.C] = bal.f
+    sigma[:, lens.C] = np.inf
+    if not drop_distortion:
+        interior[:, lens.K1], interior[:, lens.K2] = bal.k1, bal.k2
+        sigma[:, lens.K1] = sigma[:, lens.K2] = np.inf
     project = model.Project(
-        cameras=model.Cameras(
-            ids=cams,
-            interior=np.stack([bal.f, np.zeros(ncam), np.zeros(ncam)], 1),
-            sigma_interior=np.full((ncam, 3), np.nan),
-        ),
-        photos=_photos(cams, np.arange(ncam), [""] * ncam, xyz0, R_gc),
+        cameras=model.Cameras(ids=cams, interior=interior, sigma_interior=sigma,
+                              convention=np.full(ncam, lens.IMAGE)),
+        photos=photos,
         image_points=model.ImagePoints(
             photo_index=bal.camera_index.copy(), point_index=bal.point_index.copy(),
             xy=bal.xy_pixel.copy(), sigma_xy=np.ones((nobs, 2)),
         ),
         points=_tie_points([str(j) for j in range(npts)]),
-        settings=model.ProjectSettings(sigma_image=1.0, datum="inner"),
+        settings=model.ProjectSettings(sigma_image=1.0, datum="control"),
         source=bal.path,
     )
+    project = replace(project, points=replace(project.points, xyz_approx=bal.xyz_world.copy()))
     return Scene(project=project, xyz_ground=bal.xyz_world.copy(), plate_units_per_pixel=1.0, notes=notes)
 
 
@@ -149,8 +157,10 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
         raise InputError(where, None, f"camera {colmap.camera_ids[k]}: PINHOLE with fx = {float(fx[k])!r} "
                                       f"!= fy = {float(fy[k])!r}; striptri's camera has one principal distance")
     half = colmap.width_height / 2.0
-    interior = np.stack([fx * s, (colmap.principal[:, 0] - half[:, 0]) * s,
-                         (half[:, 1] - colmap.principal[:, 1]) * s], 1)
+    interior = np.zeros((len(colmap.camera_ids), lens.NCP))
+    interior[:, :3] = np.stack([fx * s, (colmap.principal[:, 0] - half[:, 0]) * s,
+                                (half[:, 1] - colmap.principal[:, 1]) * s], 1)
+    interior[:, lens.K1:lens.P2 + 1] = colmap_distortion_to_lens(colmap.distortion)
     R_cw = R_from_quaternion(colmap.q_cam_from_world)
     R_gc = np.swapaxes(R_cw, -1, -2) @ D_STRIPTRI_FROM_COLMAP
     xyz0 = -np.einsum("nji,nj->ni", R_cw, colmap.t_cam_from_world)
@@ -177,6 +187,7 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
         cameras=model.Cameras(
             ids=[names.cameras.get(int(c), str(int(c))) for c in colmap.camera_ids],
             interior=interior, sigma_interior=np.full((len(colmap.camera_ids), 3), np.nan),
+            convention=np.full(len(colmap.camera_ids), lens.IMAGE),
         ),
         photos=_photos(list(colmap.image_names), colmap.image_camera.copy(),
                        [names.strips.get(int(i), "") for i in colmap.image_ids], xyz0, R_gc),
@@ -186,7 +197,43 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
         settings=model.ProjectSettings(sigma_image=s, datum="inner"),
         source=source,
     )
+    project = replace(project, points=replace(project.points, xyz_approx=colmap.xyz_world.copy()))
     return Scene(project=project, xyz_ground=colmap.xyz_world.copy(), plate_units_per_pixel=s, notes=notes)
+
+
+# --------------------------------------------------------------------------- COLMAP distortion
+
+
+def colmap_distortion_to_lens(dist: np.ndarray) -> np.ndarray:
+    """COLMAP's OpenCV k1, k2, p1, p2 (ncam, 4) -> striptri's k1, k2, k3, p1, p2 (ncam, 5), image
+    convention. COLMAP's tangential terms are ``du = 2 p1 u v + p2 (r^2 + 2u^2)`` in a frame with v
+    down; striptri's (Brown) ``dx = p1 (r^2 + 2x^2) + 2 p2 x y`` with y up (x = u, y = -v), hence
+    p1 = p2_colmap, p2 = -p1_colmap."""
+    dist = np.asarray(dist, dtype=float).reshape(-1, 4)
+    return np.column_stack([dist[:, 0], dist[:, 1], np.zeros(len(dist)), dist[:, 3], -dist[:, 2]])
+
+
+def lens_to_colmap_distortion(prm: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`colmap_distortion_to_lens` (k3 must be 0). (ncam, NCP) -> (ncam, 4)."""
+    prm = np.asarray(prm, dtype=float).reshape(-1, lens.NCP)
+    return np.column_stack([prm[:, lens.K1], prm[:, lens.K2], -prm[:, lens.P2], prm[:, lens.P1]])
+
+
+def _colmap_model_of(cams: model.Cameras, j: int, where) -> str:
+    """COLMAP camera model of striptri camera j (the simplest that holds it), or InputError."""
+    prm = cams.interior[j]
+    dist = prm[lens.DISTORTION_ELEMENTS]
+    if not np.any(dist != 0):
+        return "SIMPLE_PINHOLE"
+    if cams.convention[j] != lens.IMAGE:
+        raise InputError(where, None, f"camera {cams.ids[j]} has distortion in the plate convention (a correction "
+                                            "of the measured coordinates), which COLMAP's models cannot express")
+    if prm[lens.K3] != 0 or prm[lens.B1] != 0 or prm[lens.B2] != 0:
+        raise InputError(where, None, f"camera {cams.ids[j]}: k3, b1, b2 have no COLMAP model here "
+                                            "(SIMPLE_RADIAL, RADIAL, OPENCV)")
+    if prm[lens.P1] != 0 or prm[lens.P2] != 0:
+        return "OPENCV"
+    return "RADIAL" if prm[lens.K2] != 0 else "SIMPLE_RADIAL"
 
 
 # --------------------------------------------------------------------------- project -> COLMAP
@@ -194,7 +241,8 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
 
 def project_to_colmap(project: model.Project, xyz_ground: np.ndarray | None = None,
                       pixel_size: float = 1.0) -> tuple[ColmapModel, ColmapNames, list[str]]:
-    """A COLMAP model (SIMPLE_PINHOLE cameras) of project, its striptri names, and notes.
+    """A COLMAP model of project (per camera the simplest of SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL,
+    OPENCV that holds it; plate-convention distortion is refused), its striptri names, and notes.
 
     xyz_ground: coordinates of the object points (nan = unknown); default approximate_points(project).
     Points without coordinates are not written; their image points get POINT3D_ID -1. pixel_size:
@@ -219,8 +267,8 @@ def project_to_colmap(project: model.Project, xyz_ground: np.ndarray | None = No
     point3d_id[known] = np.arange(1, known.sum() + 1)
     uv = np.stack([ip.xy[:, 0] / s + half[cam_of_obs, 0], half[cam_of_obs, 1] - ip.xy[:, 1] / s], 1)
     colmap = ColmapModel(
-        camera_ids=np.arange(1, ncam + 1), camera_models=["SIMPLE_PINHOLE"] * ncam, width_height=wh,
-        focal=focal, principal=principal,
+        camera_ids=np.arange(1, ncam + 1), camera_models=[_colmap_model_of(cams, j, Path(project.source or '.') / 'cameras.csv') for j in range(ncam)],
+        width_height=wh, focal=focal, principal=principal, distortion=lens_to_colmap_distortion(cams.interior),
         image_ids=np.arange(1, len(photos) + 1), image_names=list(photos.ids),
         image_camera=photos.camera_index.copy(), q_cam_from_world=quaternion_from_R(R_cw), t_cam_from_world=t,
         obs_image=ip.photo_index.copy(), obs_xy=uv, obs_point3d_id=point3d_id[ip.point_index],
@@ -247,10 +295,11 @@ def approximate_points(project: model.Project) -> np.ndarray:
     """Ground coordinates of every object point: the given X, Y, Z when all three are given, else
     the least-squares intersection of its rays from the photos' (approximate) orientations; nan for
     a point with fewer than two rays. -> (n_points, 3)."""
-    ip, ph, pts = project.image_points, project.photos, project.points
+    ip, ph, pts, cams = project.image_points, project.photos, project.points, project.cameras
     n = len(pts)
-    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], ip.xy,
-                   project.cameras.interior[ph.camera_index[ip.photo_index]])
+    cam = ph.camera_index[ip.photo_index]
+    ideal = lens.ideal_from_observed(ip.xy, cams.interior[cam], cams.convention[cam]).xy
+    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], ideal, cams.interior[cam, :3])
     rh = r / np.linalg.norm(r, axis=1, keepdims=True)
     P = np.eye(3) - rh[:, :, None] * rh[:, None, :]
     lhs = np.zeros((n, 3, 3))

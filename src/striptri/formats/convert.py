@@ -1,5 +1,6 @@
-"""The convert pipeline: read a BAL problem, a COLMAP text model or a striptri project, write it as
-a COLMAP text model or a striptri project folder (atomically; docs/formats.md).
+"""The convert pipeline: read a BAL problem, a COLMAP text model, a DBAT script project or a
+striptri project, write it as a COLMAP text model or a striptri project folder (atomically;
+docs/formats.md).
 
 Side files written next to the standard ones:
 
@@ -30,7 +31,7 @@ from striptri.io.output import write_output_folder
 from striptri.io.project_reader import read_project
 from striptri.io.project_writer import project_files
 
-SOURCE_FORMATS = ("bal", "colmap", "project")
+SOURCE_FORMATS = ("bal", "colmap", "dbat", "project")
 TARGET_FORMATS = ("colmap", "project")
 IDS_FILE = "striptri_ids.csv"
 APPROX_POINTS_FILE = "approx_points.csv"
@@ -47,17 +48,18 @@ class ConvertResult:
     notes: list[str] = field(default_factory=list)
 
 def detect_format(src: str | Path) -> str:
-    """bal for a file, colmap for a folder with cameras.txt, project for one with cameras.csv."""
+    """dbat for an .xml file (a DBAT script), bal for another file, colmap for a folder with
+    cameras.txt, project for one with cameras.csv."""
     src = Path(src)
     if src.is_file():
-        return "bal"
+        return "dbat" if src.suffix.lower() == ".xml" else "bal"
     if (src / "cameras.txt").is_file():
         return "colmap"
     if (src / "cameras.csv").is_file():
         return "project"
     raise InputError(src, None, "not found" if not src.exists() else
-                     "cannot tell the format (a BAL file, a COLMAP folder with cameras.txt, or a project "
-                     "folder with cameras.csv); give --from")
+                     "cannot tell the format (a BAL file, a DBAT script .xml, a COLMAP folder with cameras.txt, "
+                     "or a project folder with cameras.csv); give --from")
 
 def read_scene(src: str | Path, source_format: str | None = None, pixel_size: float | None = None,
                drop_distortion: bool = False) -> tuple[str, Scene]:
@@ -67,6 +69,10 @@ def read_scene(src: str | Path, source_format: str | None = None, pixel_size: fl
     fmt = source_format or detect_format(src)
     if fmt == "bal":
         return fmt, bal_to_project(read_bal(src), drop_distortion=drop_distortion)
+    if fmt == "dbat":
+        from striptri.formats.dbat import dbat_to_project, read_dbat
+
+        return fmt, dbat_to_project(read_dbat(src), drop_distortion=drop_distortion)
     if fmt == "colmap":
         model_ = read_colmap(src)
         return fmt, colmap_to_project(model_, 1.0 if pixel_size is None else pixel_size, _read_names(src), src)

@@ -683,22 +683,28 @@ def dbat_to_project(dbat: DbatProject, drop_distortion: bool = False) -> Scene:
 
 
 def _depend_datum(dbat: DbatProject, photos: model.Photos):
-    """DBAT's ``set_datum depend`` (ref_cam, ref_base="longest"): the six elements of the reference
-    camera held, and of the camera farthest from it (its prior position) the base component of
-    largest magnitude held too: six plus one, the minimal datum of a free network with the scale
-    from the longest base. -> (photos with sigma 0 on those elements, a note)."""
+    """DBAT's ``set_datum depend`` (ref_cam, ref_base="longest"): :func:`photo_datum` of the
+    reference camera. -> (photos, note)."""
     ref_id = str(dbat.datum.get("ref_cam", dbat.image_ids[0]))
     if ref_id not in dbat.image_ids:
         raise InputError(dbat.path, None, f"set_datum names ref_cam '{ref_id}', which is not an image id")
-    i = dbat.image_ids.index(ref_id)
     if not np.isfinite(photos.xyz0).all():
         raise InputError(dbat.path, None, "set_datum depend needs approximate positions of every camera (prior_eo)")
+    return photo_datum(photos, dbat.image_ids.index(ref_id), dbat.project_unit)
+
+
+def photo_datum(photos: model.Photos, ref: int = 0, unit: str = "m"):
+    """A minimal datum by photos (DBAT's 'depend'): the six elements of photo ``ref`` held, and of
+    the photo farthest from it (approximate positions) the base component of largest magnitude
+    held too: six plus one, the scale from the longest base. -> (photos with sigma 0 on those
+    elements, a note)."""
+    i = ref
     base = photos.xyz0 - photos.xyz0[i]
     j = int(np.argmax(np.linalg.norm(base, axis=1)))
     axis = int(np.argmax(np.abs(base[j])))
     sx, sa = photos.sigma_xyz0.copy(), photos.sigma_angles.copy()
     sx[i], sa[i] = 0.0, 0.0
     sx[j, axis] = 0.0
-    note = (f"DBAT datum 'depend': camera {photos.ids[i]} held (6 elements) and {'XYZ'[axis]}0 of camera "
-            f"{photos.ids[j]} (the longest base, {np.linalg.norm(base[j]):.3f} {dbat.project_unit}) held")
+    note = (f"datum by photos (DBAT's 'depend'): photo {photos.ids[i]} held (6 elements) and {'XYZ'[axis]}0 of "
+            f"photo {photos.ids[j]} (the longest base, {np.linalg.norm(base[j]):.3f} {unit}) held")
     return replace(photos, sigma_xyz0=sx, sigma_angles=sa), note
