@@ -426,3 +426,24 @@ def test_colmap_opencv_camera_equals_striptri_image_convention():
     back, _, _ = project_to_colmap(scene.project, scene.xyz_ground)
     assert back.camera_models == ["OPENCV"]
     np.testing.assert_allclose(back.distortion, [dist], rtol=0, atol=1e-15)
+
+
+@needs(LADYBUG)
+def test_ladybug_adjusts_to_the_reference_cost():
+    """BAL problem-49-7776 (f, k1, k2 free per camera, image convention) by the bundle method from
+    BAL's start: the first Gauss-Newton step raises the cost 380-fold, Levenberg-Marquardt damping
+    takes over, and the adjustment reaches the cost Ceres reaches (pycolmap 4.2.1, SPARSE_SCHUR,
+    scripts/bench/bench_bal.py: 13308.4127) on the same problem (the 31 observations behind their
+    camera at the start left out, as COLMAP does)."""
+    from striptri.adjustment import AdjustmentOptions, adjust
+    from striptri.formats.bal import behind_camera, without_observations
+
+    bal = read_bal(LADYBUG)
+    behind = behind_camera(bal)
+    assert behind.sum() == 31
+    bal = without_observations(bal, behind)
+    result = adjust(bal_to_project(bal).project,
+                    AdjustmentOptions(method="bundle", max_iterations=100, cost_tolerance=1e-10))
+    assert result.converged
+    assert any("damping" in h.solver_info for h in result.history)
+    assert result.vtpv / 2 == pytest.approx(13308.4127, abs=0.01)

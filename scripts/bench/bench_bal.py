@@ -33,7 +33,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from striptri.adjustment import AdjustmentOptions, adjust  # noqa: E402
-from striptri.formats.bal import bal_cost, read_bal  # noqa: E402
+from striptri.formats.bal import bal_cost, behind_camera, read_bal, without_observations  # noqa: E402
 from striptri.formats.conversions import bal_to_project  # noqa: E402
 
 DEFAULT = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "bal_ladybug49" / "problem-49-7776-pre.txt"
@@ -108,20 +108,14 @@ def run_pycolmap(bal, threads: int, max_iterations: int):
     cs = summary.ceres_summary if hasattr(summary, "ceres_summary") else summary
     return {"adjuster": "pycolmap (Ceres)", "seconds": t2 - t1, "cpu": c2 - c1,
             "iterations": int(cs.num_successful_steps + cs.num_unsuccessful_steps),
-            "final_cost": float(cs.final_cost), "converged": "CONVERGENCE" in str(cs.termination_type),
+            "final_cost": float(cs.final_cost), "converged": str(cs.termination_type).endswith(".CONVERGENCE"),
             "note": f"initial {float(cs.initial_cost):.6g}, {cs.termination_type}, build {build:.2f} s"}
 
 
 def without_behind(bal):
-    """The problem without the observations whose point is behind the camera (P_z > 0: BAL's
-    cameras look down -z) at the start, and their number."""
-    from dataclasses import replace
-
-    R = bal.R_cam_from_world()
-    P = np.einsum("nij,nj->ni", R[bal.camera_index], bal.xyz_world[bal.point_index]) + bal.t_cam_from_world[bal.camera_index]
-    keep = P[:, 2] < 0
-    return replace(bal, camera_index=bal.camera_index[keep], point_index=bal.point_index[keep],
-                   xy_pixel=bal.xy_pixel[keep]), int((~keep).sum())
+    """The problem without the observations behind their camera at the start, and their number."""
+    behind = behind_camera(bal)
+    return without_observations(bal, behind), int(behind.sum())
 
 
 def main(argv=None) -> int:

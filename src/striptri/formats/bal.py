@@ -19,7 +19,7 @@ The camera looks down its -z axis, y up: the diapositive convention of striptri.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -185,3 +185,19 @@ def parse_number(path: Path, line: int, name: str, token: str) -> float:
     if not math.isfinite(value):
         raise InputError(path, line, f"{name} '{token}' is not a finite number")
     return value
+
+
+def behind_camera(bal: BalProblem) -> np.ndarray:
+    """(nobs,) True where the observed point lies behind its camera (P_z > 0: BAL's cameras look
+    down -z) at the problem's values. Ceres-based adjusters (COLMAP) give such observations no
+    residual; striptri keeps every observation, so a comparison leaves them out of both."""
+    R = bal.R_cam_from_world()
+    P = np.einsum("nij,nj->ni", R[bal.camera_index], bal.xyz_world[bal.point_index]) + bal.t_cam_from_world[bal.camera_index]
+    return P[:, 2] > 0
+
+
+def without_observations(bal: BalProblem, drop: np.ndarray) -> BalProblem:
+    """The problem without the observations where drop (nobs,) is True."""
+    keep = ~np.asarray(drop, dtype=bool)
+    return replace(bal, camera_index=bal.camera_index[keep], point_index=bal.point_index[keep],
+                   xy_pixel=bal.xy_pixel[keep])

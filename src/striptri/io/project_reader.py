@@ -22,6 +22,7 @@ Choices made here (also in docs/file-formats.md):
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 import re
 from pathlib import Path
 
@@ -59,7 +60,8 @@ TOML_KEYS = {
     "datum": ("mode",),
 }
 
-FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "project.toml")
+FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
+              "project.toml")
 
 
 def read_project(folder: str | Path) -> model.Project:
@@ -75,6 +77,9 @@ def read_project(folder: str | Path) -> model.Project:
     image_points, points = _read_image_points(read_csv(folder / "image_points.csv"), photos, control, settings)
     bases_path = folder / "bases.csv"
     bases = _read_bases(read_csv(bases_path), photos) if bases_path.exists() else model.BaseComponents.empty()
+    approx_path = folder / "approx_points.csv"
+    if approx_path.exists():
+        points = replace(points, xyz_approx=_read_approx_points(read_csv(approx_path), points))
     return model.Project(
         cameras=cameras,
         photos=photos,
@@ -380,6 +385,25 @@ def _object_points(point_ids: list[str], control: _Control) -> model.ObjectPoint
     xyz_given[:n_control] = control.xyz
     sigma_given[:n_control] = control.sigma
     return model.ObjectPoints(ids=point_ids, kind=kind, xyz_given=xyz_given, sigma_given=sigma_given)
+
+
+# ---------------------------------------------------------------------------------------------
+# approx_points.csv
+
+
+def _read_approx_points(table: CsvTable, points: model.ObjectPoints) -> np.ndarray:
+    """approx_points.csv: point_id, X, Y, Z (empty = unknown): approximate coordinates of object
+    points (starting values of the bundle method, written by striptri convert). Every id must be
+    a point of the project. -> (n_points, 3), nan where not given."""
+    table.require("point_id", "X", "Y", "Z")
+    index = {pid: j for j, pid in enumerate(points.ids)}
+    out = np.full((len(points), 3), np.nan)
+    xyz = np.column_stack([table.optional_floats(a) for a in "XYZ"]).reshape(-1, 3)
+    for i, pid in enumerate(table.strings("point_id")):
+        if pid not in index:
+            raise table.error(i, f"point_id '{pid}' is not measured in image_points.csv nor given in control.csv")
+        out[index[pid]] = xyz[i]
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
