@@ -280,6 +280,14 @@ def test_camcal_reproduces_dbat(method):
         # DBAT prints six significant digits: the value agrees to that or to 1 % of its deviation
         assert abs(got[name] - value) <= max(0.01 * deviation, printed), (name, got[name], value, deviation)
         assert sig_of[name] == pytest.approx(deviation, rel=0.01), name
+    # DBAT's report: "K2 ... Correlations over 95%: K3:-97.9%", the only pair over 95 %
+    from striptri.precision import camera_correlations
+
+    (block,) = camera_correlations(result)
+    names = [lens.CAMERA_ELEMENTS[e] for e in block["elements"]]
+    high = {(names[i], names[j]): round(100 * block["matrix"][i, j], 1) for i in range(len(names))
+            for j in range(i + 1, len(names)) if abs(block["matrix"][i, j]) > 0.95}
+    assert high == {("k2", "k3"): -97.9}
 
 
 @needs_roma

@@ -150,3 +150,24 @@ def test_conditions_equal_bundle_with_self_calibration(convention):
     diff = np.abs(a.state.interior[0] - b.state.interior[0])[cols] / sig[cols]
     assert diff.max() < 1e-5, diff
     np.testing.assert_allclose(a.plate_adjusted, b.plate_adjusted, rtol=0, atol=1e-6 * 0.005)
+
+
+def test_camera_correlations_equal_the_dense_inverse():
+    """precision.camera_correlations against Qxx = N^-1 formed densely: the correlations among the
+    camera elements and, for each, its largest correlation with an exterior element."""
+    from striptri.precision import camera_correlations
+
+    project, _, _ = calibration_project(PLATE, sim.NoiseOptions(), seed=7)
+    result = adjust(project)
+    Q = np.linalg.inv(result.N.toarray())
+    (block,) = camera_correlations(result)
+    cols = result.layout.camera_cols[0][block["elements"]]
+    s = np.sqrt(np.diag(Q)[cols])
+    np.testing.assert_allclose(block["matrix"], Q[np.ix_(cols, cols)] / np.outer(s, s), atol=1e-9)
+    photo_cols = result.layout.photo_cols.ravel()
+    ok = photo_cols >= 0
+    ext = Q[np.ix_(cols, photo_cols[ok])] / np.outer(s, np.sqrt(np.diag(Q)[photo_cols[ok]]))
+    for i, (photo, element, rho) in enumerate(block["exterior"]):
+        k = int(np.argmax(np.abs(ext[i])))
+        assert photo_cols[ok][k] == result.layout.photo_cols[photo, element]
+        assert rho == pytest.approx(ext[i, k], abs=1e-9)

@@ -147,3 +147,42 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         out[chunk.point_index] = (np.einsum("miu,muv,mjv->mij", G, Qloc, G) + np.einsum("mio,mop,mjp->mij", F, Qll, F)
                                   + cross + np.swapaxes(cross, 1, 2))
     return out
+
+
+PHOTO_ELEMENTS = ("X0", "Y0", "Z0", "rot1", "rot2", "rot3")
+
+
+def camera_correlations(result) -> list[dict]:
+    """Correlations of the estimated camera elements (DESIGN section 6), per camera with any:
+
+    ``camera`` (index), ``elements`` (indices into lens.CAMERA_ELEMENTS), ``sigma`` (mean errors),
+    ``matrix`` (correlations among them) and ``exterior``: for each element the exterior element
+    it is most correlated with, as (photo index, element index 0-5: X0, Y0, Z0 and the three
+    rotation unknowns, correlation); (-1, -1, nan) when no exterior element is estimated.
+    """
+    lay, cov = result.layout, result.covariance
+    s0 = result.sigma0_for_precision
+    photo_cols = lay.photo_cols.ravel()
+    q_photo = cov.entries(photo_cols, photo_cols)
+    s_photo = np.sqrt(np.maximum(np.where(photo_cols >= 0, q_photo, np.nan), 0.0))
+    out = []
+    for j in range(len(lay.camera_cols)):
+        est = np.flatnonzero(lay.camera_cols[j] >= 0)
+        if not len(est):
+            continue
+        c = lay.camera_cols[j][est]
+        Q = cov.entries(c[:, None], c[None, :])
+        s = np.sqrt(np.maximum(np.diag(Q), 0.0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            matrix = Q / np.outer(s, s)
+            ext = cov.entries(c[:, None], photo_cols[None, :]) / (s[:, None] * s_photo[None, :])
+        exterior = []
+        for row in ext:
+            finite = np.isfinite(row)
+            if not finite.any():
+                exterior.append((-1, -1, float("nan")))
+                continue
+            k = int(np.nanargmax(np.where(finite, np.abs(row), -1.0)))
+            exterior.append((k // 6, k % 6, float(row[k])))
+        out.append({"camera": j, "elements": est, "sigma": s0 * s, "matrix": matrix, "exterior": exterior})
+    return out

@@ -45,6 +45,7 @@ SECTIONS = {  # id -> heading, in the order of the report
     "flagged": "Flagged measurements",
     "largest": "Largest normalised residuals",
     "photos": "Photographs",
+    "camera": "Camera calibration",
     "structure": "Structure of the normal matrix",
 }
 
@@ -543,6 +544,43 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
     ]
 
 
+def _camera_section(project: Project, result: AdjustmentResult) -> list[str]:
+    """The estimated camera elements with their mean errors, their correlations and, for each, the
+    exterior element it is most correlated with (precision.camera_correlations)."""
+    from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
+    from .precision import PHOTO_ELEMENTS, camera_correlations
+
+    out = [_section("camera")]
+    blocks = camera_correlations(result)
+    if not blocks:
+        out.append("<p>No camera element was estimated (every camera is held).</p>")
+        return out
+    out.append("<p>Estimated interior orientation and additional parameters (plate units; k, p of the "
+               "plate convention per plate unit, of the image convention dimensionless) with their mean "
+               "errors, the correlations among them and each one's largest correlation with an exterior "
+               "element. Correlations near &plusmn;1 mean the data cannot separate the two.</p>")
+    for b in blocks:
+        j = b["camera"]
+        names = [CAMERA_ELEMENTS[e] for e in b["elements"]]
+        rows = []
+        for i, e in enumerate(b["elements"]):
+            photo, element, rho = b["exterior"][i]
+            other = np.abs(np.nan_to_num(b["matrix"][i]))
+            other[i] = -1.0
+            k = int(np.argmax(other)) if len(names) > 1 else -1
+            rows.append([names[i], _fmt(result.state.interior[j, e], ".8g"), _fmt(b["sigma"][i], ".3g"),
+                         (f"{names[k]} {_fmt(b['matrix'][i, k], '.3f')}" if k >= 0 else "&ndash;"),
+                         (f"{html.escape(project.photos.ids[photo])} {PHOTO_ELEMENTS[element]} {_fmt(rho, '.3f')}"
+                          if photo >= 0 else "&ndash;")])
+        out.append(f"<h3>Camera {html.escape(project.cameras.ids[j])} (distortion convention "
+                   f"{CONVENTION_NAMES[int(result.state.convention[j])]})</h3>")
+        out.append(_table(["element", "value", "&sigma;", "largest correlation (camera)",
+                           "largest correlation (exterior)"], rows, left=1))
+        matrix_rows = [[names[i]] + [_fmt(x, ".2f") for x in b["matrix"][i]] for i in range(len(names))]
+        out.append("<div class='scroll'>" + _table([""] + names, matrix_rows, left=1) + "</div>")
+    return out
+
+
 # ---------------------------------------------------------------------------------------------------------------
 
 
@@ -577,7 +615,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
                  [_section("check-points"), "<p>Not available (no triangulated points given).</p>"]]
     body += [_flagged_section(project, result, w, absw, flagged, flag_text),
              _largest_section(project, result, w, absw),
-             _photos_section(project, result, stats)]
+             _photos_section(project, result, stats), _camera_section(project, result)]
     structure = [_section("structure")]
     if "structure" in figures:
         structure.append(_img(figures["structure"], "normal matrix structure",
