@@ -74,7 +74,7 @@ def prepare(project: Project, format_mm: float = 230.0) -> ColmapData:
     """Pixels, start points and datum of a project with one camera and full (fixed) control only."""
     if len(project.cameras) != 1:
         raise ValueError("the pycolmap comparison handles one camera")
-    c, xp, yp = project.cameras.interior[0]
+    c, xp, yp = project.cameras.interior[0, :3]
     offset = reduction_offset(project)
     xyz0 = project.photos.xyz0 - offset
     R = project.photos.R_ground_from_cam
@@ -86,7 +86,7 @@ def prepare(project: Project, format_mm: float = 230.0) -> ColmapData:
             xyz[batch.point_index] = pts.xyz_given[batch.point_index] - offset
             continue
         ph, rows = batch.photo_index, batch.image_rows
-        r = ray_ground(R[ph], ip.xy[rows], project.cameras.interior[0])
+        r = ray_ground(R[ph], ip.xy[rows], project.cameras.interior[0, :3])
         xyz[batch.point_index] = intersect_rays(xyz0[ph], r)
     taking_part = np.flatnonzero(np.isfinite(xyz[:, 0]))
     constant = pts.kind[taking_part] == FULL
