@@ -171,3 +171,53 @@ def test_camera_correlations_equal_the_dense_inverse():
         k = int(np.argmax(np.abs(ext[i])))
         assert photo_cols[ok][k] == result.layout.photo_cols[photo, element]
         assert rho == pytest.approx(ext[i, k], abs=1e-9)
+
+
+@pytest.mark.parametrize("convention", [PLATE, IMAGE])
+def test_sequential_method_applies_a_held_lens(convention):
+    """The sequential method holds the camera: with the true lens held, noise-free measurements
+    give the true orientations (the lens applied once to the measurements); asked to estimate
+    distortion it refuses in words."""
+    from striptri.errors import NumericalFailure
+
+    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=6), control=sim.ControlDesign(layout="ends"),
+                                 points=sim.PointDesign(extra_ties_per_model=4))
+    truth = sim.make_truth(design, np.random.default_rng(2))
+    noise = sim.NoiseOptions(sigma_image=0.0, stated_sigma_image=0.005, sigma_control_xy=0.0, sigma_control_z=0.0)
+    project = sim.perturb(truth, noise, np.random.default_rng(3))
+    prm = np.concatenate([truth.interior, true_lens(convention)[3:]])
+    ip = project.image_points
+    measured = lens.observed_from_ideal(ip.xy, prm, convention)
+    cams = model.Cameras(project.cameras.ids, prm[None, :], np.full((1, NCP), np.nan), np.array([convention]))
+    project = replace(project, cameras=cams, image_points=replace(ip, xy=measured))
+    result = adjust(project, AdjustmentOptions(method="sequential"))
+    assert np.abs(result.state.xyz0 + result.offset - truth.xyz0).max() < 1e-6 * H
+    sigma = cams.sigma_interior.copy()
+    sigma[0, lens.K1] = np.inf
+    with pytest.raises(NumericalFailure, match="cannot estimate lens distortion"):
+        adjust(replace(project, cameras=replace(cams, sigma_interior=sigma)), AdjustmentOptions(method="sequential"))
+
+
+def test_observed_distortion_element_is_a_weighted_observation():
+    """k1 observed with a standard deviation: a tiny sigma holds it at the observed value, a huge
+    one leaves it where the free estimate goes, and in between it lands between the two."""
+    project, _, prm = calibration_project(PLATE, sim.NoiseOptions(), seed=11)
+    free = adjust(project)
+    k1_free = free.state.interior[0, lens.K1]
+    sig_free = free.camera_mean_errors()[0, lens.K1] / free.sigma0_for_precision  # sqrt(Q_kk), a-priori units
+
+    def with_k1_observed(value, sigma):
+        cams = project.cameras
+        interior, s = cams.interior.copy(), cams.sigma_interior.copy()
+        interior[0, lens.K1], s[0, lens.K1] = value, sigma
+        return adjust(replace(project, cameras=replace(cams, interior=interior, sigma_interior=s)))
+
+    observed = k1_free + 10 * sig_free
+    tight = with_k1_observed(observed, 1e-6 * sig_free)
+    loose = with_k1_observed(observed, 1e6 * sig_free)
+    equal = with_k1_observed(observed, sig_free)
+    assert abs(tight.state.interior[0, lens.K1] - observed) < 1e-3 * sig_free
+    assert abs(loose.state.interior[0, lens.K1] - k1_free) < 1e-3 * sig_free
+    # equal weights of the prior and of the data: half-way (the update of a Gaussian estimate)
+    assert equal.state.interior[0, lens.K1] == pytest.approx((k1_free + observed) / 2, abs=0.05 * sig_free)
+    assert equal.redundancy == free.redundancy + 1
