@@ -447,3 +447,32 @@ def test_ladybug_adjusts_to_the_reference_cost():
     assert result.converged
     assert any("damping" in h.solver_info for h in result.history)
     assert result.vtpv / 2 == pytest.approx(13308.4127, abs=0.01)
+
+
+def test_bal_round_trip_through_a_project(tmp_path):
+    """BAL -> project -> BAL (striptri convert --to bal): the same cameras, points, observations
+    and cost; a project whose camera BAL cannot hold is refused in words."""
+    src = tmp_path / "p.txt"
+    src.write_text(synthetic_bal_text(k1=-0.2, k2=0.05))
+    runner = CliRunner()
+    out = runner.invoke(main, ["convert", str(src), "--to", "bal", "--out", str(tmp_path / "b")])
+    assert out.exit_code == 0, out.output
+    a, b = read_bal(src), read_bal(tmp_path / "b" / "problem.txt")
+    np.testing.assert_allclose(b.R_cam_from_world(), a.R_cam_from_world(), atol=1e-14)
+    for name in ("t_cam_from_world", "f", "k1", "k2", "xyz_world", "xy_pixel"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-13, atol=1e-12, err_msg=name)
+    np.testing.assert_array_equal(b.camera_index, a.camera_index)
+    np.testing.assert_array_equal(b.point_index, a.point_index)
+    assert bal_cost(b) == pytest.approx(bal_cost(a), rel=1e-12)
+    # the shipped pair has its principal point at the origin but no distortion: BAL holds it;
+    # a plate-convention k1 it does not
+    from striptri.formats.conversions import project_to_bal
+
+    project = read_project(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "pair")
+    problem, _ = project_to_bal(project)
+    assert problem.n_cameras == 2
+    cams = project.cameras
+    interior = cams.interior.copy()
+    interior[0, lens.K1] = 1e-8
+    with pytest.raises(InputError, match="plate convention"):
+        project_to_bal(dataclasses.replace(project, cameras=dataclasses.replace(cams, interior=interior)))

@@ -222,7 +222,8 @@ def structure(project_dir, out_png):
 
 @main.command()
 @click.argument("src", type=click.Path())
-@click.option("--to", "target", required=True, type=click.Choice(["colmap", "project"]), help="Format to write.")
+@click.option("--to", "target", required=True, type=click.Choice(["bal", "colmap", "project"]),
+              help="Format to write (bal: a folder with problem.txt).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Folder to write.")
 @click.option("--from", "source", type=click.Choice(["bal", "colmap", "dbat", "project"]), default=None,
               help="Format of SRC [detected: an .xml file is a DBAT script, another file BAL, a folder with "

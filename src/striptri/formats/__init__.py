@@ -12,6 +12,7 @@ struct-of-arrays records and converted to and from :class:`striptri.model.Projec
 from striptri.formats.bal import (
     BalProblem,
     bal_cost,
+    bal_text,
     bal_predict,
     bal_residuals,
     read_bal,
@@ -23,6 +24,7 @@ from striptri.formats.conversions import (
     approximate_points,
     bal_to_project,
     colmap_to_project,
+    project_to_bal,
     project_to_colmap,
 )
 from striptri.formats.convert import ConvertResult, convert, detect_format, read_scene
@@ -30,7 +32,7 @@ from striptri.formats.dbat import DbatCamera, DbatProject, dbat_to_project, read
 
 __all__ = [
     "BalProblem", "ColmapModel", "ColmapNames", "ConvertResult", "DbatCamera", "DbatProject", "Scene",
-    "approximate_points", "bal_cost", "dbat_to_project", "read_dbat", "read_dbat_camera",
+    "approximate_points", "bal_cost", "bal_text", "dbat_to_project", "project_to_bal", "read_dbat", "read_dbat_camera",
     "bal_predict", "bal_residuals", "bal_to_project", "colmap_files", "colmap_to_project", "convert",
     "detect_format", "project_to_colmap", "read_bal", "read_colmap", "read_scene",
 ]

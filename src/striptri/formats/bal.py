@@ -201,3 +201,16 @@ def without_observations(bal: BalProblem, drop: np.ndarray) -> BalProblem:
     keep = ~np.asarray(drop, dtype=bool)
     return replace(bal, camera_index=bal.camera_index[keep], point_index=bal.point_index[keep],
                    xy_pixel=bal.xy_pixel[keep])
+
+
+def bal_text(problem: BalProblem) -> str:
+    """The BAL file of a problem (one number per parameter line, floats by repr), as the published
+    files are laid out; read_bal reads it back unchanged."""
+    lines = [f"{problem.n_cameras} {problem.n_points} {problem.n_observations}"]
+    lines += [f"{int(c)} {int(p)} {float(x)!r} {float(y)!r}"
+              for c, p, (x, y) in zip(problem.camera_index, problem.point_index, problem.xy_pixel)]
+    params = np.column_stack([problem.rotation_cam_from_world, problem.t_cam_from_world, problem.f,
+                              problem.k1, problem.k2]).ravel()
+    lines += [repr(float(v)) for v in params]
+    lines += [repr(float(v)) for v in problem.xyz_world.ravel()]
+    return "\n".join(lines) + "\n"

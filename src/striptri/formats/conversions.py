@@ -137,6 +137,55 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
     return Scene(project=project, xyz_ground=bal.xyz_world.copy(), plate_units_per_pixel=1.0, notes=notes)
 
 
+def project_to_bal(project: model.Project, xyz_ground: np.ndarray | None = None) -> tuple[BalProblem, list[str]]:
+    """A BAL problem of project: one BAL camera per photo (its camera's c, k1, k2), one BAL point per
+    object point with coordinates (xyz_ground, default the approximate coordinates or
+    approximate_points), observations = plate coordinates (the plate unit is BAL's pixel).
+
+    BAL's camera has the principal point at the origin and radial distortion applied to the
+    projected point: a camera with xp, yp != 0, k3, p1, p2, b1, b2 != 0, or distortion in the plate
+    convention is refused (InputError naming cameras.csv). Control is not written (a note says so)."""
+    from scipy.spatial.transform import Rotation
+
+    cams, photos, ip, pts = project.cameras, project.photos, project.image_points, project.points
+    where = Path(project.source or ".") / "cameras.csv"
+    for j, cid in enumerate(cams.ids):
+        prm = cams.interior[j]
+        if prm[lens.XP] != 0 or prm[lens.YP] != 0:
+            raise InputError(where, None, f"camera {cid}: BAL's principal point is the origin of the image "
+                                          f"coordinates; xp, yp = {prm[lens.XP]!r}, {prm[lens.YP]!r}")
+        extra = prm[[lens.K3, lens.P1, lens.P2, lens.B1, lens.B2]]
+        if np.any(extra != 0):
+            raise InputError(where, None, f"camera {cid}: BAL's camera has only k1, k2; k3, p1, p2, b1, b2 are not 0")
+        if cams.convention[j] != lens.IMAGE and np.any(prm[[lens.K1, lens.K2]] != 0):
+            raise InputError(where, None, f"camera {cid}: distortion in the plate convention (a correction of the "
+                                          "measured coordinates) has no BAL equivalent")
+    if xyz_ground is None:
+        xyz_ground = approximate_points(project)
+        if pts.xyz_approx is not None:
+            xyz_ground = np.where(np.isfinite(pts.xyz_approx).all(axis=1)[:, None], pts.xyz_approx, xyz_ground)
+    known = np.isfinite(xyz_ground).all(axis=1)
+    new_index = -np.ones(len(pts), dtype=np.int64)
+    new_index[known] = np.arange(int(known.sum()))
+    keep = known[ip.point_index]
+    R_cw = np.swapaxes(photos.R_ground_from_cam, -1, -2)
+    cam = photos.camera_index
+    problem = BalProblem(
+        path=None, rotation_cam_from_world=Rotation.from_matrix(R_cw).as_rotvec(),
+        t_cam_from_world=-np.einsum("nij,nj->ni", R_cw, photos.xyz0),
+        f=cams.interior[cam, lens.C].copy(), k1=cams.interior[cam, lens.K1].copy(), k2=cams.interior[cam, lens.K2].copy(),
+        xyz_world=xyz_ground[known], camera_index=ip.photo_index[keep].copy(), point_index=new_index[ip.point_index[keep]],
+        xy_pixel=ip.xy[keep].copy(), camera_lines=np.zeros(len(photos), dtype=np.int64),
+    )
+    notes = []
+    if (~known).any():
+        notes.append(f"{int((~known).sum())} points without coordinates left out with their {int((~keep).sum())} "
+                     "image points")
+    if np.any(pts.kind != model.TIE):
+        notes.append("BAL has no control: point kinds, given coordinates and sigmas are not written")
+    return problem, notes
+
+
 # --------------------------------------------------------------------------- COLMAP -> project
 
 

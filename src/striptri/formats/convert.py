@@ -6,6 +6,8 @@ Side files written next to the standard ones:
 
 * COLMAP output: ``striptri_ids.csv`` (table, colmap_id, striptri_id, strip_id), the striptri ids of
   cameras and points and the strip of each image, read back when present (COLMAP ignores it);
+* BAL output: a folder with ``problem.txt`` (the BAL file) and ``striptri_ids.csv`` (BAL camera
+  index -> photo id, BAL point index -> point id);
 * project output: ``approx_points.csv`` (point_id, X, Y, Z), the approximate ground coordinates of
   the points (BAL, COLMAP, or given/intersected for a project); read_project does not read it.
 """
@@ -15,8 +17,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from striptri.errors import InputError
-from striptri.formats.bal import read_bal
+from striptri.formats.bal import bal_text, read_bal
 from striptri.formats.colmap import colmap_files, read_colmap
 from striptri.formats.conversions import (
     ColmapNames,
@@ -24,6 +28,7 @@ from striptri.formats.conversions import (
     approximate_points,
     bal_to_project,
     colmap_to_project,
+    project_to_bal,
     project_to_colmap,
 )
 from striptri.io.csvtable import format_csv, read_csv
@@ -32,7 +37,8 @@ from striptri.io.project_reader import read_project
 from striptri.io.project_writer import project_files
 
 SOURCE_FORMATS = ("bal", "colmap", "dbat", "project")
-TARGET_FORMATS = ("colmap", "project")
+TARGET_FORMATS = ("bal", "colmap", "project")
+BAL_FILE = "problem.txt"
 IDS_FILE = "striptri_ids.csv"
 APPROX_POINTS_FILE = "approx_points.csv"
 
@@ -99,6 +105,13 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
             "point_id": project.points.ids, "X": scene.xyz_ground[:, 0], "Y": scene.xyz_ground[:, 1],
             "Z": scene.xyz_ground[:, 2],
         })
+    elif to == "bal":
+        problem, more = project_to_bal(project, scene.xyz_ground)
+        notes += more
+        names = ColmapNames(cameras={k: pid for k, pid in enumerate(project.photos.ids)},
+                            points={k: project.points.ids[j] for k, j in
+                                    enumerate(np.flatnonzero(np.isfinite(scene.xyz_ground).all(axis=1)))})
+        files = {BAL_FILE: bal_text(problem), IDS_FILE: _names_csv(names)}
     else:
         s = scene.plate_units_per_pixel or (1.0 if pixel_size is None else pixel_size)
         colmap, names, more = project_to_colmap(project, scene.xyz_ground, s)
