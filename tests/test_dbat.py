@@ -339,3 +339,39 @@ def test_convert_and_adjust_camcal_from_the_command_line(tmp_path):
     assert f"{summary['sigma0']:.4f}" == "1.6148" and summary["redundancy"] == 3725
     header = (tmp_path / "o" / "cameras.csv").read_text().splitlines()[0].split(",")
     assert header[:6] == ["camera_id", "c", "xp", "yp", "k1", "k2"] and "b1" in header and "distortion" in header
+
+
+@needs_camcal
+@needs_roma
+@pytest.mark.parametrize("which", ["camcal", "roma"])
+def test_dbat_round_trip_through_a_project(tmp_path, which):
+    """DBAT -> project -> DBAT (striptri convert --to dbat, at DBAT's pixel size) -> project: the same
+    measurements (plate), sigmas, camera elements and their estimated flags, approximate
+    orientations, control and datum; camcal adjusted again gives DBAT's sigma0."""
+    from click.testing import CliRunner
+
+    from striptri.cli import main
+    from striptri.io import read_project
+
+    script = CAMCAL / "camcaldemo.xml" if which == "camcal" else ROMA / "romabundledemo.xml"
+    ph = read_dbat(script).camera.pixel_size[1]
+    runner = CliRunner()
+    for args in (["convert", str(script), "--to", "project", "--out", str(tmp_path / "p")],
+                 ["convert", str(tmp_path / "p"), "--to", "dbat", "--out", str(tmp_path / "d"), "--pixel-size", repr(ph)],
+                 ["convert", str(tmp_path / "d" / "project.xml"), "--to", "project", "--out", str(tmp_path / "q")]):
+        out = runner.invoke(main, args)
+        assert out.exit_code == 0, out.output
+    p, q = read_project(tmp_path / "p"), read_project(tmp_path / "q")
+    assert q.photos.ids == p.photos.ids and sorted(q.points.ids) == sorted(p.points.ids)
+    order = [q.points.ids.index(pid) for pid in p.points.ids]
+    np.testing.assert_allclose(q.image_points.xy, p.image_points.xy, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(q.image_points.sigma_xy, p.image_points.sigma_xy, rtol=1e-12)
+    np.testing.assert_allclose(q.cameras.interior, p.cameras.interior, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(np.isinf(q.cameras.sigma_interior), np.isinf(p.cameras.sigma_interior))
+    np.testing.assert_allclose(q.photos.xyz0, p.photos.xyz0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(q.photos.R_ground_from_cam, p.photos.R_ground_from_cam, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(q.photos.sigma_xyz0 == 0, p.photos.sigma_xyz0 == 0)
+    np.testing.assert_array_equal(q.points.kind[order], p.points.kind)
+    np.testing.assert_allclose(q.points.xyz_given[order], p.points.xyz_given, rtol=0, atol=1e-12)
+    if which == "camcal":
+        assert f"{adjust(q).sigma0:.4f}" == "1.6148"

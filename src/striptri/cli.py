@@ -222,15 +222,15 @@ def structure(project_dir, out_png):
 
 @main.command()
 @click.argument("src", type=click.Path())
-@click.option("--to", "target", required=True, type=click.Choice(["bal", "colmap", "project"]),
-              help="Format to write (bal: a folder with problem.txt).")
+@click.option("--to", "target", required=True, type=click.Choice(["bal", "colmap", "dbat", "project"]),
+              help="Format to write (bal: a folder with problem.txt; dbat: a folder with the script project.xml).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Folder to write.")
 @click.option("--from", "source", type=click.Choice(["bal", "colmap", "dbat", "project"]), default=None,
               help="Format of SRC [detected: an .xml file is a DBAT script, another file BAL, a folder with "
                    "cameras.txt COLMAP, with cameras.csv a project].")
 @click.option("--pixel-size", type=click.FloatRange(min=0.0, min_open=True), default=None,
-              help="Plate units per pixel on the COLMAP side: the plate unit of a COLMAP source, the pixel of "
-                   "COLMAP output from a project [1].")
+              help="Plate units per pixel on the COLMAP or DBAT side: the plate unit of a COLMAP source, the "
+                   "pixel of COLMAP or DBAT output from a project [1].")
 @click.option("--drop-distortion", is_flag=True, default=False,
               help="BAL, DBAT: hold the distortion at 0 (a pinhole camera) instead of keeping it.")
 @reports_errors

@@ -6,6 +6,7 @@ Side files written next to the standard ones:
 
 * COLMAP output: ``striptri_ids.csv`` (table, colmap_id, striptri_id, strip_id), the striptri ids of
   cameras and points and the strip of each image, read back when present (COLMAP ignores it);
+* DBAT output: a folder with the script ``project.xml`` and the text files it names (formats.dbat);
 * BAL output: a folder with ``problem.txt`` (the BAL file) and ``striptri_ids.csv`` (BAL camera
   index -> photo id, BAL point index -> point id);
 * project output: ``approx_points.csv`` (point_id, X, Y, Z), the approximate ground coordinates of
@@ -37,7 +38,7 @@ from striptri.io.project_reader import read_project
 from striptri.io.project_writer import project_files
 
 SOURCE_FORMATS = ("bal", "colmap", "dbat", "project")
-TARGET_FORMATS = ("bal", "colmap", "project")
+TARGET_FORMATS = ("bal", "colmap", "dbat", "project")
 BAL_FILE = "problem.txt"
 IDS_FILE = "striptri_ids.csv"
 APPROX_POINTS_FILE = "approx_points.csv"
@@ -105,6 +106,11 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
             "point_id": project.points.ids, "X": scene.xyz_ground[:, 0], "Y": scene.xyz_ground[:, 1],
             "Z": scene.xyz_ground[:, 2],
         })
+    elif to == "dbat":
+        from striptri.formats.dbat import dbat_files
+
+        files, more = dbat_files(project, 1.0 if pixel_size is None else pixel_size)
+        notes += more
     elif to == "bal":
         problem, more = project_to_bal(project, scene.xyz_ground)
         notes += more
