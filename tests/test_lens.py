@@ -44,6 +44,14 @@ def image_camera(rng, m):
     return xy, prm
 
 
+def camera(convention, rng, m):
+    """A camera of the convention (image convention without b1, b2) and m measurements."""
+    xy, prm = (plate_camera if convention == PLATE else image_camera)(rng, m)
+    if convention == IMAGE:
+        prm[:, lens.B1:] = 0.0
+    return xy, prm
+
+
 SCALES = np.array([1.0, 0.1, 0.1, 1e-4, 1e-7, 1e-10, 1e-5, 1e-5, 1e-4, 1e-4])
 
 
@@ -77,9 +85,7 @@ def test_brown_is_browns_polynomial_written_out():
 @pytest.mark.parametrize("convention", [PLATE, IMAGE])
 def test_ideal_points_derivatives(convention):
     rng = np.random.default_rng(2 + convention)
-    xy, prm = (plate_camera if convention == PLATE else image_camera)(rng, 60)
-    if convention == IMAGE:
-        prm[:, lens.B1:] = 0.0
+    xy, prm = camera(convention, rng, 60)
     ideal = ideal_from_observed(xy, prm, convention)
     assert ideal.converged.all()
     scale = SCALES if convention == PLATE else np.array([1.0, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1, 1])
@@ -123,9 +129,7 @@ def test_projection_terms_derivatives(convention):
     """The bundle's residual pred - obs: derivative with respect to the camera elements (the ideal
     projection xp - c m/m_z moves with c, xp, yp as collinearity says) and to the ideal projection."""
     rng = np.random.default_rng(6 + convention)
-    xy, prm = (plate_camera if convention == PLATE else image_camera)(rng, 50)
-    if convention == IMAGE:
-        prm[:, lens.B1:] = 0.0
+    xy, prm = camera(convention, rng, 50)
     n = rng.uniform(-0.5, 0.5, (50, 2)) * (0.7 if convention == PLATE else 1.0)
 
     def residual(p):
@@ -153,9 +157,7 @@ def test_conventions_agree_when_distortion_is_zero():
 @pytest.mark.parametrize("convention", [PLATE, IMAGE])
 def test_observed_from_ideal_inverts_ideal_from_observed(convention):
     rng = np.random.default_rng(8 + convention)
-    xy, prm = (plate_camera if convention == PLATE else image_camera)(rng, 100)
-    if convention == IMAGE:
-        prm[:, lens.B1:] = 0.0
+    xy, prm = camera(convention, rng, 100)
     ideal = ideal_from_observed(xy, prm, convention).xy
     np.testing.assert_allclose(lens.observed_from_ideal(ideal, prm, convention), xy, rtol=0,
                                atol=1e-11 * np.abs(xy).max())

@@ -32,6 +32,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import colmap_ba  # noqa: E402
+
 from striptri.adjustment import AdjustmentOptions, adjust  # noqa: E402
 from striptri.formats.bal import bal_cost, behind_camera, read_bal, without_observations  # noqa: E402
 from striptri.formats.conversions import bal_to_project  # noqa: E402
@@ -83,24 +86,8 @@ def run_pycolmap(bal, threads: int, max_iterations: int):
         track = pycolmap.Track([pycolmap.TrackElement(int(bal.camera_index[k]) + 1, int(index_in_image[k])) for k in r])
         rec.add_point3D(bal.xyz_world[j], track)
     build = time.perf_counter() - t0
-    opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = True
-    opts.refine_principal_point = False
-    opts.refine_extra_params = True
-    opts.refine_sensor_from_rig = False
-    opts.print_summary = False
-    ceres = opts.ceres
-    ceres.auto_select_solver_type = False
-    ceres.use_gpu = False
-    so = ceres.solver_options
-    so.linear_solver_type = pycolmap._core.pyceres.LinearSolverType.SPARSE_SCHUR
-    so.num_threads = threads
-    so.max_num_iterations = max_iterations
-    so.function_tolerance = COST_TOLERANCE
-    so.gradient_tolerance = 1e-14
-    so.parameter_tolerance = 1e-14
-    ceres.solver_options = so
-    opts.ceres = ceres
+    opts = colmap_ba.options(pycolmap, threads, max_iterations=max_iterations, refine_intrinsics=True,
+                             function_tolerance=COST_TOLERANCE)
     t1, c1 = time.perf_counter(), time.process_time()
     adjuster = pycolmap.create_default_ceres_bundle_adjuster(opts, config, rec)
     summary = adjuster.solve()

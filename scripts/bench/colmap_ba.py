@@ -139,13 +139,15 @@ def build(pycolmap, data: ColmapData):
     return rec, config, ids
 
 
-def options(pycolmap, threads: int, initial_radius: float | None = None, max_iterations: int = 100):
-    """COLMAP's bundle adjustment options with intrinsics constant, SPARSE_SCHUR forced and tight
+def options(pycolmap, threads: int, initial_radius: float | None = None, max_iterations: int = 100,
+            refine_intrinsics: bool = False, function_tolerance: float = 1e-16):
+    """COLMAP's bundle adjustment options with intrinsics constant (refine_intrinsics: focal length
+    and extra parameters estimated, the principal point held), SPARSE_SCHUR forced and tight
     tolerances. initial_radius: Ceres' initial trust region radius (None: COLMAP's 1e4)."""
     opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = False
+    opts.refine_focal_length = refine_intrinsics
     opts.refine_principal_point = False
-    opts.refine_extra_params = False
+    opts.refine_extra_params = refine_intrinsics
     opts.refine_sensor_from_rig = False
     opts.print_summary = False
     ceres = opts.ceres
@@ -155,7 +157,7 @@ def options(pycolmap, threads: int, initial_radius: float | None = None, max_ite
     so.linear_solver_type = pycolmap._core.pyceres.LinearSolverType.SPARSE_SCHUR
     so.num_threads = threads
     so.max_num_iterations = max_iterations
-    so.function_tolerance = 1e-16
+    so.function_tolerance = function_tolerance
     so.gradient_tolerance = 1e-16
     so.parameter_tolerance = 1e-12
     if initial_radius is not None:
