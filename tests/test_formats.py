@@ -354,6 +354,8 @@ def test_convert_command_end_to_end(tmp_path):
     p = read_project(tmp_path / "p")
     assert (len(p.photos), len(p.points), len(p.image_points)) == (4, 6, 24)
     assert p.settings.datum == "control" and p.settings.sigma_image == 1.0
+    # BAL problems want the damped bundle method (written to project.toml and read back)
+    assert (p.settings.method, p.settings.max_iterations, p.settings.cost_tolerance) == ("bundle", 100, 1e-10)
     assert p.cameras.interior[0, lens.K1] == -0.1 and p.cameras.convention[0] == lens.IMAGE
     assert (tmp_path / "p" / "approx_points.csv").is_file()
 

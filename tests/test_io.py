@@ -377,6 +377,9 @@ BAD_CASES = {
     "toml unknown solver": ({"project_toml": '[adjustment]\nsolver = "lu"\n'}, "project.toml", 2, ["solver", "'lu'"]),
     "toml bad max_iterations": (
         {"project_toml": "[adjustment]\nmax_iterations = 0\n"}, "project.toml", 2, ["max_iterations", "positive"]),
+    "toml bad cost_tolerance": (
+        {"project_toml": "[adjustment]\nmethod = \"bundle\"\ncost_tolerance = 2\n"}, "project.toml", 3,
+        ["cost_tolerance", "[0, 1)"]),
     "toml bad sigma_image": (
         {"project_toml": "[defaults]\nsigma_image = -0.005\n"}, "project.toml", 2, ["sigma_image", "positive"]),
     "toml unknown key": (

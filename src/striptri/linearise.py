@@ -87,9 +87,11 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     if ideal is not None:
         if not ideal.converged.all():
             raise NumericalFailure(
-                "the lens distortion of some measurements cannot be inverted (the distortion "
-                "polynomial folds back inside the measured area): check k1, k2, k3 of the image-"
-                "convention cameras or their starting values")
+                f"the lens distortion of {int((~ideal.converged).sum())} measurements cannot be inverted at the "
+                "current camera elements (the distortion polynomial of an image-convention camera folds back "
+                "inside the measured area). The method of conditions needs the rays of the measurements; the "
+                "bundle method projects forward and does not (--method bundle), or give better starting "
+                "values of k1, k2, k3")
         xy = ideal.xy
     if batch.family == COLLINEARITY:
         lin = collinearity(xy, R, O, params[..., :3], X)

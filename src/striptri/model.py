@@ -157,6 +157,7 @@ class ProjectSettings:
     solver: str = "auto"
     max_iterations: int = 30
     datum: str = "control"
+    cost_tolerance: float = 0.0  # bundle method: AdjustmentOptions.cost_tolerance (0 = off)
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,8 @@ class AdjustmentProducts:
 def options_for(project: Project, **overrides) -> AdjustmentOptions:
     """AdjustmentOptions from project.toml's [adjustment], with command-line values on top."""
     s = project.settings
-    base = dict(method=s.method, solver=s.solver, max_iterations=s.max_iterations, datum=s.datum)
+    base = dict(method=s.method, solver=s.solver, max_iterations=s.max_iterations, datum=s.datum,
+                cost_tolerance=s.cost_tolerance)
     base.update({k: v for k, v in overrides.items() if v is not None})
     return AdjustmentOptions(**base)
 

@@ -130,7 +130,9 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
             xy=bal.xy_pixel.copy(), sigma_xy=np.ones((nobs, 2)),
         ),
         points=_tie_points([str(j) for j in range(npts)]),
-        settings=model.ProjectSettings(sigma_image=1.0, datum="control"),
+        # BAL problems want the bundle method with damping and a cost tolerance (docs/formats.md)
+        settings=model.ProjectSettings(sigma_image=1.0, datum="control", method="bundle", max_iterations=100,
+                                       cost_tolerance=1e-10),
         source=bal.path,
     )
     project = replace(project, points=replace(project.points, xyz_approx=bal.xyz_world.copy()))

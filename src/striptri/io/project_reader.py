@@ -56,7 +56,7 @@ BASE_AXES = {"bx": 0, "by": 1, "bz": 2}
 TOML_KEYS = {
     "units": ("angles", "rotation"),
     "defaults": ("sigma_image",),
-    "adjustment": ("method", "solver", "max_iterations"),
+    "adjustment": ("method", "solver", "max_iterations", "cost_tolerance"),
     "datum": ("mode",),
 }
 
@@ -126,6 +126,11 @@ def read_settings(path: str | Path) -> model.ProjectSettings:
     max_iterations = get("adjustment", "max_iterations", defaults.max_iterations)
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 1:
         raise fail("adjustment", "max_iterations", f"{max_iterations!r} is not a positive integer")
+    cost_tolerance = get("adjustment", "cost_tolerance", defaults.cost_tolerance)
+    if isinstance(cost_tolerance, bool) or not isinstance(cost_tolerance, (int, float)) or not (
+        math.isfinite(cost_tolerance) and 0 <= cost_tolerance < 1
+    ):
+        raise fail("adjustment", "cost_tolerance", f"{cost_tolerance!r} is not a number in [0, 1)")
     return model.ProjectSettings(
         angle_unit=choice("units", "angles", model.ANGLE_UNITS, defaults.angle_unit),
         rotation=choice("units", "rotation", model.ROTATION_CONVENTIONS, defaults.rotation),
@@ -134,6 +139,7 @@ def read_settings(path: str | Path) -> model.ProjectSettings:
         solver=choice("adjustment", "solver", SOLVERS, defaults.solver),
         max_iterations=max_iterations,
         datum=choice("datum", "mode", DATUMS, defaults.datum),
+        cost_tolerance=float(cost_tolerance),
     )
 
 

@@ -81,6 +81,7 @@ def settings_toml(settings: model.ProjectSettings) -> str:
         f'method = "{settings.method}"\n'
         f'solver = "{settings.solver}"\n'
         f"max_iterations = {int(settings.max_iterations)}\n"
+        + (f"cost_tolerance = {float(settings.cost_tolerance)!r}\n" if settings.cost_tolerance else "")
         + datum
     )
 
