@@ -16,7 +16,7 @@ approximate orientations; without them, from the distances between the projectio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -232,6 +232,23 @@ def untangle_chains(rows: np.ndarray, photo_index: np.ndarray, xyz0: np.ndarray,
         star[bad[u]] = True
     rows[bad] = np.take_along_axis(rows[bad], best, axis=1)
     return rows, star
+
+
+def merge_layouts(batches: list[GroupBatch]) -> list[GroupBatch]:
+    """The batches with chains and stars of the same shape joined (for the bundle method, which
+    has no conditions and so no use for the distinction): fewer, larger batches."""
+    merged: dict[tuple, list[GroupBatch]] = {}
+    for b in batches:
+        merged.setdefault((b.family, b.k, b.given_axes), []).append(b)
+    out = []
+    for (family, k, axes), parts in merged.items():
+        if len(parts) == 1:
+            out.append(replace(parts[0], star=False))
+            continue
+        out.append(GroupBatch(family, k, axes, np.concatenate([b.point_index for b in parts]),
+                              np.concatenate([b.image_rows for b in parts]),
+                              np.concatenate([b.photo_index for b in parts]), parts[0].n_conditions, False))
+    return out
 
 
 def rays_per_point(project: Project) -> np.ndarray:

@@ -35,7 +35,7 @@ import scipy.sparse as sp
 from .. import datum, solvers
 from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, has_converged, observations_of, stop_if_diverging
 from ..errors import NumericalFailure
-from ..groups import GroupBatch, build_batches
+from ..groups import GroupBatch, build_batches, merge_layouts
 from ..linearise import Observations
 from ..model import Project
 from ..parameter_observations import ParameterObservations, build_parameter_observations
@@ -74,7 +74,7 @@ class _Problem:
         self.project, self.options = project, options
         self.offset = reduction_offset(project)
         self.layout: UnknownLayout = build_layout(project)
-        self.batches: list[GroupBatch] = build_batches(project)
+        self.batches: list[GroupBatch] = merge_layouts(build_batches(project))
         self.obs: Observations = observations_of(project, self.offset)
         self.pobs: ParameterObservations = build_parameter_observations(project, self.offset)
         self.unknowns: PointUnknowns = point_unknowns(project, self.batches, self.obs)
