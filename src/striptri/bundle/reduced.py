@@ -25,11 +25,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..groups import GroupBatch
-from ..lens import NCP, projection_terms
+from ..lens import projection_terms
 from ..linearise import Observations
 from ..normal_equations import BlockPattern, ray_columns, selection_matrix
 from ..parameters import State, UnknownLayout
-from .collinearity import collinearity_jacobians
+from ..triangulation import ray_terms
 from .points import PointUnknowns
 
 @dataclass
@@ -75,17 +75,10 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     cam = state.camera_of_photo[ph]
     params, conv = state.camera_terms(ph)
     X = xyz[pt]
-    jac = collinearity_jacobians(state.R[ph], state.xyz0[ph], params[..., :3], X[:, None, :])
-    d_point, d_centre, d_rot = jac.d_point, jac.d_centre, jac.d_rot @ rotation_maps[ph]
-    xy_obs = obs.plate[rows]
-    if layout.lens_in_play(state):  # residual space and derivatives of the camera model (lens.py)
-        terms = projection_terms(jac.xy, xy_obs, params, conv)
-        d_point, d_centre, d_rot = terms.d_ideal @ d_point, terms.d_ideal @ d_centre, terms.d_ideal @ d_rot
-        d_camera, e = terms.d_camera, terms.obs - terms.pred
-    else:
-        d_camera = np.zeros(jac.d_interior.shape[:-1] + (NCP,))
-        d_camera[..., :3] = jac.d_interior
-        e = xy_obs - jac.xy
+    # residual space and derivatives through the camera model (lens.py), as triangulation does
+    e, d_point, d_centre, d_rot, d_camera = ray_terms(state.R[ph], state.xyz0[ph], params, conv, X, obs.plate[rows],
+                                                      with_lens=layout.lens_in_play(state))
+    d_rot = d_rot @ rotation_maps[ph]
     sigma = np.sqrt(obs.q_plate[rows])
     s = (1.0 / sigma)[..., None]
     parts, col_parts = [d_centre, d_rot], [layout.photo_cols[ph]]
