@@ -39,6 +39,13 @@ DENSE_QXX_LIMIT = 5000  # unknowns up to which AdjustmentResult.Qxx forms the de
 # "control": the datum comes from control and observed elements (a defect is an error);
 # "inner": a free network, the directions the control leaves free fixed by inner constraints.
 DATUMS = ("control", "inner")
+# Why an iteration stopped (summary.json "termination"). "converged": the corrections fell below
+# the tolerance (or the round-off floor); "cost_flat": the bundle's cost tolerance was met (also a
+# success); "iteration_limit": max_iterations reached first; "diverged": non-finite numbers or
+# corrections growing without bound. Only the first two are results; the others are failures
+# unless the user keeps them (--keep-unconverged).
+TERMINATIONS = ("converged", "cost_flat", "iteration_limit", "diverged")
+SUCCESSFUL_TERMINATIONS = ("converged", "cost_flat")
 
 
 @dataclass(frozen=True)
@@ -125,6 +132,10 @@ class AdjustmentResult:
     checks: dict
     timings: dict = field(default_factory=dict)
     free_network: datum.FreeNetwork | None = None
+    # why the iteration stopped (summary.json "termination", one of TERMINATIONS) and, for every
+    # reason but "converged", a message with the last figures of the history and the likely cause
+    termination: str = "converged"
+    termination_message: str = ""
     _covariance: Covariance | None = None
 
     @property

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 
 class InputError(Exception):
     """Bad input: names the file, the line (1-based, None when the whole file is meant) and the reason."""
@@ -17,3 +19,24 @@ class InputError(Exception):
 class NumericalFailure(Exception):
     """An adjustment that cannot be carried out, explained in a photogrammetrist's words
     (datum defect, divergence, a photograph without enough measurements)."""
+
+
+
+@dataclass(frozen=True)
+class Note:
+    """Something in the input that striptri did not use, or used in a way the user may not expect
+    (a control point no photo measures, an unknown column, a file it does not read). Never silent:
+    the pipeline prints every note on stderr (``striptri: warning: ...``), lists it in report.html
+    and in summary.json's ``warnings``.
+
+    path: the file (or folder) concerned; line: 1-based, None for the whole file; text: what was
+    ignored and why, in a photogrammetrist's words.
+    """
+
+    path: str
+    line: int | None
+    text: str
+
+    def __str__(self) -> str:
+        where = self.path if self.line is None else f"{self.path}, line {self.line}"
+        return f"{where}: {self.text}"

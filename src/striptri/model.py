@@ -169,3 +169,6 @@ class Project:
     bases: BaseComponents = field(default_factory=BaseComponents.empty)
     settings: ProjectSettings = field(default_factory=ProjectSettings)
     source: Path | None = None
+    # what the reader did not use or had to interpret (striptri.errors.Note): printed as warnings,
+    # listed in report.html and summary.json "warnings"; nothing in the input is ignored silently
+    notes: tuple = ()
