@@ -59,6 +59,9 @@ class AdjustmentOptions:
     cost_tolerance: bundle method only, 0 = off: also converged when a step lowers the sum of
     squares by less than this fraction (Ceres' function tolerance; for problems with directions
     so weak that corrections stay large while the cost no longer changes, e.g. BAL problems).
+    keep_unconverged: return an adjustment that stopped without converging (iteration limit) as a
+    result, with ``converged`` False; by default it is a NumericalFailure (an unconverged
+    adjustment is not a result).
     """
 
     method: str = "conditions"
@@ -74,6 +77,7 @@ class AdjustmentOptions:
     procedure: int = 1
     direction: str = "forward"
     polynomial_degree: int | None = None
+    keep_unconverged: bool = False
 
     def __post_init__(self):
         if self.init not in INITS:
@@ -324,7 +328,38 @@ def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, stat
 
 def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
     """Adjust all photographs of the project simultaneously: Schmid's method of conditions, or with
-    ``options.method == "bundle"`` the collinearity bundle adjustment (striptri.bundle)."""
+    ``options.method == "bundle"`` the collinearity bundle adjustment (striptri.bundle), or the
+    sequential method. An adjustment that stops without converging raises NumericalFailure with
+    the reason (``termination_message``) unless ``options.keep_unconverged``."""
+    result = _adjust_once(project, options)
+    if not options.keep_unconverged and termination_of(result) not in SUCCESSFUL_TERMINATIONS:
+        raise NumericalFailure(failure_message(result))
+    return result
+
+
+def termination_of(result: AdjustmentResult) -> str:
+    """The reason the iteration stopped (TERMINATIONS); a result marked converged=False whose
+    method did not say why stopped at its iteration limit."""
+    if result.termination in SUCCESSFUL_TERMINATIONS and not result.converged:
+        return "iteration_limit"
+    return result.termination
+
+
+def failure_message(result: AdjustmentResult) -> str:
+    """What to tell the user about an adjustment that did not converge: the method's own message
+    or, failing that, the last figures of the iteration history."""
+    if result.termination_message:
+        return result.termination_message
+    last = result.history[-3:]
+    figures = "; ".join(f"v^T P v {h.vtpv:.6g}, largest correction {h.max_correction:.3g} sigma" for h in last)
+    return (f"the {result.method} adjustment did not converge in {result.iterations} iterations (last: {figures}). "
+            "Raise [adjustment] max_iterations in project.toml if the corrections were still shrinking; "
+            "otherwise check the approximate orientations, the angle convention and the units of c and of the "
+            "plate coordinates.")
+
+
+def _adjust_once(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
+    """One adjustment by options.method, returned whether it converged or not."""
     if options.init == "sequential" and options.method != "sequential":
         from .sequential import SequentialOptions, sequential_approximations
 

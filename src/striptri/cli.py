@@ -8,35 +8,97 @@ write its result. Errors reach the user through :func:`reports_errors`:
 from __future__ import annotations
 
 import functools
+import math
+import os
+import signal
 import sys
 
 import click
 
 from striptri import __version__
 from striptri.adjustment import DATUMS, METHODS
-from striptri.errors import InputError, NumericalFailure
+from striptri.errors import InputError, Interrupted, NumericalFailure
 from striptri.solvers import SOLVERS
 
 EXIT_INPUT, EXIT_NUMERICAL = 2, 1
+TERMINATION_SIGNALS = (signal.SIGTERM, signal.SIGHUP)  # raised as errors.Interrupted; SIGINT: KeyboardInterrupt
 
 
 def reports_errors(command):
-    """Decorate a command so that striptri's two kinds of failure end it with a message and an
-    exit status (module doc) instead of a traceback."""
+    """Decorate a command so that every way it can end is one message and an exit status, never a
+    traceback (README "Safety"):
+
+    * InputError (bad input, an unusable output location) -> exit status 2;
+    * NumericalFailure (a datum defect, divergence, no convergence) -> exit status 1;
+    * MemoryError -> exit status 1, saying so;
+    * SIGINT, SIGTERM, SIGHUP -> the output reservation cleans up, then exit 128 + the signal's
+      number, as a shell reports a killed program;
+    * anything else is a defect of striptri: one line naming it, exit status 1 (the traceback only
+      with STRIPTRI_DEBUG=1).
+    """
 
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
+        previous = _raise_on_signals()
         try:
             return command(*args, **kwargs)
         except InputError as exc:
             _fail(exc, EXIT_INPUT)
         except NumericalFailure as exc:
             _fail(exc, EXIT_NUMERICAL)
+        except MemoryError:
+            _fail("not enough memory for this project on this machine (the arrays of the adjustment did not fit); "
+                  "nothing was written", EXIT_NUMERICAL)
+        except KeyboardInterrupt:
+            _fail("interrupted (SIGINT); no output was left half-written", 128 + signal.SIGINT)
+        except Interrupted as exc:
+            name = signal.Signals(exc.signum).name
+            _fail(f"interrupted ({name}); no output was left half-written", 128 + exc.signum)
+        except BrokenPipeError:
+            _quiet_broken_pipe()
+        except Exception as exc:  # noqa: BLE001 - the last line of defence: one message, no traceback
+            if os.environ.get("STRIPTRI_DEBUG"):
+                raise
+            _fail(f"internal error ({type(exc).__name__}: {exc}). This is a defect of striptri; please report it "
+                  "with the command that caused it (STRIPTRI_DEBUG=1 shows the traceback).", EXIT_NUMERICAL)
+        finally:
+            _restore_signals(previous)
 
     return wrapper
 
 
-def _fail(exc: Exception, status: int):
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
+def _raise_on_signals() -> dict:
+    """Turn SIGTERM and SIGHUP into Interrupted while the command runs (main thread only)."""
+    previous = {}
+    for sig in TERMINATION_SIGNALS:
+        try:
+            previous[sig] = signal.signal(sig, _raise_interrupted)
+        except ValueError:  # not the main thread: leave the signals as they are
+            break
+    return previous
+
+
+def _restore_signals(previous: dict) -> None:
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
+
+
+def _quiet_broken_pipe():
+    """stdout was closed by the reader (``striptri ... | head``): stop without a message."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    sys.exit(EXIT_NUMERICAL)
+
+
+def _warn(message: str) -> None:
+    click.echo(f"striptri: warning: {message}", err=True)
+
+
+def _fail(exc, status: int):
     click.echo(f"striptri: error: {exc}", err=True)
     sys.exit(status)
 
@@ -57,6 +119,16 @@ _LAYOUT_CHOICES = ["corners", "mixed", "schmid-minimal", "ends", "every-k", "per
 _DEFAULT_OVERLAP = 0.6
 
 
+class _Finite(click.FloatRange):
+    """A finite number (nan and inf are refused) within the given range."""
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
 class _Fraction(click.ParamType):
     """A number given as a decimal (0.6) or as a fraction (2/3)."""
 
@@ -67,42 +139,46 @@ class _Fraction(click.ParamType):
             return value
         try:
             num, _, den = str(value).partition("/")
-            return float(num) / float(den) if den else float(num)
+            number = float(num) / float(den) if den else float(num)
         except (ValueError, ZeroDivisionError):
             self.fail(f"{value!r} is not a number or a fraction such as 2/3", param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
 
 
 @main.command()
 @click.argument("kind", type=click.Choice(["pair", "strip", "block"]))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Project folder to write.")
-@click.option("--photos", type=int, default=None, help="Photos per strip [pair: 2, strip: 8, block: 6; schmid-fig8: 5].")
-@click.option("--strips", type=int, default=None, help="Parallel strips [pair, strip: 1; block: 3].")
+@click.option("--photos", type=click.IntRange(min=2), default=None,
+              help="Photos per strip [pair: 2, strip: 8, block: 6; schmid-fig8: 5].")
+@click.option("--strips", type=click.IntRange(min=1), default=None, help="Parallel strips [pair, strip: 1; block: 3].")
 @click.option("--overlap", type=_Fraction(), default=None, help="Forward overlap (0.6, 2/3 ...) [0.6; schmid-fig8: 2/3].")
 @click.option("--sidelap", type=_Fraction(), default=0.3, show_default=True, help="Sidelap of neighbouring strips (0.2 .. 0.6).")
 @click.option("--alternate/--same-direction", default=True, show_default=True,
               help="Fly every other strip of a block the other way, or all strips the same way.")
-@click.option("--flying-height", type=float, default=1500.0, show_default=True, help="Metres above mean terrain.")
-@click.option("--heading", type=float, default=0.0, show_default=True, help="Flight direction of the first strip, deg from +X towards +Y.")
-@click.option("--relief", type=float, default=50.0, show_default=True, help="Terrain relief amplitude (m).")
-@click.option("--attitude-std", type=float, default=1.0, show_default=True, help="Std of true omega, phi, kappa about the ideal (deg).")
-@click.option("--position-std", type=float, default=5.0, show_default=True, help="Std of true centres about the ideal flight line (m).")
+@click.option("--flying-height", type=_Finite(min=0, min_open=True), default=1500.0, show_default=True, help="Metres above mean terrain.")
+@click.option("--heading", type=_Finite(), default=0.0, show_default=True, help="Flight direction of the first strip, deg from +X towards +Y.")
+@click.option("--relief", type=_Finite(min=0), default=50.0, show_default=True, help="Terrain relief amplitude (m).")
+@click.option("--attitude-std", type=_Finite(min=0), default=1.0, show_default=True, help="Std of true omega, phi, kappa about the ideal (deg).")
+@click.option("--position-std", type=_Finite(min=0), default=5.0, show_default=True, help="Std of true centres about the ideal flight line (m).")
 @click.option("--control", "layout", type=click.Choice(_LAYOUT_CHOICES), default=None,
               help="Control layout [pair: corners, strip: ends, block: perimeter].")
-@click.option("--every-k", type=int, default=2, show_default=True,
+@click.option("--every-k", type=click.IntRange(min=1), default=2, show_default=True,
               help="every-k, perimeter, sparse-height layouts: control every k models.")
 @click.option("--every-k-kind", type=click.Choice(["Z", "XY", "XYZ"]), default="Z", show_default=True,
               help="every-k layout: kind of the inner control points.")
-@click.option("--extra-ties", type=int, default=0, show_default=True, help="Random tie points per model.")
-@click.option("--check-points", type=int, default=0, show_default=True, help="Tie points made check points.")
+@click.option("--extra-ties", type=click.IntRange(min=0), default=0, show_default=True, help="Random tie points per model.")
+@click.option("--check-points", type=click.IntRange(min=0), default=0, show_default=True, help="Tie points made check points.")
 @click.option("--single-photo-control", type=click.IntRange(0, 2), default=0, show_default=True,
               help="Full control points seen by one photo only (at the ends of the first strip).")
-@click.option("--sigma-image", type=float, default=0.005, show_default=True, help="Plate noise (plate units); 0 = noise-free.")
-@click.option("--sigma-control", type=float, default=0.0, show_default=True,
+@click.option("--sigma-image", type=_Finite(min=0), default=0.005, show_default=True, help="Plate noise (plate units); 0 = noise-free.")
+@click.option("--sigma-control", type=_Finite(min=0), default=0.0, show_default=True,
               help="Control noise and stated sigma (m); 0 = exact, held fixed.")
-@click.option("--sigma-control-z", type=float, default=None, help="Control noise in Z (m) [--sigma-control].")
-@click.option("--approx-position-error", type=float, default=10.0, show_default=True, help="Std of the approximate centres' errors (m).")
-@click.option("--approx-angle-error", type=float, default=1.0, show_default=True, help="Std of the approximate angles' errors (deg).")
-@click.option("--gnss-sigma", type=float, default=None, help="Observe the centres by GNSS with this sigma (m).")
+@click.option("--sigma-control-z", type=_Finite(min=0), default=None, help="Control noise in Z (m) [--sigma-control].")
+@click.option("--approx-position-error", type=_Finite(min=0), default=10.0, show_default=True, help="Std of the approximate centres' errors (m).")
+@click.option("--approx-angle-error", type=_Finite(min=0), default=1.0, show_default=True, help="Std of the approximate angles' errors (deg).")
+@click.option("--gnss-sigma", type=_Finite(min=0, min_open=True), default=None, help="Observe the centres by GNSS with this sigma (m).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
 def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_height, heading, relief, attitude_std,
@@ -113,16 +189,19 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
     --control schmid-fig8 is Schmid's worked strip (BRL 961, Fig. 8): 5 photos, 2/3 overlap and his
     30 points; --photos and --overlap default to those values and may not differ from them."""
     from striptri import simulate as sim
+    from striptri.io.output import check_output_location
     from striptri.io.project_writer import write_project
 
+    check_output_location(out_dir)
     layout = layout or _DEFAULT_LAYOUT[kind]
     if layout == sim.SCHMID_FIG8:
-        photos, overlap = photos or 5, 2 / 3 if overlap is None else overlap
+        photos, overlap = 5 if photos is None else photos, 2 / 3 if overlap is None else overlap
     try:
         design = sim.SyntheticDesign(
             flight=sim.FlightDesign(
-                n_photos=photos or _DEFAULT_PHOTOS[kind], overlap=_DEFAULT_OVERLAP if overlap is None else overlap,
-                n_strips=strips or _DEFAULT_STRIPS[kind], sidelap=sidelap, alternate=alternate,
+                n_photos=_DEFAULT_PHOTOS[kind] if photos is None else photos,
+                overlap=_DEFAULT_OVERLAP if overlap is None else overlap,
+                n_strips=_DEFAULT_STRIPS[kind] if strips is None else strips, sidelap=sidelap, alternate=alternate,
                 flying_height=flying_height, heading_deg=heading, attitude_std_deg=(attitude_std,) * 3,
                 position_std_m=(position_std,) * 3,
             ),
@@ -177,30 +256,32 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
               help="Sequential method: polynomial strip correction after the similarity [none].")
 @click.option("--init", type=click.Choice(["given", "sequential"]), default=None,
               help="Approximate values: as given, or from the sequential method (rough values suffice).")
+@click.option("--keep-unconverged", is_flag=True, default=False,
+              help="Write the output of an adjustment that stopped without converging (converged: false in "
+                   "summary.json, exit status 0) instead of failing with exit status 1.")
 @reports_errors
 def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders,
-           procedure, direction, polynomial_degree, init):
-    """Adjust the project in PROJECT_DIR and write the results to --out."""
-    import warnings
+           procedure, direction, polynomial_degree, init, keep_unconverged):
+    """Adjust the project in PROJECT_DIR and write the results to --out.
 
+    The output folder is checked before anything is computed and written only when the adjustment
+    succeeds; an adjustment that does not converge is a failure (exit status 1) unless
+    --keep-unconverged."""
     from striptri.pipeline import run_adjust
 
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
-                              method=method, solver=solver, init=init, direction=direction,
-                              procedure=None if procedure is None else int(procedure),
-                              polynomial_degree=polynomial_degree,
-                              max_iterations=max_iterations, scale_form=scale_form, datum=datum)
-    for message in dict.fromkeys(str(w.message) for w in caught):
-        click.echo(f"striptri: warning: {message}", err=True)
+    products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
+                          keep_unconverged=keep_unconverged, on_warning=_warn,
+                          method=method, solver=solver, init=init, direction=direction,
+                          procedure=None if procedure is None else int(procedure),
+                          polynomial_degree=polynomial_degree,
+                          max_iterations=max_iterations, scale_form=scale_form, datum=datum)
     s = products.summary
     b = s["blunders"]
     if b["method"] != "off" or b["suspect"]:
         click.echo(f"gross errors ({b['method']}): {b['rejected']} measurements rejected, {b['suspect']} suspect, "
                    f"{b['dropped']} dropped, in {b['adjustments']} adjustments")
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
-    state = "converged" if s["converged"] else "NOT converged"
+    state = "converged" if s["converged"] else f"NOT converged ({s['termination']}; kept)"
     click.echo(f"{state} in {s['iterations']} iterations: sigma0 {sigma0}, redundancy {s['redundancy']}, "
                f"{s['n_photos']} photos, {s['n_points']} points -> {out_dir}")
 
@@ -208,7 +289,8 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
 @main.command()
 @click.argument("project_dir", type=click.Path(file_okay=False))
-@click.option("--out", "out_png", required=True, type=click.Path(dir_okay=False), help="PNG file to write.")
+@click.option("--out", "out_png", required=True, type=click.Path(dir_okay=False),
+              help="PNG file to write (an existing file only if this command wrote it).")
 @reports_errors
 def structure(project_dir, out_png):
     """Draw the structure of the normal matrix of PROJECT_DIR (Schmid Fig. 10) into --out."""
@@ -228,7 +310,7 @@ def structure(project_dir, out_png):
 @click.option("--from", "source", type=click.Choice(["bal", "colmap", "dbat", "project"]), default=None,
               help="Format of SRC [detected: an .xml file is a DBAT script, another file BAL, a folder with "
                    "cameras.txt COLMAP, with cameras.csv a project].")
-@click.option("--pixel-size", type=click.FloatRange(min=0.0, min_open=True), default=None,
+@click.option("--pixel-size", type=_Finite(min=0.0, min_open=True), default=None,
               help="Plate units per pixel on the COLMAP or DBAT side: the plate unit of a COLMAP source, the "
                    "pixel of COLMAP or DBAT output from a project [1].")
 @click.option("--drop-distortion", is_flag=True, default=False,
@@ -242,7 +324,7 @@ def convert(src, target, out_dir, source, pixel_size, drop_distortion):
     result = run_convert(src, out_dir, target, source_format=source, pixel_size=pixel_size,
                          drop_distortion=drop_distortion)
     for note in result.notes:
-        click.echo(f"striptri: note: {note}", err=True)
+        _warn(str(note))
     click.echo(f"wrote {result.out_dir} ({result.target_format} from {result.source_format}): {result.n_cameras} cameras, "
                f"{result.n_photos} photos, {result.n_points} points, {result.n_image_points} image points")
 
@@ -279,7 +361,7 @@ class _ManyValues(click.Option):
               help="Strip lengths in photos [4 8 16 32].")
 @click.option("--layouts", multiple=True, cls=_ManyValues, type=click.Choice(["cantilever", "ends", "every-k"]), default=None,
               help="Control layouts [cantilever ends].")
-@click.option("--sigma-image", "sigma_images", multiple=True, cls=_ManyValues, type=click.FloatRange(min=0.0), default=None,
+@click.option("--sigma-image", "sigma_images", multiple=True, cls=_ManyValues, type=_Finite(min=0.0), default=None,
               help="Plate noise, plate units [0.005].")
 @click.option("--trials", type=click.IntRange(min=1), default=10, show_default=True, help="Trials per configuration.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Study seed.")

@@ -40,3 +40,13 @@ class Note:
     def __str__(self) -> str:
         where = self.path if self.line is None else f"{self.path}, line {self.line}"
         return f"{where}: {self.text}"
+
+
+class Interrupted(BaseException):
+    """A termination signal (SIGTERM, SIGHUP) received while a command runs, raised where the
+    program is so that every ``finally`` and the output reservation clean up (like
+    KeyboardInterrupt for SIGINT). A BaseException: no ``except Exception`` may swallow it."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(signum)

@@ -10,17 +10,20 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import report
-from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, observations_of
-from .errors import InputError
+from .adjustment import (SUCCESSFUL_TERMINATIONS, AdjustmentOptions, AdjustmentResult, adjust, failure_message,
+                         observations_of, termination_of)
+from .errors import InputError, Note, NumericalFailure
 from .groups import rays_per_point
 from .io.csvtable import format_csv
-from .io.output import write_output_folder
+from .io.output import OutputReservation, check_output_location
 from .io.project_reader import RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, GIVEN_AXES, KIND_NAMES, Project
@@ -38,85 +41,146 @@ class AdjustmentProducts:
     summary: dict
     files: dict
     blunders: object = None
+    warnings: list = field(default_factory=list)  # summary.json "warnings", also printed on stderr
 
 
 def options_for(project: Project, **overrides) -> AdjustmentOptions:
-    """AdjustmentOptions from project.toml's [adjustment], with command-line values on top."""
+    """AdjustmentOptions from project.toml's [adjustment], with command-line values on top.
+
+    An impossible combination is an InputError blamed where it comes from: project.toml when its
+    own values clash, the command line when the values given there cause the clash."""
     s = project.settings
     base = dict(method=s.method, solver=s.solver, max_iterations=s.max_iterations, datum=s.datum,
                 cost_tolerance=s.cost_tolerance)
-    base.update({k: v for k, v in overrides.items() if v is not None})
-    return AdjustmentOptions(**base)
+    toml = project.source / "project.toml" if project.source is not None else "project.toml"
+    try:
+        AdjustmentOptions(**base)
+    except ValueError as exc:
+        raise InputError(toml, None, str(exc)) from None
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return AdjustmentOptions(**{**base, **given})
+    except ValueError as exc:
+        flags = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in given.items())
+        raise InputError("command line", None, f"{exc} (given: {flags or 'no options'})") from None
 
 
 POINT_PRECISION = ("schmid90", "joint92")
 
 
+def input_paths(project_dir: Path) -> list[Path]:
+    """Everything a project run reads: the folder and each of its input files (links included,
+    so that an output folder can never swallow the target of a linked input file)."""
+    from .io.project_reader import FILE_NAMES
+
+    return [project_dir, *(project_dir / name for name in FILE_NAMES)]
+
+
 def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders: str = "off",
+               keep_unconverged: bool = False, on_warning: Callable[[str], None] | None = None,
                **overrides) -> AdjustmentProducts:
     """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure.
+
+    The output location is checked before the project is read and reserved before the adjustment
+    starts (io.output); nothing is written unless the whole run succeeds. An adjustment that has not
+    converged is a NumericalFailure unless ``keep_unconverged`` (then written with converged: false).
 
     point_precision: "schmid90", the orientation part plus the measurement part (Schmid 87-90), or
     "joint92", the rigorous joint form (92) (docs/decisions.md: for points in the adjustment the
     two agree to rounding)."""
-    project_dir, out_dir = Path(project_dir), Path(out_dir)
-    if out_dir.resolve() == project_dir.resolve():
-        raise InputError(out_dir, None, "the output folder must not be the project folder")
+    project_dir = Path(project_dir)
+    inputs = input_paths(project_dir)
+    check_output_location(out_dir, inputs)
     project = read_project(project_dir)
+    options = options_for(project, **overrides)
     try:
-        options = options_for(project, **overrides)
         check_products_options(options, point_precision, blunders)
     except ValueError as exc:
-        raise InputError(project_dir / "project.toml", None, str(exc)) from exc
+        raise InputError("command line", None, str(exc)) from None
     from .solvers import SolverUnavailable
 
-    try:
-        products = adjust_products(project, options, point_precision, blunders)
-    except SolverUnavailable as exc:
-        raise InputError(project_dir / "project.toml", None, str(exc)) from exc
-    write_output_folder(out_dir, products.files)
+    with OutputReservation(out_dir, inputs) as reservation:
+        try:
+            products = adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning)
+        except SolverUnavailable as exc:
+            raise InputError(project_dir / "project.toml", None, str(exc)) from exc
+        reservation.commit(products.files)
     return products
 
 
+STRUCTURE_SOFTWARE = "striptri structure"
+
+
 def structure_figure(project_dir, out_png) -> Path:
-    """Write the normal matrix's structure (Schmid Fig. 10) of a project as a PNG."""
+    """Write the normal matrix's structure (Schmid Fig. 10) of a project as a PNG. An existing
+    file is replaced only when it is a figure this command wrote (its PNG Software text)."""
     from .adjustment import normal_matrix_at_approximations
     from .figures import normal_matrix_structure
+    from .io.png import software_of, with_software
 
+    project_dir = Path(project_dir)
+    inputs = input_paths(project_dir)
+
+    def owned(path: Path) -> bool:
+        return software_of(path) == STRUCTURE_SOFTWARE
+
+    check_output_location(out_png, inputs, kind="file", owned=owned)
     project = read_project(project_dir)
-    N, layout = normal_matrix_at_approximations(project)
-    png = normal_matrix_structure(N, layout.block_starts(), len(project.photos))
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_png.with_name(out_png.name + ".tmp")
-    tmp.write_bytes(png)
-    tmp.replace(out_png)
-    return out_png
+    with OutputReservation(out_png, inputs, kind="file", owned=owned) as reservation:
+        N, layout = normal_matrix_at_approximations(project)
+        png = normal_matrix_structure(N, layout.block_starts(), len(project.photos))
+        return reservation.commit(with_software(png, STRUCTURE_SOFTWARE))
 
 
 def adjust_products(project: Project, options: AdjustmentOptions, point_precision: str = "schmid90",
-                    blunders: str = "off") -> AdjustmentProducts:
+                    blunders: str = "off", keep_unconverged: bool = False,
+                    on_warning: Callable[[str], None] | None = None) -> AdjustmentProducts:
     """Adjust (with gross-error detection by ``blunders``: "off", "snoop" or "robust") and build
     the output files. Photos, points and the summary describe the adjustment of the measurements
-    kept; residuals.csv lists every original measurement with its flag."""
+    kept; residuals.csv lists every original measurement with its flag.
+
+    Warnings (the project's notes, then what the computation warns of) go to ``on_warning`` as they
+    arise, even when the run then fails, and into summary.json "warnings" and the report. An
+    adjustment that does not converge raises NumericalFailure unless ``keep_unconverged``."""
     from dataclasses import replace as _replace
 
     from .reliability import BlunderOptions, detect_blunders
 
     check_products_options(options, point_precision, blunders)
-    if options.method == "sequential":
-        det = _without_tests(project, adjust(project, options))
-    else:
-        det = detect_blunders(project, options, BlunderOptions(method=blunders))
-    adjusted, result = det.project, det.result
-    points = triangulate_result(adjusted, result)
-    if point_precision == "joint92":
-        from .precision import joint_point_covariance
+    options = _replace(options, keep_unconverged=keep_unconverged)
+    said: list[str] = []
 
-        joint = joint_point_covariance(adjusted, result, points, options)
-        points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
+    def warn(text: str) -> None:
+        if text not in said:
+            said.append(text)
+            if on_warning is not None:
+                on_warning(text)
+
+    for note in project.notes:
+        warn(str(note))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            if options.method == "sequential":
+                det = _without_tests(project, adjust(project, options))
+            else:
+                det = detect_blunders(project, options, BlunderOptions(method=blunders))
+            adjusted, result = det.project, det.result
+            if termination_of(result) not in SUCCESSFUL_TERMINATIONS:
+                warn("kept although the adjustment did not converge (--keep-unconverged): "
+                     + failure_message(result))
+            points = triangulate_result(adjusted, result)
+            if point_precision == "joint92":
+                from .precision import joint_point_covariance
+
+                joint = joint_point_covariance(adjusted, result, points, options)
+                points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
+        finally:
+            for w in caught:
+                warn(str(w.message))
     summary = summary_of(adjusted, result, points)
     summary["blunders"] = blunder_summary(det)
+    summary["warnings"] = list(said)
     residuals = residual_table(project, det)
     files = {
         "photos.csv": format_csv(photo_table(adjusted, result)),
@@ -130,8 +194,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
     files["report.html"] = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
                                               flags=det.flag[det.rows], figures={"structure": structure})
-    products = AdjustmentProducts(adjusted, result, points, summary, files)
-    products.blunders = det
+    products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products
 
 
@@ -293,7 +356,7 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
         "redundancy": result.redundancy,
         "vtpv": _finite_or_none(result.vtpv),
         "iterations": result.iterations,
-        "converged": result.converged,
+        "converged": termination_of(result) in SUCCESSFUL_TERMINATIONS,
         "n_photos": len(project.photos),
         "n_points": len(project.points),
         "n_observations": result.n_observations,
@@ -301,6 +364,10 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
         "n_unknowns": result.n_unknowns,
         "check_points": check_point_statistics(project, result, tri),
         "timings_s": {k: round(v, 6) for k, v in result.timings.items()},
+        # DESIGN's second-wave additions: why the iteration stopped, in words
+        "termination": termination_of(result),
+        "message": failure_message(result) if termination_of(result) not in SUCCESSFUL_TERMINATIONS
+        else result.termination_message,
         "checks": {k: _finite_or_none(v) for k, v in result.checks.items()},
         "history": [
             {"vtpv": _finite_or_none(h.vtpv), "max_correction": _finite_or_none(h.max_correction),

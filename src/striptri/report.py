@@ -37,6 +37,7 @@ CHECKS_HOLD_BELOW = 1e-6
 
 SECTIONS = {  # id -> heading, in the order of the report
     "summary": "Summary",
+    "warnings": "Warnings and input not used",
     "checks": "Checks after convergence",
     "convergence": "Convergence",
     "residuals": "Residuals on the photographs",
@@ -272,6 +273,21 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         "<div><h3>Timings (s)</h3>" + _table(["step", "seconds"], timings, left=1) + "</div>",
         "</div>",
     ]
+
+
+def _warnings_section(summary: dict) -> list[str]:
+    """Everything the run warned of: input it did not use (the reader's notes), a result kept
+    although it did not converge, solver warnings. Nothing in the input is ignored silently."""
+    warnings = summary.get("warnings") or []
+    parts = [_section("warnings")]
+    if not summary["converged"]:
+        parts.append(f"<p class='no'>The adjustment did not converge ({html.escape(str(summary.get('termination')))})"
+                     f": {html.escape(str(summary.get('message') or ''))}</p>")
+    if warnings:
+        parts.append("<ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul>")
+    else:
+        parts.append("<p>None: every line of the input was used.</p>")
+    return parts
 
 
 def _checks_section(summary: dict) -> list[str]:
@@ -603,7 +619,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     stats = _photo_statistics(project, result.plate_residuals, absw, flagged)
     src = html.escape(str(project.source or ""))
 
-    body = [_summary_section(project, result, summary, flagged), _checks_section(summary),
+    body = [_summary_section(project, result, summary, flagged), _warnings_section(summary), _checks_section(summary),
             _convergence_section(result), _residuals_section(project, result, stats, flagged, flag_text)]
     if points is not None:
         cov = _point_covariance(result, points)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from striptri.io.csvtable import format_csv
-from striptri.io.output import write_output_folder
+from striptri.io.output import OutputReservation
 from striptri.study.growth import along_strip, growth_table, precision_table
 from striptri.study.options import StudyOptions, tasks_of
 from striptri.study.report import report_html
@@ -48,7 +48,13 @@ def along_table(along: dict) -> dict:
 
 def run_compare(out_dir, options: StudyOptions, workers: int | None = None, scheduler=None,
                 progress: Progress | None = None) -> StudyResult:
-    """Run the study and write out_dir (atomically: whole or not at all)."""
+    """Run the study and write out_dir (atomically: whole or not at all). The output location is
+    checked and reserved before the first trial runs."""
+    with OutputReservation(out_dir) as reservation:
+        return _run_and_write(reservation, options, workers, scheduler, progress)
+
+
+def _run_and_write(reservation: OutputReservation, options: StudyOptions, workers, scheduler, progress) -> StudyResult:
     rows, along = run_study(options, workers=workers, scheduler=scheduler, progress=progress)
     growth, precision = growth_table(rows), precision_table(rows)
     files = {
@@ -58,5 +64,5 @@ def run_compare(out_dir, options: StudyOptions, workers: int | None = None, sche
         "along.csv": format_csv(along_table(along)),
         "report.html": report_html(options, rows, growth, precision, along),
     }
-    path = write_output_folder(out_dir, files)
+    path = reservation.commit(files)
     return StudyResult(path, rows, growth, precision, sum(r["status"] != "ok" for r in rows))
