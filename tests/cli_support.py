@@ -5,6 +5,7 @@ folders that must not change."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -71,8 +72,11 @@ def copy_project(name: str, dest: Path, truth: bool = False) -> Path:
 
 
 def stray_siblings(out: Path) -> list[str]:
-    """Temporary or aside folders striptri may have left next to the output path ``out``."""
-    parent = out.parent
+    """Temporary or aside entries striptri may have left next to the output path ``out`` (its own
+    ``.striptri-tmp-*`` / ``.striptri-old-*`` names, and the ``.<name>.tmp-*`` of earlier versions)."""
+    parent = Path(out).parent
     if not parent.exists():
         return []
-    return sorted(p.name for p in parent.iterdir() if p.name.startswith(f".{out.name}."))
+    pattern = re.compile(r"^\.striptri-(tmp|old)-[0-9a-f]{12}(\.[A-Za-z0-9]+)?$")
+    return sorted(p.name for p in parent.iterdir()
+                  if pattern.match(p.name) or p.name.startswith(f".{Path(out).name}."))

@@ -148,7 +148,9 @@ def snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:
 
 def no_leftovers(parent: Path, name: str) -> None:
     """No temporary or aside siblings of the output folder are left behind."""
-    left = [p.name for p in parent.iterdir() if p.name.startswith(f".{name}.")]
+    from cli_support import stray_siblings
+
+    left = stray_siblings(parent / name)
     assert left == [], left
 
 

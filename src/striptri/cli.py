@@ -72,11 +72,13 @@ def _raise_interrupted(signum, frame):
 
 
 def _raise_on_signals() -> dict:
-    """Turn SIGTERM and SIGHUP into Interrupted while the command runs (main thread only)."""
+    """Turn SIGTERM and SIGHUP into Interrupted, and SIGINT into KeyboardInterrupt (even when the
+    shell started striptri with SIGINT ignored), while the command runs (main thread only)."""
     previous = {}
-    for sig in TERMINATION_SIGNALS:
+    handlers = {**{sig: _raise_interrupted for sig in TERMINATION_SIGNALS}, signal.SIGINT: signal.default_int_handler}
+    for sig, handler in handlers.items():
         try:
-            previous[sig] = signal.signal(sig, _raise_interrupted)
+            previous[sig] = signal.signal(sig, handler)
         except ValueError:  # not the main thread: leave the signals as they are
             break
     return previous
