@@ -584,7 +584,6 @@ def test_mutated_projects_end_cleanly(tmp_path_factory):
             assert not out.exists(), output
             assert output.count("striptri: error:") == 1, output
         seen_status[result.exit_code] = seen_status.get(result.exit_code, 0) + 1
-        if os.environ.get("DEBUG_MUT"): print(result.exit_code, output.strip()[:200].replace(str(case), ""))
         shutil.rmtree(case)
 
     check()
