@@ -298,7 +298,7 @@ def structure(project_dir, out_png):
     """Draw the structure of the normal matrix of PROJECT_DIR (Schmid Fig. 10) into --out."""
     from striptri.pipeline import structure_figure
 
-    click.echo(f"wrote {structure_figure(project_dir, out_png)}")
+    click.echo(f"wrote {structure_figure(project_dir, out_png, on_warning=_warn)}")
 
 
 # --------------------------------------------------------------------------- striptri convert

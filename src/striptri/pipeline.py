@@ -111,9 +111,10 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
 STRUCTURE_SOFTWARE = "striptri structure"
 
 
-def structure_figure(project_dir, out_png) -> Path:
+def structure_figure(project_dir, out_png, on_warning: Callable[[str], None] | None = None) -> Path:
     """Write the normal matrix's structure (Schmid Fig. 10) of a project as a PNG. An existing
-    file is replaced only when it is a figure this command wrote (its PNG Software text)."""
+    file is replaced only when it is a figure this command wrote (its PNG Software text). The
+    project's notes (input not used) go to ``on_warning``."""
     from .adjustment import normal_matrix_at_approximations
     from .figures import normal_matrix_structure
     from .io.png import software_of, with_software
@@ -126,6 +127,9 @@ def structure_figure(project_dir, out_png) -> Path:
 
     check_output_location(out_png, inputs, kind="file", owned=owned)
     project = read_project(project_dir)
+    for note in project.notes:
+        if on_warning is not None:
+            on_warning(str(note))
     with OutputReservation(out_png, inputs, kind="file", owned=owned) as reservation:
         N, layout = normal_matrix_at_approximations(project)
         png = normal_matrix_structure(N, layout.block_starts(), len(project.photos))
