@@ -1,5 +1,5 @@
 """`python -m striptri` runs the command line."""
 
-from striptri.cli import main
+from striptri._entry import main
 
 main()

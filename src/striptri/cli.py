@@ -56,6 +56,8 @@ def reports_errors(command):
             _fail(f"interrupted ({name}); no output was left half-written", 128 + exc.signum)
         except BrokenPipeError:
             _quiet_broken_pipe()
+        except (click.ClickException, click.exceptions.Exit, click.Abort):
+            raise  # click's own usage errors (exit status 2) and exits
         except Exception as exc:  # noqa: BLE001 - the last line of defence: one message, no traceback
             if os.environ.get("STRIPTRI_DEBUG"):
                 raise

@@ -33,7 +33,7 @@ from striptri.formats.conversions import (
     project_to_colmap,
 )
 from striptri.io.csvtable import format_csv, read_csv
-from striptri.io.output import check_output_location, write_output_folder
+from striptri.io.output import OutputReservation, check_output_location
 from striptri.io.project_reader import read_project
 from striptri.io.project_writer import project_files
 
@@ -98,6 +98,11 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
     if to not in TARGET_FORMATS:
         raise ValueError(f"unknown target format {to!r}; one of {TARGET_FORMATS}")
     check_output_location(out_dir, [src])  # before reading: never the source, never inside it
+    with OutputReservation(out_dir, [src]) as reservation:
+        return _convert(reservation, src, to, source_format, pixel_size, drop_distortion)
+
+
+def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_size, drop_distortion) -> ConvertResult:
     fmt, scene = read_scene(src, source_format, pixel_size, drop_distortion)
     project = scene.project
     notes = list(scene.notes)
@@ -125,7 +130,7 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
         notes += more
         files = colmap_files(colmap)
         files[IDS_FILE] = _names_csv(names)
-    out = write_output_folder(out_dir, files, inputs=[src])
+    out = reservation.commit(files)
     return ConvertResult(out_dir=out, source_format=fmt, target_format=to, n_cameras=len(project.cameras),
                          n_photos=len(project.photos), n_points=len(project.points),
                          n_image_points=len(project.image_points), notes=notes)
