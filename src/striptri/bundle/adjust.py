@@ -301,17 +301,17 @@ def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
     return normals
 
 
-def _not_formed_message(problem: "_Problem") -> str:
-    """Why the normal equations cannot be formed at the approximations: numbers that overflow
+def _not_formed_message(problem: "_Problem", where: str = "at the approximate values") -> str:
+    """Why the normal equations cannot be formed (``where``): numbers that overflow
     (wild values, c in another unit: striptri.diagnosis) or, failing those, a point in the plane
     of a camera."""
     with np.errstate(all="ignore"):
         causes = diagnosis.likely_causes(problem.project, "overflow")
     if causes:
-        return ("the bundle adjustment cannot form its equations at the approximate values: their numbers "
+        return (f"the bundle adjustment cannot form its equations {where}: their numbers "
                 "overflow (they are not finite).\n" + termination.causes_text(causes))
-    return ("a point lies in the plane of a camera at the approximations (its projection is undefined); check "
-            "the approximate orientations and points")
+    return (f"a point lies in the plane of a camera {where} (its projection is undefined); check the approximate "
+            "orientations and points")
 
 
 def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndarray) -> float:
@@ -372,6 +372,8 @@ def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _P
     """Solve the reduced camera system; a datum defect or a singularity is explained as a
     NumericalFailure (adjustment.datum_defect_message, adjustment.singular_message)."""
     layout, offset, project = problem.layout, problem.offset, problem.project
+    if not (np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
+        raise NumericalFailure(_not_formed_message(problem, "at the current values"))
     defects = datum.diagnose(normals, state, layout, offset=offset)
     if defects:
         raise NumericalFailure(datum_defect_message(project, defects))
