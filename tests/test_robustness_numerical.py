@@ -191,9 +191,12 @@ def test_case1_sequential_step_that_does_not_converge_is_iteration_limit(strip8)
     assert "the orientation (procedure 2) of photo 1005 to photo 1004" in msg
     for h in step.history[-3:]:
         assert f"{h.max_correction:.3g} sd" in msg
+    assert "still shrinking: raise [adjustment] max_iterations" in msg and "Likely cause" not in msg
     with pytest.raises(NumericalFailure) as info:
         adjust_sequential(strip8, SequentialOptions(max_iterations=2))
-    assert "did not converge" in str(info.value) and "largest correction" in str(info.value)
+    msg = str(info.value)
+    assert "the relative orientation of photographs 1001 and 1002 did not converge" in msg
+    assert "largest correction" in msg and "still shrinking: raise [adjustment] max_iterations" in msg
 
 
 @pytest.mark.parametrize("method", ("off", "snoop", "robust"))

@@ -167,6 +167,10 @@ def result_of(project: Project, sol: SequentialSolution, seconds: float = 0.0) -
     )
 
 
+SHRINKING = ("Its corrections were still shrinking: raise [adjustment] max_iterations in project.toml (each step of "
+             "the sequential method may take max(30, max_iterations) iterations).")
+
+
 def _termination(project: Project, sol: SequentialSolution) -> tuple[str, str]:
     """("converged", "") when every step converged, else ("iteration_limit", message) for the first
     step that did not: the photo, its last iterations, the trend and the likely cause."""
@@ -188,9 +192,9 @@ def _termination(project: Project, sol: SequentialSolution) -> tuple[str, str]:
         state, _ = termination.trend(history)
         with np.errstate(all="ignore"):
             causes = diagnosis.likely_causes(project, "iteration")
-        meaning = ("Its corrections were still shrinking: raise [adjustment] max_iterations in project.toml (each "
-                   "step of the sequential method may take max(30, max_iterations) iterations)."
-                   if state == "shrinking" and not causes else
+        if state == "shrinking" and not causes:
+            return "iteration_limit", "\n".join([head, termination.table(history, step.redundancy), SHRINKING])
+        meaning = ("Its corrections were still shrinking, but:" if state == "shrinking" else
                    "Its corrections no longer shrink: the step is not approaching a solution.")
         return "iteration_limit", "\n".join([head, termination.table(history, step.redundancy), meaning,
                                                termination.causes_text(causes)])

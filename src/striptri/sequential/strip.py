@@ -183,11 +183,14 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
         text = (f"the relative orientation of photographs {names[0]} and {names[1]} did not converge to a solution "
                 f"with the points in front of both ({len(starts)} starts, {tried} of them without numerical failure).")
         if closest is not None and closest.history:
-            from ..termination import table
+            from ..termination import table, trend
 
             text += (f"\nThe start that came closest stopped at the limit of {closest.iterations} iterations with "
                      f"its largest correction still {closest.max_correction:.3g} sd:\n"
                      + table(closest.history, closest.redundancy))
+            if trend(closest.history)[0] == "shrinking":
+                text += ("\nIts corrections were still shrinking: raise [adjustment] max_iterations in project.toml "
+                         "(each step of the sequential method may take max(30, max_iterations) iterations).")
         raise NumericalFailure(text)
     return best
 
