@@ -307,6 +307,17 @@ def test_case3a_a_sigma_of_1e20_is_named_not_a_datum_defect(strip8, method, datu
     assert "leaves the datum undetermined" not in msg
 
 
+def test_case3a_every_kind_of_weight_is_checked_within_its_kind(strip8):
+    assert diagnosis.extreme_weights(strip8) == []
+    sx = np.full_like(strip8.photos.sigma_xyz0, 0.05)
+    sx[3, 2] = 1e-9  # a GNSS height 5e7 times sharper than the others
+    sa = np.full_like(strip8.photos.sigma_angles, np.radians(0.01))
+    sa[1, 0] = np.radians(1.0)  # 100 times looser: an ordinary range of sigmas
+    project = replace(strip8, photos=replace(strip8.photos, sigma_xyz0=sx, sigma_angles=sa))
+    words = diagnosis.extreme_weights(project)
+    assert len(words) == 1 and "observed centre" in words[0] and "photo 1004 (sigma_Z0 = 1e-09)" in words[0]
+
+
 def _cut_strip8(tmp_path: Path, control_in_second_part: bool) -> Path:
     """strip8 cut in two between photos 1004 and 1005 (no point measured in both parts); the
     second part keeps its control or loses it (as do both without control)."""

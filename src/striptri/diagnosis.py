@@ -151,14 +151,23 @@ def extreme_weights(project: Project) -> list[str]:
     return out
 
 
+HOLD_EXACTLY = {
+    "image_points.csv": "a plate measurement is never exact",
+    "control.csv": "an empty sigma holds a control coordinate fixed",
+    "photos.csv": "a sigma of 0 holds an element fixed",
+}
+
+
 def _weights_sentence(kind: str, items: list[str], n: int, median: float, file: str) -> str:
     more = f" and {n - len(items)} more" if n > len(items) else ""
-    return (f"the standard deviation of {'this' if n == 1 else 'these'} {kind}{'' if n == 1 else 's'} is more than "
+    one = n == 1
+    return (f"the standard deviation of {'this' if one else 'these'} {kind}{'' if one else 's'} is more than "
             f"{SIGMA_RATIO:.0e} times smaller or larger than the median {median:.3g} of the others: "
-            f"{'; '.join(items)}{more}. Its weight differs from theirs by more than {SIGMA_RATIO ** 2:.0e}, beyond "
-            "what double precision can carry through the normal equations (16 digits), so the solution loses all "
-            f"meaning there. Give it a realistic standard deviation in {file} (a measurement to be held exactly "
-            "is a fixed value, not a tiny sigma), or remove it.")
+            f"{'; '.join(items)}{more}. {'Its weight differs' if one else 'Their weights differ'} from the others' "
+            f"by more than {SIGMA_RATIO ** 2:.0e}, beyond what double precision can carry through the normal "
+            "equations (16 digits), so the solution loses all meaning there. Give "
+            f"{'it a realistic standard deviation' if one else 'them realistic standard deviations'} in {file} "
+            f"({HOLD_EXACTLY[file]}), or remove {'it' if one else 'them'}.")
 
 
 # -------------------------------------------------------------------------------------------- units
