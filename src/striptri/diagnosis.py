@@ -190,10 +190,10 @@ def camera_units(project: Project) -> list[str]:
     extent, count = _plate_extent(project)
     c = cams.interior[:, 0]
     out = []
-    for j in np.flatnonzero((count > 0) & (extent > 0)):
-        q = abs(c[j]) / extent[j]
-        if C_TOO_SHORT <= q <= C_TOO_LONG:
-            continue
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.abs(c) / extent
+    for j in np.flatnonzero((count > 0) & (extent > 0) & ~((ratio >= C_TOO_SHORT) & (ratio <= C_TOO_LONG))):
+        q = ratio[j]
         angle = np.degrees(np.arctan(extent[j] / abs(c[j]))) if c[j] != 0 else 90.0
         what = (f"camera {cams.ids[j]}: c = {c[j]:.6g} while the plate coordinates of its photos extend to "
                 f"{extent[j]:.4g} from the principal point, a half-field angle of {angle:.3g} deg where a frame "
