@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from . import datum, solvers
+from . import datum, diagnosis, solvers, termination
 from .covariance import Covariance
 from .errors import NumericalFailure
 from .groups import build_batches
@@ -140,14 +140,39 @@ class AdjustmentResult:
     # reason but "converged", a message with the last figures of the history and the likely cause
     termination: str = "converged"
     termination_message: str = ""
+    # (photo ids, camera ids) of the project: names the unknowns in messages (None: by column)
+    ids: tuple | None = None
     _covariance: Covariance | None = None
 
     @property
     def covariance(self) -> Covariance:
-        """Selected entries of Qxx = N^-1 (covariance.Covariance), computed once."""
+        """Selected entries of Qxx = N^-1 (covariance.Covariance), computed once. Raises
+        NumericalFailure, naming the first element that is not determined, when N is singular."""
         if self._covariance is None:
-            self._covariance = Covariance(self.N, self.layout, self.free_network)
+            if not np.isfinite(sp.csr_matrix(self.N).data).all():
+                raise NumericalFailure(self._precision_failure(None))
+            try:
+                self._covariance = Covariance(self.N, self.layout, self.free_network)
+            except (solvers.SingularNormalMatrix, np.linalg.LinAlgError) as exc:
+                raise NumericalFailure(self._precision_failure(exc)) from exc
         return self._covariance
+
+    def _precision_failure(self, exc: Exception | None) -> str:
+        """Why Qxx cannot be formed: a singular N (naming the first element that is not determined)
+        or one with numbers that are not finite; with the adjustment's own failure when it had one."""
+        status = "" if self.termination in SUCCESSFUL_TERMINATIONS else (
+            f"\nThe adjustment itself ended with \"{self.termination}\": " + self.termination_message)
+        if exc is None:
+            return ("the precision of the result cannot be computed: the normal matrix at the adjusted values has "
+                    "numbers that are not finite (an overflow)." + status)
+        column = getattr(exc, "column", None)
+        where = ""
+        if column is not None and self.ids is not None and 0 <= column < self.n_unknowns:
+            where = f" (first at {self.layout.column_labels(*self.ids)[column]})"
+        return ("the precision of the result cannot be computed: the normal matrix at the adjusted values is "
+                f"singular{where}, so that element is not determined by the measurements (too few or badly "
+                "distributed points on a photograph, an undetermined camera constant, or values that are not "
+                "plausible)." + status)
 
     @property
     def Qxx(self) -> np.ndarray:
@@ -247,6 +272,46 @@ def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly"):
     return acc.finish()
 
 
+def _assemble_checked(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", project: Project,
+                      iteration: int):
+    """_assemble, with numbers that are not finite (an overflow: wild values, c in another unit)
+    explained as a NumericalFailure naming the points whose conditions fail and the likely cause."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            acc = _assemble(sweep, pobs, assembly)
+    except np.linalg.LinAlgError:
+        acc = None
+    if acc is not None and np.isfinite(acc.u).all() and np.isfinite(acc.N.data).all() and np.isfinite(acc.wPw):
+        return acc
+    raise NumericalFailure(not_finite_message(project, _non_finite_points(sweep), iteration))
+
+
+def _non_finite_points(sweep: Sweep) -> np.ndarray:
+    """Indices of the points whose linearised conditions are not finite or whose M = A Q A^T is not
+    positive definite (after a failed assembly; one more sweep)."""
+    bad = []
+    with np.errstate(all="ignore"):
+        for chunk, system in sweep.systems():
+            M = np.einsum("mco,mo,mdo->mcd", system.A, system.Q, system.A)
+            ok = (np.isfinite(system.B).all(axis=(1, 2)) & np.isfinite(system.w).all(axis=1)
+                  & np.isfinite(M).all(axis=(1, 2)))
+            ok[ok] &= np.all(np.linalg.eigvalsh(M[ok]) > 0, axis=1)
+            bad.append(chunk.point_index[~ok])
+    return np.concatenate(bad) if bad else np.zeros(0, dtype=int)
+
+
+def not_finite_message(project: Project, points: np.ndarray, iteration: int) -> str:
+    """The NumericalFailure text for conditions (or observation equations) that are not finite numbers."""
+    names = [project.points.ids[i] for i in points[: diagnosis.LIST_MAX]]
+    where = (f" for {len(points)} point{'s' if len(points) != 1 else ''} ({', '.join(names)}"
+             f"{' ...' if len(points) > len(names) else ''})" if len(points) else "")
+    return ("the equations of the adjustment cannot be formed at iteration "
+            f"{iteration}: their numbers overflow (they are not finite){where}.\n"
+            + termination.causes_text(diagnosis.likely_causes(project, "overflow"),
+                                      "Likely cause: values far outside the block or in another unit in the input "
+                                      "(photos.csv, cameras.csv, image_points.csv, control.csv)."))
+
+
 @dataclass(frozen=True)
 class Assembly:
     """What the assembly computes once per adjustment: the block pattern of N and the selection S."""
@@ -302,36 +367,65 @@ def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, stat
     if free_network is not None:
         try:
             return _solve_free_network(acc, solver, free_network)
-        except solvers.SingularNormalMatrix as exc:
-            raise NumericalFailure(
-                "the free network's normal equations are singular beyond the datum: some "
-                "orientation element is not determined by the measurements."
-            ) from exc
+        except (solvers.SingularNormalMatrix, np.linalg.LinAlgError) as exc:
+            raise NumericalFailure(singular_message(
+                project, layout, getattr(exc, "column", None),
+                "the free network's normal equations are singular beyond the datum", datum_fixed=False)) from exc
     defects = datum.diagnose(acc, state, layout, offset=offset) if diagnose else []
     if defects:
-        raise NumericalFailure(datum.explain(defects))
+        raise NumericalFailure(datum_defect_message(project, defects))
     try:
         return solver.solve(acc.N, -acc.u)
     except solvers.SingularNormalMatrix as exc:
         defects = datum.diagnose(acc, state, layout, datum.LOOSE_TOLERANCE, offset)
         if defects:
-            raise NumericalFailure(datum.explain(defects)) from exc
-        labels = layout.column_labels(project.photos.ids, project.cameras.ids)
-        where = f" (first at {labels[exc.column]})" if exc.column is not None and exc.column < len(labels) else ""
-        raise NumericalFailure(
-            "the normal equations are singular although the control fixes the datum"
-            f"{where}: some orientation element is not determined by the measurements. Check that "
-            "every photograph has enough well-distributed points (at least three, not on a line) "
-            "and that each free camera constant is determined."
-        ) from exc
+            raise NumericalFailure(datum_defect_message(project, defects)) from exc
+        raise NumericalFailure(singular_message(project, layout, exc.column,
+                                                "the normal equations are singular")) from exc
+
+
+def datum_defect_message(project: Project, defects: list[str]) -> str:
+    """datum.explain, unless weights beyond double precision fool the datum test (they are named
+    instead); with photos in several groups that share no points, the groups are named too."""
+    with np.errstate(all="ignore"):
+        weights = diagnosis.extreme_weights(project)
+        if weights:
+            return ("the normal equations cannot be trusted: " + " ".join(weights)
+                    + " (With such weights the datum test reports directions as free that are not.)")
+        groups = diagnosis.photo_groups(project).explain()
+    return "\n".join([datum.explain(defects)] + groups)
+
+
+def singular_message(project: Project, layout: UnknownLayout, column: int | None, what: str,
+                     datum_fixed: bool = True) -> str:
+    """The NumericalFailure text of a singular normal matrix: where it broke down and the likely
+    cause (striptri.diagnosis: weights beyond double precision, photo groups without a datum,
+    wild values, the unit of c); without one, the usual causes of an undetermined element."""
+    labels = layout.column_labels(project.photos.ids, project.cameras.ids)
+    where = f" (first at {labels[column]})" if column is not None and 0 <= column < len(labels) else ""
+    with np.errstate(all="ignore"):
+        causes = diagnosis.likely_causes(project, "singular")
+    if causes:
+        return f"{what}{where}: some element is not determined by the measurements.\n" + termination.causes_text(causes)
+    datum_fixed = " although the control fixes the datum" if datum_fixed else ""
+    return (f"{what}{datum_fixed}{where}: some orientation element is not determined by the measurements. Check "
+            "that every photograph has enough well-distributed points (at least three, not on a line) and that "
+            "each free camera constant is determined.")
 
 
 def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
     """Adjust all photographs of the project simultaneously: Schmid's method of conditions, or with
     ``options.method == "bundle"`` the collinearity bundle adjustment (striptri.bundle), or the
-    sequential method. An adjustment that stops without converging raises NumericalFailure with
-    the reason (``termination_message``) unless ``options.keep_unconverged``."""
-    result = _adjust_once(project, options)
+    sequential method.
+
+    The result's ``termination`` says why the iteration stopped (TERMINATIONS; "converged" and
+    "cost_flat" are results, "iteration_limit" a failure) and ``termination_message`` says it in
+    words with the last figures of the history and the likely cause. An adjustment that stops
+    without converging raises NumericalFailure with that message unless
+    ``options.keep_unconverged``. Raises NumericalFailure for everything that gives no result: a
+    datum defect, a singular normal matrix, numbers that overflow, divergence; never a bare
+    SingularNormalMatrix or LinAlgError."""
+    result = _adjust_explained(project, options)
     if not options.keep_unconverged and termination_of(result) not in SUCCESSFUL_TERMINATIONS:
         raise NumericalFailure(failure_message(result))
     return result
@@ -358,8 +452,23 @@ def failure_message(result: AdjustmentResult) -> str:
             "plate coordinates.")
 
 
-def _adjust_once(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
-    """One adjustment by options.method, returned whether it converged or not."""
+def _adjust_explained(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
+    """One adjustment by options.method, returned whether it converged or not; singular systems
+    without words of their own explained."""
+    try:
+        # the adjustment tests its numbers for finiteness itself and explains what overflows, so
+        # numpy's floating-point warnings would only repeat it on stderr
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return _adjust(project, options)
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError) as exc:  # a path without its own words
+        with np.errstate(all="ignore"):
+            causes = diagnosis.likely_causes(project, "singular")
+        raise NumericalFailure(f"{termination.what_of(options.method)} met a singular system of equations ({exc}); "
+                               "some element is not determined by the measurements.\n"
+                               + termination.causes_text(causes)) from exc
+
+
+def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
     if options.init == "sequential" and options.method != "sequential":
         from .sequential import SequentialOptions, sequential_approximations
 
@@ -386,7 +495,7 @@ def _adjust_once(project: Project, options: AdjustmentOptions) -> AdjustmentResu
     free_network = None
     if options.datum == "inner":
         sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
-        acc0 = _assemble(sweep, pobs, assembly)
+        acc0 = _assemble_checked(sweep, pobs, assembly, project, 1)
         free = datum.free_directions(acc0, state, layout)
         if len(free):
             free_network = datum.FreeNetwork.of(free, acc0.N)
@@ -394,9 +503,9 @@ def _adjust_once(project: Project, options: AdjustmentOptions) -> AdjustmentResu
     redundancy = n_conditions + len(pobs) - layout.n_unknowns + n_datum
     if redundancy < 0:
         sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
-        defects = datum.diagnose(_assemble(sweep, pobs, assembly), state, layout, offset=offset)
+        defects = datum.diagnose(_assemble_checked(sweep, pobs, assembly, project, 1), state, layout, offset=offset)
         if defects:
-            raise NumericalFailure(datum.explain(defects))
+            raise NumericalFailure(datum_defect_message(project, defects))
         raise NumericalFailure(
             f"too few conditions: {n_conditions} condition equations and {len(pobs)} observed elements "
             f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
@@ -411,10 +520,11 @@ def _adjust_once(project: Project, options: AdjustmentOptions) -> AdjustmentResu
     converged = False
     v_par = np.zeros(len(pobs))
     vtpv = np.nan
+    causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
     for _ in range(options.max_iterations):
         t0 = time.perf_counter()
         sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
-        acc = _assemble(sweep, pobs, assembly)
+        acc = _assemble_checked(sweep, pobs, assembly, project, len(history) + 1)
         t1 = time.perf_counter()
         t_conditions = sweep.seconds
         if free_network is not None:
@@ -423,28 +533,40 @@ def _adjust_once(project: Project, options: AdjustmentOptions) -> AdjustmentResu
                                    diagnose=not history)
         dx = solved.dx
         t2 = time.perf_counter()
-        plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
+        previous_plate, previous_control = plate_hat, control_hat
+        with np.errstate(over="ignore", invalid="ignore"):
+            plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
         state = state.updated(layout, dx)
         t3 = time.perf_counter()
         timings["conditions"] += t_conditions
         timings["assembly"] += t1 - t0 - t_conditions
         timings["solve"] += t2 - t1
         timings["back_substitution"] += t3 - t2
-        crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal()))) if len(dx) else 0.0
+        if len(dx):
+            crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal())))
+        else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
+            crit = _observation_change(plate_hat - previous_plate, control_hat - previous_control, obs)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
-        stop_if_diverging(history, "adjustment")
+        stop_if_diverging(history, "conditions", redundancy, causes)
         if has_converged(history, options.tolerance):
             converged = True
             break
 
     t0 = time.perf_counter()
     final = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
-    acc = _assemble(final, pobs, assembly)
+    acc = _assemble_checked(final, pobs, assembly, project, len(history) + 1)
     if free_network is not None:
         free_network = free_network.at(state, layout, acc.N)
-    checks = _final_checks(final, acc, vtpv, pobs, v_par, free_network)
+    checks, next_correction = _final_checks(final, acc, vtpv, pobs, v_par, free_network)
     timings["final_checks"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
+    if not len(dx) and not converged:
+        next_correction = None  # no unknowns: the final checks make no correction
+    status, message = "converged", ""
+    if not converged:
+        status = "iteration_limit"
+        message = termination.iteration_limit(options.method, history, int(redundancy), options.max_iterations,
+                                              options.tolerance, next_correction, causes)
 
     ip_count = len(project.image_points)
     n_weighted_control = int(np.count_nonzero(obs.q_control > 0))
@@ -474,19 +596,36 @@ def _adjust_once(project: Project, options: AdjustmentOptions) -> AdjustmentResu
         checks=checks,
         timings=timings,
         free_network=free_network,
+        termination=status,
+        termination_message=message,
+        ids=(project.photos.ids, project.cameras.ids),
     )
+
+
+def _observation_change(d_plate: np.ndarray, d_control: np.ndarray, obs: Observations) -> float:
+    """The largest change of an adjusted observation in one iteration, in units of its standard
+    deviation: the convergence criterion when there are no unknowns (a pure forward intersection,
+    where only the adjusted observations l^ = l + v are iterated)."""
+    sig = np.sqrt(obs.q_plate)
+    c = np.max(np.abs(d_plate) / np.where(sig > 0, sig, np.inf), initial=0.0)
+    qc = obs.q_control
+    c_control = np.max(np.abs(d_control) / np.where(qc > 0, np.sqrt(np.where(qc > 0, qc, 1.0)), np.inf), initial=0.0)
+    return float(max(c, c_control))
 
 
 def normal_matrix_at_approximations(project: Project, options: AdjustmentOptions = AdjustmentOptions()):
     """N of the first iteration (at the approximate values) and the layout: enough to show the
-    structure of the normal equations of any project without adjusting it."""
-    offset = reduction_offset(project)
-    state, layout = initial_state(project, offset), build_layout(project)
-    batches = build_batches(project)
-    obs = observations_of(project, offset)
-    assembly = Assembly.of(batches, state, layout, options.chunk_size)
-    sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
-    return _assemble(sweep, build_parameter_observations(project, offset), assembly).N, layout
+    structure of the normal equations of any project without adjusting it. A project without
+    unknowns gives a 0 x 0 N; numbers that overflow are a NumericalFailure (as in adjust)."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        offset = reduction_offset(project)
+        state, layout = initial_state(project, offset), build_layout(project)
+        batches = build_batches(project)
+        obs = observations_of(project, offset)
+        assembly = Assembly.of(batches, state, layout, options.chunk_size)
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        acc = _assemble_checked(sweep, build_parameter_observations(project, offset), assembly, project, 1)
+    return acc.N, layout
 
 
 def _require_strip_along_x(batches, state: State, max_angle_deg: float = 30.0) -> None:
@@ -524,24 +663,20 @@ def has_converged(history: list[Iteration], tolerance: float) -> bool:
     return len(history) >= 2 and c < ROUNDING_FLOOR and c > 0.5 * history[-2].max_correction
 
 
-def stop_if_diverging(history: list[Iteration], what: str) -> None:
-    """Raise NumericalFailure, explained, when the iteration diverges: non-finite numbers, or
-    corrections growing for four iterations in a row far beyond a first step."""
+def stop_if_diverging(history: list[Iteration], method: str, redundancy: int = 0, causes=None) -> None:
+    """Raise NumericalFailure, explained (termination.diverged: the last figures of the history and
+    the likely cause, ``causes()`` called only then), when the iteration diverges: non-finite
+    numbers, or corrections growing for four iterations in a row far beyond a first step."""
     last = history[-1]
     c = [h.max_correction for h in history[-5:]]
     growing = len(c) == 5 and all(b > 2 * a for a, b in zip(c, c[1:])) and c[-1] > 1e6
     if np.isfinite(last.max_correction) and np.isfinite(last.vtpv) and not growing:
         return
-    raise NumericalFailure(
-        f"the {what} diverged at iteration {len(history)} (sum of weighted squared residuals "
-        f"{last.vtpv:.6g}, largest correction {last.max_correction:.3g} times its standard deviation). "
-        "The approximate orientations are probably too far from the truth (check the angle "
-        "convention and units in project.toml), or a gross error spoils the data."
-    )
+    raise NumericalFailure(termination.diverged(method, history, redundancy, causes or (lambda: [])))
 
 
 def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par: np.ndarray,
-                  free_network=None) -> dict:
+                  free_network=None) -> tuple[dict, float | None]:
     """Schmid's checks after convergence.
 
     * every condition holds for the adjusted observations and the final unknowns (his final
@@ -550,6 +685,10 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
       reported as max |u_i| / sqrt(N_ii);
     * (59) v^T P v equals [LL.u], the reduced sum w^T M^-1 w - u^T N^-1 u formed in the
       reduction of the normal equations; reported as the relative difference.
+
+    Also returns the largest correction (in standard deviations, as in the history) the next
+    iteration would make, a by-product of (59) (None when N is singular): whether an iteration that
+    stopped at max_iterations was still converging.
     """
     max_g = 0.0
     for _, system in sweep.systems():
@@ -560,6 +699,7 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
         max_g = max(max_g, float(np.max(np.abs((pobs.misclosure(f) + v_par) / pobs.sigma))))
     d = acc.N.diagonal()
     btk = float(np.max(np.abs(acc.u) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
+    next_correction = None
     try:
         direct = solvers.make_solver(solvers.SolverOptions(name="auto"),
                                      solvers.Structure(len(d), sweep.layout.block_starts()))
@@ -568,11 +708,12 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
         else:
             dx = -_solve_free_network(acc, direct, free_network).dx
         reduced = acc.wPw - float(acc.u @ dx)
-    except solvers.SingularNormalMatrix:
+        next_correction = float(np.max(np.abs(dx) * np.sqrt(np.maximum(d, 0.0)), initial=0.0))
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         reduced = float("nan")
     rel = abs(reduced - vtpv) / max(vtpv, 1e-300) if vtpv > 1e-20 else abs(reduced - vtpv)
     return {
         "max_condition_misclosure_sigma": max_g,
         "max_BTk_sigma": btk,
         "vtpv_reduction_relative_difference": rel,
-    }
+    }, next_correction

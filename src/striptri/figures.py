@@ -32,6 +32,8 @@ def normal_matrix_structure(N: sp.spmatrix, block_starts: np.ndarray, n_photo_bl
     """
     N = sp.coo_matrix(N)
     n = N.shape[0]
+    if n == 0:
+        return _empty_normal_matrix(title)
     starts = np.asarray(block_starts, dtype=int)
     block_of = np.zeros(n, dtype=int)
     if len(starts):
@@ -66,6 +68,18 @@ def normal_matrix_structure(N: sp.spmatrix, block_starts: np.ndarray, n_photo_bl
     fill = pattern.nnz / max(nb * nb, 1)
     ax.set_title(title or f"normal matrix: {n} unknowns, {nb} blocks, {fill:.1%} of blocks filled, "
                           f"block bandwidth {bandwidth}", fontsize=9)
+    return _png(fig)
+
+
+def _empty_normal_matrix(title: str = "") -> bytes:
+    """The figure of a normal matrix without unknowns: every orientation and camera element held
+    fixed (a pure forward intersection), so there is no structure to draw; it says so."""
+    fig, ax = plt.subplots(figsize=(5.5, 2.0))
+    ax.axis("off")
+    ax.text(0.5, 0.5, "The normal matrix is empty (0 unknowns):\nevery orientation and camera element is held "
+            "fixed,\nso the adjustment only intersects the points.", ha="center", va="center", fontsize=9,
+            transform=ax.transAxes)
+    ax.set_title(title or "normal matrix: 0 unknowns", fontsize=9)
     return _png(fig)
 
 

@@ -173,6 +173,9 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
             if termination_of(result) not in SUCCESSFUL_TERMINATIONS:
                 warn("kept although the adjustment did not converge (--keep-unconverged): "
                      + failure_message(result))
+            elif result.termination_message:  # e.g. converged by the cost tolerance: say so
+                warn(result.termination_message)
+            _warn_if_implausible(adjusted, result, warn)
             points = triangulate_result(adjusted, result)
             if point_precision == "joint92":
                 from .precision import joint_point_covariance
@@ -200,6 +203,24 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
                                               flags=det.flag[det.rows], figures={"structure": structure})
     products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products
+
+
+SIGMA0_IMPLAUSIBLE = 10.0  # sigma0 a posteriori beyond which a converged result is suspect
+
+
+def _warn_if_implausible(project: Project, result: AdjustmentResult, warn) -> None:
+    """A converged adjustment with sigma0 far above 1 has usually settled in a false minimum (a photo
+    turned by 180 degrees, c in another unit) or holds gross errors: say so, with the likely cause."""
+    from . import diagnosis, termination
+
+    if result.redundancy <= 0 or not np.isfinite(result.sigma0) or result.sigma0 <= SIGMA0_IMPLAUSIBLE:
+        return
+    with np.errstate(all="ignore"):
+        causes = diagnosis.likely_causes(project, "iteration")
+    warn(f"sigma0 = {result.sigma0:.4g} is far above 1 (more than {SIGMA0_IMPLAUSIBLE:g} times the a-priori "
+         "standard deviations): the adjustment may have settled in a false minimum or the data hold gross errors "
+         "(try --blunders snoop). " + termination.causes_text(causes, "Check the approximate orientations and the "
+                                                              "units of c and of the plate coordinates."))
 
 
 def check_products_options(options: AdjustmentOptions, point_precision: str, blunders: str) -> None:

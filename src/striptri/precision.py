@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .adjustment import AdjustmentOptions, AdjustmentResult, Sweep, observations_of
+from .errors import NumericalFailure
 from .model import Project
 from .parameter_observations import build_parameter_observations
 
@@ -52,7 +53,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     q_control = np.zeros_like(obs.control)
     for chunk, s in sweep.systems():
         M = np.einsum("mco,mo,mdo->mcd", s.A, s.Q, s.A)
-        Minv = np.linalg.inv(M)
+        Minv = _group_inverse(M, chunk, project)
         Qloc = cov.entries(s.cols[:, :, None], s.cols[:, None, :])
         C = M - np.einsum("mcu,muv,mdv->mcd", s.B, Qloc, s.B)
         AQ = s.A * s.Q[:, None, :]  # (m, nc, no): A Q
@@ -69,6 +70,29 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
         Qloc = cov.entries(cols[:, :, None], cols[:, None, :])
         q_par = pobs.sigma**2 - np.einsum("pi,pij,pj->p", grad, Qloc, grad)
     return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par)
+
+
+def _group_inverse(M: np.ndarray, chunk, project: Project) -> np.ndarray:
+    """M^-1 of every group of a chunk (M = A Q A^T); a group whose M is singular or not finite
+    (its conditions degenerate at the adjusted values) is a NumericalFailure that names its points."""
+    try:
+        with np.errstate(all="ignore"):
+            Minv = np.linalg.inv(M)
+        bad = ~np.isfinite(Minv).all(axis=(1, 2))
+    except np.linalg.LinAlgError:
+        finite = np.isfinite(M).all(axis=(1, 2))
+        ev = np.linalg.eigvalsh(np.where(finite[:, None, None], M, np.eye(M.shape[1])))
+        bad = ~finite | ~(ev[:, 0] > 1e-14 * ev[:, -1])
+        Minv = None
+    if Minv is not None and not bad.any():
+        return Minv
+    names = [project.points.ids[i] for i in chunk.point_index[bad][:8]]
+    raise NumericalFailure(
+        "the cofactors of the residuals cannot be computed: the conditions of point"
+        f"{'s' if bad.sum() > 1 else ''} {', '.join(names)}{' ...' if bad.sum() > len(names) else ''} are degenerate "
+        "at the adjusted values (their matrix A Q A^T is singular or not finite: rays along the base, or "
+        "standard deviations of zero or beyond double precision)."
+    )
 
 
 def normalised_residuals(v: np.ndarray, qvv: np.ndarray) -> np.ndarray:
@@ -91,7 +115,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
     form no group). Returns (n_points, 3, 3) cofactors (times sigma0^2 for covariances).
     """
     from .groups import build_batches
-    from .triangulation import ray_terms
+    from .triangulation import ray_terms, safe_inverse
 
     obs = observations_of(project, result.offset)
     sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
@@ -102,7 +126,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
     for chunk, s in sweep.systems():
         m, k = chunk.image_rows.shape
         M = np.einsum("mco,mo,mdo->mcd", s.A, s.Q, s.A)
-        Minv = np.linalg.inv(M)
+        Minv = _group_inverse(M, chunk, project)
         Qloc = cov.entries(s.cols[:, :, None], s.cols[:, None, :])
         AQ = s.A * s.Q[:, None, :]
         Qvv = np.einsum("mco,mcd,mdp->mop", AQ, Minv @ (M - np.einsum("mcu,muv,mdv->mcd", s.B, Qloc, s.B)) @ Minv, AQ)
@@ -137,7 +161,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
             Nx = Nx + p_c[:, :, None] * np.eye(3)
         free = ~fixed
         Nx = np.where(free[:, :, None] & free[:, None, :], Nx, 0.0) + fixed[:, :, None] * np.eye(3)
-        Qm = np.linalg.inv(Nx) * (free[:, :, None] & free[:, None, :])
+        Qm = safe_inverse(Nx)[0] * (free[:, :, None] & free[:, None, :])  # nan: the point is not determined
         F = np.zeros((m, 3, n_obs))
         F[:, :, : 2 * k] = np.einsum("mij,mrj,mr->mir", Qm, JX, p_plate)
         if chunk.has_control:

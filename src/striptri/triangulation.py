@@ -23,10 +23,11 @@ from .lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed,
 from .rotations import skew
 
 
-def intersect_rays(O: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+def intersect_rays(O: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None, safe: bool = False) -> np.ndarray:
     """Least-squares intersection of rays O_i + t r_i. O, r: (m, k, 3); mask: (m, k) -> (m, 3).
 
-    Minimises sum_i |(I - r^_i r^_i^T)(X - O_i)|^2 (r^ the unit direction).
+    Minimises sum_i |(I - r^_i r^_i^T)(X - O_i)|^2 (r^ the unit direction). Parallel rays raise
+    numpy's LinAlgError, or with ``safe`` give nan for that point (safe_solve).
     """
     rh = r / np.linalg.norm(r, axis=-1, keepdims=True)
     P = np.eye(3) - rh[..., :, None] * rh[..., None, :]
@@ -34,6 +35,8 @@ def intersect_rays(O: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None)
         P = P * mask[..., None, None]
     lhs = P.sum(axis=1)
     rhs = np.einsum("mkij,mkj->mi", P, O)
+    if safe:
+        return safe_solve(lhs, rhs)
     return np.linalg.solve(lhs, rhs[..., None])[..., 0]
 
 
@@ -203,16 +206,20 @@ def triangulate(
         X = _initial_points(R, O, interior[..., :3], xy_ray, xyz_given[sel], given_mask[sel])
         Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
         wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
-        for _ in range(iterations):
-            res, dX, *_ = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            for _ in range(iterations):
+                res, dX, *_ = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
+                Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+                gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - X)
+                Nx, gx = _hold(Nx, gx, free)
+                X = X + safe_solve(Nx, gx)
+            _, dX, dO, drot, dint = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
             Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
-            gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - X)
-            Nx, gx = _hold(Nx, gx, free)
-            X = X + np.linalg.solve(Nx, gx[..., None])[..., 0]
-        _, dX, dO, drot, dint = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
-        Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
-        Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
-        Qm = np.linalg.inv(Nx) * (free[:, :, None] & free[:, None, :])
+            Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
+            # a point whose rays are parallel (or numbers not finite) is not determined: left out
+            Qm, ok = safe_inverse(Nx)
+            ok &= np.isfinite(X).all(axis=1)
+            Qm = Qm * (free[:, :, None] & free[:, None, :])
         xyz[sel[ok]] = X[ok]
         cov_m[sel[ok]] = Qm[ok]
         determined[sel[ok]] = True
@@ -231,6 +238,29 @@ def triangulate(
             Qo = np.einsum("mic,mcd,mjd->mij", Gfull, Qloc, Gfull)
             cov_o[sel[ok]] = Qo[ok]
     return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined)
+
+
+SINGULAR_RCOND = 1e-14  # a point's 3x3 normal matrix whose eigenvalues span more than 1e14 is singular
+
+
+def safe_inverse(M: np.ndarray, rcond: float = SINGULAR_RCOND) -> tuple[np.ndarray, np.ndarray]:
+    """Inverses of symmetric positive (semi)definite matrices (m, n, n) and which are regular (m,):
+    a matrix with numbers that are not finite, or whose smallest eigenvalue is below ``rcond``
+    times its largest, is singular; its inverse is nan. Never raises LinAlgError."""
+    M = np.asarray(M, dtype=float)
+    finite = np.isfinite(M).all(axis=(-2, -1))
+    eye = np.broadcast_to(np.eye(M.shape[-1]), M.shape)
+    safe = np.where(finite[..., None, None], M, eye)
+    ev = np.linalg.eigvalsh(safe)
+    ok = finite & (ev[..., 0] > rcond * np.maximum(ev[..., -1], 0.0)) & (ev[..., -1] > 0)
+    inv = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
+    return np.where(ok[..., None, None], inv, np.nan), ok
+
+
+def safe_solve(M: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """M^-1 b for batches (m, 3, 3), (m, 3); nan where M is singular (safe_inverse)."""
+    inv, _ = safe_inverse(M)
+    return np.einsum("mij,mj->mi", inv, b)
 
 
 def n_unknowns_of(Qxx) -> int:
@@ -262,7 +292,7 @@ def _initial_points(R, O, interior, xy, xyz_given, given):
     m, k, _ = xy.shape
     r = ray_ground(R, xy, interior)
     if k >= 2:
-        X = intersect_rays(O, r)
+        X = intersect_rays(O, r, safe=True)
     else:
         r0, O0 = r[:, 0], O[:, 0]
         height = np.where(fixed[:, 2], xyz_given[:, 2], np.nan)

@@ -27,13 +27,22 @@ from __future__ import annotations
 
 import time
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 
-from .. import datum, solvers
-from ..adjustment import AdjustmentOptions, AdjustmentResult, Iteration, has_converged, observations_of, stop_if_diverging
+from .. import datum, diagnosis, solvers, termination
+from ..adjustment import (
+    AdjustmentOptions,
+    AdjustmentResult,
+    Iteration,
+    datum_defect_message,
+    has_converged,
+    observations_of,
+    singular_message,
+    stop_if_diverging,
+)
 from ..errors import NumericalFailure
 from ..groups import GroupBatch, build_batches, merge_layouts
 from ..linearise import Observations
@@ -141,7 +150,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
     v_par = np.zeros(len(pobs))
     history: list[Iteration] = []
-    converged = False
+    converged = cost_flat = False
     vtpv = np.nan
     # Gauss-Newton, with Levenberg-Marquardt damping only when a step fails (docs/solvers.md): a step
     # that raises the sum of squares (or meets a point in a camera's plane, or a numerically
@@ -151,8 +160,8 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     lam, nu = 0.0, 2.0
     normals = _assemble_or_none(problem, state, xyz)
     if normals is None:
-        raise NumericalFailure("a point lies in the plane of a camera at the approximations (its projection is "
-                               "undefined); check the approximate orientations and points")
+        raise NumericalFailure(_not_formed_message(problem))
+    causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
     while len(history) < options.max_iterations:
         t0 = time.perf_counter()
         d = normals.N.diagonal()
@@ -185,10 +194,12 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         if actual < -ROUND_OFF * normals.ee or not np.isfinite(actual):
             # a worse step: back to where it started, more damping
             if lam * nu > LM_MAX:
-                raise NumericalFailure(
-                    "the bundle adjustment cannot reduce the sum of squares from here: Levenberg-Marquardt "
-                    f"damping grew past {LM_MAX:g} without a better step (poor approximate orientations or "
-                    "points, or points crossing the plane of a camera)")
+                raise NumericalFailure("\n".join([
+                    f"the bundle adjustment cannot reduce the sum of squares after iteration {len(history)}: "
+                    f"Levenberg-Marquardt damping grew past {LM_MAX:g} without a better step.",
+                    termination.table(history, problem.redundancy) if history else "",
+                    "It is stuck away from a solution (or points are crossing the plane of a camera).",
+                    termination.causes_text(causes())]).replace("\n\n", "\n"))
             lam, nu = max(lam * nu, LM_START), 2.0 * nu
             normals = problem.assemble(state, xyz, lam)
             timings["linearisation_and_reduction"] += t2 - t1
@@ -211,16 +222,32 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
                                  solver_info={**solved.info, **({"damping": lam} if lam else {})}))
         if lam == 0.0:
-            stop_if_diverging(history, "bundle adjustment")
-        # a damped step is shortened: its small corrections do not show convergence
-        if (lam_step == 0.0 and has_converged(history, options.tolerance)) or flat:
+            stop_if_diverging(history, METHOD, problem.redundancy, causes)
+        # a damped step is shortened: its small corrections alone do not show convergence, the
+        # undamped Gauss-Newton correction from where it ended must be small too
+        if has_converged(history, options.tolerance) and (lam_step == 0.0 or has_converged(
+                history[:-1] + [replace(history[-1], max_correction=_undamped_correction(problem, solver, state, xyz))],
+                options.tolerance)):
             converged = True
+            break
+        if flat:
+            converged, cost_flat = True, True
             break
 
     t0 = time.perf_counter()
-    normals, checks = _final_checks(problem, solver, state, xyz, plate_hat, control_hat, v_par, vtpv)
+    normals, checks, next_correction = _final_checks(problem, solver, state, xyz, plate_hat, control_hat, v_par,
+                                                     vtpv)
     timings["final_checks"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
+    status, message = "converged", ""
+    if cost_flat:
+        status = "cost_flat"
+        message = termination.cost_flat(METHOD, history, problem.redundancy, options.cost_tolerance,
+                                         options.tolerance)
+    elif not converged:
+        status = "iteration_limit"
+        message = termination.iteration_limit(METHOD, history, problem.redundancy, options.max_iterations,
+                                              options.tolerance, next_correction, causes)
 
     redundancy = problem.redundancy
     n_weighted_control = int(np.count_nonzero(obs.q_control > 0))
@@ -248,6 +275,9 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         N=normals.N,
         checks=checks,
         timings=timings,
+        termination=status,
+        termination_message=message,
+        ids=(project.photos.ids, project.cameras.ids),
     )
     return BundleSolution(result=result, xyz_points=xyz, n_point_unknowns=problem.unknowns.n_unknowns)
 
@@ -266,9 +296,38 @@ def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
             normals = problem.assemble(state, xyz)
         except np.linalg.LinAlgError:
             return None
-    if not np.isfinite(normals.ee):
+    if not (np.isfinite(normals.ee) and np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
         return None
     return normals
+
+
+def _not_formed_message(problem: "_Problem", where: str = "at the approximate values") -> str:
+    """Why the normal equations cannot be formed (``where``): numbers that overflow
+    (wild values, c in another unit: striptri.diagnosis) or, failing those, a point in the plane
+    of a camera."""
+    with np.errstate(all="ignore"):
+        causes = diagnosis.likely_causes(problem.project, "overflow")
+    if causes:
+        return (f"the bundle adjustment cannot form its equations {where}: their numbers "
+                "overflow (they are not finite).\n" + termination.causes_text(causes))
+    return (f"a point lies in the plane of a camera {where} (its projection is undefined); check the approximate "
+            "orientations and points")
+
+
+def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndarray) -> float:
+    """The largest correction (standard deviations, orientations and points) of an undamped
+    Gauss-Newton step from (state, xyz); inf when it cannot be formed."""
+    normals = _assemble_or_none(problem, state, xyz)
+    if normals is None:
+        return float("inf")
+    try:
+        dx = solver.solve(normals.N, normals.b).dx
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
+        return float("inf")
+    step = _back_substitute(problem, state, xyz, dx)
+    d = normals.N.diagonal()
+    crit = float(np.max(np.abs(dx) * np.sqrt(d))) if len(dx) else 0.0
+    return max(crit, step.max_point_correction)
 
 
 @dataclass
@@ -310,30 +369,31 @@ def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.nd
 
 
 def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _Problem) -> solvers.SolveResult:
-    layout, offset = problem.layout, problem.offset
+    """Solve the reduced camera system; a datum defect or a singularity is explained as a
+    NumericalFailure (adjustment.datum_defect_message, adjustment.singular_message)."""
+    layout, offset, project = problem.layout, problem.offset, problem.project
+    if not (np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
+        raise NumericalFailure(_not_formed_message(problem, "at the current values"))
     defects = datum.diagnose(normals, state, layout, offset=offset)
     if defects:
-        raise NumericalFailure(datum.explain(defects))
+        raise NumericalFailure(datum_defect_message(project, defects))
     try:
         return solver.solve(normals.N, normals.b)
     except solvers.SingularNormalMatrix as exc:
         defects = datum.diagnose(normals, state, layout, datum.LOOSE_TOLERANCE, offset)
         if defects:
-            raise NumericalFailure(datum.explain(defects)) from exc
-        labels = layout.column_labels(problem.project.photos.ids, problem.project.cameras.ids)
-        where = f" (first at {labels[exc.column]})" if exc.column is not None and exc.column < len(labels) else ""
-        raise NumericalFailure(
-            "the reduced normal equations of the bundle adjustment are singular although the control "
-            f"fixes the datum{where}: some orientation element is not determined by the measurements. "
-            "Check that every photograph has enough well-distributed points (at least three, not on "
-            "a line) and that each free camera constant is determined."
-        ) from exc
+            raise NumericalFailure(datum_defect_message(project, defects)) from exc
+        raise NumericalFailure(singular_message(project, layout, exc.column, "the reduced normal equations of the "
+                                                "bundle adjustment are singular")) from exc
 
 
 def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
-    defects = datum.diagnose(problem.assemble(state, xyz), state, problem.layout, offset=problem.offset)
+    normals = _assemble_or_none(problem, state, xyz)
+    if normals is None:
+        raise NumericalFailure(_not_formed_message(problem))
+    defects = datum.diagnose(normals, state, problem.layout, offset=problem.offset)
     if defects:
-        raise NumericalFailure(datum.explain(defects))
+        raise NumericalFailure(datum_defect_message(problem.project, defects))
     raise NumericalFailure(
         f"too few observations: {problem.n_conditions} observation equations beyond the "
         f"{problem.unknowns.n_unknowns} point coordinates, and {len(problem.pobs)} observed elements, "
@@ -353,6 +413,9 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     * ``max_point_gradient_sigma``: likewise for the point coordinates, max |b_p,i| / sqrt(N_pp,ii);
     * ``vtpv_reduction_relative_difference``: v^T P v against the reduced sum
       ``e^T e - sum b_p^T N_pp^-1 b_p - b_rcs^T N_rcs^-1 b_rcs`` (Schmid 59).
+
+    Also returns the largest orientation correction the next iteration would make (standard
+    deviations, as in the history; None when the system is singular), a by-product of (59).
     """
     obs = problem.obs
     normals = problem.normals()
@@ -375,10 +438,12 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     normals.finish()
     d = normals.N.diagonal()
     btk = float(np.max(np.abs(normals.b) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
+    next_correction = None
     try:
-        last = float(normals.b @ solver.solve(normals.N, normals.b).dx) if len(d) else 0.0
-        reduced = normals.ee - normals.reduced - last
-    except solvers.SingularNormalMatrix:
+        dx = solver.solve(normals.N, normals.b).dx if len(d) else np.zeros(0)
+        reduced = normals.ee - normals.reduced - float(normals.b @ dx)
+        next_correction = float(np.max(np.abs(dx) * np.sqrt(np.maximum(d, 0.0)), initial=0.0)) if len(d) else None
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         reduced = float("nan")
     rel = abs(reduced - vtpv) / max(vtpv, 1e-300) if vtpv > 1e-20 else abs(reduced - vtpv)
     checks = {
@@ -387,4 +452,4 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
         "max_point_gradient_sigma": max_gp,
         "vtpv_reduction_relative_difference": rel,
     }
-    return normals, checks
+    return normals, checks, next_correction

@@ -7,12 +7,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..adjustment import AdjustmentResult, observations_of
+from ..adjustment import SUCCESSFUL_TERMINATIONS, AdjustmentResult, observations_of
 from ..groups import build_batches
 from ..model import GIVEN_AXES, Project
 from ..parameters import with_state
 from ..triangulation import Triangulated, ray_terms, triangulate
-from .measures import ALPHA0, BETA0, PlateReliability, row_abs, row_statistic
+from .measures import ALPHA0, BETA0, PlateReliability, critical_value, noncentrality, row_abs, row_statistic
 
 FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED = "", "suspect", "rejected", "dropped"
 FLAGS = (FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED)
@@ -114,8 +114,10 @@ class BlunderResult:
 
     rejected: in the order of rejection. rounds: one per adjustment. stopped: why the procedure
     ended: "clean" (no |w| above the critical value), "limit" (max_rejections), "rounds"
-    (max_rounds; robust: the re-weighting did not converge), "off", or "failure: <message>" (a
-    re-adjustment failed: the rows of that round were taken back and are flagged "suspect").
+    (max_rounds; robust: the re-weighting did not converge), "off", "failure: <message>" (a
+    re-adjustment failed or did not converge: the rows of that round were taken back and are flagged
+    "suspect"), or "not tested: ..." (the adjustment of all rows did not converge: no w-test, see
+    :func:`untested`).
     """
 
     method: str
@@ -144,6 +146,29 @@ class BlunderResult:
     @property
     def rejected_rows(self) -> np.ndarray:
         return np.array([rej.row for rej in self.rejected], dtype=int)
+
+
+def succeeded(result: AdjustmentResult) -> bool:
+    """The adjustment ended with a result ("converged" or "cost_flat"): only then do its residuals
+    and normal matrix describe a solution that w-tests can judge."""
+    return result.termination in SUCCESSFUL_TERMINATIONS
+
+
+def untested(method: str, project: Project, result: AdjustmentResult, blunders: "BlunderOptions",
+             seconds: float = 0.0) -> BlunderResult:
+    """The outcome when the adjustment of all rows did not converge (termination "iteration_limit"):
+    no w-test, no rejection, every flag empty, w and MDB nan; ``stopped`` names the termination.
+    The caller ends with the adjustment's termination_message (or keeps the result when asked)."""
+    m = len(project.image_points)
+    nan = np.full((m, 2), np.nan)
+    return BlunderResult(
+        method=method, result=result, project=project, rows=np.arange(m), w=nan, redundancy=nan.copy(),
+        mdb=nan.copy(), bnr=nan.copy(), v=result.plate_residuals.copy(), flag=np.full(m, FLAG_OK, dtype=object),
+        rejected=[], rounds=[Round(0, float("nan"), result.iterations, seconds)],
+        stopped=f"not tested: the adjustment ended with \"{result.termination}\"",
+        critical=critical_value(blunders.alpha0), delta0=noncentrality(blunders.alpha0, blunders.beta0),
+        seconds=seconds,
+    )
 
 
 def subset(project: Project, keep: np.ndarray) -> Project:

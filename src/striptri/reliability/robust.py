@@ -32,7 +32,17 @@ from ..errors import NumericalFailure
 from ..model import Project
 from ..precision import residual_cofactors
 from .measures import R_ZERO, critical_value, plate_reliability, row_abs
-from .outcome import BlunderOptions, BlunderResult, Rejection, Round, blunder_result, subset, warm_start
+from .outcome import (
+    BlunderOptions,
+    BlunderResult,
+    Rejection,
+    Round,
+    blunder_result,
+    subset,
+    succeeded,
+    untested,
+    warm_start,
+)
 
 DOWNWEIGHTED = 0.5  # Round.rejected of a re-weighting counts the rows with a weight below this
 STABLE_ROUNDS = 3  # re-weighting stops when the rows above the critical value stay the same this often
@@ -70,9 +80,10 @@ def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
            blunders: BlunderOptions = BlunderOptions()) -> BlunderResult:
     """Re-weighting to convergence, rejection, final adjustment at full weight (module doc).
 
-    If the final adjustment of the survivors fails, all rows are adjusted at full weight instead,
-    the candidates are flagged "suspect" and ``stopped`` says why. Raises NumericalFailure when the
-    first adjustment fails.
+    If the final adjustment of the survivors fails (or does not converge), all rows are adjusted
+    at full weight instead, the candidates are flagged "suspect" and ``stopped`` says why. Raises
+    NumericalFailure when the first adjustment fails; when it, or the re-weighting, does not
+    converge, nothing is tested (outcome.untested) on the adjustment of all rows at full weight.
     """
     t_start = time.perf_counter()
     ip = project.image_points
@@ -91,6 +102,10 @@ def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         if state is not None:
             weighted = warm_start(weighted, *state)
         result = adjust(weighted, options)
+        if not succeeded(result):  # no solution to judge residuals by: all rows at full weight, untested
+            if state is not None:
+                result = adjust(warm_start(project, *state), options)
+            return untested("robust", project, result, blunders, time.perf_counter() - t_start)
         state = (result.state, result.offset)
         cof = residual_cofactors(weighted, result, options)
         u = studentised_gross_errors(result.plate_residuals, cof.plate, weighted.image_points.sigma_xy**2, q_prior)
@@ -116,10 +131,14 @@ def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     try:
         current = warm_start(subset(project, keep), *state)
         result = adjust(current, options)
+        if not succeeded(result):
+            raise NumericalFailure(result.termination_message.splitlines()[0])
     except NumericalFailure as exc:
         stopped, keep[:], cand = f"failure: {exc}", True, cand[:0]
         current = warm_start(project, *state)
         result = adjust(current, options)
+        if not succeeded(result):
+            return untested("robust", project, result, blunders, time.perf_counter() - t_start)
     rel = plate_reliability(current, result, options, blunders.alpha0, blunders.beta0)
     rounds.append(Round(0, float(max(row_abs(rel.w).max(initial=0.0), 0.0)), result.iterations,
                         time.perf_counter() - t0))

@@ -33,7 +33,17 @@ from ..adjustment import AdjustmentOptions, adjust
 from ..errors import NumericalFailure
 from ..model import Project
 from .measures import critical_value, plate_reliability, row_abs
-from .outcome import BlunderOptions, BlunderResult, Rejection, Round, blunder_result, subset, warm_start
+from .outcome import (
+    BlunderOptions,
+    BlunderResult,
+    Rejection,
+    Round,
+    blunder_result,
+    subset,
+    succeeded,
+    untested,
+    warm_start,
+)
 
 SEPARATED_FRACTION = 0.5  # a "separated" round rejects rows with |w| >= this times the largest
 TWIN_TOLERANCE = 1e-6  # rows of one point whose |w| agree to this (relative) are not told apart
@@ -75,9 +85,10 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     """Data snooping (module doc) until no row |w| exceeds the critical value, ``max_rejections``
     rows are rejected or ``max_rounds`` adjustments are made.
 
-    If a re-adjustment fails (a photo or the datum lost too much), the rows rejected in that round
-    are taken back (flagged "suspect") and the previous adjustment is the result. Raises
-    NumericalFailure when the first adjustment, of all rows, fails.
+    If a re-adjustment fails (a photo or the datum lost too much) or does not converge, the rows
+    rejected in that round are taken back (flagged "suspect") and the previous adjustment is the
+    result. Raises NumericalFailure when the first adjustment, of all rows, fails; when it does not
+    converge, nothing is tested (outcome.untested).
     """
     t_start = time.perf_counter()
     ip = project.image_points
@@ -95,6 +106,10 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         t0 = time.perf_counter()
         try:
             result = adjust(current, options)
+            if not succeeded(result):
+                if last is None:
+                    return untested("snoop", project, result, blunders, time.perf_counter() - t_start)
+                raise NumericalFailure(result.termination_message.splitlines()[0])
         except NumericalFailure as exc:
             if last is None:
                 raise

@@ -22,7 +22,8 @@ Linearised at the adjusted observations (Pope 1972, DESIGN section 4): ``A v + B
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,7 +32,21 @@ from ..conditions import RayConditions, collinearity, coplanarity, ray_chain
 from ..errors import NumericalFailure
 from ..rotations import exp_so3
 
+
+def has_converged(history, tolerance: float) -> bool:
+    from ..adjustment import has_converged as criterion  # adjustment imports the sequential package lazily
+
+    return criterion(history, tolerance)
+
 MODES = ("relative", "full")
+
+
+class StepIteration(NamedTuple):
+    """One iteration of a step: v^T P v and the largest correction in standard deviations (the
+    fields of adjustment.Iteration that termination.table reads)."""
+
+    vtpv: float
+    max_correction: float
 
 
 @dataclass
@@ -39,7 +54,8 @@ class PhotoStep:
     """Result of one step. R_j, O_j: the new photo in the model frame; b_cam: the base in the frame
     of photo i (relative mode); plate_cop: (m, 4) adjusted plate coordinates of the coplanarity
     points (x_i, y_i, x_j, y_j); vtpv, n_conditions, n_unknowns, iterations, converged, max_correction;
-    N: the normal matrix of the step (in its own unknowns)."""
+    N: the normal matrix of the step (in its own unknowns); history: every iteration's v^T P v and
+    largest correction (StepIteration), for the message of a step that did not converge."""
 
     R_j: np.ndarray
     O_j: np.ndarray
@@ -52,6 +68,7 @@ class PhotoStep:
     converged: bool
     max_correction: float
     N: np.ndarray
+    history: list = field(default_factory=list)
 
     @property
     def redundancy(self) -> int:
@@ -64,7 +81,7 @@ def orient_photo(
     R_j: np.ndarray, O_j: np.ndarray, interior_j: np.ndarray,
     cop_xy: np.ndarray, cop_sigma: np.ndarray,
     col_xy: np.ndarray, col_sigma: np.ndarray, col_X: np.ndarray,
-    held_axis: int = 0, tolerance: float = 1e-10, max_iterations: int = 30,
+    held_axis: int = 0, tolerance: float = 1e-10, max_iterations: int = 30, label: str = "a photograph",
 ) -> PhotoStep:
     """Orient photo j to photo i (held) and to known points (held) by least squares.
 
@@ -72,7 +89,9 @@ def orient_photo(
     cop_xy, cop_sigma: (m, 4) plate coordinates x_i, y_i, x_j, y_j of the points for coplanarity
     and their standard deviations; col_xy, col_sigma: (n, 2) plate coordinates in photo j of the
     known points col_X (n, 3) (model frame). Start: R_j, O_j. Convergence: every correction below
-    ``tolerance`` times its standard deviation with all other unknowns known (as adjust()).
+    ``tolerance`` times its standard deviation with all other unknowns known, or the round-off floor
+    (adjustment.has_converged, as adjust()).
+    label: the photograph in messages ("photo 1005").
     """
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}")
@@ -96,6 +115,7 @@ def orient_photo(
     interior = np.stack([interior_i, interior_j])
     converged, crit, vtpv, N = False, np.inf, np.nan, np.zeros((n_unknowns, n_unknowns))
     iteration = 0
+    history: list[StepIteration] = []
     for iteration in range(1, max_iterations + 1):
         B_rows, w_rows, M_rows = [], [], []
         if m:
@@ -126,10 +146,12 @@ def orient_photo(
         N = B.T @ (B / M[:, None])
         u = B.T @ (w / M)
         try:
+            if not (np.isfinite(N).all() and np.isfinite(u).all()):
+                raise np.linalg.LinAlgError("not finite")
             dx = -np.linalg.solve(N, u)
         except np.linalg.LinAlgError as exc:
-            raise NumericalFailure("the orientation of a photograph is not determined by its points "
-                                   "(too few, or on a line)") from exc
+            raise NumericalFailure(f"the orientation of {label} is not determined by its points (too few, or on a "
+                                   "line), or its equations are not finite numbers") from exc
         k = -(w + B @ dx) / M
         vtpv = float(np.sum(k * k * M))
         if m:
@@ -145,11 +167,15 @@ def orient_photo(
             O_j = O_j + dx[:3]
             R_j = R_j @ exp_so3(dx[3:])
         crit = float(np.max(np.abs(dx) * np.sqrt(np.diag(N))))
-        if not np.isfinite(crit):
-            raise NumericalFailure("the orientation of a photograph diverged (non-finite corrections)")
-        if crit < tolerance:
+        history.append(StepIteration(vtpv, crit))
+        if not (np.isfinite(crit) and np.isfinite(vtpv)):
+            from ..termination import table
+
+            raise NumericalFailure(f"the orientation of {label} diverged at iteration {iteration}: its numbers became "
+                                   "infinite or not a number.\n" + table(history, n_conditions - n_unknowns))
+        if has_converged(history, tolerance):  # the tolerance, or the round-off floor (as adjust())
             converged = True
             break
     return PhotoStep(R_j=R_j, O_j=O_j, b_cam=R_i.T @ (O_j - O_i), plate_cop=lhat_cop, vtpv=vtpv,
                      n_conditions=n_conditions, n_unknowns=n_unknowns, iterations=iteration,
-                     converged=converged, max_correction=crit, N=N)
+                     converged=converged, max_correction=crit, N=N, history=history)

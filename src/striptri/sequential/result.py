@@ -19,7 +19,10 @@ Definitions (docs/sequential.md):
   (the sequential method holds the interior orientation).
 * ``iterations``: every Gauss-Newton iteration of every step (per-photo adjustments, the absolute
   orientation, the resections after a strip correction); ``converged``: all of them converged.
-  ``history``: one entry per photo step.
+  ``history``: one entry per photo step. ``termination``: "converged" when every step converged,
+  else "iteration_limit", with a message naming the first step that did not (its photo, its last
+  iterations, whether it was still converging, the likely cause). The steps' own limit is
+  max(30, [adjustment] max_iterations) (SequentialOptions.from_adjustment_options).
 * Observed or fixed photo elements, weighted control and enforced bases are not used (the method is
   that of the plotters: photographs and control only); control coordinates get zero residuals.
 """
@@ -31,7 +34,9 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from .. import diagnosis, termination
 from ..adjustment import AdjustmentResult, Iteration, observations_of
+from ..errors import NumericalFailure
 from ..camera import project as project_plate
 from ..conditions import collinearity
 from ..model import Project
@@ -49,14 +54,29 @@ def adjust_sequential(project: Project, options=None) -> AdjustmentResult:
     elif not isinstance(options, SequentialOptions):
         options = SequentialOptions.from_adjustment_options(options)
     project = distortion_free(project)
-    sol = triangulate_strip(project, options)
+    sol = _triangulate_explained(project, options)
     return result_of(project, sol, time.perf_counter() - t0)
+
+
+def _triangulate_explained(project: Project, options: SequentialOptions) -> SequentialSolution:
+    """triangulate_strip, with the likely cause (striptri.diagnosis) added to a failure's message."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return triangulate_strip(project, options)
+    except (NumericalFailure, np.linalg.LinAlgError) as exc:
+        with np.errstate(all="ignore"):
+            causes = diagnosis.likely_causes(project, "iteration")
+        text = str(exc) if isinstance(exc, NumericalFailure) else (
+            f"the sequential triangulation met a singular system of equations ({exc})")
+        if not causes:
+            raise NumericalFailure(text) from exc
+        raise NumericalFailure(text + "\n" + termination.causes_text(causes)) from exc
 
 
 def sequential_approximations(project: Project, options: SequentialOptions | None = None) -> Project:
     """The project with the approximate orientations replaced by the sequential result (free centres
     and all rotations; observed and fixed elements keep their values, parameters.with_state)."""
-    sol = triangulate_strip(project, options or SequentialOptions())
+    sol = _triangulate_explained(project, options or SequentialOptions())
     state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(), convention=project.cameras.convention.copy(),
                   camera_of_photo=project.photos.camera_index.copy())
     return with_state(project, state, sol.offset)
@@ -131,15 +151,59 @@ def result_of(project: Project, sol: SequentialSolution, seconds: float = 0.0) -
         "backward": float(sol.options.direction == "backward"),
     }
     history = [Iteration(vtpv=s.vtpv, max_correction=s.max_correction, seconds=0.0) for s in sol.steps]
+    status, message = _termination(project, sol)
     return AdjustmentResult(
         method="sequential", solver="sequential", state=state, layout=layout, offset=sol.offset,
         sigma0=sigma0, redundancy=int(redundancy), vtpv=float(vtpv),
         iterations=int(sum(s.iterations for s in all_steps) + sol.similarity_iterations),
-        converged=bool(all(s.converged for s in all_steps)), history=history,
+        converged=status == "converged", history=history,
         n_conditions=int(sum(s.n_conditions for s in sol.steps)), n_observations=2 * len(project.image_points),
         n_unknowns=layout.n_unknowns, n_parameter_observations=n_pobs,
         plate_residuals=v, plate_adjusted=project.image_points.xy + v,
         control_residuals=np.zeros_like(obs.control), control_adjusted=obs.control.copy(),
         parameter_residuals=np.zeros(n_pobs), N=_conditional_normal_matrix(project, sol, layout, state),
-        checks=checks, timings={"total": seconds},
+        checks=checks, timings={"total": seconds}, termination=status, termination_message=message,
+        ids=(project.photos.ids, project.cameras.ids),
     )
+
+
+SHRINKING = ("Its corrections were still shrinking: raise [adjustment] max_iterations in project.toml (each step of "
+             "the sequential method may take max(30, max_iterations) iterations).")
+
+
+def _termination(project: Project, sol: SequentialSolution) -> tuple[str, str]:
+    """("converged", "") when every step converged, else ("iteration_limit", message) for the first
+    step that did not: the photo, its last iterations, the trend and the likely cause."""
+    ids = project.photos.ids
+    order, opts = sol.order, sol.options
+    labelled = []
+    for s, step in enumerate(sol.steps):
+        i, j = ids[order[s]], ids[order[s + 1]]
+        kind = "relative orientation" if opts.procedure == 1 or s == 0 else "orientation (procedure 2)"
+        labelled.append((f"the {kind} of photo {j} to photo {i}", step))
+    labelled += [(f"the resection of photo {ids[j]} after the strip correction", rs) for j, rs in enumerate(sol.resections)]
+    for label, step in labelled:
+        if step.converged:
+            continue
+        head = (f"the sequential triangulation did not converge: {label} reached its limit of {step.iterations} "
+                f"iterations while its largest correction was still {step.max_correction:.3g} sd (converged means "
+                f"below {opts.tolerance:g} sd).")
+        history = step.history or [Iteration(vtpv=step.vtpv, max_correction=step.max_correction, seconds=0.0)]
+        state, _ = termination.trend(history)
+        with np.errstate(all="ignore"):
+            causes = diagnosis.likely_causes(project, "iteration")
+        if state == "shrinking" and not causes:
+            return "iteration_limit", "\n".join([head, termination.table(history, step.redundancy), SHRINKING])
+        meaning = ("Its corrections were still shrinking, but:" if state == "shrinking" else
+                   "Its corrections no longer shrink: the step is not approaching a solution.")
+        return "iteration_limit", "\n".join([head, termination.table(history, step.redundancy), meaning,
+                                               termination.causes_text(causes)])
+    if not sol.similarity_converged:
+        return "iteration_limit", (
+            f"the sequential triangulation did not converge: the absolute orientation of the strip (a 3D similarity "
+            f"to the control) reached its limit of {sol.similarity_iterations} iterations. "
+            + termination.causes_text(diagnosis.likely_causes(project, "iteration"),
+                                      "Likely cause: control that hardly fixes the similarity (nearly on a line) or "
+                                      "a gross error in the control coordinates."))
+    return "converged", ""
+

@@ -116,6 +116,7 @@ class SequentialSolution:
     xyz0_ground: np.ndarray
     xyz_ground: np.ndarray
     resections: list[PhotoStep] = field(default_factory=list)
+    similarity_converged: bool = True
 
     @property
     def vtpv(self) -> float:
@@ -152,7 +153,7 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
     held = int(np.argmax(np.abs(b_image)))
     length = float(np.linalg.norm(b_cam0))
     first = 1.0 if b_cam0[held] >= 0 else -1.0
-    best, tried = None, 0
+    best, tried, closest = None, 0, None
     starts = []
     for sign in (first, -first):
         b_axis = np.zeros(3)
@@ -165,17 +166,32 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
     for R_rel, b in starts:
         try:
             ro = orient_photo("relative", R_i, O_i, interior_i, R_i @ R_rel, O_i + R_i @ b, interior_j, cop_xy,
-                              cop_sig, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 3)), held_axis=held, **kw)
+                              cop_sig, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 3)), held_axis=held,
+                              label=f"photo {names[1]} relative to photo {names[0]}", **kw)
         except NumericalFailure:
             continue
         tried += 1
-        if not ro.converged or not _in_front(R_i, O_i, ro, interior_i, interior_j):
+        if not ro.converged:
+            if closest is None or ro.max_correction < closest.max_correction:
+                closest = ro
+            continue
+        if not _in_front(R_i, O_i, ro, interior_i, interior_j):
             continue
         if best is None or ro.vtpv < best.vtpv * (1 - 1e-9):
             best = ro
     if best is None:
-        raise NumericalFailure(f"the relative orientation of photographs {names[0]} and {names[1]} did not converge "
-                               f"to a solution with the points in front of both ({tried} starts tried).")
+        text = (f"the relative orientation of photographs {names[0]} and {names[1]} did not converge to a solution "
+                f"with the points in front of both ({len(starts)} starts, {tried} of them without numerical failure).")
+        if closest is not None and closest.history:
+            from ..termination import table, trend
+
+            text += (f"\nThe start that came closest stopped at the limit of {closest.iterations} iterations with "
+                     f"its largest correction still {closest.max_correction:.3g} sd:\n"
+                     + table(closest.history, closest.redundancy))
+            if trend(closest.history)[0] == "shrinking":
+                text += ("\nIts corrections were still shrinking: raise [adjustment] max_iterations in project.toml "
+                         "(each step of the sequential method may take max(30, max_iterations) iterations).")
+        raise NumericalFailure(text)
     return best
 
 
@@ -278,7 +294,8 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
             new_rows = np.stack([row[i, new], row[j, new]], 1)
             step = orient_photo("full", Rm[i], Om[i], interior[i], R_j, O_j, interior[j],
                                 ip.xy[new_rows].reshape(-1, 4), ip.sigma_xy[new_rows].reshape(-1, 4),
-                                ip.xy[row[j, carried]], ip.sigma_xy[row[j, carried]], Xm[carried], **kw)
+                                ip.xy[row[j, carried]], ip.sigma_xy[row[j, carried]], Xm[carried],
+                                label=f"photo {ph.ids[j]}", **kw)
             relative_steps.append(ro)
             R_j, O_j = step.R_j, step.O_j
             if len(new):
@@ -316,12 +333,13 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
             seen = np.flatnonzero(have & (row[j] >= 0))
             rs = orient_photo("full", R_g[j], O_g[j], interior[j], R_g[j], O_g[j], interior[j],
                               np.zeros((0, 4)), np.zeros((0, 4)), ip.xy[row[j, seen]], ip.sigma_xy[row[j, seen]],
-                              X_g[seen], **kw)
+                              X_g[seen], label=f"photo {ph.ids[j]} (resection after the strip correction)", **kw)
             R_g[j], O_g[j] = rs.R_j, rs.O_j
             resections.append(rs)
     return SequentialSolution(
         options=options, offset=offset, order=order, R_model=Rm, xyz0_model=Om, xyz_model=Xm, steps=steps,
         relative_steps=relative_steps, scale_factors=np.array(scales), scale_residuals=scale_res,
         similarity=sim, control_residuals=fit.residuals, similarity_iterations=fit.iterations, polynomial=poly,
+        similarity_converged=fit.converged,
         R_ground=R_g, xyz0_ground=O_g, xyz_ground=X_g, resections=resections,
     )
