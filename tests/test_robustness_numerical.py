@@ -103,7 +103,7 @@ def test_case1_every_method_says_converged_without_a_message(strip8, method):
 def test_case1_max_iterations_1_is_iteration_limit_still_shrinking(strip8, method):
     """project.toml max_iterations = 1 on strip8: the limit, reached while the corrections were
     still shrinking (the next correction, from the final checks, is smaller): raise the limit."""
-    result = adjust(strip8, AdjustmentOptions(method=method, max_iterations=1))
+    result = adjust(strip8, AdjustmentOptions(method=method, max_iterations=1, keep_unconverged=True))
     assert result.termination == "iteration_limit" and not result.converged
     assert result.termination not in SUCCESSFUL_TERMINATIONS
     msg = result.termination_message
@@ -116,12 +116,23 @@ def test_case1_max_iterations_1_is_iteration_limit_still_shrinking(strip8, metho
 
 
 @pytest.mark.parametrize("method", METHODS)
+def test_case1_unconverged_is_a_failure_unless_kept(strip8, method):
+    """adjust() raises NumericalFailure with the termination message for an adjustment that stopped
+    at its limit; keep_unconverged returns it, marked."""
+    with pytest.raises(NumericalFailure) as info:
+        adjust(strip8, AdjustmentOptions(method=method, max_iterations=1))
+    kept = adjust(strip8, AdjustmentOptions(method=method, max_iterations=1, keep_unconverged=True))
+    assert not kept.converged and kept.termination == "iteration_limit"
+    assert str(info.value) == kept.termination_message
+
+
+@pytest.mark.parametrize("method", METHODS)
 def test_case1_and_2_kappa_180_off_names_the_photo(strip8, method):
     """kappa of photo 1006 of strip8 typed 180 deg off: sigma0 in the thousands, 30 iterations not
     converged; the message gives the figures and names photo 1006 and the corrected kappa."""
     j = photo_index(strip8, "1006")
     project = turned(strip8, j, 180.0)
-    result = adjust(project, AdjustmentOptions(method=method))
+    result = adjust(project, AdjustmentOptions(method=method, keep_unconverged=True))
     assert result.termination == "iteration_limit"
     assert result.sigma0 > 1000  # what the user saw
     msg = result.termination_message
@@ -138,7 +149,7 @@ def test_case1_and_2_c_in_micrometres_names_the_unit(strip8, method):
     message names camera C1 and micrometres."""
     project = with_c(strip8, 152000.0)
     try:
-        result = adjust(project, AdjustmentOptions(method=method))
+        result = adjust(project, AdjustmentOptions(method=method, keep_unconverged=True))
         assert result.termination == "iteration_limit"
         msg = result.termination_message
         assert_figures_of_last_iterations(msg, result.history, result.redundancy)
@@ -205,7 +216,8 @@ def test_case1_blunder_detection_keeps_the_termination_and_tests_nothing(strip8,
     solution, so nothing is tested or rejected, and the termination reaches the caller unchanged."""
     from striptri.reliability import BlunderOptions, detect_blunders
 
-    det = detect_blunders(strip8, AdjustmentOptions(max_iterations=1), BlunderOptions(method=method))
+    det = detect_blunders(strip8, AdjustmentOptions(max_iterations=1, keep_unconverged=True),
+                          BlunderOptions(method=method))
     assert det.result.termination == "iteration_limit"
     assert "max_iterations = 1" in det.result.termination_message
     assert det.stopped.startswith("not tested") or method == "off"
