@@ -10,7 +10,13 @@ Side files written next to the standard ones:
 * BAL output: a folder with ``problem.txt`` (the BAL file) and ``striptri_ids.csv`` (BAL camera
   index -> photo id, BAL point index -> point id);
 * project output: ``approx_points.csv`` (point_id, X, Y, Z), the approximate ground coordinates of
-  the points (BAL, COLMAP, or given/intersected for a project); read_project does not read it.
+  the points (BAL, COLMAP, or given/intersected for a project), read by read_project as starting
+  values.
+
+A project is validated before it is written: io.parse_project reads the generated file texts with
+exactly the rules of ``striptri adjust``'s reader, in memory, so that convert never writes a project
+adjust would refuse (an InputError naming the source says why), and the reader's notes on the
+converted project are passed on.
 """
 
 from __future__ import annotations
@@ -32,9 +38,9 @@ from striptri.formats.conversions import (
     project_to_bal,
     project_to_colmap,
 )
-from striptri.io.csvtable import format_csv, read_csv
+from striptri.io.csvtable import format_csv, input_present, read_csv
 from striptri.io.output import write_output_folder
-from striptri.io.project_reader import read_project
+from striptri.io.project_reader import parse_project, read_project
 from striptri.io.project_writer import project_files
 
 SOURCE_FORMATS = ("bal", "colmap", "dbat", "project")
@@ -58,7 +64,7 @@ def detect_format(src: str | Path) -> str:
     """dbat for an .xml file (a DBAT script), bal for another file, colmap for a folder with
     cameras.txt, project for one with cameras.csv."""
     src = Path(src)
-    if src.is_file():
+    if input_present(src) and not src.is_dir():  # a file (a FIFO or a device is refused by its reader)
         return "dbat" if src.suffix.lower() == ".xml" else "bal"
     if (src / "cameras.txt").is_file():
         return "colmap"
@@ -85,7 +91,8 @@ def read_scene(src: str | Path, source_format: str | None = None, pixel_size: fl
         return fmt, colmap_to_project(model_, 1.0 if pixel_size is None else pixel_size, _read_names(src), src)
     if fmt == "project":
         project = read_project(src)
-        return fmt, Scene(project=project, xyz_ground=approximate_points(project))
+        return fmt, Scene(project=project, xyz_ground=approximate_points(project),
+                          notes=[str(note) for note in project.notes])
     raise ValueError(f"unknown source format {fmt!r}; one of {SOURCE_FORMATS}")
 
 def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | None = None,
@@ -106,6 +113,8 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
             "point_id": project.points.ids, "X": scene.xyz_ground[:, 0], "Y": scene.xyz_ground[:, 1],
             "Z": scene.xyz_ground[:, 2],
         })
+        known = {note.text for note in project.notes}  # a project source's own notes are said already
+        notes += [f"converted project: {note}" for note in _validate_project(src, files) if note.text not in known]
     elif to == "dbat":
         from striptri.formats.dbat import dbat_files
 
@@ -129,6 +138,15 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
                          n_photos=len(project.photos), n_points=len(project.points),
                          n_image_points=len(project.image_points), notes=notes)
 
+def _validate_project(src: Path, files: dict[str, str]) -> tuple:
+    """Read the project files about to be written with the project reader's rules (in memory).
+    -> the reader's notes (striptri.errors.Note); InputError naming src when adjust would refuse them."""
+    try:
+        return parse_project(files).notes
+    except InputError as exc:
+        raise InputError(src, None, f"the converted project would be invalid: {exc}") from None
+
+
 def _names_csv(names: ColmapNames) -> str:
     table, colmap_id, striptri_id, strip = [], [], [], []
     for kind, mapping in (("camera", names.cameras), ("point", names.points)):
@@ -141,7 +159,7 @@ def _names_csv(names: ColmapNames) -> str:
 def _read_names(folder: Path) -> ColmapNames:
     """striptri ids from folder/striptri_ids.csv when it exists (else empty: COLMAP ids are used)."""
     path = folder / IDS_FILE
-    if not path.exists():
+    if not input_present(path):
         return ColmapNames()
     table = read_csv(path)
     kinds = table.strings("table")
