@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from striptri import model
 from striptri.errors import InputError
 from striptri.formats.bal import bal_text, read_bal
 from striptri.formats.colmap import colmap_files, read_colmap
@@ -66,9 +67,9 @@ def detect_format(src: str | Path) -> str:
     src = Path(src)
     if input_present(src) and not src.is_dir():  # a file (a FIFO or a device is refused by its reader)
         return "dbat" if src.suffix.lower() == ".xml" else "bal"
-    if (src / "cameras.txt").is_file():
+    if src.is_dir() and input_present(src / "cameras.txt"):  # its reader refuses a folder or a FIFO there
         return "colmap"
-    if (src / "cameras.csv").is_file():
+    if src.is_dir() and input_present(src / "cameras.csv"):
         return "project"
     raise InputError(src, None, "not found" if not src.exists() else
                      "cannot tell the format (a BAL file, a DBAT script .xml, a COLMAP folder with cameras.txt, "
@@ -109,9 +110,15 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
     notes = list(scene.notes)
     if to == "project":
         files = project_files(project)
+        # the points the project files hold: control points and measured tie points (a tie point
+        # measured on no photo, e.g. a BAL point without observations, has no file to live in)
+        kept = (project.points.kind != model.TIE) | np.isin(np.arange(len(project.points)),
+                                                            project.image_points.point_index)
+        if not kept.all():
+            notes.append(f"points measured on no photo left out (a project has no file for them): {int((~kept).sum())}")
         files[APPROX_POINTS_FILE] = format_csv({
-            "point_id": project.points.ids, "X": scene.xyz_ground[:, 0], "Y": scene.xyz_ground[:, 1],
-            "Z": scene.xyz_ground[:, 2],
+            "point_id": [pid for pid, k in zip(project.points.ids, kept) if k], "X": scene.xyz_ground[kept, 0],
+            "Y": scene.xyz_ground[kept, 1], "Z": scene.xyz_ground[kept, 2],
         })
         known = {note.text for note in project.notes}  # a project source's own notes are said already
         notes += [f"converted project: {note}" for note in _validate_project(src, files) if note.text not in known]
