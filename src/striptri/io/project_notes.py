@@ -50,21 +50,23 @@ def project_notes(tables: Mapping[str, CsvTable], cameras: model.Cameras, photos
     _, first_row = np.unique(image_points.point_index, return_index=True)
     first = np.full(len(points), -1)
     first[image_points.point_index[first_row]] = first_row
-    lonely = [j for j in np.flatnonzero(rays == 1) if j >= n_control]
+    lonely = np.flatnonzero(rays[n_control:] == 1) + n_control
+    lonely = lonely[np.argsort(first[lonely], kind="stable")]  # in the order of image_points.csv
     notes += _note(ip_table.path, [
         (ip_table.lines[first[j]], f"'{points.ids[j]}'", f"photo '{photos.ids[image_points.photo_index[first[j]]]}'")
-        for j in lonely], "tie point measured on one photo only; it gives no condition and is not used",
-        "tie points measured on one photo only; they give no condition and are not used")
+        for j in lonely[:MAX_LISTED]], "tie point measured on one photo only; it gives no condition and is not used",
+        "tie points measured on one photo only; they give no condition and are not used", len(lonely))
     ph_table = tables["photos.csv"]
     unmeasured = np.flatnonzero(np.bincount(image_points.photo_index, minlength=len(photos)) == 0)
-    notes += _note(ph_table.path, [(ph_table.lines[i], f"'{photos.ids[i]}'", "") for i in unmeasured],
+    notes += _note(ph_table.path, [(ph_table.lines[i], f"'{photos.ids[i]}'", "") for i in unmeasured[:MAX_LISTED]],
                    "photo with no measurements in image_points.csv; no ray of it enters the adjustment",
-                   "photos with no measurements in image_points.csv; no ray of them enters the adjustment")
+                   "photos with no measurements in image_points.csv; no ray of them enters the adjustment",
+                   len(unmeasured))
     cam_table = tables["cameras.csv"]
     unused = np.flatnonzero(np.bincount(photos.camera_index, minlength=len(cameras)) == 0)
-    notes += _note(cam_table.path, [(cam_table.lines[j], f"'{cameras.ids[j]}'", "") for j in unused],
+    notes += _note(cam_table.path, [(cam_table.lines[j], f"'{cameras.ids[j]}'", "") for j in unused[:MAX_LISTED]],
                    "camera that no photo of photos.csv uses; not used",
-                   "cameras that no photo of photos.csv uses; not used")
+                   "cameras that no photo of photos.csv uses; not used", len(unused))
     return notes
 
 
@@ -107,11 +109,13 @@ def _column_note(table: CsvTable) -> Note | None:
 def _control_notes(table: CsvTable, points: model.ObjectPoints, rays: np.ndarray, n_control: int) -> list[Note]:
     """control.csv: unmeasured control, control without a condition, values the kind does not use."""
     notes = []
+    unmeasured = np.flatnonzero(rays[:n_control] == 0)
     measured_ties = {}
-    for j in range(n_control, len(points)):
-        measured_ties.setdefault(_id_key(points.ids[j]), points.ids[j])
+    if len(unmeasured):  # every tie point is measured (the reader makes them from measurements)
+        for j in range(n_control, len(points)):
+            measured_ties.setdefault(_id_key(points.ids[j]), points.ids[j])
     items = []
-    for i in np.flatnonzero(rays[:n_control] == 0):
+    for i in unmeasured:
         hint = measured_ties.get(_id_key(points.ids[i]))
         kind = model.KIND_NAMES[int(points.kind[i])]
         items.append((table.lines[i], f"'{points.ids[i]}' ({kind})",
@@ -144,20 +148,24 @@ def _control_notes(table: CsvTable, points: model.ObjectPoints, rays: np.ndarray
 # --------------------------------------------------------------------------- helpers
 
 
-def _note(path, items: list[tuple[int, str, str]], singular: str, plural: str) -> list[Note]:
-    """[] or one Note at the line of the first item; items: (line, label, remark)."""
+def _note(path, items: list[tuple[int, str, str]], singular: str, plural: str, count: int | None = None
+          ) -> list[Note]:
+    """[] or one Note at the line of the first item. items: (line, label, remark) of the first
+    cases (at least the first MAX_LISTED); count: how many cases there are (default len(items))."""
+    count = len(items) if count is None else count
     if not items:
         return []
-    if len(items) == 1:
+    if count == 1:
         line, label, remark = items[0]
         return [Note(str(path), int(line), f"{singular}: {label}" + (f" ({remark})" if remark else ""))]
     labels = [f"{label} (line {line}" + (f"; {remark})" if remark else ")") for line, label, remark in items]
-    return [Note(str(path), int(items[0][0]), f"{len(items)} {plural}: {_listing(labels)}")]
+    return [Note(str(path), int(items[0][0]), f"{count} {plural}: {_listing(labels, count)}")]
 
 
-def _listing(labels: Sequence[str]) -> str:
+def _listing(labels: Sequence[str], count: int | None = None) -> str:
+    """The first MAX_LISTED labels, and how many more of count (default len(labels)) there are."""
     shown = ", ".join(labels[:MAX_LISTED])
-    more = len(labels) - MAX_LISTED
+    more = (len(labels) if count is None else count) - min(len(labels), MAX_LISTED)
     return shown + (f" and {more} more" if more > 0 else "")
 
 
