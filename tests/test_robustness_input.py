@@ -501,6 +501,11 @@ def test_convert_never_writes_a_project_that_adjust_rejects(tmp_path):
     script = _dbat_script(tmp_path, images="1, a/IMG1.JPG\n2, b/IMG1.JPG\n")
     fails_cleanly(["convert", script, "--to", "project", "--out", out], script.parent, out, str(script),
                   ["the converted project would be invalid", "photos.csv, line 3: duplicate photo_id 'IMG1.JPG'"])
+    # values a project cannot hold are refused by the DBAT reader itself, with its file and line
+    (script.parent / "pts.txt").write_text("# im,id,x,y,sxy\n1,7,500,400,0.5\n2,,600,300,0.5\n")
+    with pytest.raises(InputError) as info:
+        read_dbat(script)
+    assert info.value.path.endswith("pts.txt") and info.value.line == 3 and "id is empty" in info.value.reason
 
 
 def test_parse_project_in_memory_equals_the_folder_reader(tmp_path):

@@ -299,6 +299,8 @@ def _read_table(path: Path, fmt: str, fmt_line: int, script: Path, required: tup
 
 
 def _id(path, line, tok) -> str:
+    if tok == "":
+        raise InputError(path, line, "an id is empty")
     try:
         v = float(tok)
     except ValueError:
@@ -486,8 +488,11 @@ def read_dbat(script_xml_path: str | Path) -> DbatProject:
             iid = _id(fpath, n, r["id"])
             if iid in image_ids:
                 raise InputError(fpath, n, f"image id {iid} given twice")
+            name = r["path"].replace("\\", "/").rsplit("/", 1)[-1]
+            if not name:
+                raise InputError(fpath, n, f"image {iid}: the path '{r['path']}' names no file (the photo id)")
             image_ids.append(iid)
-            image_names.append(r["path"].replace("\\", "/").rsplit("/", 1)[-1])
+            image_names.append(name)
 
     # image points
     ip_image, ip_point, xy, sig, lines = [], [], [], [], []
