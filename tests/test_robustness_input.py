@@ -332,8 +332,9 @@ def test_unused_input_gives_notes_never_silence(tmp_path):
     unmeasured = [n for n in by_file["control.csv"] if "measured on no photo" in n.text]
     assert len(unmeasured) == 1 and unmeasured[0].line == 2, text
     assert "'1001l'" in unmeasured[0].text and "did you mean '1001L'" in unmeasured[0].text
-    # the check point K9 is measured on no photo either: listed in the same note? (it has its own line)
-    assert "K9" in text
+    # the check point K9 is measured on no photo either: the same note, with its own line
+    k9_line = len(lines_of(control))
+    assert unmeasured[0].text.startswith("2 control points") and f"'K9' (check) (line {k9_line})" in text
     # values the kind does not use: Z of the XY point, the sigma of the check point
     unused = [n for n in by_file["control.csv"] if "does not use" in n.text]
     assert len(unused) == 1 and "Z of XY point '1001R'" in unused[0].text and "sigma_X of check point 'K9'" in unused[0].text
