@@ -70,7 +70,7 @@ def lines_of(text: str) -> list[str]:
 
 @pytest.mark.parametrize("name", ["cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv",
                                   "approx_points.csv", "project.toml"])
-def test_fifo_or_folder_as_project_file_is_refused_without_waiting(tmp_path, name):
+def test_fifo_as_project_file_is_refused_without_waiting(tmp_path, name):
     """Case 1: a FIFO in place of any project file is refused at once (exit 2, the file named),
     never read (a read would wait for a writer forever; the subprocess timeout guards it)."""
     folder = pair(tmp_path)
