@@ -326,9 +326,7 @@ def convert(src, target, out_dir, source, pixel_size, drop_distortion):
     from striptri.formats.convert import convert as run_convert
 
     result = run_convert(src, out_dir, target, source_format=source, pixel_size=pixel_size,
-                         drop_distortion=drop_distortion)
-    for note in result.notes:
-        _warn(str(note))
+                         drop_distortion=drop_distortion, on_warning=_warn)
     click.echo(f"wrote {result.out_dir} ({result.target_format} from {result.source_format}): {result.n_cameras} cameras, "
                f"{result.n_photos} photos, {result.n_points} points, {result.n_image_points} image points")
 

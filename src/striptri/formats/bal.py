@@ -9,7 +9,14 @@ File layout (Agarwal et al., https://grail.cs.washington.edu/projects/bal/):
 * ``3 npts`` numbers, per point: X, Y, Z.
 
 Parameters may stand one per line (the published files) or several per line. Blank lines are
-skipped. Any other deviation is an :class:`InputError` naming the file, the line and the reason.
+skipped. A problem needs at least one camera, one point and one observation. The counts of the
+header are checked against the size of the file before anything is allocated: an observation line
+takes at least MIN_OBSERVATION_BYTES bytes, a parameter MIN_NUMBER_BYTES; a header announcing more
+than twice what the file can hold (and more than HEADER_SLACK_BYTES) is an error naming the header
+line (a header claiming 10^12 observations is not a MemoryError). A file that is merely short is
+read up to its end and the error names the line where it ends. Memory follows the size of the
+file, never the header. Any other deviation is an :class:`InputError` naming the file, the line
+and the reason.
 
 Projection as BAL defines it: ``P = R X + t``, ``p = -P / P_z``,
 ``x = f (1 + k1 |p|^2 + k2 |p|^4) p``; residual = predicted - observed; cost = 0.5 sum r^2.
@@ -27,6 +34,13 @@ import numpy as np
 from striptri.errors import InputError
 from striptri.io.csvtable import read_input_bytes
 from striptri.rotations import exp_so3
+
+# the fewest bytes an observation line "c p x y\n" and a parameter "v\n" take in a BAL file, and
+# the margin below which a short file is read to its end (its last line named) rather than its header
+MIN_OBSERVATION_BYTES = 8
+MIN_NUMBER_BYTES = 2
+HEADER_SLACK_BYTES = 1 << 20
+
 
 
 @dataclass(frozen=True)
@@ -108,11 +122,22 @@ def read_bal(path: str | Path) -> BalProblem:
     if len(header) != 3:
         raise InputError(path, header_line, f"header must be 'ncam npts nobs' (3 integers), found {len(header)} fields")
     ncam, npts, nobs = (_count(path, header_line, name, tok) for name, tok in zip(("ncam", "npts", "nobs"), header))
+    if min(ncam, npts, nobs) == 0:
+        raise InputError(path, header_line, f"header '{' '.join(header)}': a BAL problem needs at least one camera, "
+                                            "one point and one observation")
+    n_params = 9 * ncam + 3 * npts
+    need = MIN_OBSERVATION_BYTES * nobs + MIN_NUMBER_BYTES * n_params
+    if need > max(2 * len(raw), HEADER_SLACK_BYTES):
+        raise InputError(path, header_line, f"the header announces {ncam} cameras, {npts} points and {nobs} "
+                                            f"observations, which take at least {need} bytes; the file has "
+                                            f"{len(raw)} (a wrong header, or a file cut short)")
 
     obs_lines = lines[1 : 1 + nobs]
     if len(obs_lines) < nobs:
         last = lines[-1][0]
-        raise InputError(path, last, f"file ends after {len(obs_lines)} of {nobs} observations")
+        raise InputError(path, last, f"file ends after {len(obs_lines)} of {nobs} observations (the header, line "
+                                     f"{header_line}, announces {nobs})")
+    # nobs observation lines exist: the arrays below are no larger than the file
     camera_index = np.empty(nobs, dtype=np.int64)
     point_index = np.empty(nobs, dtype=np.int64)
     xy = np.empty((nobs, 2))
@@ -125,17 +150,18 @@ def read_bal(path: str | Path) -> BalProblem:
         xy[i, 0] = parse_number(path, n, "x", tokens[2])
         xy[i, 1] = parse_number(path, n, "y", tokens[3])
 
-    n_params = 9 * ncam + 3 * npts
-    values = np.empty(n_params)
-    value_lines = np.empty(n_params, dtype=np.int64)
+    short = sum(len(tokens) for _, tokens in lines[1 + nobs :]) < n_params  # reported after the numbers are checked
+    values = np.empty(0 if short else n_params)
+    value_lines = np.empty(0 if short else n_params, dtype=np.int64)
     k = 0
     for n, tokens in lines[1 + nobs :]:
         for tok in tokens:
             if k == n_params:
                 raise InputError(path, n, f"more numbers than the {n_params} parameters of {ncam} cameras and {npts} points")
             what = "camera parameter" if k < 9 * ncam else "point coordinate"
-            values[k] = parse_number(path, n, what, tok)
-            value_lines[k] = n
+            value = parse_number(path, n, what, tok)
+            if not short:
+                values[k], value_lines[k] = value, n
             k += 1
     if k < n_params:
         raise InputError(path, lines[-1][0], f"file ends after {k} of the {n_params} parameters "

@@ -8,7 +8,10 @@ COLMAP conventions (https://colmap.github.io/format.html):
   may be empty);
 * ``cameras.txt``: ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS...``; only ``SIMPLE_PINHOLE`` (f, cx, cy)
   and ``PINHOLE`` (fx, fy, cx, cy) are read here; any other model is an error that names it;
-* ``points3D.txt``: ``POINT3D_ID X Y Z R G B ERROR (IMAGE_ID POINT2D_IDX)...``;
+* ``points3D.txt``: ``POINT3D_ID X Y Z R G B ERROR (IMAGE_ID POINT2D_IDX)...``; every track entry
+  must name a 2D point of that image (0 <= POINT2D_IDX < its number of POINTS2D) whose POINT3D_ID
+  is this point, and every 2D point with a POINT3D_ID must be in that point's track exactly once
+  (:func:`_check_tracks`): a truncated images.txt fails instead of losing measurements;
 * camera frame x right, y down, looking along +z; pixel coordinates with the origin at the
   top-left corner of the image (the centre of the first pixel is (0.5, 0.5)), y down.
 
@@ -132,6 +135,7 @@ def read_colmap(folder: str | Path) -> ColmapModel:
     for i, pid in enumerate(imgs["obs_point3d_id"]):
         if pid != -1 and pid not in known:
             raise InputError(folder / "images.txt", imgs["obs_lines"][i], f"POINT3D_ID {pid} is not in points3D.txt")
+    _check_tracks(folder, imgs, pts)
     return ColmapModel(
         camera_ids=np.array(cams["ids"], dtype=np.int64),
         camera_models=cams["models"],
@@ -152,6 +156,51 @@ def read_colmap(folder: str | Path) -> ColmapModel:
         rgb=np.array(pts["rgb"], dtype=np.int64).reshape(-1, 3),
         error=np.array(pts["error"], dtype=float),
     )
+
+
+def _check_tracks(folder: Path, imgs: dict, pts: dict) -> None:
+    """Tracks of points3D.txt against the POINTS2D of images.txt (module doc). InputError naming the
+    file and line of the first disagreement."""
+    images_txt, points_txt = folder / "images.txt", folder / "points3D.txt"
+    n_img = len(imgs["ids"])
+    obs_image = np.asarray(imgs["obs_image"], dtype=np.int64)
+    obs_pid = np.asarray(imgs["obs_point3d_id"], dtype=np.int64)
+    count = np.bincount(obs_image, minlength=n_img)
+    start = np.concatenate([[0], np.cumsum(count)])[:n_img]  # observations are stored image by image
+    t_image = np.asarray(pts["track_image"], dtype=np.int64)
+    t_idx = np.asarray(pts["track_idx"], dtype=np.int64)
+    t_pid = np.asarray(pts["track_pid"], dtype=np.int64)
+    t_line = np.asarray(pts["track_line"], dtype=np.int64)
+    outside = np.flatnonzero((t_idx < 0) | (t_idx >= count[t_image]))
+    if len(outside):
+        k = int(outside[0])
+        img = int(t_image[k])
+        raise InputError(points_txt, int(t_line[k]),
+                         f"track entry (IMAGE_ID {imgs['ids'][img]}, POINT2D_IDX {int(t_idx[k])}): image "
+                         f"{imgs['ids'][img]} has {int(count[img])} 2D points in images.txt (line "
+                         f"{imgs['lines'][img]}); is images.txt complete?")
+    obs = start[t_image] + t_idx
+    wrong = np.flatnonzero(obs_pid[obs] != t_pid)
+    if len(wrong):
+        k = int(wrong[0])
+        raise InputError(points_txt, int(t_line[k]),
+                         f"track of POINT3D_ID {int(t_pid[k])} names 2D point {int(t_idx[k])} of IMAGE_ID "
+                         f"{imgs['ids'][int(t_image[k])]}, whose POINT3D_ID in images.txt (line "
+                         f"{imgs['obs_lines'][int(obs[k])]}) is {int(obs_pid[obs[k]])}")
+    uses = np.bincount(obs, minlength=len(obs_pid))
+    twice = np.flatnonzero(uses > 1)
+    if len(twice):
+        o = int(twice[0])
+        k = int(np.flatnonzero(obs == o)[1])
+        raise InputError(points_txt, int(t_line[k]),
+                         f"2D point {int(t_idx[k])} of IMAGE_ID {imgs['ids'][int(t_image[k])]} is in a track twice")
+    missing = np.flatnonzero((obs_pid != -1) & (uses == 0))
+    if len(missing):
+        o = int(missing[0])
+        img = int(obs_image[o])
+        raise InputError(images_txt, imgs["obs_lines"][o],
+                         f"2D point {o - int(start[img])} of IMAGE_ID {imgs['ids'][img]} has POINT3D_ID "
+                         f"{int(obs_pid[o])}, but the track of that point in points3D.txt does not name it")
 
 
 def _lines(path: Path) -> list[tuple[int, str]]:
@@ -196,7 +245,7 @@ def _read_cameras(path: Path) -> dict:
         ifx, ify, icx, icy, idist = _LAYOUT[model]
         f = (params[ifx], params[ifx if ify is None else ify])
         if min(f) <= 0:
-            raise InputError(path, n, f"focal length must be > 0, found {f}")
+            raise InputError(path, n, f"focal length must be > 0, found {' '.join(tokens[4:])} ({model} parameters)")
         out["index"][cid] = len(out["ids"])
         out["ids"].append(cid)
         out["models"].append(model)
@@ -208,7 +257,7 @@ def _read_cameras(path: Path) -> dict:
 
 
 def _read_images(path: Path, camera_index: dict) -> dict:
-    out = {"ids": [], "names": [], "camera": [], "q": [], "t": [], "index": {},
+    out = {"ids": [], "names": [], "camera": [], "q": [], "t": [], "index": {}, "lines": [],
            "obs_image": [], "obs_xy": [], "obs_point3d_id": [], "obs_lines": []}
     lines = _lines(path)
     i = 0
@@ -237,6 +286,7 @@ def _read_images(path: Path, camera_index: dict) -> dict:
         out["t"].append(t)
         out["camera"].append(camera_index[cid])
         out["names"].append(tokens[9])
+        out["lines"].append(n)
         # the POINTS2D line follows directly (it may be empty)
         if i >= len(lines):
             break
@@ -254,7 +304,8 @@ def _read_images(path: Path, camera_index: dict) -> dict:
 
 
 def _read_points(path: Path, image_index: dict) -> dict:
-    out = {"ids": [], "xyz": [], "rgb": [], "error": []}
+    out = {"ids": [], "xyz": [], "rgb": [], "error": [], "track_image": [], "track_idx": [], "track_pid": [],
+           "track_line": []}
     seen: set[int] = set()
     for n, text in _data(_lines(path)):
         tokens = text.split()
@@ -265,8 +316,13 @@ def _read_points(path: Path, image_index: dict) -> dict:
             raise InputError(path, n, f"POINT3D_ID {pid} occurs twice")
         seen.add(pid)
         for j in range(8, len(tokens), 2):
-            if _int(path, n, "IMAGE_ID", tokens[j]) not in image_index:
+            image_id = _int(path, n, "IMAGE_ID", tokens[j])
+            if image_id not in image_index:
                 raise InputError(path, n, f"track names IMAGE_ID {tokens[j]}, which is not in images.txt")
+            out["track_image"].append(image_index[image_id])
+            out["track_idx"].append(_int(path, n, "POINT2D_IDX", tokens[j + 1]))
+            out["track_pid"].append(pid)
+            out["track_line"].append(n)
         out["ids"].append(pid)
         out["xyz"].append([_float(path, n, name, t) for name, t in zip("XYZ", tokens[1:4])])
         out["rgb"].append([_int(path, n, name, t) for name, t in zip("RGB", tokens[4:7])])

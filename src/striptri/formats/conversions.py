@@ -155,7 +155,7 @@ def project_to_bal(project: model.Project, xyz_ground: np.ndarray | None = None)
         prm = cams.interior[j]
         if prm[lens.XP] != 0 or prm[lens.YP] != 0:
             raise InputError(where, None, f"camera {cid}: BAL's principal point is the origin of the image "
-                                          f"coordinates; xp, yp = {prm[lens.XP]!r}, {prm[lens.YP]!r}")
+                                          f"coordinates; xp, yp = {float(prm[lens.XP])!r}, {float(prm[lens.YP])!r}")
         extra = prm[[lens.K3, lens.P1, lens.P2, lens.B1, lens.B2]]
         if np.any(extra != 0):
             raise InputError(where, None, f"camera {cid}: BAL's camera has only k1, k2; k3, p1, p2, b1, b2 are not 0")

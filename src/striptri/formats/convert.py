@@ -10,16 +10,24 @@ Side files written next to the standard ones:
 * BAL output: a folder with ``problem.txt`` (the BAL file) and ``striptri_ids.csv`` (BAL camera
   index -> photo id, BAL point index -> point id);
 * project output: ``approx_points.csv`` (point_id, X, Y, Z), the approximate ground coordinates of
-  the points (BAL, COLMAP, or given/intersected for a project); read_project does not read it.
+  the points (BAL, COLMAP, or given/intersected for a project), read by read_project as starting
+  values.
+
+A project is validated before it is written: io.parse_project reads the generated file texts with
+exactly the rules of ``striptri adjust``'s reader, in memory, so that convert never writes a project
+adjust would refuse (an InputError naming the source says why), and the reader's notes on the
+converted project are passed on.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from striptri import model
 from striptri.errors import InputError
 from striptri.formats.bal import bal_text, read_bal
 from striptri.formats.colmap import colmap_files, read_colmap
@@ -32,9 +40,9 @@ from striptri.formats.conversions import (
     project_to_bal,
     project_to_colmap,
 )
-from striptri.io.csvtable import format_csv, read_csv
+from striptri.io.csvtable import format_csv, input_present, read_csv
 from striptri.io.output import OutputReservation, check_output_location
-from striptri.io.project_reader import read_project
+from striptri.io.project_reader import parse_project, read_project
 from striptri.io.project_writer import project_files
 
 SOURCE_FORMATS = ("bal", "colmap", "dbat", "project")
@@ -58,11 +66,11 @@ def detect_format(src: str | Path) -> str:
     """dbat for an .xml file (a DBAT script), bal for another file, colmap for a folder with
     cameras.txt, project for one with cameras.csv."""
     src = Path(src)
-    if src.is_file():
+    if input_present(src) and not src.is_dir():  # a file (a FIFO or a device is refused by its reader)
         return "dbat" if src.suffix.lower() == ".xml" else "bal"
-    if (src / "cameras.txt").is_file():
+    if src.is_dir() and input_present(src / "cameras.txt"):  # its reader refuses a folder or a FIFO there
         return "colmap"
-    if (src / "cameras.csv").is_file():
+    if src.is_dir() and input_present(src / "cameras.csv"):
         return "project"
     raise InputError(src, None, "not found" if not src.exists() else
                      "cannot tell the format (a BAL file, a DBAT script .xml, a COLMAP folder with cameras.txt, "
@@ -85,33 +93,65 @@ def read_scene(src: str | Path, source_format: str | None = None, pixel_size: fl
         return fmt, colmap_to_project(model_, 1.0 if pixel_size is None else pixel_size, _read_names(src), src)
     if fmt == "project":
         project = read_project(src)
-        return fmt, Scene(project=project, xyz_ground=approximate_points(project))
+        return fmt, Scene(project=project, xyz_ground=approximate_points(project),
+                          notes=[str(note) for note in project.notes])
     raise ValueError(f"unknown source format {fmt!r}; one of {SOURCE_FORMATS}")
 
 def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | None = None,
-            pixel_size: float | None = None, drop_distortion: bool = False) -> ConvertResult:
+            pixel_size: float | None = None, drop_distortion: bool = False,
+            on_warning: Callable[[str], None] | None = None) -> ConvertResult:
     """Convert src to the format `to` in out_dir (written whole or not at all).
 
     pixel_size (plate units per pixel) applies to the COLMAP side: the plate unit of a COLMAP source,
     and for COLMAP output the pixel size of a project source (default 1; a BAL or COLMAP source
-    keeps its own)."""
+    keeps its own). The notes (what the conversion could not carry over, what the source does not
+    use) are in the result and go to ``on_warning`` as soon as they are known, so that they reach
+    the user even when the conversion then fails."""
     if to not in TARGET_FORMATS:
         raise ValueError(f"unknown target format {to!r}; one of {TARGET_FORMATS}")
     check_output_location(out_dir, [src])  # before reading: never the source, never inside it
+    notes = _Notes(on_warning)
     with OutputReservation(out_dir, [src]) as reservation:
-        return _convert(reservation, src, to, source_format, pixel_size, drop_distortion)
+        return _convert(reservation, src, to, source_format, pixel_size, drop_distortion, notes)
 
 
-def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_size, drop_distortion) -> ConvertResult:
+class _Notes(list):
+    """The conversion's notes, each passed on to on_warning as it is added."""
+
+    def __init__(self, on_warning):
+        super().__init__()
+        self.on_warning = on_warning
+
+    def append(self, note) -> None:
+        super().append(note)
+        if self.on_warning is not None:
+            self.on_warning(str(note))
+
+    def __iadd__(self, notes):
+        for note in notes:
+            self.append(note)
+        return self
+
+
+def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_size, drop_distortion,
+             notes: "_Notes") -> ConvertResult:
     fmt, scene = read_scene(src, source_format, pixel_size, drop_distortion)
     project = scene.project
-    notes = list(scene.notes)
+    notes += scene.notes
     if to == "project":
         files = project_files(project)
+        # the points the project files hold: control points and measured tie points (a tie point
+        # measured on no photo, e.g. a BAL point without observations, has no file to live in)
+        kept = (project.points.kind != model.TIE) | np.isin(np.arange(len(project.points)),
+                                                            project.image_points.point_index)
+        if not kept.all():
+            notes.append(f"points measured on no photo left out (a project has no file for them): {int((~kept).sum())}")
         files[APPROX_POINTS_FILE] = format_csv({
-            "point_id": project.points.ids, "X": scene.xyz_ground[:, 0], "Y": scene.xyz_ground[:, 1],
-            "Z": scene.xyz_ground[:, 2],
+            "point_id": [pid for pid, k in zip(project.points.ids, kept) if k], "X": scene.xyz_ground[kept, 0],
+            "Y": scene.xyz_ground[kept, 1], "Z": scene.xyz_ground[kept, 2],
         })
+        known = {note.text for note in project.notes}  # a project source's own notes are said already
+        notes += [f"converted project: {note}" for note in _validate_project(src, files) if note.text not in known]
     elif to == "dbat":
         from striptri.formats.dbat import dbat_files
 
@@ -133,7 +173,16 @@ def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_
     out = reservation.commit(files)
     return ConvertResult(out_dir=out, source_format=fmt, target_format=to, n_cameras=len(project.cameras),
                          n_photos=len(project.photos), n_points=len(project.points),
-                         n_image_points=len(project.image_points), notes=notes)
+                         n_image_points=len(project.image_points), notes=list(notes))
+
+def _validate_project(src: Path, files: dict[str, str]) -> tuple:
+    """Read the project files about to be written with the project reader's rules (in memory).
+    -> the reader's notes (striptri.errors.Note); InputError naming src when adjust would refuse them."""
+    try:
+        return parse_project(files).notes
+    except InputError as exc:
+        raise InputError(src, None, f"the converted project would be invalid: {exc}") from None
+
 
 def _names_csv(names: ColmapNames) -> str:
     table, colmap_id, striptri_id, strip = [], [], [], []
@@ -147,7 +196,7 @@ def _names_csv(names: ColmapNames) -> str:
 def _read_names(folder: Path) -> ColmapNames:
     """striptri ids from folder/striptri_ids.csv when it exists (else empty: COLMAP ids are used)."""
     path = folder / IDS_FILE
-    if not path.exists():
+    if not input_present(path):
         return ColmapNames()
     table = read_csv(path)
     kinds = table.strings("table")

@@ -175,32 +175,64 @@ class _El:
         return self.text.strip()
 
 
+class _Refused(Exception):
+    """Raised inside an expat handler: a construct the reader refuses, at a line."""
+
+    def __init__(self, line: int, reason: str):
+        super().__init__(reason)
+        self.line, self.reason = line, reason
+
+
 def _parse_xml(path: Path) -> _El:
+    """The element tree of an XML file, with line numbers. Linear in the size of the file: the
+    character data of an element is collected in chunks and joined once at its end. DTD entity
+    declarations and external entities are refused, as defusedxml does (a "billion laughs"
+    document, or one that reads other files through entities): InputError naming file and line."""
     raw = read_input_bytes(path, "is a folder, not a DBAT XML file")
     parser = expat.ParserCreate()
-    stack: list[_El] = []
+    stack: list[tuple[_El, list[str]]] = []
     root: list[_El] = []
 
     def start(tag, attrib):
         el = _El(tag, dict(attrib), parser.CurrentLineNumber)
         if stack:
-            stack[-1].children.append(el)
+            stack[-1][0].children.append(el)
         else:
             root.append(el)
-        stack.append(el)
+        stack.append((el, []))
 
     def end(tag):
-        stack.pop()
+        el, chunks = stack.pop()
+        el.text = "".join(chunks)
 
     def chars(data):
         if stack:
-            stack[-1].text += data
+            stack[-1][1].append(data)
+
+    def entity_decl(name, is_parameter_entity, value, base, system_id, public_id, notation_name):
+        kind = "parameter entity" if is_parameter_entity else "entity"
+        raise _Refused(parser.CurrentLineNumber, f"the document declares the {kind} '{name}'; a DBAT file has no "
+                                                 "entity declarations (refused: entity expansion can make a small "
+                                                 "file enormous)")
+
+    def unparsed_entity_decl(name, base, system_id, public_id, notation_name):
+        raise _Refused(parser.CurrentLineNumber, f"the document declares the unparsed entity '{name}'; refused")
+
+    def external_entity(context, base, system_id, public_id):
+        raise _Refused(parser.CurrentLineNumber, f"the document refers to the external entity '{system_id}'; "
+                                                 "refused (a DBAT file names its data files in <file> elements)")
 
     parser.StartElementHandler = start
     parser.EndElementHandler = end
     parser.CharacterDataHandler = chars
+    parser.EntityDeclHandler = entity_decl
+    parser.UnparsedEntityDeclHandler = unparsed_entity_decl
+    parser.ExternalEntityRefHandler = external_entity
+    parser.SetParamEntityParsing(expat.XML_PARAM_ENTITY_PARSING_NEVER)
     try:
         parser.Parse(raw, True)
+    except _Refused as exc:
+        raise InputError(path, exc.line, exc.reason) from None
     except expat.ExpatError as exc:
         raise InputError(path, exc.lineno, f"not well-formed XML: {expat.ErrorString(exc.code)}") from None
     if not root:
@@ -267,6 +299,8 @@ def _read_table(path: Path, fmt: str, fmt_line: int, script: Path, required: tup
 
 
 def _id(path, line, tok) -> str:
+    if tok == "":
+        raise InputError(path, line, "an id is empty")
     try:
         v = float(tok)
     except ValueError:
@@ -297,6 +331,9 @@ def _read_camera(path: Path, cam: _El, estimated: dict[str, bool]) -> DbatCamera
     if w <= 0 or h <= 0 or not float(w).is_integer() or not float(h).is_integer():
         raise InputError(path, img_el.line, f"image size must be positive integers, found '{img_el.value}'")
     aspect = _numbers(path, get("aspect"), 1, "aspect")[0] if get("aspect") is not None else 1.0
+    if aspect <= 0:
+        raise InputError(path, get("aspect").line, f"<aspect> (pixel height / pixel width) must be > 0, found "
+                                                   f"'{get('aspect').value}'")
     sens_el = get("sensor")
     if sens_el is None:
         raise InputError(path, cam.line, "<camera> has no <sensor> (width,height)")
@@ -319,10 +356,15 @@ def _read_camera(path: Path, cam: _El, estimated: dict[str, bool]) -> DbatCamera
     focal = _numbers(path, get("focal"), 1, "focal")[0] if get("focal") is not None else None
     if get("cc") is not None:
         cc = _numbers(path, get("cc"), 1, "camera constant")[0]
+        cc_el = get("cc")
     elif focal is not None:
         cc = focal
+        cc_el = get("focal")
     else:
         raise InputError(path, cam.line, "<camera> has neither <cc> nor <focal>")
+    if cc <= 0:
+        raise InputError(path, cc_el.line, f"<{cc_el.tag}> (the principal distance) must be > 0, found "
+                                           f"'{cc_el.value}'; a project's camera needs c > 0")
     pp = tuple(_numbers(path, get("pp"), 2, "principal point")) if get("pp") is not None else (sw / 2, sh / 2)
     nK = int(_numbers(path, get("nK"), 1, "nK")[0]) if get("nK") is not None else 3
     nP = int(_numbers(path, get("nP"), 1, "nP")[0]) if get("nP") is not None else 2
@@ -446,8 +488,11 @@ def read_dbat(script_xml_path: str | Path) -> DbatProject:
             iid = _id(fpath, n, r["id"])
             if iid in image_ids:
                 raise InputError(fpath, n, f"image id {iid} given twice")
+            name = r["path"].replace("\\", "/").rsplit("/", 1)[-1]
+            if not name:
+                raise InputError(fpath, n, f"image {iid}: the path '{r['path']}' names no file (the photo id)")
             image_ids.append(iid)
-            image_names.append(r["path"].replace("\\", "/").rsplit("/", 1)[-1])
+            image_names.append(name)
 
     # image points
     ip_image, ip_point, xy, sig, lines = [], [], [], [], []

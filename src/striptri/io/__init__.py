@@ -5,12 +5,13 @@ Only this package opens files; everything below it works on :mod:`striptri.model
 
 from striptri.io.csvtable import CsvTable, format_csv, read_csv, write_csv
 from striptri.io.output import write_output_folder
-from striptri.io.project_reader import read_project, read_settings
+from striptri.io.project_reader import parse_project, read_project, read_settings
 from striptri.io.project_writer import project_files, reader_point_order, write_project
 
 __all__ = [
     "CsvTable",
     "format_csv",
+    "parse_project",
     "project_files",
     "read_csv",
     "read_project",

@@ -5,8 +5,15 @@ Input rules, shared by every input file:
 * UTF-8 (a leading byte-order mark is accepted); the first row that is not a comment is the header;
 * a line whose first non-blank character is ``#`` is a comment; blank lines are skipped;
 * surrounding whitespace of header names and of values is stripped;
-* columns the caller does not ask for are ignored; every row must have as many fields as the header;
+* every row must have as many fields as the header; the table remembers which columns the caller
+  asked for (:meth:`CsvTable.unused_columns`: the reader turns the others into a Note, never
+  ignoring a column silently);
 * every row keeps its physical, 1-based line number, so that an error names file, line and reason.
+
+Only regular files are read (:func:`read_input_bytes`): a folder, a FIFO, a device or a socket in
+place of an input file is an InputError, found by ``os.stat`` before anything is opened, so a
+reader never blocks; a link whose target is missing is an error, never "absent"
+(:func:`input_present`).
 
 Errors are :class:`striptri.errors.InputError`. Nothing here prints or writes except ``write_csv``.
 """
@@ -16,8 +23,10 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
+import stat
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +50,8 @@ class CsvTable:
     header_line: int | None
     rows: list[tuple[str, ...]]
     lines: list[int]
+    # the columns a reader asked for (require, strings, floats, ...): the others are unused
+    used: set = field(default_factory=set, compare=False, repr=False)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -53,9 +64,22 @@ class CsvTable:
         """An InputError for data row ``row`` (0-based index into rows), naming its physical line."""
         return InputError(self.path, self.lines[row], reason)
 
+    def text(self, row: int, name: str) -> str:
+        """The text of column ``name`` in data row ``row`` as the file has it ('' when the column is absent)."""
+        return self.rows[row][self.header.index(name)] if name in self.header else ""
+
+    def unused_columns(self) -> list[str]:
+        """Header names no reader asked for, in header order."""
+        return [name for name in self.header if name not in self.used]
+
     def require(self, *names: str) -> None:
-        """Raise InputError(path, header line, "missing column ...") unless every name is in the header."""
+        """Raise InputError(path, header line, "missing column ...") unless every name is in the header.
+        An empty file (no header row at all) is said to be empty."""
+        self.used.update(names)
         for name in names:
+            if self.header_line is None:
+                raise InputError(self.path, None, f"the file is empty (no header row; expected the columns "
+                                                  f"{', '.join(names)})")
             if name not in self.header:
                 have = ", ".join(self.header) if self.header else "nothing"
                 raise InputError(self.path, self.header_line or 1, f"missing column '{name}' (header has: {have})")
@@ -73,6 +97,7 @@ class CsvTable:
 
     def optional_strings(self, name: str, default: str = "") -> list[str]:
         """Values of an optional column; ``default`` for every row when the column is absent."""
+        self.used.add(name)
         if name not in self.header:
             return [default] * len(self.rows)
         j = self.header.index(name)
@@ -118,30 +143,102 @@ def _parse_finite(text: str, fail) -> float:
     return value
 
 
-def read_input_bytes(path: Path, folder_reason: str = "is a folder, not a file") -> bytes:
-    """The bytes of an input file; a missing, unreadable or folder path -> InputError(path, None, ...)."""
+def _kind_of(mode: int) -> str:
+    """Words for a file type that is not a regular file."""
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "not a regular file"
+
+
+def _missing(path: Path) -> InputError:
+    """The InputError for a path os.stat cannot find: a link to nothing, or nothing."""
+    if os.path.islink(path):
+        try:
+            target = os.readlink(path)
+        except OSError:  # pragma: no cover - the link vanished meanwhile
+            target = "?"
+        return InputError(path, None, f"is a link to '{target}', which does not exist")
+    return InputError(path, None, "file not found")
+
+
+def input_present(path: str | Path) -> bool:
+    """Whether an optional input file is there: False when nothing at all has that name; True when
+    something does (the reader then reads it, and refuses a folder or a FIFO). A link whose target is
+    missing is an InputError naming it: it is never taken for "absent"."""
+    path = Path(path)
     try:
-        return path.read_bytes()
+        os.lstat(path)
     except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, None, folder_reason) from None
+        return False
     except OSError as exc:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        os.stat(path)
+    except FileNotFoundError:
+        raise _missing(path) from None
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    return True
+
+
+def read_input_bytes(path: Path, folder_reason: str = "is a folder, not a file") -> bytes:
+    """The bytes of an input file. A missing path, a link to nothing, a folder (folder_reason), a
+    FIFO, a device, a socket or an unreadable file -> InputError(path, None, ...). The type is
+    checked with os.stat before opening, and the file is opened without blocking and checked again
+    (os.fstat), so a FIFO never makes a reader wait."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise _missing(path) from None
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(path, None, folder_reason)
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(path, None, f"is {_kind_of(st.st_mode)}, not a regular file; striptri reads input "
+                                     "only from regular files")
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    with os.fdopen(fd, "rb") as handle:
+        mode = os.fstat(handle.fileno()).st_mode
+        if not stat.S_ISREG(mode):  # replaced between stat and open
+            raise InputError(path, None, f"is {_kind_of(mode)}, not a regular file; striptri reads input "
+                                         "only from regular files")
+        try:
+            return handle.read()
+        except OSError as exc:
+            raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
 
 
 def read_csv(path: str | Path) -> CsvTable:
     """Read one CSV table (rules in the module docstring). Missing file -> InputError(path, None, ...)."""
     path = Path(path)
-    raw = read_input_bytes(path)
-    text = _decode_utf8(path, raw)
-    return _parse(path, text)
+    return parse_csv(path, read_input_bytes(path))
 
 
-def _decode_utf8(path: Path, raw: bytes) -> str:
-    """Decode UTF-8; undecodable bytes -> InputError naming the line they are on."""
-    if raw.startswith(_BOM):
-        raw = raw[len(_BOM):]
+def parse_csv(path: str | Path, content: str | bytes) -> CsvTable:
+    """Parse the content of one CSV table (bytes as in a file, or text); path only names it in
+    messages. Same rules and errors as read_csv."""
+    path = Path(path)
+    return _parse(path, decode_text(path, content))
+
+
+def decode_text(path: str | Path, content: str | bytes) -> str:
+    """The text of an input file: UTF-8 with an optional byte-order mark (also on text already
+    decoded); undecodable bytes -> InputError naming the line they are on."""
+    if isinstance(content, str):
+        return content[1:] if content.startswith("\ufeff") else content
+    raw = content[len(_BOM):] if content.startswith(_BOM) else content
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -16,14 +16,24 @@ Choices made here (also in docs/file-formats.md):
   alpha, omega, chi;
 * empty sigma: photos.csv -> free (nan), 0 -> held fixed, > 0 observed; cameras.csv and
   control.csv -> held fixed (nan; 0 also means held fixed), > 0 observed, and in cameras.csv the
-  word ``free`` -> estimated without a prior (inf); image_points.csv -> ``[defaults] sigma_image``.
+  word ``free`` -> estimated without a prior (inf); image_points.csv -> ``[defaults] sigma_image``;
+* the three required tables must have data rows; numbers must lie within the plausibility limits
+  of :mod:`striptri.io.plausibility`;
+* nothing is ignored silently: what the reader does not use (a column, a file of the folder, a
+  control point no photo measures, a tie point on one photo, ...) becomes a
+  :class:`striptri.errors.Note` in ``Project.notes`` (:mod:`striptri.io.project_notes`).
+
+The same rules read a project from a mapping file name -> text (:func:`parse_project`):
+``striptri convert`` validates the project it is about to write that way, without a temporary file.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+import os
 import re
+from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +42,9 @@ from striptri import model, rotations
 from striptri.errors import InputError
 from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
 from striptri.adjustment import DATUMS, METHODS
-from striptri.io.csvtable import CsvTable, read_csv
+from striptri.io import plausibility as limits
+from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
+from striptri.io.project_notes import project_notes, unread_files_note
 from striptri.solvers import SOLVERS
 
 try:  # Python >= 3.11
@@ -62,6 +74,8 @@ TOML_KEYS = {
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
               "project.toml")
+# the required tables and what their rows are (for "no cameras ..." messages)
+REQUIRED_TABLES = {"cameras.csv": "cameras", "photos.csv": "photos", "image_points.csv": "plate measurements"}
 
 
 def read_project(folder: str | Path) -> model.Project:
@@ -69,17 +83,84 @@ def read_project(folder: str | Path) -> model.Project:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, None, "project folder not found" if not folder.exists() else "is not a folder")
-    settings = read_settings(folder / "project.toml")
-    cameras = _read_cameras(read_csv(folder / "cameras.csv"))
-    photos = _read_photos(read_csv(folder / "photos.csv"), cameras, settings)
-    control_path = folder / "control.csv"
-    control = _read_control(read_csv(control_path)) if control_path.exists() else _Control.empty()
-    image_points, points = _read_image_points(read_csv(folder / "image_points.csv"), photos, control, settings)
-    bases_path = folder / "bases.csv"
-    bases = _read_bases(read_csv(bases_path), photos) if bases_path.exists() else model.BaseComponents.empty()
-    approx_path = folder / "approx_points.csv"
-    if approx_path.exists():
-        points = replace(points, xyz_approx=_read_approx_points(read_csv(approx_path), points))
+    return _read(_FolderFiles(folder))
+
+
+def parse_project(files: Mapping[str, str | bytes], folder: str | Path | None = None) -> model.Project:
+    """Read a project from the contents of its files (file name -> text or bytes, as written by
+    project_files) with exactly the rules of read_project, in memory. folder: where the files would
+    be, for messages (None: messages name the bare file names). Raises InputError."""
+    return _read(_MemoryFiles(files, None if folder is None else Path(folder)))
+
+
+class _FolderFiles:
+    """The input files of a project folder on disk."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+
+    def path(self, name: str) -> Path:
+        return self.folder / name
+
+    def present(self, name: str) -> bool:
+        return input_present(self.path(name))
+
+    def content(self, name: str) -> bytes:
+        return read_input_bytes(self.path(name))
+
+    def source(self) -> Path:
+        return self.folder
+
+    def unread_notes(self) -> list:
+        note = unread_files_note(self.folder, os.listdir(self.folder), FILE_NAMES)
+        return [] if note is None else [note]
+
+
+class _MemoryFiles:
+    """The input files of a project held in memory (file name -> text)."""
+
+    def __init__(self, files: Mapping[str, str | bytes], folder: Path | None):
+        self.files, self.folder = files, folder
+
+    def path(self, name: str) -> Path:
+        return Path(name) if self.folder is None else self.folder / name
+
+    def present(self, name: str) -> bool:
+        return name in self.files
+
+    def content(self, name: str) -> str | bytes:
+        if name not in self.files:
+            raise InputError(self.path(name), None, "file not found")
+        return self.files[name]
+
+    def source(self) -> Path | None:
+        return self.folder
+
+    def unread_notes(self) -> list:
+        return []
+
+
+def _read(files) -> model.Project:
+    """The project of ``files`` (_FolderFiles or _MemoryFiles): every rule of the module doc."""
+    toml = "project.toml"
+    settings = parse_settings(files.path(toml), files.content(toml)) if files.present(toml) else model.ProjectSettings()
+    tables: dict[str, CsvTable] = {}
+
+    def table(name: str) -> CsvTable:
+        tables[name] = parse_csv(files.path(name), files.content(name))
+        if name in REQUIRED_TABLES:
+            _require_rows(tables[name], REQUIRED_TABLES[name])
+        return tables[name]
+
+    cameras = _read_cameras(table("cameras.csv"))
+    photos = _read_photos(table("photos.csv"), cameras, settings)
+    control = _read_control(table("control.csv")) if files.present("control.csv") else _Control.empty()
+    image_points, points = _read_image_points(table("image_points.csv"), photos, control, settings)
+    _check_plate_geometry(tables["image_points.csv"], tables["cameras.csv"], image_points, photos, cameras)
+    bases = _read_bases(table("bases.csv"), photos) if files.present("bases.csv") else model.BaseComponents.empty()
+    if files.present("approx_points.csv"):
+        points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
+    notes = project_notes(tables, cameras, photos, image_points, points, len(control.ids)) + files.unread_notes()
     return model.Project(
         cameras=cameras,
         photos=photos,
@@ -87,8 +168,17 @@ def read_project(folder: str | Path) -> model.Project:
         points=points,
         bases=bases,
         settings=settings,
-        source=folder,
+        source=files.source(),
+        notes=tuple(notes),
     )
+
+
+def _require_rows(table: CsvTable, what: str) -> None:
+    """A required table must have data rows: InputError naming the file (and its header line)."""
+    if table.header_line is None:
+        raise InputError(table.path, None, f"the file is empty: no header row and no {what}")
+    if not table.rows:
+        raise InputError(table.path, table.header_line, f"no {what}: the file has a header row but no data rows")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -96,12 +186,20 @@ def read_project(folder: str | Path) -> model.Project:
 
 
 def read_settings(path: str | Path) -> model.ProjectSettings:
-    """ProjectSettings from project.toml; defaults when the file is absent. Unknown sections, keys
-    or values -> InputError naming project.toml and, where it can be found, the line."""
+    """ProjectSettings from project.toml; defaults when the file is absent (a link to nothing, a
+    folder or a FIFO is an InputError). Unknown sections, keys or values -> InputError naming
+    project.toml and, where it can be found, the line."""
     path = Path(path)
-    if not path.exists():
+    if not input_present(path):
         return model.ProjectSettings()
-    text = _read_toml_text(path)
+    return parse_settings(path, read_input_bytes(path))
+
+
+def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSettings:
+    """ProjectSettings from the content of project.toml (UTF-8, a byte-order mark accepted); path
+    names it in messages. Rules of read_settings."""
+    path = Path(path)
+    text = decode_text(path, content)
     data = _parse_toml(path, text)
     defaults = model.ProjectSettings()
     _check_toml_keys(path, text, data)
@@ -123,6 +221,9 @@ def read_settings(path: str | Path) -> model.ProjectSettings:
         math.isfinite(sigma_image) and sigma_image > 0
     ):
         raise fail("defaults", "sigma_image", f"{sigma_image!r} is not a positive number (plate units)")
+    if not limits.SIGMA_MIN <= sigma_image <= limits.SIGMA_MAX:
+        raise fail("defaults", "sigma_image", f"{sigma_image!r} is outside the plausible range "
+                                              f"[{limits.number_text(limits.SIGMA_MIN)}, {limits.number_text(limits.SIGMA_MAX)}] of a standard deviation")
     max_iterations = get("adjustment", "max_iterations", defaults.max_iterations)
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or max_iterations < 1:
         raise fail("adjustment", "max_iterations", f"{max_iterations!r} is not a positive integer")
@@ -141,15 +242,6 @@ def read_settings(path: str | Path) -> model.ProjectSettings:
         datum=choice("datum", "mode", DATUMS, defaults.datum),
         cost_tolerance=float(cost_tolerance),
     )
-
-
-def _read_toml_text(path: Path) -> str:
-    """The text of project.toml; undecodable bytes -> InputError with the line."""
-    raw = path.read_bytes()
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise InputError(path, raw[: exc.start].count(b"\n") + 1, "not valid UTF-8 text") from None
 
 
 def _parse_toml(path: Path, text: str) -> dict:
@@ -214,7 +306,8 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
     interior = np.zeros((n, NCP))
     interior[:, :3] = np.column_stack([table.floats(name) for name in ("c", "xp", "yp")]).reshape(-1, 3)
     for i in np.flatnonzero(interior[:, 0] <= 0):
-        raise table.error(i, f"principal distance c must be > 0 (got {table.rows[i][table.header.index('c')]})")
+        raise table.error(i, f"principal distance c must be > 0 (got {table.text(i, 'c')})")
+    _check_limit(table, ("c", "xp", "yp"), interior[:, :3], limits.PLATE_LIMIT, "plate units")
     for j, name in enumerate(CAMERA_ELEMENTS[3:], start=3):
         interior[:, j] = np.nan_to_num(table.optional_floats(name), nan=0.0)
     sigma = np.column_stack(
@@ -257,7 +350,11 @@ def _read_photos(table: CsvTable, cameras: model.Cameras, settings: model.Projec
         camera_index[i] = camera_of[cid]
     to_rad = RADIANS_PER_UNIT[settings.angle_unit]
     xyz0 = np.column_stack([table.floats(n) for n in ("X0", "Y0", "Z0")]).reshape(-1, 3)
-    angles = np.column_stack([table.floats(n) for n in angle_names]).reshape(-1, 3) * to_rad
+    _check_limit(table, ("X0", "Y0", "Z0"), xyz0, limits.GROUND_LIMIT_M, "m for ground coordinates")
+    angles_file = np.column_stack([table.floats(n) for n in angle_names]).reshape(-1, 3)
+    _check_limit(table, angle_names, angles_file, limits.angle_limit(to_rad),
+                 f"{settings.angle_unit} ({limits.ANGLE_LIMIT_TURNS} full turns) for an angle")
+    angles = angles_file * to_rad
     sigma_xyz0 = np.column_stack(
         [_sigma_column(table, f"sigma_{n}", zero_means_fixed=False) for n in ("X0", "Y0", "Z0")]
     ).reshape(-1, 3)
@@ -311,6 +408,7 @@ def _read_control(table: CsvTable) -> _Control:
             raise table.error(i, f"unknown kind '{text}' (accepted: XYZ, XY, Z, check)")
         kind[i] = model.KIND_CODES[text.upper()]
     xyz_file = np.column_stack([table.optional_floats(n) for n in "XYZ"]).reshape(-1, 3)
+    _check_limit(table, tuple("XYZ"), xyz_file, limits.GROUND_LIMIT_M, "m for ground coordinates")
     sigma_file = np.column_stack(
         [_sigma_column(table, f"sigma_{n}", zero_means_fixed=True) for n in "XYZ"]
     ).reshape(-1, 3)
@@ -366,6 +464,7 @@ def _read_image_points(
         photo_index[i] = photo_of[photo_id]
         point_index[i] = point_of[point_id]
     xy = np.column_stack([table.floats("x"), table.floats("y")]).reshape(-1, 2)
+    _check_limit(table, ("x", "y"), xy, limits.PLATE_LIMIT, "plate units")
     sigma_xy = np.column_stack(
         [_image_sigma(table, name, settings.sigma_image) for name in ("sigma_x", "sigma_y")]
     ).reshape(-1, 2)
@@ -374,11 +473,41 @@ def _read_image_points(
 
 
 def _image_sigma(table: CsvTable, name: str, default: float) -> np.ndarray:
-    """An image sigma column: empty -> default; must be > 0."""
+    """An image sigma column: empty -> default; must be > 0 and within the plausible range."""
     values = table.optional_floats(name)
     for i in np.flatnonzero(values <= 0):
-        raise table.error(i, f"column '{name}': a plate measurement sigma must be > 0 (got {values[i]!r})")
+        raise table.error(i, f"column '{name}': a plate measurement sigma must be > 0 (got {table.text(i, name)})")
+    _check_sigma_range(table, name, values)
     return np.where(np.isnan(values), default, values)
+
+
+def _check_plate_geometry(table: CsvTable, camera_table: CsvTable, image_points: model.ImagePoints,
+                          photos: model.Photos, cameras: model.Cameras) -> None:
+    """Plate coordinates against their camera (striptri.io.plausibility): a ray at most
+    MAX_OFF_AXIS_DEG off the axis, r = |(x - xp, y - yp)| <= c tan(89 deg); and per camera the
+    measured points not all within MIN_FIELD c of the principal point (numerically parallel rays)."""
+    cam = photos.camera_index[image_points.photo_index]
+    c = cameras.interior[cam, 0]
+    r = np.hypot(*(image_points.xy - cameras.interior[cam, 1:3]).T)
+    for i in np.flatnonzero(r > limits.MAX_RADIUS_PER_C * c)[:1]:
+        off = math.degrees(math.atan2(float(r[i]), float(c[i])))
+        raise table.error(i, f"plate point ({table.text(i, 'x')}, {table.text(i, 'y')}) lies "
+                             f"{float(r[i]):.6g} plate units from the principal point of camera "
+                             f"'{cameras.ids[cam[i]]}' (c = {float(c[i]):.6g}): a ray {off:.2f} deg off the "
+                             f"camera axis, which a frame camera cannot image (limit {limits.MAX_OFF_AXIS_DEG:g} "
+                             "deg); check the plate coordinates, their units and c")
+    r_max = np.full(len(cameras), -1.0)
+    np.maximum.at(r_max, cam, r)
+    narrow = (r_max >= 0) & (r_max < limits.MIN_FIELD * cameras.interior[:, 0])
+    for j in np.flatnonzero(narrow)[:1]:
+        cj = float(cameras.interior[j, 0])
+        raise camera_table.error(j, f"camera '{cameras.ids[j]}': c = {camera_table.text(j, 'c')} but every point "
+                                    f"measured with it lies within {float(r_max[j]):.6g} plate units of the principal "
+                                    f"point ({float(r_max[j]) / cj:.3g} c: every ray within "
+                                    f"{math.degrees(math.atan2(float(r_max[j]), cj)) * 3600:.3g} arc seconds of the "
+                                    f"camera axis), so its rays are numerically parallel (limit "
+                                    f"{limits.number_text(limits.MIN_FIELD)} c); check c and the units of the plate "
+                                    "coordinates")
 
 
 def _object_points(point_ids: list[str], control: _Control) -> model.ObjectPoints:
@@ -404,8 +533,11 @@ def _read_approx_points(table: CsvTable, points: model.ObjectPoints) -> np.ndarr
     table.require("point_id", "X", "Y", "Z")
     index = {pid: j for j, pid in enumerate(points.ids)}
     out = np.full((len(points), 3), np.nan)
+    ids = table.strings("point_id")
+    _check_unique(table, "point_id", ids)
     xyz = np.column_stack([table.optional_floats(a) for a in "XYZ"]).reshape(-1, 3)
-    for i, pid in enumerate(table.strings("point_id")):
+    _check_limit(table, tuple("XYZ"), xyz, limits.GROUND_LIMIT_M, "m for ground coordinates")
+    for i, pid in enumerate(ids):
         if pid not in index:
             raise table.error(i, f"point_id '{pid}' is not measured in image_points.csv nor given in control.csv")
         out[index[pid]] = xyz[i]
@@ -443,11 +575,13 @@ def _read_bases(table: CsvTable, photos: model.Photos) -> model.BaseComponents:
         if key in first_line:
             raise table.error(i, f"duplicate base component {text.lower()} (first on line {first_line[key]})")
         first_line[key] = table.lines[i]
+    value = table.floats("value")
+    _check_limit(table, ("value",), value, limits.GROUND_LIMIT_M, "m for a base component")
     return model.BaseComponents(
         photo_from=index["photo_from"],
         photo_to=index["photo_to"],
         axis=axis,
-        value=table.floats("value"),
+        value=value,
         sigma=_sigma_column(table, "sigma", zero_means_fixed=False),
     )
 
@@ -472,7 +606,26 @@ def _sigma_column(table: CsvTable, name: str, zero_means_fixed: bool, free_word:
     """
     values = table.optional_floats(name, keywords={"free": math.inf} if free_word else None)
     for i in np.flatnonzero(values < 0):
-        raise table.error(i, f"column '{name}': a standard deviation cannot be negative (got {values[i]!r})")
+        raise table.error(i, f"column '{name}': a standard deviation cannot be negative (got {table.text(i, name)})")
+    _check_sigma_range(table, name, values)
     if zero_means_fixed:
         values = np.where(values == 0, np.nan, values)
     return values
+
+
+def _check_sigma_range(table: CsvTable, name: str, values: np.ndarray) -> None:
+    """A sigma that is an observation (finite, > 0) must lie in [SIGMA_MIN, SIGMA_MAX]."""
+    i = limits.first_sigma_out_of_range(values)
+    if i is not None:
+        raise table.error(i, f"column '{name}': a standard deviation of {table.text(i, name)} is outside the plausible "
+                             f"range [{limits.number_text(limits.SIGMA_MIN)}, {limits.number_text(limits.SIGMA_MAX)}]: its weight 1/sigma^2 is not a "
+                             "meaningful number")
+
+
+def _check_limit(table: CsvTable, names: tuple[str, ...], values: np.ndarray, limit: float, what: str) -> None:
+    """InputError at the first value of the columns ``names`` (values (n, len(names))) beyond +-limit."""
+    hit = limits.first_beyond(values, limit)
+    if hit is not None:
+        i, j = hit
+        raise table.error(i, f"column '{names[j]}': {table.text(i, names[j])} exceeds the plausibility limit of "
+                             f"{limits.number_text(limit)} {what}, in magnitude (docs/file-formats.md, Limits)")
