@@ -543,7 +543,7 @@ def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
         timings["solve"] += t2 - t1
         timings["back_substitution"] += t3 - t2
         if len(dx):
-            crit = float(np.max(np.abs(dx) * np.sqrt(acc.N.diagonal())))
+            crit = largest_correction(dx, acc.N.diagonal(), round_off_floor(state, layout))
         else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
             crit = _observation_change(plate_hat - previous_plate, control_hat - previous_control, obs)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
@@ -650,6 +650,34 @@ def _require_strip_along_x(batches, state: State, max_angle_deg: float = 30.0) -
 
 
 ROUNDING_FLOOR = 1e-6  # corrections below this (in standard deviations) that stop shrinking are round-off
+
+
+ROUND_OFF_ULPS = 64.0  # a correction below this many units in the last place of its element's value is round-off
+
+
+def round_off_floor(state: State, layout: UnknownLayout) -> np.ndarray:
+    """(n_unknowns,) the smallest correction each unknown can meaningfully take in double precision:
+    ROUND_OFF_ULPS units in the last place of its value (a centre's largest coordinate in the
+    reduced frame; 1 rad for a rotation; a camera element's value). A correction below it is
+    round-off however small the element's standard deviation: an element held by a very heavy
+    weight (an angle observed with sigma 1e-10 rad) otherwise never shows convergence."""
+    eps = ROUND_OFF_ULPS * np.finfo(float).eps
+    floor = np.zeros(layout.n_unknowns + 1)  # the last slot takes the -1 columns of held elements
+    centre = eps * np.max(np.abs(state.xyz0), axis=1)
+    floor[layout.photo_cols[:, :3]] = centre[:, None]
+    floor[layout.photo_cols[:, 3:]] = eps
+    floor[layout.camera_cols] = eps * np.abs(state.interior)
+    return floor[:-1]
+
+
+def largest_correction(dx: np.ndarray, n_diag: np.ndarray, floor: np.ndarray) -> float:
+    """Schmid's stop rule made scale-free: the largest |dx_i| sqrt(N_ii), the correction in units of
+    the standard deviation its element would have if all others were known, over the corrections
+    above their element's round-off floor (round_off_floor)."""
+    if not len(dx):
+        return 0.0
+    size = np.abs(dx)
+    return float(np.max(np.where(size > floor, size * np.sqrt(np.maximum(n_diag, 0.0)), 0.0)))
 
 
 def has_converged(history: list[Iteration], tolerance: float) -> bool:

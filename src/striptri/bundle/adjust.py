@@ -39,6 +39,8 @@ from ..adjustment import (
     Iteration,
     datum_defect_message,
     has_converged,
+    largest_correction,
+    round_off_floor,
     observations_of,
     singular_message,
     stop_if_diverging,
@@ -217,8 +219,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         timings["solve"] += t1 - t0
         timings["back_substitution"] += t2 - t1
         timings["linearisation_and_reduction"] += t3 - t2
-        crit_orientation = float(np.max(np.abs(dx) * np.sqrt(d))) if len(dx) else 0.0
-        crit = max(crit_orientation, step.max_point_correction)
+        crit = max(largest_correction(dx, d, round_off_floor(state, layout)), step.max_point_correction)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
                                  solver_info={**solved.info, **({"damping": lam} if lam else {})}))
         if lam == 0.0:
@@ -325,8 +326,7 @@ def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndar
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         return float("inf")
     step = _back_substitute(problem, state, xyz, dx)
-    d = normals.N.diagonal()
-    crit = float(np.max(np.abs(dx) * np.sqrt(d))) if len(dx) else 0.0
+    crit = largest_correction(dx, normals.N.diagonal(), round_off_floor(state, problem.layout))
     return max(crit, step.max_point_correction)
 
 
