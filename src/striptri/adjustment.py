@@ -455,6 +455,10 @@ def failure_message(result: AdjustmentResult) -> str:
 def _adjust_explained(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
     """One adjustment by options.method, returned whether it converged or not; singular systems
     without words of their own explained."""
+    with np.errstate(all="ignore"):
+        weights = diagnosis.extreme_weights(project)
+    if weights:  # the normal equations cannot carry them: refuse before iterating into nonsense
+        raise NumericalFailure("the adjustment cannot be carried out in double precision: " + " ".join(weights))
     try:
         # the adjustment tests its numbers for finiteness itself and explains what overflows, so
         # numpy's floating-point warnings would only repeat it on stderr
