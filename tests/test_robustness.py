@@ -485,7 +485,7 @@ TOML_VALUES = ('"bundle"', '"sequential"', '"cholmod"', '"gauss-seidel"', "0", "
                '"gon"', '"rad"', '"alpha-omega-chi"', '"inner"', "[1, 2]", '{a = 1}', '"x"')
 EXTRA_OPTIONS = ((), ("--method", "bundle"), ("--method", "sequential"), ("--blunders", "snoop"),
                  ("--solver", "gauss-seidel"), ("--point-precision", "joint92"), ("--init", "sequential"))
-PROPERTY_EXAMPLES = int(os.environ.get("STRIPTRI_PROPERTY_EXAMPLES", "120"))
+PROPERTY_EXAMPLES = int(os.environ.get("STRIPTRI_PROPERTY_EXAMPLES", "250"))
 
 
 def _is_number(text: str) -> bool:
@@ -574,7 +574,7 @@ def test_mutated_projects_end_cleanly(tmp_path_factory):
     """Random changes of the shipped projects' files (bytes, cells, rows, columns): every run ends
     with exit status 0, 1 or 2, no traceback and no internal error; a failed run writes nothing,
     a successful one a whole output folder; the input folder is byte-identical afterwards. Case
-    count: STRIPTRI_PROPERTY_EXAMPLES (120); derandomised, so CI runs the same cases every time."""
+    count: STRIPTRI_PROPERTY_EXAMPLES (250); derandomised, so CI runs the same cases every time."""
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
