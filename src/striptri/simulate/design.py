@@ -40,6 +40,9 @@ def _triple(value, name: str) -> tuple[float, float, float]:
     return t
 
 
+MAX_PHOTOS_PER_STRIP = 1_000_000  # photo ids get wider than 3 digits from 1,000 photos per strip on
+
+
 @dataclass(frozen=True)
 class CameraDesign:
     """Metric camera: principal distance c, square format of side ``format`` centred on the fiducial
@@ -94,7 +97,8 @@ class FlightDesign:
     alternate: bool = True
 
     def __post_init__(self):
-        _require(int(self.n_photos) == self.n_photos and 2 <= self.n_photos <= 999, "flight: 2 to 999 photos per strip")
+        _require(int(self.n_photos) == self.n_photos and 2 <= self.n_photos <= MAX_PHOTOS_PER_STRIP,
+                 f"flight: 2 to {MAX_PHOTOS_PER_STRIP} photos per strip")
         _require(int(self.n_strips) == self.n_strips and self.n_strips >= 1, "flight: at least 1 strip")
         _require(0.5 < self.overlap < 0.95, "flight: forward overlap must be in (0.5, 0.95)")
         _require(0.1 <= self.sidelap <= 0.7, "flight: sidelap must be in [0.1, 0.7]")

@@ -5,7 +5,8 @@ photos from the ideal flight line, extra tie points) from the generator it is gi
 else: noise comes later (``striptri.simulate.noise``).
 
 Ids: photo ``<strip><k:03d>`` ("1001", "1002", ... for the first strip, "2001", ... for the second),
-k counted in flight order; the pass points at the nadir of that photo ``<photo id>L``,
+k counted in flight order (with 1,000 photos per strip or more, k gets as many digits as the
+largest k has, "100001", so that ids stay unique); the pass points at the nadir of that photo ``<photo id>L``,
 ``<photo id>C``, ``<photo id>R`` (left of that strip's flight direction, on it, right; left is +y on
 the plate). A pass point in the middle of a sidelap is seen by both strips and named once, by the
 photo of the earlier strip (so a later strip names only its nadir point and the point on its side
@@ -99,14 +100,22 @@ def make_truth(design: SyntheticDesign, rng: np.random.Generator) -> Truth:
     ids, kind, xy = _pass_points(design, lines)
     single_ids, single_xy, single_photo = _single_photo_points(design, lines)
     xyz_fixed = _on_terrain(terrain, np.concatenate([xy, single_xy]))
-    seen = _visible(design, xyz0, R, interior, xyz_fixed)
+    photo_of, point_of = _visible_pairs(design, xyz0, R, interior, xyz_fixed)
 
     n_pass = len(ids)
-    _require_rays(seen[:, :n_pass], ids)
+    _require_rays(np.bincount(point_of, minlength=len(xyz_fixed))[:n_pass], ids)
     if design.control.layout == SCHMID_FIG8:
-        schmid_fig8.require_pattern(seen[:, :n_pass])
-    if single_ids and not np.array_equal(seen[:, n_pass:].T, np.eye(len(xyz0), dtype=bool)[single_photo]):
-        raise ValueError("design: a single-photo control point is not seen by exactly one photo; lower the overlap")
+        seen = np.zeros((len(xyz0), n_pass), dtype=bool)
+        pass_rows = point_of < n_pass
+        seen[photo_of[pass_rows], point_of[pass_rows]] = True
+        schmid_fig8.require_pattern(seen)
+    if single_ids:
+        single_rows = point_of >= n_pass
+        on_own = np.bincount(point_of[single_rows] - n_pass, minlength=len(single_ids))
+        right = np.zeros(len(single_ids), dtype=bool)
+        right[point_of[single_rows] - n_pass] = photo_of[single_rows] == single_photo[point_of[single_rows] - n_pass]
+        if np.any(on_own != 1) or not right.all():
+            raise ValueError("design: a single-photo control point is not seen by exactly one photo; lower the overlap")
 
     tie_ids, tie_xyz = _extra_ties(design, lines, terrain, xyz0, R, interior, rng)
     point_ids = ids + tie_ids + single_ids
@@ -114,8 +123,7 @@ def make_truth(design: SyntheticDesign, rng: np.random.Generator) -> Truth:
     xyz_ground = np.concatenate([xyz_fixed[:n_pass], tie_xyz, xyz_fixed[n_pass:]])
     kind = _with_check_points(kind, xyz_ground, lines, design.strip_spacing, design.control.n_check)
 
-    seen = _visible(design, xyz0, R, interior, xyz_ground)
-    photo_index, point_index = np.nonzero(seen)
+    photo_index, point_index = _visible_pairs(design, xyz0, R, interior, xyz_ground)
     xy_plate = project(R[photo_index], xyz0[photo_index], interior, xyz_ground[point_index])
     return Truth(
         design=design,
@@ -143,6 +151,7 @@ def _flight_lines(design: SyntheticDesign) -> list[FlightLine]:
     along = np.array([np.cos(h), np.sin(h)])
     left = np.array([-np.sin(h), np.cos(h)])
     k = np.arange(flight.n_photos)
+    width = max(3, len(str(flight.n_photos)))
     lines = []
     for s in range(flight.n_strips):
         backwards = flight.alternate and s % 2 == 1
@@ -151,7 +160,7 @@ def _flight_lines(design: SyntheticDesign) -> list[FlightLine]:
         sign = -1.0 if backwards else 1.0
         strip = str(s + 1)
         lines.append(FlightLine(
-            strip_id=strip, photo_ids=[f"{strip}{i + 1:03d}" for i in k], nadir_xy=nadir_xy,
+            strip_id=strip, photo_ids=[f"{strip}{i + 1:0{width}d}" for i in k], nadir_xy=nadir_xy,
             along=sign * along, left=sign * left, heading=h + (np.pi if backwards else 0.0), index=s,
             columns=columns,
         ))
@@ -227,26 +236,35 @@ def _single_photo_points(design: SyntheticDesign, lines: list[FlightLine]):
 
 def _extra_ties(design, lines, terrain, xyz0, R, interior, rng):
     """``extra_ties_per_model`` random tie points in the (shrunk) nominal overlap of each model,
-    each seen by at least two photos. -> ids, xyz (t, 3)."""
+    each seen by at least two photos: 4 n candidates are drawn per model (model after model, a
+    along then b across), the first n seen twice are kept. -> ids, xyz (t, 3)."""
     n = design.points.extra_ties_per_model
     if n == 0:
         return [], np.zeros((0, 3))
     half = design.camera.half_usable * design.scale  # half the usable ground footprint
     base = design.base
-    ids, xyz = [], []
+    n_try = 4 * n
+    centre, along, left, names = [], [], [], []
     for line in lines:
-        for k in range(len(line.photo_ids) - 1):
-            centre = (line.nadir_xy[k] + line.nadir_xy[k + 1]) / 2
-            n_try = 4 * n
-            a = rng.uniform(-1.0, 1.0, n_try) * _TIE_AREA_SHRINK * (half - base / 2)
-            b = rng.uniform(-1.0, 1.0, n_try) * _TIE_AREA_SHRINK * half
-            candidates = _on_terrain(terrain, centre + a[:, None] * line.along + b[:, None] * line.left)
-            good = np.flatnonzero(_visible(design, xyz0, R, interior, candidates).sum(0) >= 2)
-            if len(good) < n:
-                raise ValueError("design: cannot place the extra tie points inside the overlap; lower the deviations")
-            ids += [f"T{line.photo_ids[k]}_{i + 1:02d}" for i in range(n)]
-            xyz.append(candidates[good[:n]])
-    return ids, np.concatenate(xyz)
+        centre.append((line.nadir_xy[:-1] + line.nadir_xy[1:]) / 2)
+        along.append(np.broadcast_to(line.along, (len(line.photo_ids) - 1, 2)))
+        left.append(np.broadcast_to(line.left, (len(line.photo_ids) - 1, 2)))
+        names += line.photo_ids[:-1]
+    centre, along, left = np.concatenate(centre), np.concatenate(along), np.concatenate(left)
+    n_models = len(centre)
+    ab = rng.uniform(-1.0, 1.0, (n_models, 2, n_try))  # the same stream as a and b drawn model by model
+    a = ab[:, 0] * _TIE_AREA_SHRINK * (half - base / 2)
+    b = ab[:, 1] * _TIE_AREA_SHRINK * half
+    xy = centre[:, None, :] + a[..., None] * along[:, None, :] + b[..., None] * left[:, None, :]
+    candidates = _on_terrain(terrain, xy.reshape(-1, 2))
+    _, point_of = _visible_pairs(design, xyz0, R, interior, candidates)
+    good = (np.bincount(point_of, minlength=len(candidates)) >= 2).reshape(n_models, n_try)
+    if np.any(good.sum(axis=1) < n):
+        raise ValueError("design: cannot place the extra tie points inside the overlap; lower the deviations")
+    rank = np.cumsum(good, axis=1)
+    chosen = good & (rank <= n)  # the first n good candidates of each model, in draw order
+    ids = [f"T{name}_{i + 1:02d}" for name in names for i in range(n)]
+    return ids, candidates.reshape(n_models, n_try, 3)[chosen]
 
 
 def _with_check_points(kind: np.ndarray, xyz_ground: np.ndarray, lines: list[FlightLine], spacing: float,
@@ -290,20 +308,38 @@ def _on_terrain(terrain: Terrain, xy: np.ndarray) -> np.ndarray:
     return np.column_stack([xy, terrain.z(xy)])
 
 
-def _visible(design: SyntheticDesign, xyz0, R, interior, xyz_ground) -> np.ndarray:
+def _visible_pairs(design: SyntheticDesign, xyz0, R, interior, xyz_ground) -> tuple[np.ndarray, np.ndarray]:
     """Which photo sees which point: in front of the camera and inside the usable format.
-    xyz0: (n, 3), R: (n, 3, 3), xyz_ground: (p, 3) -> (n, p) bool."""
-    O, Rn, X = xyz0[:, None, :], R[:, None, :, :], xyz_ground[None, :, :]
-    front = in_front(Rn, O, X)
+    xyz0: (n, 3), R: (n, 3, 3), xyz_ground: (p, 3) -> photo_index, point_index (m,), photo-major
+    and by point within a photo (the order of np.nonzero on an (n, p) visibility matrix).
+
+    Only the points within reach of a photo are projected (a k-d tree on the ground XY): the
+    farthest visible point lies within (Z0 - lowest point) tan(field angle to the format corner +
+    tilt) of the nadir, so memory and time grow with the observations, not with photos x points."""
+    from scipy.spatial import cKDTree
+
+    if len(xyz0) == 0 or len(xyz_ground) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    half_usable = design.camera.half_usable
+    corner = np.arctan(np.hypot(half_usable + abs(interior[1]), half_usable + abs(interior[2])) / interior[0])
+    tilt = np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0))  # between the camera axis -R e3 and the plumb line -e3
+    reach_angle = np.minimum(corner + tilt, np.radians(89.0))
+    height = np.maximum(xyz0[:, 2] - xyz_ground[:, 2].min(), 0.0)
+    reach = height * np.tan(reach_angle) * 1.01 + 1.0
+    tree = cKDTree(xyz_ground[:, :2])
+    near = tree.query_ball_point(xyz0[:, :2], reach, return_sorted=True)
+    counts = np.fromiter((len(c) for c in near), dtype=np.int64, count=len(near))
+    photo = np.repeat(np.arange(len(xyz0)), counts)
+    point = np.fromiter((j for c in near for j in c), dtype=np.int64, count=int(counts.sum()))
+    front = in_front(R[photo], xyz0[photo], xyz_ground[point])
     with np.errstate(divide="ignore", invalid="ignore"):
-        xy = project(Rn, O, interior, X)
-    inside = np.all(np.abs(xy) <= design.camera.half_usable, axis=-1)
-    return front & inside
+        xy = project(R[photo], xyz0[photo], interior, xyz_ground[point])
+    inside = front & np.all(np.abs(xy) <= half_usable, axis=-1)
+    return photo[inside], point[inside]
 
 
-def _require_rays(seen: np.ndarray, ids: list[str]) -> None:
-    """Every pass point must be seen by two photos at least."""
-    rays = seen.sum(0)
+def _require_rays(rays: np.ndarray, ids: list[str]) -> None:
+    """Every pass point must be seen by two photos at least. rays: (p,) photos per pass point."""
     bad = np.flatnonzero(rays < 2)
     if len(bad):
         k = bad[0]
