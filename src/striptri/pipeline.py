@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -91,7 +92,9 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
+    t0 = time.perf_counter()
     project = read_project(project_dir)
+    seconds_reading = time.perf_counter() - t0
     options = options_for(project, **overrides)
     try:
         check_products_options(options, point_precision, blunders)
@@ -101,7 +104,8 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
 
     with OutputReservation(out_dir, inputs) as reservation:
         try:
-            products = adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning)
+            products = adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning,
+                                       seconds_reading=seconds_reading)
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
         reservation.commit(products.files)
@@ -138,14 +142,16 @@ def structure_figure(project_dir, out_png, on_warning: Callable[[str], None] | N
 
 def adjust_products(project: Project, options: AdjustmentOptions, point_precision: str = "schmid90",
                     blunders: str = "off", keep_unconverged: bool = False,
-                    on_warning: Callable[[str], None] | None = None) -> AdjustmentProducts:
+                    on_warning: Callable[[str], None] | None = None,
+                    seconds_reading: float | None = None) -> AdjustmentProducts:
     """Adjust (with gross-error detection by ``blunders``: "off", "snoop" or "robust") and build
     the output files. Photos, points and the summary describe the adjustment of the measurements
     kept; residuals.csv lists every original measurement with its flag.
 
     Warnings (the project's notes, then what the computation warns of) go to ``on_warning`` as they
     arise, even when the run then fails, and into summary.json "warnings" and the report. An
-    adjustment that does not converge raises NumericalFailure unless ``keep_unconverged``."""
+    adjustment that does not converge raises NumericalFailure unless ``keep_unconverged``.
+    seconds_reading: the time the caller took to read the project (summary.json timings_s "read")."""
     from dataclasses import replace as _replace
 
     from .reliability import BlunderOptions, detect_blunders
@@ -162,45 +168,55 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
 
     for note in project.notes:
         warn(str(note))
+    # the pipeline's phases beyond the adjustment (summary.json timings_s, docs/file-formats.md)
+    phases: dict[str, float] = {} if seconds_reading is None else {"read": seconds_reading}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
+            t0 = time.perf_counter()
             if options.method == "sequential":
                 det = _without_tests(project, adjust(project, options))
             else:
                 det = detect_blunders(project, options, BlunderOptions(method=blunders))
             adjusted, result = det.project, det.result
+            phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.get("total", 0.0), 0.0)
             if termination_of(result) not in SUCCESSFUL_TERMINATIONS:
                 warn("kept although the adjustment did not converge (--keep-unconverged): "
                      + failure_message(result))
             elif result.termination_message:  # e.g. converged by the cost tolerance: say so
                 warn(result.termination_message)
             _warn_if_implausible(adjusted, result, warn)
+            t0 = time.perf_counter()
             points = triangulate_result(adjusted, result)
             if point_precision == "joint92":
                 from .precision import joint_point_covariance
 
                 joint = joint_point_covariance(adjusted, result, points, options)
                 points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
+            phases["point_precision"] = time.perf_counter() - t0
         finally:
             for w in caught:
                 warn(str(w.message))
-    summary = summary_of(adjusted, result, points)
-    summary["blunders"] = blunder_summary(det)
-    summary["warnings"] = list(said)
-    residuals = residual_table(project, det)
-    files = {
+    t0 = time.perf_counter()
+    tables = {
         "photos.csv": format_csv(photo_table(adjusted, result)),
         "cameras.csv": format_csv(camera_table(adjusted, result)),
         "points.csv": format_csv(point_table(adjusted, result, points)),
-        "residuals.csv": format_csv(residuals),
-        "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n",
+        "residuals.csv": format_csv(residual_table(project, det)),
     }
+    phases["tables"] = time.perf_counter() - t0
+    summary = summary_of(adjusted, result, points)
+    summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
+    summary["blunders"] = blunder_summary(det)
+    summary["warnings"] = list(said)
     from .figures import normal_matrix_structure
 
+    t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
-    files["report.html"] = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
-                                              flags=det.flag[det.rows], figures={"structure": structure})
+    html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
+                              flags=det.flag[det.rows], figures={"structure": structure})
+    summary["timings_s"]["report"] = round(time.perf_counter() - t0, 6)
+    files = {**tables, "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n", "report.html": html}
     products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products
 
