@@ -259,13 +259,37 @@ class Sweep:
                 yield chunk, system
 
 
-def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly"):
-    """N and u of one sweep: point groups into the block pattern, then the observed elements."""
+@dataclass
+class _WhitenedChunk:
+    """What the back substitution needs of one chunk, kept from the assembly of the same iteration
+    (normal_equations.whiten): Bw = L^-1 B (m, nc, nu), ww = L^-1 w (m, nc), the columns (m, nu)
+    and Gt = L^-1 A Q (m, nc, no), so that v = -Gt^T (ww + Bw dx)."""
+
+    chunk: object
+    Bw: np.ndarray
+    ww: np.ndarray
+    cols: np.ndarray
+    Gt: np.ndarray
+
+
+def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool = False):
+    """N and u of one sweep: point groups into the block pattern, then the observed elements.
+    keep: also keep each chunk's whitened system for the back substitution (acc.kept), so that an
+    iteration linearises its conditions once. acc.max_misclosure: the largest |g| of a condition
+    in units of its standard deviation (Schmid's final check)."""
     acc = PatternAccumulator(assembly.pattern, assembly.S)
+    acc.kept = [] if keep else None
+    acc.max_misclosure = 0.0
     cam_of_photo = sweep.state.camera_of_photo
-    for chunk, system in sweep.systems():
-        Bw, ww, gw, _ = whiten(system)
-        acc.add_groups(Bw, ww, gw, chunk.photo_index, cam_of_photo[chunk.photo_index])
+    for (chunk, system), scatters in zip(sweep.systems(), assembly.scatters):
+        if keep:
+            Bw, ww, gw, _, Gt = whiten(system, residual_map=True)
+            acc.kept.append(_WhitenedChunk(chunk, Bw, ww, system.cols, Gt))
+        else:
+            Bw, ww, gw, _ = whiten(system)
+        acc.add_groups(Bw, ww, gw, chunk.photo_index, cam_of_photo[chunk.photo_index], scatters)
+        if system.g.size:
+            acc.max_misclosure = max(acc.max_misclosure, float(np.max(np.abs(system.g))))
     if len(pobs):
         f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         acc.add_rows(grad, cols, pobs.misclosure(f), pobs.sigma)
@@ -273,12 +297,12 @@ def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly"):
 
 
 def _assemble_checked(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", project: Project,
-                      iteration: int):
+                      iteration: int, keep: bool = False):
     """_assemble, with numbers that are not finite (an overflow: wild values, c in another unit)
     explained as a NumericalFailure naming the points whose conditions fail and the likely cause."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            acc = _assemble(sweep, pobs, assembly)
+            acc = _assemble(sweep, pobs, assembly, keep)
     except np.linalg.LinAlgError:
         acc = None
     if acc is not None and np.isfinite(acc.u).all() and np.isfinite(acc.N.data).all() and np.isfinite(acc.wPw):
@@ -314,33 +338,39 @@ def not_finite_message(project: Project, points: np.ndarray, iteration: int) -> 
 
 @dataclass(frozen=True)
 class Assembly:
-    """What the assembly computes once per adjustment: the block pattern of N and the selection S."""
+    """What the assembly computes once per adjustment: the block pattern of N, the selection S,
+    and each chunk's scatter (normal_equations.ChunkScatter), in the order Sweep.systems yields
+    the chunks."""
 
     pattern: BlockPattern
     S: sp.csr_matrix
+    scatters: list
 
     @staticmethod
     def of(batches, state: State, layout: UnknownLayout, chunk_size: int) -> "Assembly":
-        chunks = (
+        chunks = [
             (c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size)
-        )
+        ]
         pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
                                layout.camera_elements)
-        return Assembly(pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns))
+        scatters = [pattern.scatters(photo, cam) for photo, cam in chunks]
+        return Assembly(pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns), scatters)
 
 
-def _back_substitute(sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray, obs: Observations):
-    """New adjusted observations l + v from the corrections dx (k = -M^-1 (w + B dx), v = Q A^T k)."""
+def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray,
+                     obs: Observations):
+    """New adjusted observations l + v from the corrections dx, with the whitened systems the
+    assembly kept: ``t = L^-1 (w + B dx)``, ``k = -L^-T t``, ``v = Q A^T k = -(L^-1 A Q)^T t`` and
+    ``v^T P v = k^T M k = t^T t``."""
     plate_hat = obs.plate.copy()
     control_hat = obs.control.copy()
     dxp = np.concatenate([dx, [0.0]])
     vtpv = 0.0
-    for chunk, system in sweep.systems():
-        M = np.einsum("mco,mo,mdo->mcd", system.A, system.Q, system.A)
-        rhs = system.w + np.einsum("mcu,mu->mc", system.B, dxp[system.cols])
-        k = -np.linalg.solve(M, rhs[..., None])[..., 0]
-        v = system.Q * np.einsum("mco,mc->mo", system.A, k)
-        vtpv += float(np.sum(np.where(system.Q > 0, v * v / np.where(system.Q > 0, system.Q, 1.0), 0.0)))
+    for white in kept:
+        t = white.ww + np.matmul(white.Bw, dxp[white.cols][..., None])[..., 0]
+        v = -np.matmul(np.swapaxes(white.Gt, 1, 2), t[..., None])[..., 0]
+        vtpv += float(np.sum(t * t))
+        chunk = white.chunk
         m, kk = chunk.image_rows.shape
         plate_hat[chunk.image_rows] = obs.plate[chunk.image_rows] + v[:, : 2 * kk].reshape(m, kk, 2)
         if chunk.has_control:
@@ -528,7 +558,7 @@ def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
     for _ in range(options.max_iterations):
         t0 = time.perf_counter()
         sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
-        acc = _assemble_checked(sweep, pobs, assembly, project, len(history) + 1)
+        acc = _assemble_checked(sweep, pobs, assembly, project, len(history) + 1, keep=True)
         t1 = time.perf_counter()
         t_conditions = sweep.seconds
         if free_network is not None:
@@ -539,7 +569,8 @@ def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
         t2 = time.perf_counter()
         previous_plate, previous_control = plate_hat, control_hat
         with np.errstate(over="ignore", invalid="ignore"):
-            plate_hat, control_hat, v_par, vtpv = _back_substitute(sweep, pobs, dx, obs)
+            plate_hat, control_hat, v_par, vtpv = _back_substitute(acc.kept, sweep, pobs, dx, obs)
+        acc.kept = None  # the whitened systems are not needed beyond the back substitution
         state = state.updated(layout, dx)
         t3 = time.perf_counter()
         timings["conditions"] += t_conditions
@@ -561,7 +592,7 @@ def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
     acc = _assemble_checked(final, pobs, assembly, project, len(history) + 1)
     if free_network is not None:
         free_network = free_network.at(state, layout, acc.N)
-    checks, next_correction = _final_checks(final, acc, vtpv, pobs, v_par, free_network)
+    checks, next_correction = _final_checks(final, acc, vtpv, pobs, v_par, free_network, solver)
     timings["final_checks"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     if not len(dx) and not converged:
@@ -708,7 +739,7 @@ def stop_if_diverging(history: list[Iteration], method: str, redundancy: int = 0
 
 
 def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par: np.ndarray,
-                  free_network=None) -> tuple[dict, float | None]:
+                  free_network=None, solver: solvers.NormalSolver | None = None) -> tuple[dict, float | None]:
     """Schmid's checks after convergence.
 
     * every condition holds for the adjusted observations and the final unknowns (his final
@@ -720,12 +751,10 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
 
     Also returns the largest correction (in standard deviations, as in the history) the next
     iteration would make, a by-product of (59) (None when N is singular): whether an iteration that
-    stopped at max_iterations was still converging.
+    stopped at max_iterations was still converging. The solve uses the adjustment's own solver
+    when it is a direct one (its analysis of the pattern is reused), else a direct one (``auto``).
     """
-    max_g = 0.0
-    for _, system in sweep.systems():
-        if system.g.size:
-            max_g = max(max_g, float(np.max(np.abs(system.g))))
+    max_g = acc.max_misclosure  # formed with N in the same sweep (_assemble)
     if len(pobs):
         f, _, _ = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         max_g = max(max_g, float(np.max(np.abs((pobs.misclosure(f) + v_par) / pobs.sigma))))
@@ -733,8 +762,10 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
     btk = float(np.max(np.abs(acc.u) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
     next_correction = None
     try:
-        direct = solvers.make_solver(solvers.SolverOptions(name="auto"),
-                                     solvers.Structure(len(d), sweep.layout.block_starts()))
+        direct = solver
+        if solver is None or isinstance(solver, (solvers.GaussSeidelSolver, solvers.PcgSolver)):
+            direct = solvers.make_solver(solvers.SolverOptions(name="auto"),
+                                         solvers.Structure(len(d), sweep.layout.block_starts()))
         if free_network is None:
             dx = direct.solve(acc.N, acc.u).dx
         else:

@@ -15,13 +15,21 @@ from .lens import NCP
 from .linearise import GroupSystem
 
 
-def whiten(system: GroupSystem):
-    """L^-1 B, L^-1 w, L^-1 g and L for each group (M = A Q A^T = L L^T). Batched."""
-    M = np.matmul(system.A * system.Q[:, None, :], np.swapaxes(system.A, 1, 2))
+def whiten(system: GroupSystem, residual_map: bool = False):
+    """L^-1 B, L^-1 w, L^-1 g and L for each group (M = A Q A^T = L L^T), and with residual_map
+    also ``L^-1 A Q`` (m, nc, no): the map from the whitened ``t = L^-1 (w + B dx)`` to the
+    residuals, ``v = Q A^T k = -(L^-1 A Q)^T t``, so that the back substitution needs no second
+    linearisation. Batched: one triangular factorisation and one solve with all right-hand sides."""
+    AQ = system.A * system.Q[:, None, :]
+    M = np.matmul(AQ, np.swapaxes(system.A, 1, 2))
     L = np.linalg.cholesky(M)
-    Bw = np.linalg.solve(L, system.B)
-    wg = np.linalg.solve(L, np.stack([system.w, system.g], -1))
-    return Bw, wg[..., 0], wg[..., 1], L
+    nu, no = system.B.shape[-1], AQ.shape[-1]
+    rhs = [system.B, system.w[..., None], system.g[..., None]] + ([AQ] if residual_map else [])
+    solved = np.linalg.solve(L, np.concatenate(rhs, axis=-1))
+    Bw, ww, gw = solved[..., :nu], solved[..., nu], solved[..., nu + 1]
+    if residual_map:
+        return Bw, ww, gw, L, solved[..., nu + 2 : nu + 2 + no]
+    return Bw, ww, gw, L
 
 
 class NormalAccumulator:
@@ -62,6 +70,28 @@ class NormalAccumulator:
         Bw = (-grad / sigma[:, None])[:, None, :]
         ww = (misclosure / sigma)[:, None]
         self.add(Bw, ww, cols, np.zeros_like(ww))
+
+
+class ChunkScatter:
+    """Where one chunk's ray-pair blocks go in a BlockPattern's data, worked out once per adjustment:
+    the distinct pattern positions the chunk touches (``positions``) and each pair's index among them
+    (``index``, (m, k, k)). Each iteration then sums the chunk's blocks over that short list and adds
+    the sums at those positions, instead of a scatter over the whole pattern per chunk."""
+
+    def __init__(self, pos: np.ndarray):
+        self.positions, inverse = np.unique(pos, return_inverse=True)
+        self.index = inverse.reshape(pos.shape)
+
+    def add(self, target: np.ndarray, blocks: np.ndarray) -> None:
+        """target (n_positions * r * s,) += the blocks (m, k, r, k, s) (block (a, b) of group m is
+        blocks[m, a, :, b, :]) summed at their positions."""
+        r, s = blocks.shape[2], blocks.shape[4]
+        size = r * s
+        offsets = (np.arange(r)[:, None] * s + np.arange(s)).reshape(1, 1, r, 1, s)
+        index = self.index[:, :, None, :, None] * size + offsets
+        sums = np.bincount(index.ravel(), weights=np.ascontiguousarray(blocks).ravel(),
+                           minlength=len(self.positions) * size)
+        target.reshape(-1, size)[self.positions] += sums.reshape(-1, size)
 
 
 class BlockPattern:
@@ -111,6 +141,14 @@ class BlockPattern:
         pos_pc = np.searchsorted(self.pc, self._keys(photo, cam, self.n_cameras)).reshape(m, k, k)
         pos_cc = np.searchsorted(self.cc, self._keys(cam, cam, self.n_cameras)).reshape(m, k, k)
         return pos_pp, pos_pc, pos_cc
+
+    def scatters(self, photo, cam):
+        """ChunkScatter of a chunk's photo-photo, photo-camera and camera-camera pairs (the last two
+        None when the cameras are held)."""
+        pos_pp, pos_pc, pos_cc = self.positions(photo, cam)
+        if not self.with_cameras:
+            return ChunkScatter(pos_pp), None, None
+        return ChunkScatter(pos_pp), ChunkScatter(pos_pc), ChunkScatter(pos_cc)
 
     def _full_indices(self):
         n = self.n_photos
@@ -172,9 +210,10 @@ class PatternAccumulator:
         self.gPg = 0.0
         self.extra = NormalAccumulator(S.shape[1])
 
-    def add_groups(self, Bw, ww, gw, photo, cam) -> None:
+    def add_groups(self, Bw, ww, gw, photo, cam, scatters=None) -> None:
         """Bw: (m, nc, wk) whitened B with w columns per ray (6 photo, then NCP camera when the
-        cameras are estimated); photo, cam: (m, k)."""
+        cameras are estimated); photo, cam: (m, k); scatters: the chunk's BlockPattern.scatters
+        when worked out before (computed here otherwise)."""
         m, k = photo.shape
         pat = self.pattern
         self.wPw += float(np.sum(ww * ww))
@@ -186,23 +225,15 @@ class PatternAccumulator:
         width = full_cols.shape[-1]
         BwT = np.swapaxes(Bw, 1, 2)
         Nloc = np.matmul(BwT, Bw).reshape(m, k, width, k, width)  # batched BLAS, not einsum
-        pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
-        flat = (pos_pp[..., None] * 36 + np.arange(36)).ravel()
-        block = Nloc[:, :, :6, :, :6].transpose(0, 1, 3, 2, 4).reshape(-1)
-        self.pp += np.bincount(flat, weights=block, minlength=len(self.pp))
+        scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam)
+        scatter_pp.add(self.pp, Nloc[:, :, :6, :, :6])
         full_cols = full_cols.reshape(m, k * width)
         ug = np.matmul(BwT, np.stack([ww, gw], -1))
-        uloc, ugloc = ug[..., 0], ug[..., 1]
-        self.u_full += np.bincount(full_cols.ravel(), weights=uloc.ravel(), minlength=pat.n_full)
-        self.ug_full += np.bincount(full_cols.ravel(), weights=ugloc.ravel(), minlength=pat.n_full)
+        self.u_full += np.bincount(full_cols.ravel(), weights=ug[..., 0].ravel(), minlength=pat.n_full)
+        self.ug_full += np.bincount(full_cols.ravel(), weights=ug[..., 1].ravel(), minlength=pat.n_full)
         if pat.with_cameras:
-            w = pat.camera_width
-            flat = (pos_pc[..., None] * 6 * w + np.arange(6 * w)).ravel()
-            block = Nloc[:, :, :6, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
-            self.pc += np.bincount(flat, weights=block, minlength=len(self.pc))
-            flat = (pos_cc[..., None] * w * w + np.arange(w * w)).ravel()
-            block = Nloc[:, :, 6:, :, 6:].transpose(0, 1, 3, 2, 4).reshape(-1)
-            self.cc += np.bincount(flat, weights=block, minlength=len(self.cc))
+            scatter_pc.add(self.pc, Nloc[:, :, :6, :, 6:])
+            scatter_cc.add(self.cc, Nloc[:, :, 6:, :, 6:])
 
     def add_rows(self, grad, cols, misclosure, sigma) -> None:
         """Parameter observations (in the reduced columns), as NormalAccumulator.add_rows."""
