@@ -423,6 +423,10 @@ def datum_defect_message(project: Project, defects: list[str]) -> str:
             return ("the normal equations cannot be trusted: " + " ".join(weights)
                     + " (With such weights the datum test reports directions as free that are not.)")
         groups = diagnosis.photo_groups(project).explain()
+        values = diagnosis.implausible_values(project) + diagnosis.camera_units(project)
+    if values:  # numbers that make the normal equations meaningless fool the datum test too
+        return ("the normal equations cannot be trusted: " + " ".join(values)
+                + " (With such values the datum test reports directions as free that are not.)")
     return "\n".join([datum.explain(defects)] + groups)
 
 

@@ -95,7 +95,8 @@ class _Problem:
         self.n_conditions = n_plate + self.unknowns.n_control_observations - self.unknowns.n_unknowns
         self.redundancy = self.n_conditions + len(self.pobs) - self.layout.n_unknowns
         self.initial_state = initial_state(project, self.offset)
-        self.pattern, self.S = block_pattern(self.batches, self.initial_state, self.layout, options.chunk_size)
+        self.pattern, self.S, self.scatters = block_pattern(self.batches, self.initial_state, self.layout,
+                                                            options.chunk_size)
 
     def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0):
         """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp."""
@@ -124,9 +125,11 @@ class _Problem:
         return ReducedNormals(self.pattern, self.S)
 
     def assemble(self, state: State, xyz: np.ndarray, damping: float = 0.0) -> ReducedNormals:
+        """The reduced normals at (state, xyz), with the linearised chunks kept (normals.kept) for
+        the back substitution of the step they give."""
         normals = self.normals()
-        for chunk in self.chunks(state, xyz, damping):
-            normals.add_points(chunk, state.camera_of_photo)
+        for chunk, scatters in zip(self.chunks(state, xyz, damping), self.scatters):
+            normals.add_points(chunk, state.camera_of_photo, scatters)
         if len(self.pobs):
             normals.add_rows(*self.parameter_rows(state))
         return normals.finish()
@@ -182,7 +185,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
             continue
         dx = solved.dx
         t1 = time.perf_counter()
-        step = _back_substitute(problem, state, xyz, dx, lam)
+        step = _back_substitute(problem, state, xyz, dx, lam, kept=normals.kept)
         trial_state = state.updated(layout, dx)
         if lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
             trial = _assemble_or_none(problem, trial_state, step.xyz)
@@ -237,7 +240,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
 
     t0 = time.perf_counter()
     normals, checks, next_correction = _final_checks(problem, solver, state, xyz, plate_hat, control_hat, v_par,
-                                                     vtpv)
+                                                     vtpv, normals if lam == 0.0 else None)
     timings["final_checks"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     status, message = "converged", ""
@@ -325,7 +328,7 @@ def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndar
         dx = solver.solve(normals.N, normals.b).dx
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         return float("inf")
-    step = _back_substitute(problem, state, xyz, dx)
+    step = _back_substitute(problem, state, xyz, dx, kept=normals.kept)
     crit = largest_correction(dx, normals.N.diagonal(), round_off_floor(state, problem.layout))
     return max(crit, step.max_point_correction)
 
@@ -340,14 +343,17 @@ class _Step:
     max_point_correction: float
 
 
-def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray, damping: float = 0.0) -> _Step:
+def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray, damping: float = 0.0,
+                     kept: list | None = None) -> _Step:
     """Point corrections and the adjusted observations l + v of the linearised step (v from
-    ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``)."""
+    ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``). kept: the chunks the
+    assembly of these normals linearised at (state, xyz) with this damping (ReducedNormals.kept);
+    linearised again when not given."""
     obs = problem.obs
     xyz_new = xyz.copy()
     plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
     vtpv, crit = 0.0, 0.0
-    for chunk in problem.chunks(state, xyz, damping):
+    for chunk in (kept if kept is not None else problem.chunks(state, xyz, damping)):
         dX, v_plate, v_control = point_corrections(chunk, dx)
         pt, rows = chunk.batch.point_index, chunk.batch.image_rows
         xyz_new[pt] = xyz[pt] + dX
@@ -402,7 +408,7 @@ def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
 
 
 def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plate_hat, control_hat, v_par,
-                  vtpv: float):
+                  vtpv: float, normals_at_solution: ReducedNormals | None = None):
     """The reduced camera system at the solution and the checks after convergence.
 
     * ``max_condition_misclosure_sigma``: every observation equation holds for the adjusted
@@ -414,14 +420,19 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     * ``vtpv_reduction_relative_difference``: v^T P v against the reduced sum
       ``e^T e - sum b_p^T N_pp^-1 b_p - b_rcs^T N_rcs^-1 b_rcs`` (Schmid 59).
 
+    normals_at_solution: the undamped reduced normals the iteration formed at (state, xyz), with
+    their kept chunks; formed here when not given.
+
     Also returns the largest orientation correction the next iteration would make (standard
     deviations, as in the history; None when the system is singular), a by-product of (59).
     """
     obs = problem.obs
-    normals = problem.normals()
+    reuse = normals_at_solution is not None
+    normals = normals_at_solution if reuse else problem.normals()
     max_g, max_gp = 0.0, 0.0
-    for chunk in problem.chunks(state, xyz):
-        normals.add_points(chunk, state.camera_of_photo)
+    for chunk, scatters in zip(normals.kept if reuse else problem.chunks(state, xyz), problem.scatters):
+        if not reuse:
+            normals.add_points(chunk, state.camera_of_photo, scatters, keep=False)
         rows = chunk.batch.image_rows
         # l^ - f = (l - f) + (l^ - l) = sigma e + v
         g = chunk.e + (plate_hat[rows] - obs.plate[rows]) / chunk.sigma
@@ -433,9 +444,12 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
             max_gp = max(max_gp, float(np.max(np.where(chunk.free, np.abs(chunk.b_p) / np.sqrt(d), 0.0))))
     if len(problem.pobs):
         J, cols, e = problem.parameter_rows(state)
-        normals.add_rows(J, cols, e)
+        if not reuse:
+            normals.add_rows(J, cols, e)
         max_g = max(max_g, float(np.max(np.abs(e + v_par / problem.pobs.sigma))))
-    normals.finish()
+    if not reuse:
+        normals.finish()
+    normals.kept = []  # not needed beyond the checks
     d = normals.N.diagonal()
     btk = float(np.max(np.abs(normals.b) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
     next_correction = None

@@ -12,9 +12,9 @@ when cameras are estimated, the camera elements estimated in some camera; -1 = h
 
 Coordinates held fixed have zero columns in Jp and the identity in N_pp, so every point uses a
 3x3 block. After ``N_rcs dx = b_rcs``, each point follows by back-substitution
-``dX = N_pp^-1 (b_p - N_pc dx)``. Nothing per point is kept between the two passes: the second
-pass linearises again at the same (x^, X^), so memory does not grow with the number of points
-beyond the coordinates themselves.
+``dX = N_pp^-1 (b_p - N_pc dx)`` from the point chunks the assembly keeps (``ReducedNormals.kept``),
+so an iteration linearises the observation equations once: about 22 numbers per plate
+measurement are held from the assembly to the back substitution.
 """
 
 from __future__ import annotations
@@ -177,6 +177,7 @@ class ReducedNormals:
     def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
         self.pattern, self.S = pattern, S
         self.n = S.shape[1]
+        self.kept: list[PointChunk] = []  # the linearised chunks, for the back substitution
         self.pp = np.zeros(len(pattern.pp) * 36)
         self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
         self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
@@ -190,7 +191,11 @@ class ReducedNormals:
         self.N: sp.csr_matrix | None = None
         self.b: np.ndarray | None = None
 
-    def add_points(self, chunk: PointChunk, camera_of_photo: np.ndarray) -> None:
+    def add_points(self, chunk: PointChunk, camera_of_photo: np.ndarray, scatters=None, keep: bool = True) -> None:
+        """Add a linearised chunk; scatters: its BlockPattern.scatters when worked out before;
+        keep: hold the chunk for the back substitution (``kept``)."""
+        if keep:
+            self.kept.append(chunk)
         N_loc, b_loc, reduced = reduce_points(chunk)
         photo = chunk.batch.photo_index
         cam = camera_of_photo[photo]
@@ -198,8 +203,8 @@ class ReducedNormals:
         pat = self.pattern
         width = chunk.Jc.shape[-1]
         N5 = N_loc.reshape(m, k, width, k, width)
-        pos_pp, pos_pc, pos_cc = pat.positions(photo, cam)
-        self.pp += _scatter(pos_pp, N5[:, :, :6, :, :6], 36, len(self.pp))
+        scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam)
+        scatter_pp.add(self.pp, N5[:, :, :6, :, :6])
         full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
         b3 = b_loc.reshape(m, k, width)
         d3 = np.einsum("mkai,mkai->mki", chunk.Jc, chunk.Jc)  # diagonal of N_cc before the reduction
@@ -209,8 +214,8 @@ class ReducedNormals:
         self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
             w = pat.camera_width
-            self.pc += _scatter(pos_pc, N5[:, :, :6, :, 6:], 6 * w, len(self.pc))
-            self.cc += _scatter(pos_cc, N5[:, :, 6:, :, 6:], w * w, len(self.cc))
+            scatter_pc.add(self.pc, N5[:, :, :6, :, 6:])
+            scatter_cc.add(self.cc, N5[:, :, 6:, :, 6:])
         self.ee += chunk.sum_of_squares()
         self.reduced += float(np.sum(reduced))
 
@@ -245,15 +250,11 @@ class ReducedNormals:
         return self
 
 
-def _scatter(pos: np.ndarray, blocks: np.ndarray, size: int, length: int) -> np.ndarray:
-    """Sum the (a, b) ray-pair blocks (m, k, r, k, s) of a chunk at their pattern positions (m, k, k)."""
-    flat = (pos[..., None] * size + np.arange(size)).ravel()
-    return np.bincount(flat, weights=blocks.transpose(0, 1, 3, 2, 4).reshape(-1), minlength=length)
-
-
 def block_pattern(batches, state: State, layout: UnknownLayout, chunk_size: int):
-    """The block pattern of the reduced camera system and the selection S, computed once."""
-    chunks = ((c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size))
+    """The block pattern of the reduced camera system, the selection S and each chunk's scatter
+    (in the order of the chunks), computed once."""
+    chunks = [(c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size)]
     pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
                            layout.camera_elements)
-    return pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
+    scatters = [pattern.scatters(photo, cam) for photo, cam in chunks]
+    return pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns), scatters
