@@ -204,7 +204,7 @@ class ReducedNormals:
         width = chunk.Jc.shape[-1]
         N5 = N_loc.reshape(m, k, width, k, width)
         scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam)
-        scatter_pp.add(self.pp, N5[:, :, :6, :, :6])
+        scatter_pp.add_pairs_by_ray(self.pp, N5[:, :, :6, :, :6])
         full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
         b3 = b_loc.reshape(m, k, width)
         d3 = np.einsum("mkai,mkai->mki", chunk.Jc, chunk.Jc)  # diagonal of N_cc before the reduction
@@ -214,8 +214,8 @@ class ReducedNormals:
         self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
             w = pat.camera_width
-            scatter_pc.add(self.pc, N5[:, :, :6, :, 6:])
-            scatter_cc.add(self.cc, N5[:, :, 6:, :, 6:])
+            scatter_pc.add_pairs_by_ray(self.pc, N5[:, :, :6, :, 6:])
+            scatter_cc.add_pairs_by_ray(self.cc, N5[:, :, 6:, :, 6:])
         self.ee += chunk.sum_of_squares()
         self.reduced += float(np.sum(reduced))
 
