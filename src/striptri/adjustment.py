@@ -719,15 +719,28 @@ def largest_correction(dx: np.ndarray, n_diag: np.ndarray, floor: np.ndarray) ->
     return float(np.max(np.where(size > floor, size * np.sqrt(np.maximum(n_diag, 0.0)), 0.0)))
 
 
+CONTRACTION_MAX = 0.5  # the rate below which the next correction is predicted from the last two
+
+
 def has_converged(history: list[Iteration], tolerance: float) -> bool:
     """The stated criterion: the largest correction is below ``tolerance`` times the standard
-    deviation the element would have if all others were known; or the iteration has reached the
-    round-off floor of double precision (below ROUNDING_FLOOR and no longer halving), which for
-    very long strips with coordinates of thousands of kilometres lies above the tolerance."""
+    deviation the element would have if all others were known; or the correction the next
+    iteration would make, predicted from the rate of the last two (``c_k^2 / c_(k-1)``, exact for
+    the quadratic convergence of Gauss-Newton near a small-residual solution and an upper bound
+    for any contraction faster than CONTRACTION_MAX), is below it, so that the iteration that would
+    only confirm convergence is saved (the final checks still form that correction and report it);
+    or the iteration has reached the round-off floor of double precision (below ROUNDING_FLOOR and
+    no longer halving), which for very long strips with coordinates of thousands of kilometres
+    lies above the tolerance."""
     c = history[-1].max_correction
     if c < tolerance:
         return True
-    return len(history) >= 2 and c < ROUNDING_FLOOR and c > 0.5 * history[-2].max_correction
+    if len(history) < 2:
+        return False
+    previous = history[-2].max_correction
+    if 0.0 < c < CONTRACTION_MAX * previous and c * c / previous < tolerance:
+        return True
+    return c < ROUNDING_FLOOR and c > 0.5 * previous
 
 
 def stop_if_diverging(history: list[Iteration], method: str, redundancy: int = 0, causes=None) -> None:
