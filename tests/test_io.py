@@ -435,6 +435,89 @@ def test_csv_format_and_read_back(tmp_path):
         format_csv({"a": [1, 2], "b": [1]})
 
 
+def _reference_format_csv(columns) -> str:
+    """format_csv as it was before it worked column by column (csv.writer, one Python call per
+    cell): the text the vectorised one must reproduce byte for byte."""
+    import csv
+    import io
+
+    def cell(value) -> str:
+        if value is None:
+            return ""
+        if isinstance(value, (bool, np.bool_)):
+            return "true" if value else "false"
+        if isinstance(value, (int, np.integer)):
+            return str(int(value))
+        if isinstance(value, (float, np.floating)):
+            value = float(value)
+            return "" if math.isnan(value) else repr(value)
+        return str(value)
+
+    names = list(columns)
+    n_rows = len(columns[names[0]]) if names else 0
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(names)
+    cells = [[cell(v) for v in columns[n]] for n in names]
+    for i in range(n_rows):
+        writer.writerow([col[i] for col in cells])
+    return buffer.getvalue()
+
+
+def _difficult_floats(rng, n: int) -> np.ndarray:
+    """Random bit patterns (every exponent), log-uniform magnitudes, plate-sized residuals, rounded
+    decimals, integers beyond 2**53 and the values next to every switch of repr's format."""
+    pow10 = 10.0 ** np.arange(-8, 20)
+    edges = np.concatenate([pow10, np.nextafter(pow10, 0), np.nextafter(pow10, np.inf),
+                            [0.0, -0.0, 5e-324, 1.7976931348623157e308, np.nan, np.inf, -np.inf, 0.1, 1 / 3]])
+    k = rng.integers(0, 8, n)
+    return np.concatenate([
+        rng.integers(0, 2**64, n, dtype=np.uint64).view(np.float64),
+        10.0 ** rng.uniform(-8, 20, n) * rng.choice([-1.0, 1.0], n),
+        rng.normal(size=n) * 0.003,
+        np.round(rng.normal(size=n) * 1e4 * 10.0**k) / 10.0**k,
+        rng.integers(-(10**17), 10**17, n).astype(float),
+        edges, -edges,
+    ])
+
+
+@pytest.mark.parametrize("orjson_path", [True, False], ids=["orjson", "repr"])
+def test_csv_format_equals_the_cell_by_cell_reference(monkeypatch, orjson_path):
+    """format_csv's column-wise text is the old cell-by-cell text byte for byte: floats as repr
+    (orjson's shortest digits where they are repr's, repr elsewhere), nan empty, the same quoting."""
+    from striptri.io import csvtable
+
+    if orjson_path:
+        pytest.importorskip("orjson")
+        assert csvtable._orjson_usable()
+    else:
+        monkeypatch.setattr(csvtable, "_orjson_state", False)
+    rng = np.random.default_rng(7)
+    x = _difficult_floats(rng, 4_000)
+    n = len(x)
+    strings = rng.choice(["a", "P 01", "b,c", 'say "x"', "two\nlines", "cr\r", "", "é", " lead", "tab\t"], n)
+    columns = {
+        "float": x,
+        "float_strided": np.repeat(x, 2)[::2],
+        "float_list": x[::-1].tolist(),
+        "float32": np.where(np.abs(x) < 1e38, x, np.nan).astype(np.float32),
+        "int": rng.integers(-(2**62), 2**62, n),
+        "uint": rng.integers(0, 2**63, n).astype(np.uint64),
+        "bool": rng.random(n) < 0.5,
+        "text": strings.tolist(),
+        "text_array": strings,
+        "ids": [f"P{i:05d}" for i in range(n)],
+        "mixed": [[None, 1, 2.5, np.nan, True, "a,b", np.float32(0.1), np.int16(3)][i % 8] for i in range(n)],
+        'odd "name", here': np.zeros(n),
+    }
+    assert format_csv(columns) == _reference_format_csv(columns)
+    for name, values in columns.items():
+        assert format_csv({name: values}) == _reference_format_csv({name: values}), name
+    # one column of empty fields is written as "" per row; no rows; no columns
+    for columns in ({"a": ["", "x", ""]}, {"a": [np.nan, 1.0]}, {"": ["", ""]}, {"a": [], "b": []}, {}):
+        assert format_csv(columns) == _reference_format_csv(columns), columns
+
+
 def test_csv_header_after_comments_is_named_in_missing_column(tmp_path):
     (tmp_path / "t.csv").write_text("# c\n\na,b\n1,2\n")
     table = read_csv(tmp_path / "t.csv")
