@@ -518,6 +518,51 @@ def test_csv_format_equals_the_cell_by_cell_reference(monkeypatch, orjson_path):
         assert format_csv(columns) == _reference_format_csv(columns), columns
 
 
+def _parse_outcome(parse, text: str):
+    """The table parse makes of text (header, header line, columns, lines), or its InputError."""
+    from striptri.errors import InputError as Error
+
+    try:
+        t = parse(Path("t.csv"), text)
+    except Error as exc:
+        return ("error", exc.line, exc.reason)
+    return (t.header, t.header_line, [list(c) for c in t.columns], list(t.lines), [list(r) for r in t.rows])
+
+
+def test_csv_split_by_columns_equals_csv_reader():
+    """The column-wise split of text without quotes gives what csv.reader gives line by line:
+    the same table, or the same error at the same line (random texts: comments, blank lines,
+    every line ending, white space of every kind, empty fields, rows of the wrong length)."""
+    from striptri.io import csvtable
+
+    rng = np.random.default_rng(3)
+    pieces = ["1", " 2.5 ", "", "a b", "x#y", "\t7", "8\x0b", "é", "\xa0z\xa0", "\u2003w", "\x1cq", "-0.0"]
+    endings = ["\n", "\r\n", "\r"]
+    for case in range(400):
+        k = int(rng.integers(1, 5))
+        lines = []
+        if rng.random() < 0.3:
+            lines.append("# a comment")
+        header = ",".join(f" c{j} " if rng.random() < 0.2 else f"c{j}" for j in range(k))
+        if rng.random() < 0.05:
+            header += ",c0"  # a name twice
+        lines.append(header)
+        for _ in range(int(rng.integers(0, 12))):
+            r = rng.random()
+            if r < 0.1:
+                lines.append(rng.choice(["", "   ", "\t", "  # indented comment", "#"]))
+                continue
+            n = k if rng.random() < 0.93 else int(rng.integers(1, k + 3))
+            lines.append(",".join(rng.choice(pieces) for _ in range(n)))
+        text = "".join(line + rng.choice(endings) for line in lines)
+        if rng.random() < 0.3:
+            text = text.rstrip("\r\n")
+        assert '"' not in text
+        assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
+    for text in ("", "\n\n", "# only\n", "a,b\n", "a,b\n1,2", "a\n\n1\n"):
+        assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
+
+
 def test_csv_header_after_comments_is_named_in_missing_column(tmp_path):
     (tmp_path / "t.csv").write_text("# c\n\na,b\n1,2\n")
     table = read_csv(tmp_path / "t.csv")

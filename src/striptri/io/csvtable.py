@@ -27,6 +27,7 @@ import os
 import re
 import stat
 from collections.abc import Iterator, Mapping, Sequence
+from itertools import repeat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,23 +40,30 @@ _BOM = b"\xef\xbb\xbf"
 
 @dataclass(frozen=True)
 class CsvTable:
-    """One parsed CSV file: header names, the string values of each row and their line numbers.
+    """One parsed CSV file: header names, the string values of each column and the line numbers of
+    the rows.
 
-    header: stripped column names. rows: one tuple of stripped strings per data row, aligned with
-    header. lines: physical 1-based line number of the first line of each row. header_line: that of
-    the header row (None for an empty file).
+    header: stripped column names. columns: one list of stripped strings per header name, each with
+    one value per data row. lines: physical 1-based line number of the first line of each row.
+    header_line: that of the header row (None for an empty file). ``rows`` gives the same values
+    row by row.
     """
 
     path: Path
     header: tuple[str, ...]
     header_line: int | None
-    rows: list[tuple[str, ...]]
+    columns: tuple[list[str], ...]
     lines: list[int]
     # the columns a reader asked for (require, strings, floats, ...): the others are unused
     used: set = field(default_factory=set, compare=False, repr=False)
 
     def __len__(self) -> int:
-        return len(self.rows)
+        return len(self.lines)
+
+    @property
+    def rows(self) -> list[tuple[str, ...]]:
+        """One tuple of stripped strings per data row, aligned with header."""
+        return list(zip(*self.columns)) if self.columns else [() for _ in self.lines]
 
     def has(self, name: str) -> bool:
         """True when the header has a column called ``name``."""
@@ -63,11 +71,11 @@ class CsvTable:
 
     def error(self, row: int, reason: str) -> InputError:
         """An InputError for data row ``row`` (0-based index into rows), naming its physical line."""
-        return InputError(self.path, self.lines[row], reason)
+        return InputError(self.path, self.lines[int(row)], reason)
 
     def text(self, row: int, name: str) -> str:
         """The text of column ``name`` in data row ``row`` as the file has it ('' when the column is absent)."""
-        return self.rows[row][self.header.index(name)] if name in self.header else ""
+        return self.columns[self.header.index(name)][int(row)] if name in self.header else ""
 
     def unused_columns(self) -> list[str]:
         """Header names no reader asked for, in header order."""
@@ -88,29 +96,25 @@ class CsvTable:
     def strings(self, name: str, allow_empty: bool = False) -> list[str]:
         """Values of a required column as strings; an empty value is an error unless allow_empty."""
         self.require(name)
-        j = self.header.index(name)
-        values = [row[j] for row in self.rows]
-        if not allow_empty:
-            for i, value in enumerate(values):
-                if value == "":
-                    raise self.error(i, f"column '{name}' is empty")
+        values = list(self.columns[self.header.index(name)])
+        if not allow_empty and not all(values):
+            raise self.error(values.index(""), f"column '{name}' is empty")
         return values
 
     def optional_strings(self, name: str, default: str = "") -> list[str]:
         """Values of an optional column; ``default`` for every row when the column is absent."""
         self.used.add(name)
         if name not in self.header:
-            return [default] * len(self.rows)
-        j = self.header.index(name)
-        return [row[j] for row in self.rows]
+            return [default] * len(self)
+        return list(self.columns[self.header.index(name)])
 
     def floats(self, name: str) -> np.ndarray:
         """A required column of finite numbers -> (n,) float array. Empty, non-numeric, nan, inf: error."""
         self.require(name)
         out = self.optional_floats(name)
-        for i, value in enumerate(out):
-            if math.isnan(value):
-                raise self.error(i, f"column '{name}' is empty (a number is required)")
+        empty = np.flatnonzero(np.isnan(out))
+        if len(empty):
+            raise self.error(empty[0], f"column '{name}' is empty (a number is required)")
         return out
 
     def optional_floats(self, name: str, keywords: Mapping[str, float] | None = None) -> np.ndarray:
@@ -119,9 +123,17 @@ class CsvTable:
         keywords: words accepted in place of a number (case-insensitive), e.g. {"free": inf}.
         Non-numeric text, and the literals nan and inf, are rejected with an InputError naming the
         line, the column and the bad value.
+
+        The column is converted in one pass of ``float`` (the same parser, so the same numbers); a
+        column with a keyword or a value it refuses is gone through value by value, which finds
+        the first problem and says what it is.
         """
         words = {k.lower(): v for k, v in (keywords or {}).items()}
         values = self.optional_strings(name)
+        if not words:
+            out = _finite_floats(values)
+            if out is not None:
+                return out
         out = np.full(len(values), np.nan)
         for i, text in enumerate(values):
             if text == "":
@@ -131,6 +143,23 @@ class CsvTable:
                 continue
             out[i] = _parse_finite(text, lambda reason, i=i: self.error(i, f"column '{name}': {reason}"))
         return out
+
+
+def _finite_floats(values: list[str]) -> np.ndarray | None:
+    """float of every value, '' -> nan, as an (n,) array; None when a value is not a finite number
+    (the caller then finds and names it)."""
+    n = len(values)
+    if not any(values):
+        return np.full(n, np.nan)
+    texts = values if all(values) else [v or "nan" for v in values]
+    try:
+        out = np.fromiter(map(float, texts), dtype=np.float64, count=n)
+    except ValueError:
+        return None
+    bad = np.flatnonzero(~np.isfinite(out))
+    if len(bad) and any(values[i] for i in bad.tolist()):  # a nan or inf in the file, not an empty field
+        return None
+    return out
 
 
 def _parse_finite(text: str, fail) -> float:
@@ -249,7 +278,52 @@ def decode_text(path: str | Path, content: str | bytes) -> str:
 
 
 def _parse(path: Path, text: str) -> CsvTable:
-    """Split text into header and rows, skipping comments and blank lines, keeping line numbers."""
+    """Split text into header and rows, skipping comments and blank lines, keeping line numbers.
+
+    Text without quotes (and without NUL characters or huge fields, which csv.reader refuses) is
+    split with str methods over whole columns; anything else goes through csv.reader line by line.
+    Both give the same table and the same errors."""
+    if '"' in text or "\0" in text:
+        return _parse_with_csv(path, text)
+    physical = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    kept = [i for i, line in enumerate(physical) if (stripped := line.strip()) and stripped[0] != "#"]
+    if not kept:
+        return CsvTable(path=path, header=(), header_line=None, columns=(), lines=[])
+    if max(map(len, physical)) > csv.field_size_limit():
+        return _parse_with_csv(path, text)
+    header = tuple(f.strip() for f in physical[kept[0]].split(","))
+    header_line = kept[0] + 1
+    _check_header(path, header, header_line)
+    data = [physical[i] for i in kept[1:]]
+    k = len(header)
+    commas = np.fromiter(map(str.count, data, repeat(",")), dtype=np.int64, count=len(data))
+    wrong = np.flatnonzero(commas != k - 1)
+    if len(wrong):
+        i = int(wrong[0])
+        raise InputError(path, kept[1 + i] + 1, f"row has {int(commas[i]) + 1} fields, the header has {k}")
+    cells = ",".join(data).split(",") if data else []
+    if _may_have_space(text):  # some field may have surrounding white space
+        columns = tuple(list(map(str.strip, cells[j::k])) for j in range(k))
+    else:
+        columns = tuple(cells[j::k] for j in range(k))
+    lines = (np.asarray(kept[1:], dtype=np.int64) + 1).tolist()
+    return CsvTable(path=path, header=header, header_line=header_line, columns=columns, lines=lines)
+
+
+_SPACE = re.compile(r"[^\S\r\n]")  # white space within a line
+_ASCII_SPACE = (" ", "\t", "\v", "\f", "\x1c", "\x1d", "\x1e", "\x1f")  # what str.strip removes, in ASCII
+
+
+def _may_have_space(text: str) -> bool:
+    """Whether text holds a character str.strip removes, other than line breaks (substring tests for
+    ASCII text, a regular expression otherwise)."""
+    if text.isascii():
+        return any(c in text for c in _ASCII_SPACE)
+    return _SPACE.search(text) is not None
+
+
+def _parse_with_csv(path: Path, text: str) -> CsvTable:
+    """_parse by csv.reader (quoted fields, and the text csv.reader refuses, named in its error)."""
     consumed: list[int] = []
     reader = csv.reader(_data_lines(text, consumed), skipinitialspace=True)
     header: tuple[str, ...] = ()
@@ -275,7 +349,8 @@ def _parse(path: Path, text: str) -> CsvTable:
             raise InputError(path, line, f"row has {len(fields)} fields, the header has {len(header)}")
         rows.append(fields)
         lines.append(line)
-    return CsvTable(path=path, header=header, header_line=header_line, rows=rows, lines=lines)
+    columns = tuple(list(c) for c in zip(*rows)) if rows else tuple([] for _ in header)
+    return CsvTable(path=path, header=header, header_line=header_line, columns=columns, lines=lines)
 
 
 def _data_lines(text: str, consumed: list[int]) -> Iterator[str]:
