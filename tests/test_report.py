@@ -290,6 +290,34 @@ def test_large_normal_matrix_is_drawn_as_an_image(monkeypatch):
         assert im.format == "PNG"
 
 
+def test_block_pattern_equals_a_dense_computation():
+    """The blocks of the normal matrix's figure: a block is marked exactly when it holds a nonzero
+    (explicit zeros do not count), for the normal matrix of block_3x6 and random matrices."""
+    import scipy.sparse as sp
+
+    from striptri.figures import block_pattern
+
+    def dense(N, starts):
+        A = np.abs(N.toarray()) > 0
+        edges = list(starts) + [N.shape[0]]
+        nb = len(starts)
+        return np.array([[A[edges[i]:edges[i + 1], edges[j]:edges[j + 1]].any() for j in range(nb)]
+                         for i in range(nb)])
+
+    products = _products("block_3x6")
+    cases = [(products.result.N, products.result.layout.block_starts())]
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        n = int(rng.integers(1, 40))
+        N = sp.random(n, n, density=float(rng.uniform(0.01, 0.3)), random_state=rng, format="csr")
+        N.data[rng.random(len(N.data)) < 0.2] = 0.0  # explicit zeros
+        starts = np.unique(np.concatenate([[0], rng.integers(0, n, int(rng.integers(0, n)))]))
+        cases.append((N, starts))
+    for N, starts in cases:
+        got = block_pattern(N, starts).toarray() != 0
+        np.testing.assert_array_equal(got, dense(sp.csr_matrix(N), starts))
+
+
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)
 
 

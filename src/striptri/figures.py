@@ -60,23 +60,13 @@ def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, ti
     N: (n, n) sparse; block_starts: first column of each photo and camera block (UnknownLayout.
     block_starts); n_photo_blocks: how many of the blocks are photos.
     """
-    import scipy.sparse as sp
-
-    N = sp.coo_matrix(N)
     n = N.shape[0]
     if n == 0:
         return _empty_normal_matrix(title)
-    starts = np.asarray(block_starts, dtype=int)
-    block_of = np.zeros(n, dtype=int)
-    if len(starts):
-        block_of[starts[1:]] = 1
-        block_of = np.cumsum(block_of)
-    nb = len(starts)
-    nz = N.data != 0
-    bi, bj = block_of[N.row[nz]], block_of[N.col[nz]]
-    pattern = sp.coo_matrix((np.ones(len(bi)), (bi, bj)), shape=(nb, nb)).tocsr()
-    pattern.sum_duplicates()
-    bandwidth = int(np.max(np.abs(bi - bj), initial=0))
+    pattern = block_pattern(N, block_starts)
+    nb = pattern.shape[0]
+    bi = np.repeat(np.arange(nb), np.diff(pattern.indptr))
+    bandwidth = int(np.max(np.abs(bi - pattern.indices), initial=0))
     fig = _figure(figsize=(5.5, 5.5))
     ax = fig.subplots()
     rows, cols = pattern.nonzero()
@@ -107,6 +97,36 @@ def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, ti
     ax.set_title(title or f"normal matrix: {n} unknowns, {nb} blocks, {fill:.1%} of blocks filled, "
                           f"block bandwidth {bandwidth}", fontsize=9)
     return _png(fig)
+
+
+def block_pattern(N, block_starts: np.ndarray):
+    """(nb, nb) CSR matrix with a 1 for every block (rows and columns grouped at block_starts, the
+    first unknown of each block) that holds a nonzero of the sparse (n, n) matrix N.
+
+    The rows of a block being contiguous, the stored entries of N are grouped by block row through
+    N's own row pointers and only their columns are mapped to blocks: no coordinate list of N."""
+    import scipy.sparse as sp
+
+    N = sp.csr_matrix(N)
+    n = N.shape[0]
+    starts = np.asarray(block_starts, dtype=int)
+    block_of = np.zeros(n, dtype=int)
+    if len(starts):
+        block_of[starts[1:]] = 1
+        block_of = np.cumsum(block_of)
+    nb = len(starts)
+    if nb and starts[0] == 0 and np.all(np.diff(starts) > 0):
+        indptr = N.indptr[np.append(starts, n)]
+        data = (N.data != 0).astype(np.float64)
+        pattern = sp.csr_matrix((data, block_of[N.indices], indptr - indptr[0]), shape=(nb, nb))
+    else:  # blocks as block_of says, whatever their order
+        N = N.tocoo()
+        nz = N.data != 0
+        pattern = sp.csr_matrix((np.ones(int(nz.sum())), (block_of[N.row[nz]], block_of[N.col[nz]])), shape=(nb, nb))
+    pattern.sum_duplicates()
+    pattern.eliminate_zeros()
+    pattern.data[:] = 1.0
+    return pattern
 
 
 def _empty_normal_matrix(title: str = "") -> bytes:
