@@ -563,6 +563,32 @@ def test_csv_split_by_columns_equals_csv_reader():
         assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
 
 
+@pytest.mark.parametrize("distinct", [3, 5000], ids=["few values", "many values"])
+def test_csv_float_columns_read_in_one_pass_name_the_first_bad_value(distinct):
+    """Float columns converted in one pass (each distinct text once when there are few): the numbers
+    of float(), empty fields nan, and the first bad value named with its line, as value by value."""
+    from striptri.io.csvtable import parse_csv
+
+    rng = np.random.default_rng(11)
+    n = 3000
+    pool = np.array(["0.005", "", "7e-3", " 1_000 "] + [repr(v) for v in rng.normal(size=distinct).tolist()])[:max(distinct, 4)]
+    values = rng.choice(pool, n)
+    text = "a,b\n" + "".join(f"{i},{v}\n" for i, v in enumerate(values))
+    got = parse_csv("t.csv", text).optional_floats("b")
+    expected = np.array([float(v) if v.strip() else np.nan for v in values])
+    np.testing.assert_array_equal(got, expected)
+    for bad, reason in (("nan", "'nan' is not a finite number"), ("-inf", "'-inf' is not a finite number"),
+                        ("0.0.1", "'0.0.1' is not a number")):
+        for row in (1700, 20):
+            broken = values.copy()
+            broken[row] = bad
+            broken[row + 900] = "x"  # a later bad value is not the one named
+            text = "a,b\n" + "".join(f"{i},{v}\n" for i, v in enumerate(broken))
+            with pytest.raises(InputError) as info:
+                parse_csv("t.csv", text).optional_floats("b")
+            assert info.value.line == row + 2 and info.value.reason == f"column 'b': {reason}"
+
+
 def test_csv_header_after_comments_is_named_in_missing_column(tmp_path):
     (tmp_path / "t.csv").write_text("# c\n\na,b\n1,2\n")
     table = read_csv(tmp_path / "t.csv")

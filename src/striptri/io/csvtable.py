@@ -151,9 +151,13 @@ def _finite_floats(values: list[str]) -> np.ndarray | None:
     n = len(values)
     if not any(values):
         return np.full(n, np.nan)
-    texts = values if all(values) else [v or "nan" for v in values]
     try:
-        out = np.fromiter(map(float, texts), dtype=np.float64, count=n)
+        if n > 1000 and len(set(values[:1000])) <= 16:  # a column of a few values (sigmas): each parsed once
+            number = {v: float(v or "nan") for v in set(values)}
+            out = np.fromiter(map(number.__getitem__, values), dtype=np.float64, count=n)
+        else:
+            texts = values if all(values) else [v or "nan" for v in values]
+            out = np.fromiter(map(float, texts), dtype=np.float64, count=n)
     except ValueError:
         return None
     bad = np.flatnonzero(~np.isfinite(out))
