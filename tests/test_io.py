@@ -571,7 +571,8 @@ def test_csv_float_columns_read_in_one_pass_name_the_first_bad_value(distinct):
 
     rng = np.random.default_rng(11)
     n = 3000
-    pool = np.array(["0.005", "", "7e-3", " 1_000 "] + [repr(v) for v in rng.normal(size=distinct).tolist()])[:max(distinct, 4)]
+    numbers = [repr(v) for v in rng.normal(size=distinct).tolist()]
+    pool = np.array(["0.005", "", "7e-3", " 1_000 "] + numbers)[:max(distinct, 4)]
     values = rng.choice(pool, n)
     text = "a,b\n" + "".join(f"{i},{v}\n" for i, v in enumerate(values))
     got = parse_csv("t.csv", text).optional_floats("b")

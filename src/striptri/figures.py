@@ -459,8 +459,8 @@ def precision_map(xy_centres, strip_of_photo, xy_points, kind_names, extent, gri
     """Plan view of a large block as two rasters side by side: the RMS of the points' horizontal
     standard error (semi-major axis of the ellipse) and of their sigma Z, per cell of a grid over
     the block, with the flight lines (up to MAP_FLIGHT_LINES strips), the control points (small
-    markers in the colours of KIND_STYLE) and the worst points on top (left: their ellipses magnified by ``magnification``;
-    right: circled).
+    markers in the colours of KIND_STYLE) and the worst points on top (left: their ellipses
+    magnified by ``magnification``; right: circled).
 
     extent: (x0, x1, y0, y1) of the grid in m; grids: ((ny, nx) horizontal, (ny, nx) vertical,
     unit_label, scale) with the RMS values in m (nan: no point in the cell), shown multiplied by

@@ -6,13 +6,14 @@ convergence, the convergence history, the residual vectors on the photographs, t
 of the ground points over the block, the check points, the flagged measurements, the photographs
 with their mean errors and the structure of the normal matrix.
 
-Large projects stay quick and readable (docs/benchmarks.md, "Output"): at most MAX_PHOTO_PANELS
-photos get a panel of their own (the worst ones when there are more), tables list the first and
-worst rows with a note; beyond MAX_VECTORS measurements the residuals of all photographs are drawn
-as a raster of their RMS per cell of the format with the WORST_VECTORS largest on top, and beyond
-MAX_ELLIPSES points the error ellipses as rasters of the RMS horizontal and vertical error per
-cell of the block with the WORST_ELLIPSES worst on top and a table of the worst points. Every
-section is timed (html_report's ``timings``; the footer lists them).
+Large projects stay quick and readable (docs/benchmarks.md, "Reading, tables, report and
+imports"): at most MAX_PHOTO_PANELS photos get a panel of their own (the worst ones when there are
+more), tables list the first and worst rows with a note; beyond MAX_VECTORS measurements the
+residuals of all photographs are drawn as a raster of their RMS per cell of the format with the
+WORST_VECTORS largest on top, and beyond MAX_ELLIPSES points the error ellipses as rasters of the
+RMS horizontal and vertical error per cell of the block with the WORST_ELLIPSES worst on top and a
+table of the worst points. Every section is timed (html_report's ``timings``; the footer lists
+them).
 """
 
 from __future__ import annotations
@@ -544,17 +545,17 @@ def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, 
                             mag, bar, bar_label)
     n_shown = int(pos.sum())
     n_strips = len(set(project.photos.strip_ids))
+    lines = " with its flight lines" if n_strips <= fig.MAP_FLIGHT_LINES else ""
     figure = _img(png, "precision of the ground points over the block",
-                  f"Plan view of the block{' with its flight lines' if n_strips <= fig.MAP_FLIGHT_LINES else ''} and "
-                  f"control (full control: red triangles, plan: "
-                  f"orange, height: green, check points: purple diamonds). With {n_shown} error "
-                  f"ellipses too many to draw one by one, each cell of a {nx} &times; {ny} grid ({cell:.4g} m a side) "
-                  f"is coloured by the quadratic mean over its points of, left, the semi-major axis of the "
-                  f"horizontal standard error ellipse (1 &sigma;) and, right, &sigma;Z ({unit}; white: no point; the "
-                  f"colour scale runs from the 1st to the 99th percentile of the cells). On top, left: the error ellipses of the "
-                  f"{len(worst_h)} points with the largest, magnified <b>{mag:g} times</b> (the bar is {bar_label} "
-                  f"of error); right: the {len(worst_z)} points with the largest &sigma;Z, circled. Fixed control has "
-                  f"no error.")
+                  f"Plan view of the block{lines} and control (full control: red triangles, plan: orange, height: "
+                  f"green, check points: purple diamonds). With {n_shown} error ellipses too many to draw one by "
+                  f"one, each cell of a {nx} &times; {ny} grid ({cell:.4g} m a side) is coloured by the quadratic "
+                  f"mean over its points of, left, the semi-major axis of the horizontal standard error ellipse "
+                  f"(1 &sigma;) and, right, &sigma;Z ({unit}; white: no point; the colour scale runs from the 1st "
+                  f"to the 99th percentile of the cells). On top, left: the error ellipses of the {len(worst_h)} "
+                  f"points with the largest, magnified <b>{mag:g} times</b> (the bar is {bar_label} of error); "
+                  f"right: the {len(worst_z)} points with the largest &sigma;Z, circled. Fixed control has no "
+                  f"error.")
     total = np.where(points.determined, np.sqrt(np.sum(sig**2, axis=1)), np.nan)
     finite_total = np.flatnonzero(np.isfinite(total))
     worst = finite_total[np.argsort(-total[finite_total], kind="stable")[:WORST_POINT_ROWS]]
