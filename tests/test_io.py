@@ -435,6 +435,161 @@ def test_csv_format_and_read_back(tmp_path):
         format_csv({"a": [1, 2], "b": [1]})
 
 
+def _reference_format_csv(columns) -> str:
+    """format_csv as it was before it worked column by column (csv.writer, one Python call per
+    cell): the text the vectorised one must reproduce byte for byte."""
+    import csv
+    import io
+
+    def cell(value) -> str:
+        if value is None:
+            return ""
+        if isinstance(value, (bool, np.bool_)):
+            return "true" if value else "false"
+        if isinstance(value, (int, np.integer)):
+            return str(int(value))
+        if isinstance(value, (float, np.floating)):
+            value = float(value)
+            return "" if math.isnan(value) else repr(value)
+        return str(value)
+
+    names = list(columns)
+    n_rows = len(columns[names[0]]) if names else 0
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(names)
+    cells = [[cell(v) for v in columns[n]] for n in names]
+    for i in range(n_rows):
+        writer.writerow([col[i] for col in cells])
+    return buffer.getvalue()
+
+
+def _difficult_floats(rng, n: int) -> np.ndarray:
+    """Random bit patterns (every exponent), log-uniform magnitudes, plate-sized residuals, rounded
+    decimals, integers beyond 2**53 and the values next to every switch of repr's format."""
+    pow10 = 10.0 ** np.arange(-8, 20)
+    edges = np.concatenate([pow10, np.nextafter(pow10, 0), np.nextafter(pow10, np.inf),
+                            [0.0, -0.0, 5e-324, 1.7976931348623157e308, np.nan, np.inf, -np.inf, 0.1, 1 / 3]])
+    k = rng.integers(0, 8, n)
+    return np.concatenate([
+        rng.integers(0, 2**64, n, dtype=np.uint64).view(np.float64),
+        10.0 ** rng.uniform(-8, 20, n) * rng.choice([-1.0, 1.0], n),
+        rng.normal(size=n) * 0.003,
+        np.round(rng.normal(size=n) * 1e4 * 10.0**k) / 10.0**k,
+        rng.integers(-(10**17), 10**17, n).astype(float),
+        edges, -edges,
+    ])
+
+
+@pytest.mark.parametrize("orjson_path", [True, False], ids=["orjson", "repr"])
+def test_csv_format_equals_the_cell_by_cell_reference(monkeypatch, orjson_path):
+    """format_csv's column-wise text is the old cell-by-cell text byte for byte: floats as repr
+    (orjson's shortest digits where they are repr's, repr elsewhere), nan empty, the same quoting."""
+    from striptri.io import csvtable
+
+    if orjson_path:
+        pytest.importorskip("orjson")
+        assert csvtable._orjson_usable()
+    else:
+        monkeypatch.setattr(csvtable, "_orjson_state", False)
+    rng = np.random.default_rng(7)
+    x = _difficult_floats(rng, 4_000)
+    n = len(x)
+    strings = rng.choice(["a", "P 01", "b,c", 'say "x"', "two\nlines", "cr\r", "", "é", " lead", "tab\t"], n)
+    columns = {
+        "float": x,
+        "float_strided": np.repeat(x, 2)[::2],
+        "float_list": x[::-1].tolist(),
+        "float32": np.where(np.abs(x) < 1e38, x, np.nan).astype(np.float32),
+        "int": rng.integers(-(2**62), 2**62, n),
+        "uint": rng.integers(0, 2**63, n).astype(np.uint64),
+        "bool": rng.random(n) < 0.5,
+        "text": strings.tolist(),
+        "text_array": strings,
+        "ids": [f"P{i:05d}" for i in range(n)],
+        "mixed": [[None, 1, 2.5, np.nan, True, "a,b", np.float32(0.1), np.int16(3)][i % 8] for i in range(n)],
+        'odd "name", here': np.zeros(n),
+    }
+    assert format_csv(columns) == _reference_format_csv(columns)
+    for name, values in columns.items():
+        assert format_csv({name: values}) == _reference_format_csv({name: values}), name
+    # one column of empty fields is written as "" per row; no rows; no columns
+    for columns in ({"a": ["", "x", ""]}, {"a": [np.nan, 1.0]}, {"": ["", ""]}, {"a": [], "b": []}, {}):
+        assert format_csv(columns) == _reference_format_csv(columns), columns
+
+
+def _parse_outcome(parse, text: str):
+    """The table parse makes of text (header, header line, columns, lines), or its InputError."""
+    from striptri.errors import InputError as Error
+
+    try:
+        t = parse(Path("t.csv"), text)
+    except Error as exc:
+        return ("error", exc.line, exc.reason)
+    return (t.header, t.header_line, [list(c) for c in t.columns], list(t.lines), [list(r) for r in t.rows])
+
+
+def test_csv_split_by_columns_equals_csv_reader():
+    """The column-wise split of text without quotes gives what csv.reader gives line by line:
+    the same table, or the same error at the same line (random texts: comments, blank lines,
+    every line ending, white space of every kind, empty fields, rows of the wrong length)."""
+    from striptri.io import csvtable
+
+    rng = np.random.default_rng(3)
+    pieces = ["1", " 2.5 ", "", "a b", "x#y", "\t7", "8\x0b", "é", "\xa0z\xa0", "\u2003w", "\x1cq", "-0.0"]
+    endings = ["\n", "\r\n", "\r"]
+    for case in range(400):
+        k = int(rng.integers(1, 5))
+        lines = []
+        if rng.random() < 0.3:
+            lines.append("# a comment")
+        header = ",".join(f" c{j} " if rng.random() < 0.2 else f"c{j}" for j in range(k))
+        if rng.random() < 0.05:
+            header += ",c0"  # a name twice
+        lines.append(header)
+        for _ in range(int(rng.integers(0, 12))):
+            r = rng.random()
+            if r < 0.1:
+                lines.append(rng.choice(["", "   ", "\t", "  # indented comment", "#"]))
+                continue
+            n = k if rng.random() < 0.93 else int(rng.integers(1, k + 3))
+            lines.append(",".join(rng.choice(pieces) for _ in range(n)))
+        text = "".join(line + rng.choice(endings) for line in lines)
+        if rng.random() < 0.3:
+            text = text.rstrip("\r\n")
+        assert '"' not in text
+        assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
+    for text in ("", "\n\n", "# only\n", "a,b\n", "a,b\n1,2", "a\n\n1\n"):
+        assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
+
+
+@pytest.mark.parametrize("distinct", [3, 5000], ids=["few values", "many values"])
+def test_csv_float_columns_read_in_one_pass_name_the_first_bad_value(distinct):
+    """Float columns converted in one pass (each distinct text once when there are few): the numbers
+    of float(), empty fields nan, and the first bad value named with its line, as value by value."""
+    from striptri.io.csvtable import parse_csv
+
+    rng = np.random.default_rng(11)
+    n = 3000
+    numbers = [repr(v) for v in rng.normal(size=distinct).tolist()]
+    pool = np.array(["0.005", "", "7e-3", " 1_000 "] + numbers)[:max(distinct, 4)]
+    values = rng.choice(pool, n)
+    text = "a,b\n" + "".join(f"{i},{v}\n" for i, v in enumerate(values))
+    got = parse_csv("t.csv", text).optional_floats("b")
+    expected = np.array([float(v) if v.strip() else np.nan for v in values])
+    np.testing.assert_array_equal(got, expected)
+    for bad, reason in (("nan", "'nan' is not a finite number"), ("-inf", "'-inf' is not a finite number"),
+                        ("0.0.1", "'0.0.1' is not a number")):
+        for row in (1700, 20):
+            broken = values.copy()
+            broken[row] = bad
+            broken[row + 900] = "x"  # a later bad value is not the one named
+            text = "a,b\n" + "".join(f"{i},{v}\n" for i, v in enumerate(broken))
+            with pytest.raises(InputError) as info:
+                parse_csv("t.csv", text).optional_floats("b")
+            assert info.value.line == row + 2 and info.value.reason == f"column 'b': {reason}"
+
+
 def test_csv_header_after_comments_is_named_in_missing_column(tmp_path):
     (tmp_path / "t.csv").write_text("# c\n\na,b\n1,2\n")
     table = read_csv(tmp_path / "t.csv")

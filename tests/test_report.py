@@ -216,16 +216,124 @@ def test_large_projects_show_a_selection(name, products, monkeypatch):
     assert "the 2 photographs with the most flagged measurements" in text
 
 
+def _large_mode(monkeypatch):
+    """The drawing of large projects on a small one: rasters and the worst, not every vector and ellipse."""
+    monkeypatch.setattr(report, "MAX_VECTORS", 50)
+    monkeypatch.setattr(report, "WORST_VECTORS", 7)
+    monkeypatch.setattr(report, "MAX_ELLIPSES", 20)
+    monkeypatch.setattr(report, "WORST_ELLIPSES", 5)
+    monkeypatch.setattr(report, "WORST_POINT_ROWS", 4)
+
+
+def test_large_projects_are_drawn_as_rasters_with_the_worst_on_top(name, products, monkeypatch):
+    """Beyond MAX_VECTORS measurements and MAX_ELLIPSES points: the residual field and the precision
+    map are rasters with the worst on top, a table lists the points with the largest mean error
+    (the largest first, with points.csv's sigmas), every figure is a valid PNG and every section
+    is timed."""
+    from PIL import Image
+
+    _large_mode(monkeypatch)
+    timings = {}
+    text = report.html_report(products.project, products.result, products.summary, _normalised(name),
+                              points=products.points, flags=products.blunders.flag[products.blunders.rows],
+                              timings=timings)
+    m = len(products.project.image_points)
+    assert f"the RMS length of the residuals of all {m} measurements in each cell" in text
+    assert "the 7 with the largest normalised residual |w|" in text
+    assert "alt='precision of the ground points over the block'" in text
+    assert "alt='error ellipses of the ground points'" not in text
+    assert "the 5 points with the largest, magnified" in text
+    images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", text)
+    assert len(images) == len(re.findall(r"<img", text)) >= 4
+    for data in images:
+        with Image.open(io.BytesIO(base64.b64decode(data, validate=True))) as im:
+            im.verify()
+            assert im.format == "PNG" and im.size[0] > 100 and im.size[1] > 100
+    # the worst points: the largest sqrt(sX^2 + sY^2 + sZ^2) of points.csv, largest first
+    tables = _parse(text).tables["points"]
+    worst = tables[-1]
+    assert [c[0] for c in worst[0]][:3] == ["point", "kind", "rays"] and len(worst) == 1 + 4
+    rows = {r["point_id"]: r for r in csv.DictReader(io.StringIO(products.files["points.csv"]))}
+    total = {pid: np.sqrt(sum(float(r[f"sigma_{a}"]) ** 2 for a in "XYZ")) for pid, r in rows.items()
+             if r["sigma_X"] != ""}
+    expected = sorted(total, key=lambda pid: -total[pid])[:4]
+    assert [row[0][0] for row in worst[1:]] == expected
+    for row in worst[1:]:
+        for a, (cell, _) in zip("XYZ", row[6:9]):
+            assert cell == f"{float(rows[row[0][0]][f'sigma_{a}']):.3f}"
+    assert set(timings) >= {"summary", "convergence", "residuals", "points", "photos", "total"}
+    assert all(v >= 0 for v in timings.values())
+
+
+def test_chi2_quantile_equals_scipy_stats():
+    """The global test's range without scipy.stats: the same quantiles as scipy.stats.chi2.ppf."""
+    from scipy.stats import chi2
+
+    p = np.array([0.025, 0.5, 0.975])
+    for dof in (1, 2, 7, 150, 12345, 3_000_000):
+        np.testing.assert_allclose(report.chi2_quantile(p, dof), chi2.ppf(p, dof), rtol=1e-14)
+
+
+def test_large_normal_matrix_is_drawn_as_an_image(monkeypatch):
+    """Beyond STRUCTURE_CELLS blocks the pattern is an image of STRUCTURE_PIXELS a side (a valid PNG)."""
+    from PIL import Image
+
+    from striptri import figures
+
+    products = _products("block_3x6")
+    n_photos = len(products.project.photos)
+    monkeypatch.setattr(figures, "STRUCTURE_CELLS", 4)
+    monkeypatch.setattr(figures, "STRUCTURE_PIXELS", 5)
+    png = figures.normal_matrix_structure(products.result.N, products.result.layout.block_starts(), n_photos)
+    with Image.open(io.BytesIO(png)) as im:
+        im.verify()
+        assert im.format == "PNG"
+
+
+def test_block_pattern_equals_a_dense_computation():
+    """The blocks of the normal matrix's figure: a block is marked exactly when it holds a nonzero
+    (explicit zeros do not count), for the normal matrix of block_3x6 and random matrices."""
+    import scipy.sparse as sp
+
+    from striptri.figures import block_pattern
+
+    def dense(N, starts):
+        A = np.abs(N.toarray()) > 0
+        edges = list(starts) + [N.shape[0]]
+        nb = len(starts)
+        return np.array([[A[edges[i]:edges[i + 1], edges[j]:edges[j + 1]].any() for j in range(nb)]
+                         for i in range(nb)])
+
+    products = _products("block_3x6")
+    cases = [(products.result.N, products.result.layout.block_starts())]
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        n = int(rng.integers(1, 40))
+        N = sp.random(n, n, density=float(rng.uniform(0.01, 0.3)), random_state=rng, format="csr")
+        N.data[rng.random(len(N.data)) < 0.2] = 0.0  # explicit zeros
+        starts = np.unique(np.concatenate([[0], rng.integers(0, n, int(rng.integers(0, n)))]))
+        cases.append((N, starts))
+    for N, starts in cases:
+        got = block_pattern(N, starts).toarray() != 0
+        np.testing.assert_array_equal(got, dense(sp.csr_matrix(N), starts))
+
+
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")) if p), None)
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium binary (apt-get install chromium)")
-def test_headless_chromium_renders_the_report(tmp_path):
+@pytest.mark.parametrize("large", [False, True], ids=["full", "large-project drawing"])
+def test_headless_chromium_renders_the_report(tmp_path, monkeypatch, large):
     from PIL import Image
 
     products = _products("block_3x6")
     page = tmp_path / "report.html"
-    page.write_text(products.files["report.html"], encoding="utf-8")
+    text = products.files["report.html"]
+    if large:
+        _large_mode(monkeypatch)
+        text = report.html_report(products.project, products.result, products.summary, _normalised("block_3x6"),
+                                  points=products.points)
+    page.write_text(text, encoding="utf-8")
     shot = tmp_path / "shot.png"
     width, height = 1200, 1600
     cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -6,9 +6,14 @@ convergence, the convergence history, the residual vectors on the photographs, t
 of the ground points over the block, the check points, the flagged measurements, the photographs
 with their mean errors and the structure of the normal matrix.
 
-Large projects stay quick: at most MAX_PHOTO_PANELS photos get a panel of their own (the worst
-ones when there are more), tables list the first and worst rows with a note, and large scatters
-are rasterised.
+Large projects stay quick and readable (docs/benchmarks.md, "Reading, tables, report and
+imports"): at most MAX_PHOTO_PANELS photos get a panel of their own (the worst ones when there are
+more), tables list the first and worst rows with a note; beyond MAX_VECTORS measurements the
+residuals of all photographs are drawn as a raster of their RMS per cell of the format with the
+WORST_VECTORS largest on top, and beyond MAX_ELLIPSES points the error ellipses as rasters of the
+RMS horizontal and vertical error per cell of the block with the WORST_ELLIPSES worst on top and a
+table of the worst points. Every section is timed (html_report's ``timings``; the footer lists
+them).
 """
 
 from __future__ import annotations
@@ -16,23 +21,32 @@ from __future__ import annotations
 import base64
 import html
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.stats import chi2
 
 from . import figures as fig
-from .adjustment import AdjustmentResult
 from .io.project_reader import RADIANS_PER_UNIT
 from .model import CHECK, KIND_NAMES, Project
 from .precision import W_CRITICAL
 from .rotations import angles_from_R
-from .triangulation import Triangulated
+
+if TYPE_CHECKING:
+    from .adjustment import AdjustmentResult
+    from .triangulation import Triangulated
 
 MAX_PHOTO_PANELS = 24  # all photos get a residual panel up to this many; beyond, the worst WORST_PANELS
 WORST_PANELS = 12
 MAX_PHOTO_ROWS = 40  # all photos in the table up to this many; beyond, the first and the worst PHOTO_ROWS_EACH
 PHOTO_ROWS_EACH = 10
 MAX_TABLE_ROWS = 100  # flagged measurements and check points listed at most
+MAX_VECTORS = 10_000  # residual vectors of all photographs drawn up to this many; beyond, a raster and the worst
+WORST_VECTORS = 300
+FIELD_CELLS = 24  # the raster of the residuals over the format: FIELD_CELLS x FIELD_CELLS cells
+MAX_ELLIPSES = 3_000  # error ellipses drawn for every point up to this many points; beyond, rasters and the worst
+WORST_ELLIPSES = 50
+MAP_CELLS = 40  # the rasters over the block: at most this many cells along its longer side
+WORST_POINT_ROWS = 10
 CHECKS_HOLD_BELOW = 1e-6
 
 SECTIONS = {  # id -> heading, in the order of the report
@@ -171,7 +185,7 @@ def _flags_of(flags, w: np.ndarray) -> np.ndarray:
         return np.nan_to_num(np.abs(w), nan=0.0).max(axis=1) > W_CRITICAL
     flags = np.asarray(flags)
     if flags.dtype.kind in "USO":
-        return np.array([bool(str(f).strip()) for f in flags], dtype=bool)
+        return np.char.str_len(np.char.strip(flags.astype(str))) > 0 if len(flags) else np.zeros(0, dtype=bool)
     return flags.astype(bool)
 
 
@@ -181,7 +195,7 @@ def _flag_text(flags) -> str:
         return rule
     flags = np.asarray(flags)
     if flags.dtype.kind in "USO":
-        values = sorted({str(f).strip() for f in flags} - {""})
+        values = sorted(set(np.char.strip(np.unique(flags.astype(str))).tolist()) - {""})
         if set(values) <= {"suspect"}:
             return rule + " as in residuals.csv"
         return "flagged " + ", ".join(html.escape(v) for v in values)
@@ -201,6 +215,13 @@ def _photo_statistics(project: Project, v: np.ndarray, absw: np.ndarray, flagged
             "flagged": np.bincount(ph, flagged.astype(float), n).astype(int)}
 
 
+def _kind_names(kind: np.ndarray) -> np.ndarray:
+    """(n,) names of KIND_NAMES for the (n,) kind codes."""
+    codes = np.array(sorted(KIND_NAMES))
+    names = np.array([KIND_NAMES[c] for c in codes])
+    return names[np.searchsorted(codes, np.asarray(kind, dtype=int))] if len(kind) else np.zeros(0, dtype=names.dtype)
+
+
 def _point_covariance(result: AdjustmentResult, points: Triangulated) -> np.ndarray:
     """(n_pt, 3, 3) covariance of the triangulated points in m^2, as in points.csv (Schmid 90)."""
     cov = (points.cov_measurement + points.cov_orientation) * result.sigma0_for_precision**2
@@ -216,6 +237,15 @@ def _half_format(xy: np.ndarray) -> float:
 
 # ---------------------------------------------------------------------------------------------------------------
 # sections
+
+
+def chi2_quantile(p: np.ndarray, dof: float) -> np.ndarray:
+    """Quantiles of the chi-square distribution with dof degrees of freedom: 2 P^-1(dof/2, p), the
+    inverse regularised lower incomplete gamma function (what scipy.stats.chi2.ppf computes),
+    without importing scipy.stats (half a second)."""
+    from scipy.special import gammaincinv
+
+    return 2.0 * gammaincinv(dof / 2.0, p)
 
 
 def _summary_section(project: Project, result: AdjustmentResult, summary: dict, flagged: np.ndarray) -> list[str]:
@@ -247,7 +277,7 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         ("converged", f"<span class='{'ok' if conv else 'no'}'>{_fmt(conv)}</span>"),
     ]
     if r > 0 and s0 is not None:
-        lo, hi = np.sqrt(chi2.ppf([0.025, 0.975], r) / r)
+        lo, hi = np.sqrt(chi2_quantile(np.array([0.025, 0.975]), r) / r)
         inside = lo <= s0 <= hi
         verdict = "<span class='ok'>inside</span>" if inside else "<span class='no'>outside</span>"
         rows.append(("global test: 95 % range of &sigma;<sub>0</sub> if the a-priori &sigma; hold",
@@ -330,7 +360,7 @@ def _convergence_section(result: AdjustmentResult) -> list[str]:
 
 
 def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, flagged: np.ndarray,
-                       flag_text: str) -> list[str]:
+                       flag_text: str, absw: np.ndarray) -> list[str]:
     ip = project.image_points
     xy, v = ip.xy, result.plate_residuals
     if len(xy) == 0:
@@ -382,49 +412,85 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
                       f"per coordinate. Frame: &plusmn;{h:g} mm about the principal point."))
     # all photographs stacked, and the mean residual per cell of a 5 x 5 grid
     cells = 5
-    edges = np.linspace(-h, h, cells + 1)
-    ix = np.clip(np.searchsorted(edges, xy[:, 0]) - 1, 0, cells - 1)
-    iy = np.clip(np.searchsorted(edges, xy[:, 1]) - 1, 0, cells - 1)
-    cell = iy * cells + ix
-    counts = np.bincount(cell, minlength=cells * cells)
-    sums = np.stack([np.bincount(cell, v[:, a], cells * cells) for a in range(2)], axis=1)
-    means = sums / np.maximum(counts, 1)[:, None]
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    cx, cy = np.meshgrid(centres, centres)
+    centres_5, means, counts = _cell_statistics(xy, v, h, cells)
     biggest = float(np.max(np.hypot(means[:, 0], means[:, 1]), initial=0.0))
-    cell_means, caption = None, f"The residuals of all photographs drawn over one format (x{mag_all:g})."
+    cell_means = None
+    right = ""
     if biggest > resolvable:
         mag2 = fig.nice_number(0.3 * h / biggest)
         bar2 = fig.nice_number(0.3 * h / mag2)
-        cell_means = (np.column_stack([cx.ravel(), cy.ravel()]), means, counts, mag2, bar2, f"{bar2 * 1000:g} µm")
-        caption = (f"Left: the residuals of all photographs drawn over one format (x{mag_all:g}). Right: the mean "
-                   f"residual in each cell of a {cells} &times; {cells} grid (x{mag2:g}); a regular pattern there "
-                   "points to a systematic image error (lens distortion, film deformation) rather than noise.")
-    png = fig.plate_residuals_stacked(xy, v, flagged, h, mag_all, bar_all, f"{bar_all * 1000:g} µm", cell_means)
+        cell_means = (centres_5, means, counts, mag2, bar2, f"{bar2 * 1000:g} µm")
+        right = (f" Right: the mean residual in each cell of a {cells} &times; {cells} grid (x{mag2:g}); a regular "
+                 "pattern there points to a systematic image error (lens distortion, film deformation) rather than "
+                 "noise.")
+    if len(xy) <= MAX_VECTORS:
+        png = fig.plate_residuals_stacked(xy, v, flagged, h, mag_all, bar_all, f"{bar_all * 1000:g} µm", cell_means)
+        left = f"the residuals of all photographs drawn over one format (x{mag_all:g})."
+    else:  # a raster of the RMS residual per cell, and the worst vectors on top
+        _, ms, count = _cell_statistics(xy, length[:, None] ** 2, h, FIELD_CELLS)
+        rms = np.where(count > 0, np.sqrt(ms[:, 0]), np.nan).reshape(FIELD_CELLS, FIELD_CELLS)
+        worst = np.argsort(-(flagged * (1.0 + absw.max(initial=0.0)) + absw), kind="stable")[:WORST_VECTORS]
+        mag_w = min(mag_all, fig.nice_number(0.3 * h / max(float(length[worst].max()), 1e-300)))
+        bar_w = fig.nice_number(0.3 * h / mag_w)
+        png = fig.plate_residuals_stacked(xy[worst], v[worst], flagged[worst], h, mag_w, bar_w, f"{bar_w * 1000:g} µm",
+                                          cell_means, field=(rms * 1000.0, "µm", len(xy)))
+        left = (f"the RMS length of the residuals of all {len(xy)} measurements in each cell of a {FIELD_CELLS} "
+                f"&times; {FIELD_CELLS} grid over the format (µm; white: no measurement), and on top the "
+                f"{len(worst)} with the largest normalised residual |w| (<span class='flag'>red</span>: flagged), "
+                f"drawn x{mag_w:g}.")
+    caption = ("Left: " + left + right) if right else left[:1].upper() + left[1:]
     parts.append("<h3>All photographs over one format</h3>")
     parts.append(_img(png, "residual vectors of all photographs", caption))
     return parts
 
 
+def _cell_statistics(xy: np.ndarray, values: np.ndarray, h: float, cells: int):
+    """Means of values (m, k) per cell of a cells x cells grid over [-h, h]^2 (row-major from the
+    lower left; points outside go to the border cells) -> (centres (cells^2, 2), means (cells^2, k),
+    counts (cells^2,))."""
+    edges = np.linspace(-h, h, cells + 1)
+    ix = np.clip(np.searchsorted(edges, xy[:, 0]) - 1, 0, cells - 1)
+    iy = np.clip(np.searchsorted(edges, xy[:, 1]) - 1, 0, cells - 1)
+    cell = iy * cells + ix
+    counts = np.bincount(cell, minlength=cells * cells)
+    sums = np.stack([np.bincount(cell, values[:, a], cells * cells) for a in range(values.shape[1])], axis=1)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    cx, cy = np.meshgrid(centres, centres)
+    return np.column_stack([cx.ravel(), cy.ravel()]), sums / np.maximum(counts, 1)[:, None], counts
+
+
 def _points_section(project: Project, result: AdjustmentResult, points: Triangulated, cov: np.ndarray) -> list[str]:
     pts = project.points
     xyz = points.xyz + result.offset
-    kind_names = np.array([KIND_NAMES[int(k)] for k in pts.kind])
+    kind_names = _kind_names(pts.kind)
     centres = result.state.xyz0 + result.offset
     sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
     a = np.sqrt(np.maximum(np.linalg.eigvalsh(np.nan_to_num(cov[:, :2, :2]))[:, 1], 0.0))
     a = np.where(points.determined, a, np.nan)
     pos = np.isfinite(a) & (a > 0)
-    span = np.ptp(np.concatenate([xyz[points.determined, :2], centres[:, :2]]), axis=0)
+    every = np.concatenate([xyz[points.determined, :2], centres[:, :2]])
+    span = np.ptp(every, axis=0)
     extent = float(span.max())
-    spacing = float(np.sqrt(max(span[0] * span[1], extent**2 / 100) / max(int(points.determined.sum()), 1)))
+    n_determined = int(points.determined.sum())
+    spacing = float(np.sqrt(max(span[0] * span[1], extent**2 / 100) / max(n_determined, 1)))
     typical = float(np.median(a[pos])) if pos.any() else 1.0
     # a typical ellipse 1.5 % of the block across, or a third of the mean point spacing in dense blocks
     mag = fig.nice_number(min(0.015 * extent, 0.35 * spacing) / typical)
     bar = fig.nice_number(0.12 * extent / mag)
     bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
-    png = fig.error_ellipses(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, cov[:, :2, :2],
-                             mag, bar, bar_label, labels=pts.ids)
+    worst_table = ""
+    if n_determined <= MAX_ELLIPSES:
+        png = fig.error_ellipses(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, cov[:, :2, :2],
+                                 mag, bar, bar_label, labels=pts.ids)
+        figure = _img(png, "error ellipses of the ground points",
+                      f"Plan view of the block: projection centres (+) along their flight lines (arrow: direction of "
+                      f"flight), ground points coloured by kind, control as triangles. Around every point its "
+                      f"horizontal standard error ellipse (1 &sigma;, from the X, Y part of its covariance), "
+                      f"magnified <b>{mag:g} times</b>; the bar is {bar_label} of error. Fixed control has no "
+                      f"ellipse.")
+    else:
+        figure, worst_table = _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every,
+                                             extent, spacing)
     rows = []
     for k in sorted(KIND_NAMES):
         sel = (pts.kind == k) & points.determined
@@ -436,16 +502,72 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
     n_undet = int((~points.determined).sum())
     return [
         _section("points"),
-        _img(png, "error ellipses of the ground points",
-             f"Plan view of the block: projection centres (+) along their flight lines (arrow: direction of "
-             f"flight), ground points coloured by kind, control as triangles. Around every point its horizontal "
-             f"standard error ellipse (1 &sigma;, from the X, Y part of its covariance), magnified "
-             f"<b>{mag:g} times</b>; the bar is {bar_label} of error. Fixed control has no ellipse."),
+        figure,
         "<h3>Mean errors by kind (m)</h3>",
         _table(["kind", "points", "mean &sigma;X", "mean &sigma;Y", "mean &sigma;Z", "max &sigma;X", "max &sigma;Y",
                 "max &sigma;Z"], rows, left=1),
         f"<p class='note'>{n_undet} points could not be determined.</p>" if n_undet else "",
+        worst_table,
     ]
+
+
+def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every, extent, spacing):
+    """The error ellipses of a large block summarised: rasters of the RMS horizontal (semi-major
+    axis) and vertical error per cell of a grid over the block, the WORST_ELLIPSES worst drawn on
+    top, and a table of the WORST_POINT_ROWS points with the largest error. -> (figure, table) HTML."""
+    pts = project.points
+    lo, hi = every.min(axis=0), every.max(axis=0)
+    cell = max(extent / MAP_CELLS, 4.0 * spacing, 1e-9)  # about 16 points per cell at least
+    nx, ny = (int(v) for v in np.maximum(np.ceil((hi - lo) / cell), 1))
+    grid_extent = (lo[0], lo[0] + nx * cell, lo[1], lo[1] + ny * cell)
+    sz = np.where(points.determined, sig[:, 2], np.nan)
+    pos_z = np.isfinite(sz) & (sz > 0)
+
+    def rms_grid(values, sel):
+        ix = np.clip(((xyz[sel, 0] - lo[0]) / cell).astype(int), 0, nx - 1)
+        iy = np.clip(((xyz[sel, 1] - lo[1]) / cell).astype(int), 0, ny - 1)
+        k = iy * nx + ix
+        count = np.bincount(k, minlength=nx * ny)
+        ms = np.bincount(k, values[sel] ** 2, nx * ny) / np.maximum(count, 1)
+        return np.where(count > 0, np.sqrt(ms), np.nan).reshape(ny, nx)
+
+    grid_h, grid_z = rms_grid(a, pos), rms_grid(sz, pos_z)
+    worst_h = np.flatnonzero(pos)[np.argsort(-a[pos], kind="stable")[:WORST_ELLIPSES]]
+    worst_z = np.flatnonzero(pos_z)[np.argsort(-sz[pos_z], kind="stable")[:WORST_ELLIPSES]]
+    largest = float(a[worst_h[0]]) if len(worst_h) else 1.0
+    mag = fig.nice_number(0.03 * extent / largest)  # the largest ellipse 6 % of the block across
+    bar = fig.nice_number(0.12 * extent / mag)
+    bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
+    finite = np.concatenate([grid_h[np.isfinite(grid_h)], grid_z[np.isfinite(grid_z)]])
+    unit, scale = ("cm", 100.0) if len(finite) == 0 or np.percentile(finite, 99) < 1.0 else ("m", 1.0)
+    png = fig.precision_map(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names,
+                            grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
+                            mag, bar, bar_label)
+    n_shown = int(pos.sum())
+    n_strips = len(set(project.photos.strip_ids))
+    lines = " with its flight lines" if n_strips <= fig.MAP_FLIGHT_LINES else ""
+    figure = _img(png, "precision of the ground points over the block",
+                  f"Plan view of the block{lines} and control (full control: red triangles, plan: orange, height: "
+                  f"green, check points: purple diamonds). With {n_shown} error ellipses too many to draw one by "
+                  f"one, each cell of a {nx} &times; {ny} grid ({cell:.4g} m a side) is coloured by the quadratic "
+                  f"mean over its points of, left, the semi-major axis of the horizontal standard error ellipse "
+                  f"(1 &sigma;) and, right, &sigma;Z ({unit}; white: no point; the colour scale runs from the 1st "
+                  f"to the 99th percentile of the cells). On top, left: the error ellipses of the {len(worst_h)} "
+                  f"points with the largest, magnified <b>{mag:g} times</b> (the bar is {bar_label} of error); "
+                  f"right: the {len(worst_z)} points with the largest &sigma;Z, circled. Fixed control has no "
+                  f"error.")
+    total = np.where(points.determined, np.sqrt(np.sum(sig**2, axis=1)), np.nan)
+    finite_total = np.flatnonzero(np.isfinite(total))
+    worst = finite_total[np.argsort(-total[finite_total], kind="stable")[:WORST_POINT_ROWS]]
+    rays = np.bincount(project.image_points.point_index, minlength=len(pts))
+    rows = [[html.escape(pts.ids[i]), kind_names[i], str(rays[i])] + [_fmt(x, ".2f") for x in xyz[i]]
+            + [_fmt(x, ".3f") for x in sig[i]] + [_fmt(a[i], ".3f")] for i in worst]
+    table = (f"<h3>The {len(worst)} points with the largest mean error</h3>"
+             f"<p class='note'>Sorted by &radic;(&sigma;X&sup2; + &sigma;Y&sup2; + &sigma;Z&sup2;), of "
+             f"{len(finite_total)} determined points (m); points.csv lists all.</p>"
+             + _table(["point", "kind", "rays", "X", "Y", "Z", "&sigma;X", "&sigma;Y", "&sigma;Z",
+                       "semi-major axis"], rows, left=2))
+    return figure, table
 
 
 def _check_points_section(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
@@ -601,14 +723,15 @@ def _camera_section(project: Project, result: AdjustmentResult) -> list[str]:
 
 
 def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np.ndarray,
-                points: Triangulated | None = None, flags=None, figures=None) -> str:
+                points: Triangulated | None = None, flags=None, figures=None, timings: dict | None = None) -> str:
     """The report as one self-contained HTML text.
 
     summary: summary.json's dict; w: (m, 2) normalised residuals of the plate coordinates (nan where
     undefined); points: the triangulated points (pipeline.triangulate_result), needed for the error
     ellipses and the check-point table; flags: optional (m,) flags of the plate measurements (bool, or
     residuals.csv's "flag" strings); by default residuals.csv's rule |w| > 3.29. figures: optional
-    name -> PNG bytes made elsewhere ("structure": the normal matrix pattern).
+    name -> PNG bytes made elsewhere ("structure": the normal matrix pattern). timings: optional dict
+    that receives the seconds each section took (section id -> s; "total" for the whole report).
     """
     t0 = time.perf_counter()
     figures = figures or {}
@@ -618,20 +741,31 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     flag_text = _flag_text(flags)
     stats = _photo_statistics(project, result.plate_residuals, absw, flagged)
     src = html.escape(str(project.source or ""))
+    seconds: dict[str, float] = {"preparation": time.perf_counter() - t0}
 
-    body = [_summary_section(project, result, summary, flagged), _warnings_section(summary), _checks_section(summary),
-            _convergence_section(result), _residuals_section(project, result, stats, flagged, flag_text)]
+    def timed(key: str, make) -> list[str]:
+        start = time.perf_counter()
+        parts = make()
+        seconds[key] = seconds.get(key, 0.0) + time.perf_counter() - start
+        return parts
+
+    body = [timed("summary", lambda: _summary_section(project, result, summary, flagged)),
+            timed("warnings", lambda: _warnings_section(summary)),
+            timed("checks", lambda: _checks_section(summary)),
+            timed("convergence", lambda: _convergence_section(result)),
+            timed("residuals", lambda: _residuals_section(project, result, stats, flagged, flag_text, absw))]
     if points is not None:
         cov = _point_covariance(result, points)
         sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
-        body += [_points_section(project, result, points, cov),
-                 _check_points_section(project, result, points, sig, summary)]
+        body += [timed("points", lambda: _points_section(project, result, points, cov)),
+                 timed("check-points", lambda: _check_points_section(project, result, points, sig, summary))]
     else:
         body += [[_section("points"), "<p>Not available (no triangulated points given).</p>"],
                  [_section("check-points"), "<p>Not available (no triangulated points given).</p>"]]
-    body += [_flagged_section(project, result, w, absw, flagged, flag_text),
-             _largest_section(project, result, w, absw),
-             _photos_section(project, result, stats), _camera_section(project, result)]
+    body += [timed("flagged", lambda: _flagged_section(project, result, w, absw, flagged, flag_text)),
+             timed("largest", lambda: _largest_section(project, result, w, absw)),
+             timed("photos", lambda: _photos_section(project, result, stats)),
+             timed("camera", lambda: _camera_section(project, result))]
     structure = [_section("structure")]
     if "structure" in figures:
         structure.append(_img(figures["structure"], "normal matrix structure",
@@ -643,7 +777,9 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     body.append(structure)
 
     nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items())
-    seconds = time.perf_counter() - t0
+    total = time.perf_counter() - t0
+    slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
+    breakdown = ", ".join(f"{html.escape(SECTIONS.get(k, k).lower())} {v:.2f}" for v, k in slow)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
         "<meta name='viewport' content='width=device-width, initial-scale=1'>"
@@ -656,7 +792,11 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     ]
     for section in body:
         parts += [p for p in section if p]
-    parts.append(f"<footer>Written by striptri. Report and figures built in {seconds:.2f} s. "
+    parts.append(f"<footer>Written by striptri. Report and figures built in {total:.2f} s"
+                 + (f" ({breakdown})" if breakdown else "") + ". "
                  "The numbers in full are in photos.csv, points.csv, residuals.csv and summary.json beside "
                  "this file.</footer></main></body></html>")
+    if timings is not None:
+        timings.update(seconds)
+        timings["total"] = time.perf_counter() - t0
     return "\n".join(parts)

@@ -34,6 +34,7 @@ import os
 import re
 from collections.abc import Mapping
 from dataclasses import replace
+from itertools import repeat
 from pathlib import Path
 
 import numpy as np
@@ -177,7 +178,7 @@ def _require_rows(table: CsvTable, what: str) -> None:
     """A required table must have data rows: InputError naming the file (and its header line)."""
     if table.header_line is None:
         raise InputError(table.path, None, f"the file is empty: no header row and no {what}")
-    if not table.rows:
+    if not len(table):
         raise InputError(table.path, table.header_line, f"no {what}: the file has a header row but no data rows")
 
 
@@ -343,11 +344,10 @@ def _read_photos(table: CsvTable, cameras: model.Cameras, settings: model.Projec
     ids = table.strings("photo_id")
     _check_unique(table, "photo_id", ids)
     camera_of = {cid: k for k, cid in enumerate(cameras.ids)}
-    camera_index = np.zeros(len(ids), dtype=np.int64)
-    for i, cid in enumerate(table.strings("camera_id")):
-        if cid not in camera_of:
-            raise table.error(i, f"unknown camera_id '{cid}' (not in cameras.csv)")
-        camera_index[i] = camera_of[cid]
+    camera_ids = table.strings("camera_id")
+    camera_index = np.fromiter(map(camera_of.get, camera_ids, repeat(-1)), dtype=np.int64, count=len(ids))
+    for i in np.flatnonzero(camera_index < 0)[:1]:
+        raise table.error(i, f"unknown camera_id '{camera_ids[i]}' (not in cameras.csv)")
     to_rad = RADIANS_PER_UNIT[settings.angle_unit]
     xyz0 = np.column_stack([table.floats(n) for n in ("X0", "Y0", "Z0")]).reshape(-1, 3)
     _check_limit(table, ("X0", "Y0", "Z0"), xyz0, limits.GROUND_LIMIT_M, "m for ground coordinates")
@@ -402,25 +402,33 @@ def _read_control(table: CsvTable) -> _Control:
     table.require("point_id", "kind", "X", "Y", "Z")
     ids = table.strings("point_id")
     _check_unique(table, "point_id", ids)
-    kind = np.zeros(len(ids), dtype=np.int64)
-    for i, text in enumerate(table.strings("kind", allow_empty=True)):
-        if text.upper() not in model.KIND_CODES:
-            raise table.error(i, f"unknown kind '{text}' (accepted: XYZ, XY, Z, check)")
-        kind[i] = model.KIND_CODES[text.upper()]
+    texts = table.strings("kind", allow_empty=True)
+    kind = np.fromiter(map(model.KIND_CODES.get, map(str.upper, texts), repeat(-1)), dtype=np.int64, count=len(ids))
+    for i in np.flatnonzero(kind < 0)[:1]:
+        raise table.error(i, f"unknown kind '{texts[i]}' (accepted: XYZ, XY, Z, check)")
     xyz_file = np.column_stack([table.optional_floats(n) for n in "XYZ"]).reshape(-1, 3)
     _check_limit(table, tuple("XYZ"), xyz_file, limits.GROUND_LIMIT_M, "m for ground coordinates")
     sigma_file = np.column_stack(
         [_sigma_column(table, f"sigma_{n}", zero_means_fixed=True) for n in "XYZ"]
     ).reshape(-1, 3)
-    needed = np.array([_needed_axes(k) for k in kind], dtype=bool).reshape(-1, 3)
+    needed = _axes_table(_needed_axes)[kind].reshape(-1, 3)
     for i, j in zip(*np.nonzero(needed & np.isnan(xyz_file))):
         name = model.KIND_NAMES[kind[i]]
         raise table.error(i, f"kind {name} needs {'XYZ'[j]} but it is empty (kind {name} needs "
                              f"{', '.join(a for a, n in zip('XYZ', needed[i]) if n)})")
     xyz = np.where(needed, xyz_file, np.nan)
-    given = np.array([model.GIVEN_AXES[k] for k in kind], dtype=bool).reshape(-1, 3)
+    given = _axes_table(model.GIVEN_AXES.get)[kind].reshape(-1, 3)
     sigma = np.where(given, sigma_file, np.nan)
     return _Control(ids, kind, xyz, sigma)
+
+
+def _axes_table(axes_of) -> np.ndarray:
+    """(max kind code + 1, 3) bool: axes_of(code) for every kind code of model.KIND_CODES."""
+    codes = sorted(model.KIND_CODES.values())
+    out = np.zeros((max(codes) + 1, 3), dtype=bool)
+    for code in codes:
+        out[code] = axes_of(code)
+    return out
 
 
 def _needed_axes(kind: int) -> tuple[bool, bool, bool]:
@@ -442,27 +450,29 @@ def _read_image_points(
     """
     table.require("photo_id", "point_id", "x", "y")
     photo_of = {pid: k for k, pid in enumerate(photos.ids)}
-    point_of = {pid: k for k, pid in enumerate(control.ids)}
-    point_ids = list(control.ids)
     photo_ids = table.strings("photo_id")
     measured_ids = table.strings("point_id")
-    photo_index = np.zeros(len(table), dtype=np.int64)
-    point_index = np.zeros(len(table), dtype=np.int64)
-    first_line: dict[tuple[str, str], int] = {}
-    for i, (photo_id, point_id) in enumerate(zip(photo_ids, measured_ids)):
-        if photo_id not in photo_of:
-            raise table.error(i, f"unknown photo_id '{photo_id}' (not in photos.csv)")
-        key = (photo_id, point_id)
-        if key in first_line:
-            raise table.error(
-                i, f"duplicate measurement of point '{point_id}' on photo '{photo_id}' (first on line {first_line[key]})"
-            )
-        first_line[key] = table.lines[i]
-        if point_id not in point_of:
-            point_of[point_id] = len(point_ids)
-            point_ids.append(point_id)
-        photo_index[i] = photo_of[photo_id]
-        point_index[i] = point_of[point_id]
+    photo_index = np.fromiter(map(photo_of.get, photo_ids, repeat(-1)), dtype=np.int64, count=len(table))
+    # points: the control points in their order, then the others by first measurement
+    point_of = {pid: k for k, pid in enumerate(control.ids)}
+    for pid in dict.fromkeys(measured_ids):
+        point_of.setdefault(pid, len(point_of))
+    point_ids = list(point_of)
+    point_index = np.fromiter(map(point_of.__getitem__, measured_ids), dtype=np.int64, count=len(table))
+    # the first row that is an error: an unknown photo, or a point measured twice on one photo
+    unknown = np.flatnonzero(photo_index < 0)
+    key = photo_index * max(len(point_ids), 1) + point_index
+    order = np.argsort(key, kind="stable")
+    repeated = np.flatnonzero(key[order][1:] == key[order][:-1]) + 1  # in order: a later row of the same key
+    first_unknown = int(unknown[0]) if len(unknown) else len(table)
+    first_repeat = int(order[repeated].min()) if len(repeated) else len(table)
+    if first_unknown < len(table) and first_unknown <= first_repeat:
+        raise table.error(first_unknown, f"unknown photo_id '{photo_ids[first_unknown]}' (not in photos.csv)")
+    if first_repeat < len(table):
+        i = first_repeat
+        first = int(np.flatnonzero(key == key[i])[0])
+        raise table.error(i, f"duplicate measurement of point '{measured_ids[i]}' on photo '{photo_ids[i]}' "
+                             f"(first on line {table.lines[first]})")
     xy = np.column_stack([table.floats("x"), table.floats("y")]).reshape(-1, 2)
     _check_limit(table, ("x", "y"), xy, limits.PLATE_LIMIT, "plate units")
     sigma_xy = np.column_stack(
@@ -592,6 +602,8 @@ def _read_bases(table: CsvTable, photos: model.Photos) -> model.BaseComponents:
 
 def _check_unique(table: CsvTable, column: str, ids: list[str]) -> None:
     """InputError on the second occurrence of an id, naming the line of the first."""
+    if len(set(ids)) == len(ids):
+        return
     first_line: dict[str, int] = {}
     for i, value in enumerate(ids):
         if value in first_line:
