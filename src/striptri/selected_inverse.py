@@ -610,25 +610,27 @@ class _Supernodes:
 
     def locate(self, pi: np.ndarray, pj: np.ndarray):
         """Flat storage index of the entries (pi, pj), pi >= pj (positions), and whether each lies in
-        the stored pattern. One pass per supernode that owns a column asked for."""
+        the stored pattern. Vectorised: the rows of every supernode, keyed ``p * n + row``, form one
+        sorted array, searched once for all entries."""
         n = len(self.order)
+        keys, first = self._row_keys
         sn = np.searchsorted(self.start, pj, side="right") - 1
-        by = np.argsort(sn, kind="stable")
-        cuts = np.searchsorted(sn[by], np.arange(self.count + 1))
-        flat = np.zeros(len(pi), dtype=np.int64)
-        found = np.zeros(len(pi), dtype=bool)
-        where = np.full(n, -1)
-        for p in np.flatnonzero(np.diff(cuts)):
-            sel = by[cuts[p]: cuts[p + 1]]
-            rows = self.rows[p]
-            where[rows] = np.arange(len(rows))
-            local = where[pi[sel]]
-            ok = local >= 0
-            ok[ok] = rows[local[ok]] == pi[sel][ok]  # where[] may hold another supernode's row
-            found[sel] = ok
-            flat[sel] = self.offset[p] + np.maximum(local, 0) * self.width(p) + (pj[sel] - self.start[p])
-            where[rows] = -1
+        want = sn * np.int64(n) + pi
+        pos = np.searchsorted(keys, want)
+        found = keys[np.minimum(pos, len(keys) - 1)] == want
+        local = np.where(found, pos - first[sn], 0)
+        widths = np.diff(self.start)
+        flat = self.offset[sn] + local * widths[sn] + (pj - self.start[sn])
         return flat, found
+
+    @functools.cached_property
+    def _row_keys(self):
+        """(sorted keys ``p * n + row`` of the rows of every supernode p, where each p's rows start)."""
+        n = np.int64(len(self.order))
+        lengths = np.array([len(r) for r in self.rows], dtype=np.int64)
+        first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        keys = np.repeat(np.arange(self.count, dtype=np.int64) * n, lengths) + np.concatenate(self.rows)
+        return keys, first
 
 
 def _block_pattern(A: sp.csr_matrix, blocks: Blocks) -> sp.csr_matrix:
@@ -900,11 +902,15 @@ class SupernodalInverse(_Engine):
             Zp[:w] = 0.5 * (Zpp + Zpp.T)
         return Z
 
-    def _position(self) -> np.ndarray:
-        """Column of N~ -> its position in the order."""
+    @functools.cached_property
+    def _position_of(self) -> np.ndarray:
         inv = np.empty(self.n, dtype=int)
         inv[self.sym.order] = np.arange(self.n)
         return inv
+
+    def _position(self) -> np.ndarray:
+        """Column of N~ -> its position in the order."""
+        return self._position_of
 
     def _positions(self, rows, cols):
         inv = self._position()
