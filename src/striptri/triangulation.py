@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import plate_vector, project, ray_ground
+from .covariance import group_forms, ray_slots
 from .conditions import coplanarity, ray_chain, RayConditions
 from .lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
 from .rotations import skew
@@ -187,6 +188,8 @@ def triangulate(
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     fixed = given_mask & ~(q_given > 0)
     weighted = given_mask & (q_given > 0)
+    camera_cols = np.asarray(camera_cols)
+    estimated = np.flatnonzero((camera_cols >= 0).any(axis=0))  # camera elements estimated anywhere
     for k in np.unique(counts[counts > 0]):
         sel = np.flatnonzero(counts == k)
         # determined when the rays and the given coordinates (held or weighted) are at least three
@@ -224,18 +227,16 @@ def triangulate(
         cov_m[sel[ok]] = Qm[ok]
         determined[sel[ok]] = True
         if Qxx is not None and n_unknowns_of(Qxx):
-            T = rotation_maps[ph]
-            drot_u = np.einsum("mkai,mkij->mkaj", drot, T)
-            J = np.concatenate([dO, drot_u, dint], 3)  # (m, k, 2, 6 + NCP)
-            cols = np.concatenate([photo_cols[ph], camera_cols[camera_of_photo[ph]]], 2)  # (m, k, 6 + NCP)
             m = len(sel)
             JX = dX.reshape(m, 2 * k, 3)
-            G_rows = -np.einsum("mij,mrj,mr->mir", Qm, JX, wxy.reshape(m, 2 * k))  # dX/d(plate)
+            G_rows = -Qm @ np.swapaxes(JX * wxy.reshape(m, 2 * k, 1), 1, 2)  # (m, 3, 2k): dX/d(plate)
             # rows 2j, 2j+1 of the plate coordinates depend on the unknowns of ray j only
-            Gfull = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J).reshape(m, 3, -1)
-            colflat = cols.reshape(m, -1)
-            Qloc = qxx_entries(Qxx, colflat[:, :, None], colflat[:, None, :])  # -1 reads zeros
-            Qo = np.einsum("mic,mcd,mjd->mij", Gfull, Qloc, Gfull)
+            drot_u = np.einsum("mkai,mkij->mkaj", drot, rotation_maps[ph])
+            J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
+            G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
+            parts = ray_slots(G, ph, photo_cols, camera_of_photo[ph], camera_cols[:, estimated])
+            Qo = Qxx.group_forms(parts) if hasattr(Qxx, "group_forms") else group_forms(
+                lambda r, c: qxx_entries(Qxx, r, c), parts)
             cov_o[sel[ok]] = Qo[ok]
     return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined)
 
