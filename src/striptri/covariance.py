@@ -29,8 +29,11 @@ class Covariance:
         self.layout = layout
         self.n = N.shape[0]
         self.free_network = free_network
+        self._store = BlockStore()  # blocks of Qxx read for group_forms, kept for later batches
         if free_network is None:
-            self._inv = for_layout(N, layout)
+            # the factor is not kept: every entry precision reads lies in the pattern of the inverse
+            # (quadratic_form factorises again when asked)
+            self._inv = for_layout(N, layout, keep_factor=False)
             return
         N_min, mask = free_network.minimum_constraint_system(N)
         self._inv = for_layout(N_min, layout)
@@ -57,7 +60,7 @@ class Covariance:
 
     def group_forms(self, parts: Sequence["Slots"]) -> np.ndarray:
         """``G Qxx G^T`` of every group of a batch (group_forms with this Qxx)."""
-        return group_forms(self.entries, parts)
+        return group_forms(self.entries, parts, store=self._store)
 
     def photo_blocks(self) -> np.ndarray:
         """(n_photos, 6, 6) blocks of Qxx of every photo's elements (fixed elements zero)."""
@@ -120,24 +123,26 @@ def ray_slots(G: np.ndarray, photo: np.ndarray, photo_cols: np.ndarray, camera: 
 
 
 def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
-                block_chunk: int = BLOCK_CHUNK) -> np.ndarray:
+                block_chunk: int = BLOCK_CHUNK, store: "BlockStore | None" = None) -> np.ndarray:
     """``G Q G^T`` (m, r, r) for every group of a batch, G the derivatives of the slots ``parts``
     (one G of the group, split by kind of unknown set) and Q the entries of Qxx that
     ``entries(rows, cols)`` gives (broadcast; -1 reads zero).
 
     Q is read by blocks: the distinct pairs of sets of the batch (two photos that share a point,
-    a photo and a camera, ...) are each read once, then gathered for the groups in chunks of at
-    most ``block_chunk`` entries and contracted by matrix products: memory linear in the batch,
-    and work ``m r (s w)^2`` instead of the ``m r^2 (s w)^2`` of a three-operand einsum.
+    a photo and a camera, ...) are each read once (and kept in ``store`` for later batches, when
+    given), then gathered for the groups in chunks of at most ``block_chunk`` entries and
+    contracted by matrix products: memory linear in the batch, and work ``m r (s w)^2`` instead
+    of the ``m r^2 (s w)^2`` of a three-operand einsum.
     """
     m, r = parts[0].G.shape[:2]
     out = np.zeros((m, r, r))
     if m == 0:
         return out
+    store = BlockStore() if store is None else store
     for a, Pa in enumerate(parts):
         for b in range(a, len(parts)):
             Pb = parts[b]
-            table, index, swap = _pair_table(entries, Pa, Pb, same=a == b)
+            table, index, swap = store.blocks(entries, Pa, Pb, same=a == b)
             sa, wa = Pa.G.shape[2:]
             sb, wb = Pb.G.shape[2:]
             step = max(1, block_chunk // max(sa * sb * wa * wb, 1))
@@ -154,21 +159,47 @@ def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: 
     return out
 
 
-def _pair_table(entries, Pa: Slots, Pb: Slots, same: bool):
-    """The blocks Q[columns_a[i], columns_b[j]] of the distinct set pairs (i, j) of the batch, read
-    once: (table (u, wa, wb), index (m, sa, sb) into it, swap (m, sa, sb) or None). Within one kind
-    (``same``) a pair and its transpose share a block: the table holds (min, max), swap says where
-    the block is read transposed."""
-    i = np.broadcast_to(Pa.sets[:, :, None], Pa.sets.shape + Pb.sets.shape[1:])
-    j = np.broadcast_to(Pb.sets[:, None, :], i.shape)
-    nb = np.int64(len(Pb.columns))
-    swap = None
-    if same:
-        swap = i > j
-        i, j = np.minimum(i, j), np.maximum(i, j)
-        swap = swap if swap.any() else None
-    key = i.astype(np.int64) * nb + j
-    unique, index = np.unique(key.ravel(), return_inverse=True)
-    ui, uj = unique // nb, unique % nb
-    table = entries(Pa.columns[ui][:, :, None], Pb.columns[uj][:, None, :])
-    return table, index.reshape(key.shape), swap
+class BlockStore:
+    """Blocks of Qxx between unknown sets, read once and kept: per pair of ``columns`` arrays (told
+    apart by their contents), the sorted keys ``i * n_b + j`` of the set pairs read so far and their
+    blocks ``Q[columns_a[i], columns_b[j]]``. Within one kind (``same``) only (min, max) is kept."""
+
+    def __init__(self):
+        self._tables: dict = {}
+
+    @staticmethod
+    def _tag(columns: np.ndarray):
+        c = np.ascontiguousarray(columns)
+        return c.shape, hash(c.tobytes())
+
+    def blocks(self, entries, Pa: Slots, Pb: Slots, same: bool):
+        """(table (u, wa, wb), index (m, sa, sb) into it, swap (m, sa, sb) or None) for the set pairs
+        of a batch: where swap is true the block is read transposed (Q[b, a] = Q[a, b]^T)."""
+        i = np.broadcast_to(Pa.sets[:, :, None], Pa.sets.shape + Pb.sets.shape[1:])
+        j = np.broadcast_to(Pb.sets[:, None, :], i.shape)
+        nb = np.int64(len(Pb.columns))
+        swap = None
+        if same:
+            swap = i > j
+            i, j = np.minimum(i, j), np.maximum(i, j)
+            swap = swap if swap.any() else None
+        key = i.astype(np.int64) * nb + j
+        tag = (self._tag(Pa.columns), self._tag(Pb.columns), same)
+        wa, wb = Pa.columns.shape[1], Pb.columns.shape[1]
+        keys, table = self._tables.get(tag, (np.zeros(0, np.int64), np.zeros((0, wa, wb))))
+        wanted = np.unique(key)
+        pos = np.searchsorted(keys, wanted)
+        missing = wanted[(pos == len(keys)) | (keys[np.minimum(pos, max(len(keys) - 1, 0))] != wanted)] if len(
+            keys) else wanted
+        if len(missing):
+            ui, uj = missing // nb, missing % nb
+            new = entries(Pa.columns[ui][:, :, None], Pb.columns[uj][:, None, :])
+            keys = np.concatenate([keys, missing])
+            order = np.argsort(keys, kind="stable")
+            keys, table = keys[order], np.concatenate([table, new])[order]
+            self._tables[tag] = (keys, table)
+        return table, np.searchsorted(keys, key), swap
+
+    @property
+    def nbytes(self) -> int:
+        return sum(k.nbytes + t.nbytes for k, t in self._tables.values())
