@@ -1,9 +1,11 @@
 """The cofactor matrix of the unknowns, Qxx = N^-1 (Schmid 53), without forming it.
 
-Everything precision needs is read from here: entries of Qxx for the unknowns of a point group
-(``entries``), the 6x6 photo blocks (``photo_blocks``), the diagonal, and the weight coefficient
-``f^T Qxx f`` of any function of the unknowns (Schmid 81-84). Underneath is the selected inversion
-of ``striptri.selected_inverse`` (banded for strips, supernodal for blocks).
+Everything precision needs is read from here: entries of Qxx (``entries``), the 6x6 photo blocks
+(``photo_blocks``), the diagonal, the weight coefficient ``f^T Qxx f`` of any function of the
+unknowns (Schmid 81-84), and ``G Qxx G^T`` for a batch of point groups (``group_forms``: the
+orientation part of a point's covariance, Schmid 90, and ``B Qxx B^T`` of the residual cofactors).
+Underneath is the selected inversion of ``striptri.selected_inverse`` (banded for strips,
+supernodal for blocks).
 
 For a free network (datum.FreeNetwork) Qxx is the inverse under the inner constraints,
 ``Q = S Q_min S^T`` with ``S = I - H K C^T``, ``K = (C^T H)^-1`` and Q_min the inverse of N under
@@ -12,6 +14,9 @@ the minimum constraints (held unknowns: zero rows and columns). An entry is then
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,8 +29,11 @@ class Covariance:
         self.layout = layout
         self.n = N.shape[0]
         self.free_network = free_network
+        self._store = BlockStore()  # blocks of Qxx read for group_forms, kept for later batches
         if free_network is None:
-            self._inv = for_layout(N, layout)
+            # the factor is not kept: every entry precision reads lies in the pattern of the inverse
+            # (quadratic_form factorises again when asked)
+            self._inv = for_layout(N, layout, keep_factor=False)
             return
         N_min, mask = free_network.minimum_constraint_system(N)
         self._inv = for_layout(N_min, layout)
@@ -50,6 +58,10 @@ class Covariance:
         return (q - np.einsum("...a,...a->...", hr, yc) - np.einsum("...a,...a->...", yr, hc)
                 + np.einsum("...a,ab,...b->...", hr, self._CtY, hc))
 
+    def group_forms(self, parts: Sequence["Slots"]) -> np.ndarray:
+        """``G Qxx G^T`` of every group of a batch (group_forms with this Qxx)."""
+        return group_forms(self.entries, parts, store=self._store)
+
     def photo_blocks(self) -> np.ndarray:
         """(n_photos, 6, 6) blocks of Qxx of every photo's elements (fixed elements zero)."""
         cols = self.layout.photo_cols
@@ -73,3 +85,121 @@ class Covariance:
     def dense(self) -> np.ndarray:
         idx = np.arange(self.n)
         return self.entries(idx[:, None], idx[None, :])
+
+
+# ------------------------------------------------------------------------ G Qxx G^T of groups
+
+BLOCK_CHUNK = 1 << 21  # entries of the gathered Qxx blocks of a batch held at once (16 MB)
+
+
+@dataclass(frozen=True)
+class Slots:
+    """Unknown sets of one kind (photos, or cameras) in a batch of m groups.
+
+    G: (m, r, s, w) the derivatives of r quantities of each group with respect to the w unknowns of
+    each of its s sets; sets: (m, s) the row of ``columns`` that each set is; columns: (n_sets, w)
+    the columns of Qxx of every set (-1: a fixed element, which reads zero).
+    """
+
+    G: np.ndarray
+    sets: np.ndarray
+    columns: np.ndarray
+
+
+def ray_slots(G: np.ndarray, photo: np.ndarray, photo_cols: np.ndarray, camera: np.ndarray | None = None,
+              camera_cols: np.ndarray | None = None) -> list[Slots]:
+    """Slots of groups of k rays: G (m, r, k, 6 + e) with respect to each ray's photo elements
+    (``photo_cols[photo]``, (n_photos, 6)) and then the e estimated elements of its camera
+    (``camera_cols[camera]``, (n_cameras, e)). When every group's rays share one camera (the usual
+    case) the camera derivatives of its rays are added into one camera set; a camera part whose
+    elements are all fixed is left out."""
+    out = [Slots(G[..., :6], photo, photo_cols)]
+    if camera is None or camera_cols is None or not camera_cols.shape[1] or not (camera_cols >= 0).any():
+        return out
+    Gc = G[..., 6:]
+    if camera.shape[1] and np.all(camera == camera[:, :1]):
+        Gc, camera = Gc.sum(axis=2, keepdims=True), camera[:, :1]
+    return out + [Slots(Gc, camera, camera_cols)]
+
+
+def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
+                block_chunk: int = BLOCK_CHUNK, store: "BlockStore | None" = None) -> np.ndarray:
+    """``G Q G^T`` (m, r, r) for every group of a batch, G the derivatives of the slots ``parts``
+    (one G of the group, split by kind of unknown set) and Q the entries of Qxx that
+    ``entries(rows, cols)`` gives (broadcast; -1 reads zero).
+
+    Q is read by blocks: the distinct pairs of sets of the batch (two photos that share a point,
+    a photo and a camera, ...) are each read once (and kept in ``store`` for later batches, when
+    given), then gathered for the groups in chunks of at most ``block_chunk`` entries and
+    contracted by matrix products: memory linear in the batch, and work ``m r (s w)^2`` instead
+    of the ``m r^2 (s w)^2`` of a three-operand einsum.
+    """
+    m, r = parts[0].G.shape[:2]
+    out = np.zeros((m, r, r))
+    if m == 0:
+        return out
+    store = BlockStore() if store is None else store
+    for a, Pa in enumerate(parts):
+        for b in range(a, len(parts)):
+            Pb = parts[b]
+            table, index, swap = store.blocks(entries, Pa, Pb, same=a == b)
+            sa, wa = Pa.G.shape[2:]
+            sb, wb = Pb.G.shape[2:]
+            step = max(1, block_chunk // max(sa * sb * wa * wb, 1))
+            for c0 in range(0, m, step):
+                c1 = min(c0 + step, m)
+                Q = table[index[c0:c1]]  # (mc, sa, sb, wa, wb)
+                if swap is not None:
+                    Q = np.where(swap[c0:c1, :, :, None, None], np.swapaxes(Q, -1, -2), Q)
+                Q = Q.transpose(0, 1, 3, 2, 4).reshape(c1 - c0, sa * wa, sb * wb)
+                Ga = Pa.G[c0:c1].reshape(c1 - c0, r, sa * wa)
+                Gb = Pb.G[c0:c1].reshape(c1 - c0, r, sb * wb)
+                T = (Ga @ Q) @ np.swapaxes(Gb, 1, 2)
+                out[c0:c1] += T if a == b else T + np.swapaxes(T, 1, 2)
+    return out
+
+
+class BlockStore:
+    """Blocks of Qxx between unknown sets, read once and kept: per pair of ``columns`` arrays (told
+    apart by their contents), the sorted keys ``i * n_b + j`` of the set pairs read so far and their
+    blocks ``Q[columns_a[i], columns_b[j]]``. Within one kind (``same``) only (min, max) is kept."""
+
+    def __init__(self):
+        self._tables: dict = {}
+
+    @staticmethod
+    def _tag(columns: np.ndarray):
+        c = np.ascontiguousarray(columns)
+        return c.shape, hash(c.tobytes())
+
+    def blocks(self, entries, Pa: Slots, Pb: Slots, same: bool):
+        """(table (u, wa, wb), index (m, sa, sb) into it, swap (m, sa, sb) or None) for the set pairs
+        of a batch: where swap is true the block is read transposed (Q[b, a] = Q[a, b]^T)."""
+        i = np.broadcast_to(Pa.sets[:, :, None], Pa.sets.shape + Pb.sets.shape[1:])
+        j = np.broadcast_to(Pb.sets[:, None, :], i.shape)
+        nb = np.int64(len(Pb.columns))
+        swap = None
+        if same:
+            swap = i > j
+            i, j = np.minimum(i, j), np.maximum(i, j)
+            swap = swap if swap.any() else None
+        key = i.astype(np.int64) * nb + j
+        tag = (self._tag(Pa.columns), self._tag(Pb.columns), same)
+        wa, wb = Pa.columns.shape[1], Pb.columns.shape[1]
+        keys, table = self._tables.get(tag, (np.zeros(0, np.int64), np.zeros((0, wa, wb))))
+        wanted = np.unique(key)
+        pos = np.searchsorted(keys, wanted)
+        missing = wanted[(pos == len(keys)) | (keys[np.minimum(pos, max(len(keys) - 1, 0))] != wanted)] if len(
+            keys) else wanted
+        if len(missing):
+            ui, uj = missing // nb, missing % nb
+            new = entries(Pa.columns[ui][:, :, None], Pb.columns[uj][:, None, :])
+            keys = np.concatenate([keys, missing])
+            order = np.argsort(keys, kind="stable")
+            keys, table = keys[order], np.concatenate([table, new])[order]
+            self._tables[tag] = (keys, table)
+        return table, np.searchsorted(keys, key), swap
+
+    @property
+    def nbytes(self) -> int:
+        return sum(k.nbytes + t.nbytes for k, t in self._tables.values())

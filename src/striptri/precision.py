@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .adjustment import AdjustmentOptions, AdjustmentResult, Sweep, observations_of
+from .covariance import ray_slots
 from .errors import NumericalFailure
 from .model import Project
 from .parameter_observations import build_parameter_observations
@@ -42,7 +43,11 @@ class ResidualCofactors:
 
 
 def residual_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions()) -> ResidualCofactors:
-    """Diagonal of Qvv for every observation, at the converged solution."""
+    """Diagonal of Qvv for every observation, at the converged solution.
+
+    Per batch of groups, by matrix products (no einsum of three operands): ``M = (A Q) A^T``,
+    ``B Qxx B^T`` by Covariance.group_forms (Qxx read by blocks of photo pairs), ``K = M^-1 (M - B Qxx
+    B^T) M^-1`` and ``qvv_o = sum_c (K A Q)_co (A Q)_co``. Memory is that of one chunk of groups."""
     obs = observations_of(project, result.offset)
     from .groups import build_batches
 
@@ -52,13 +57,11 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
     for chunk, s in sweep.systems():
-        M = np.einsum("mco,mo,mdo->mcd", s.A, s.Q, s.A)
-        Minv = _group_inverse(M, chunk, project)
-        Qloc = cov.entries(s.cols[:, :, None], s.cols[:, None, :])
-        C = M - np.einsum("mcu,muv,mdv->mcd", s.B, Qloc, s.B)
         AQ = s.A * s.Q[:, None, :]  # (m, nc, no): A Q
-        K = Minv @ C @ Minv
-        qvv = np.einsum("mco,mcd,mdo->mo", AQ, K, AQ)
+        M = AQ @ np.swapaxes(s.A, 1, 2)
+        Minv = _group_inverse(M, chunk, project)
+        K = Minv @ (M - cov.group_forms(_group_slots(s.B, chunk, result))) @ Minv
+        qvv = np.einsum("mco,mco->mo", K @ AQ, AQ)
         m, k = chunk.image_rows.shape
         q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
         if chunk.has_control:
@@ -68,8 +71,18 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     if len(pobs):
         _, grad, cols = pobs.evaluate(result.state, result.layout, sweep.T)
         Qloc = cov.entries(cols[:, :, None], cols[:, None, :])
-        q_par = pobs.sigma**2 - np.einsum("pi,pij,pj->p", grad, Qloc, grad)
+        q_par = pobs.sigma**2 - np.einsum("pi,pi->p", (Qloc @ grad[:, :, None])[:, :, 0], grad)
     return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par)
+
+
+def _group_slots(G: np.ndarray, chunk, result: AdjustmentResult) -> list:
+    """covariance.Slots of derivatives G (m, r, k * width) with respect to the columns ``cols`` of a
+    chunk's GroupSystem (per ray: its photo's 6 columns, then its camera's estimated elements)."""
+    lay = result.layout
+    m, k = chunk.photo_index.shape
+    G = G.reshape(m, G.shape[1], k, 6 + lay.camera_width)
+    camera = result.state.camera_of_photo[chunk.photo_index]
+    return ray_slots(G, chunk.photo_index, lay.photo_cols, camera, lay.camera_cols[:, lay.camera_elements])
 
 
 def _group_inverse(M: np.ndarray, chunk, project: Project) -> np.ndarray:
@@ -125,13 +138,9 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
     state = result.state
     for chunk, s in sweep.systems():
         m, k = chunk.image_rows.shape
-        M = np.einsum("mco,mo,mdo->mcd", s.A, s.Q, s.A)
-        Minv = _group_inverse(M, chunk, project)
-        Qloc = cov.entries(s.cols[:, :, None], s.cols[:, None, :])
         AQ = s.A * s.Q[:, None, :]
-        Qvv = np.einsum("mco,mcd,mdp->mop", AQ, Minv @ (M - np.einsum("mcu,muv,mdv->mcd", s.B, Qloc, s.B)) @ Minv, AQ)
-        Qll = s.Q[:, :, None] * np.eye(s.Q.shape[1]) - Qvv
-        Qxl = -np.einsum("muv,mcv,mcd,mdo->muo", Qloc, s.B, Minv, AQ)
+        M = AQ @ np.swapaxes(s.A, 1, 2)
+        Minv = _group_inverse(M, chunk, project)
         # the intersection's derivatives, rays in the group's chain order
         ph = chunk.photo_index
         R, O = state.R[ph], state.xyz0[ph]
@@ -156,20 +165,28 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         else:
             fixed = np.zeros((m, 3), dtype=bool)
             p_c = np.zeros((m, 0))
-        Nx = np.einsum("mri,mr,mrj->mij", JX, p_plate, JX)
+        JXp = JX * p_plate[:, :, None]  # (m, 2k, 3): P J
+        Nx = np.swapaxes(JX, 1, 2) @ JXp
         if chunk.has_control:
             Nx = Nx + p_c[:, :, None] * np.eye(3)
         free = ~fixed
         Nx = np.where(free[:, :, None] & free[:, None, :], Nx, 0.0) + fixed[:, :, None] * np.eye(3)
         Qm = safe_inverse(Nx)[0] * (free[:, :, None] & free[:, None, :])  # nan: the point is not determined
         F = np.zeros((m, 3, n_obs))
-        F[:, :, : 2 * k] = np.einsum("mij,mrj,mr->mir", Qm, JX, p_plate)
+        F[:, :, : 2 * k] = Qm @ np.swapaxes(JXp, 1, 2)
         if chunk.has_control:
             F[:, :, 2 * k:] = Qm * p_c[:, None, :]
         G = -np.einsum("mika,mkac->mikc", F[:, :, : 2 * k].reshape(m, 3, k, 2), J_x).reshape(m, 3, -1)
-        cross = np.einsum("miu,muo,mjo->mij", G, Qxl, F)
-        out[chunk.point_index] = (np.einsum("miu,muv,mjv->mij", G, Qloc, G) + np.einsum("mio,mop,mjp->mij", F, Qll, F)
-                                  + cross + np.swapaxes(cross, 1, 2))
+        # G Qxx G^T, G Qxx B^T and B Qxx B^T at once (Qxx read by blocks, matrix products)
+        HQH = cov.group_forms(_group_slots(np.concatenate([G, s.B], 1), chunk, result))
+        GQG, GQB, BQB = HQH[:, :3, :3], HQH[:, :3, 3:], HQH[:, 3:, 3:]
+        MAQ = Minv @ AQ  # (m, nc, no)
+        Qvv = np.swapaxes(MAQ, 1, 2) @ (M - BQB) @ MAQ
+        Qll = s.Q[:, :, None] * np.eye(s.Q.shape[1]) - Qvv
+        # Cov(x^, l^) = -Qxx B^T M^-1 A Q, so G Cov(x^, l^) F^T = -(G Qxx B^T) M^-1 A Q F^T
+        Ft = np.swapaxes(F, 1, 2)
+        cross = -(GQB @ (MAQ @ Ft))
+        out[chunk.point_index] = GQG + F @ Qll @ Ft + cross + np.swapaxes(cross, 1, 2)
     return out
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import plate_vector, project, ray_ground
+from .covariance import group_forms, ray_slots
 from .conditions import coplanarity, ray_chain, RayConditions
 from .lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
 from .rotations import skew
@@ -163,8 +164,14 @@ def triangulate(
     = its plate coordinates (weights 1/sigma^2) and its weighted given coordinates (q_given > 0).
     Fixed given coordinates (given_mask and q_given == 0) are held. The covariance has a
     measurement part ``(J^T P J + P_given)^-1`` and, when Qxx (N^-1 of the orientation unknowns,
-    a dense array or a covariance.Covariance) is given, an orientation part ``G Qxx G^T`` with ``G = -(J^T P J + P_given)^-1 J^T P J_orient``
-    (Schmid 87-90), both without the factor sigma0^2.
+    a dense array or a covariance.Covariance) is given, an orientation part ``G Qxx G^T`` with
+    ``G = -(J^T P J + P_given)^-1 J^T P J_orient`` (Schmid 87-90), both without the factor sigma0^2.
+    The orientation part is formed per batch of points with k rays by covariance.group_forms
+    (Qxx read by blocks of the photo pairs that share a point, matrix products).
+
+    Gauss-Newton from the rays' intersection, at most ``iterations`` steps: a batch stops when every
+    step is below CONVERGED times its point's size (from adjusted observations the rays meet, and
+    one step reaches the point to rounding).
 
     R_photo, O_photo: per photo; interior_photo (n_photos, NCP) and convention_photo (n_photos,)
     the camera elements and lens convention of each photo's camera (striptri.lens; None: plate);
@@ -187,60 +194,74 @@ def triangulate(
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     fixed = given_mask & ~(q_given > 0)
     weighted = given_mask & (q_given > 0)
+    camera_cols = np.asarray(camera_cols)
+    estimated = np.flatnonzero((camera_cols >= 0).any(axis=0))  # camera elements estimated anywhere
+    if Qxx is not None and n_unknowns_of(Qxx):
+        forms = Qxx.group_forms if hasattr(Qxx, "group_forms") else _dense_forms(Qxx)
     for k in np.unique(counts[counts > 0]):
-        sel = np.flatnonzero(counts == k)
+        sel_k = np.flatnonzero(counts == k)
         # determined when the rays and the given coordinates (held or weighted) are at least three
-        n_obs = 2 * k + weighted[sel].sum(axis=1)
-        sel = sel[(2 * k + given_mask[sel].sum(axis=1) >= 3) & ((~fixed[sel]).sum(axis=1) <= n_obs)]
-        if len(sel) == 0:
-            continue
-        ok = np.ones(len(sel), dtype=bool)
-        rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
-        ph = photo_index[rows]
-        R, O = R_photo[ph], O_photo[ph]
-        interior, conv = interior_photo[ph], convention_photo[ph]
-        xy_obs = xy_plate[rows]
-        meas = None if xy_measured is None else xy_measured[rows]
-        free = ~fixed[sel]  # (m, 3)
-        xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
-        X = _initial_points(R, O, interior[..., :3], xy_ray, xyz_given[sel], given_mask[sel])
-        Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
-        wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            for _ in range(iterations):
-                res, dX, *_ = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
+        n_obs = 2 * k + weighted[sel_k].sum(axis=1)
+        sel_k = sel_k[(2 * k + given_mask[sel_k].sum(axis=1) >= 3) & ((~fixed[sel_k]).sum(axis=1) <= n_obs)]
+        for first in range(0, len(sel_k), POINT_CHUNK):  # chunks of points: memory bounded
+            sel = sel_k[first: first + POINT_CHUNK]
+            ok = np.ones(len(sel), dtype=bool)
+            rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+            ph = photo_index[rows]
+            R, O = R_photo[ph], O_photo[ph]
+            interior, conv = interior_photo[ph], convention_photo[ph]
+            xy_obs = xy_plate[rows]
+            meas = None if xy_measured is None else xy_measured[rows]
+            free = ~fixed[sel]  # (m, 3)
+            xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
+            X = _initial_points(R, O, interior[..., :3], xy_ray, xyz_given[sel], given_mask[sel])
+            Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
+            wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                for _ in range(iterations):
+                    res, dX, *_ = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
+                    Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+                    gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - X)
+                    Nx, gx = _hold(Nx, gx, free)
+                    step = safe_solve(Nx, gx)
+                    X = X + step
+                    if _converged(step, X):
+                        break
+                _, dX, dO, drot, dint = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
                 Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
-                gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - X)
-                Nx, gx = _hold(Nx, gx, free)
-                X = X + safe_solve(Nx, gx)
-            _, dX, dO, drot, dint = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
-            Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
-            Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
-            # a point whose rays are parallel (or numbers not finite) is not determined: left out
-            Qm, ok = safe_inverse(Nx)
-            ok &= np.isfinite(X).all(axis=1)
-            Qm = Qm * (free[:, :, None] & free[:, None, :])
-        xyz[sel[ok]] = X[ok]
-        cov_m[sel[ok]] = Qm[ok]
-        determined[sel[ok]] = True
-        if Qxx is not None and n_unknowns_of(Qxx):
-            T = rotation_maps[ph]
-            drot_u = np.einsum("mkai,mkij->mkaj", drot, T)
-            J = np.concatenate([dO, drot_u, dint], 3)  # (m, k, 2, 6 + NCP)
-            cols = np.concatenate([photo_cols[ph], camera_cols[camera_of_photo[ph]]], 2)  # (m, k, 6 + NCP)
-            m = len(sel)
-            JX = dX.reshape(m, 2 * k, 3)
-            G_rows = -np.einsum("mij,mrj,mr->mir", Qm, JX, wxy.reshape(m, 2 * k))  # dX/d(plate)
-            # rows 2j, 2j+1 of the plate coordinates depend on the unknowns of ray j only
-            Gfull = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J).reshape(m, 3, -1)
-            colflat = cols.reshape(m, -1)
-            Qloc = qxx_entries(Qxx, colflat[:, :, None], colflat[:, None, :])  # -1 reads zeros
-            Qo = np.einsum("mic,mcd,mjd->mij", Gfull, Qloc, Gfull)
-            cov_o[sel[ok]] = Qo[ok]
+                Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
+                # a point whose rays are parallel (or numbers not finite) is not determined: left out
+                Qm, ok = safe_inverse(Nx)
+                ok &= np.isfinite(X).all(axis=1)
+                Qm = Qm * (free[:, :, None] & free[:, None, :])
+            xyz[sel[ok]] = X[ok]
+            cov_m[sel[ok]] = Qm[ok]
+            determined[sel[ok]] = True
+            if Qxx is not None and n_unknowns_of(Qxx):
+                m = len(sel)
+                JX = dX.reshape(m, 2 * k, 3)
+                G_rows = -Qm @ np.swapaxes(JX * wxy.reshape(m, 2 * k, 1), 1, 2)  # (m, 3, 2k): dX/d(plate)
+                # rows 2j, 2j+1 of the plate coordinates depend on the unknowns of ray j only
+                drot_u = np.einsum("mkai,mkij->mkaj", drot, rotation_maps[ph])
+                J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
+                G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
+                parts = ray_slots(G, ph, photo_cols, camera_of_photo[ph], camera_cols[:, estimated])
+                Qo = forms(parts)
+                cov_o[sel[ok]] = Qo[ok]
     return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined)
 
 
+POINT_CHUNK = 4096  # points triangulated at once (as AdjustmentOptions.chunk_size groups)
 SINGULAR_RCOND = 1e-14  # a point's 3x3 normal matrix whose eigenvalues span more than 1e14 is singular
+CONVERGED = 1e-12  # the iteration of a batch of points ends when every step is below this times the point's size
+
+
+def _converged(step: np.ndarray, X: np.ndarray) -> bool:
+    """True when every finite step (m, 3) is below CONVERGED times its point's largest coordinate
+    (plus 1): further Gauss-Newton steps would only move the points by rounding. Points whose step
+    is not finite (not determined) do not hold the batch back."""
+    scale = np.max(np.abs(np.where(np.isfinite(X), X, 0.0)), axis=1, keepdims=True) + 1.0
+    return bool(np.all((np.abs(step) <= CONVERGED * scale) | ~np.isfinite(step)))
 
 
 def safe_inverse(M: np.ndarray, rcond: float = SINGULAR_RCOND) -> tuple[np.ndarray, np.ndarray]:
@@ -265,6 +286,13 @@ def safe_solve(M: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def n_unknowns_of(Qxx) -> int:
     return Qxx.shape[0] if isinstance(Qxx, np.ndarray) else Qxx.n
+
+
+def _dense_forms(Qxx: np.ndarray):
+    """covariance.group_forms on a dense Qxx (index -1 reads zero)."""
+    Qext = np.zeros((Qxx.shape[0] + 1, Qxx.shape[0] + 1))
+    Qext[:-1, :-1] = Qxx
+    return lambda parts: group_forms(lambda r, c: Qext[r, c], parts)
 
 
 def qxx_entries(Qxx, rows, cols):
