@@ -309,6 +309,26 @@ class TestCholmod(SolverSuite):
         assert r.iterations > 1 and [h.solver_info["analyses"] for h in r.history] == [1] * r.iterations
 
 
+class TestCvxopt(SolverSuite):
+    name = "cvxopt"
+
+    @pytest.fixture(autouse=True)
+    def _needs_cvxopt(self):
+        pytest.importorskip("cvxopt.cholmod")
+
+    def test_analyses_once_per_adjustment(self):
+        N, st = block_case(3, 8, 1, seed=2)
+        solver = self.make(st)
+        for seed in range(3):
+            result = self.assert_agrees(N * (1.0 + seed), st, seed=seed, solver=solver)
+        assert result.info["analyses"] == 1
+
+    def test_an_adjustment_analyses_once(self, strip8_dense):
+        project, _ = strip8_dense
+        r = adjust(project, AdjustmentOptions(solver="cvxopt"))
+        assert r.iterations > 1 and [h.solver_info["analyses"] for h in r.history] == [1] * r.iterations
+
+
 class TestGaussSeidel(IterativeSuite):
     name = "gauss-seidel"
 
@@ -335,7 +355,8 @@ def strip8_dense():
 
 
 def test_every_solver_has_a_suite():
-    suites = {cls.name for cls in (TestDense, TestSparse, TestBanded, TestCholmod, TestGaussSeidel, TestPcg)}
+    suites = {cls.name for cls in (TestDense, TestSparse, TestBanded, TestCholmod, TestCvxopt, TestGaussSeidel,
+                                    TestPcg)}
     assert suites == set(SOLVERS) - {"auto"}
 
 
@@ -345,8 +366,7 @@ def test_auto_picks_from_the_pattern():
     N, st = strip_case(100, 1, seed=1)
     assert solvers.resolve_solver("auto", N.shape[0], N, st) == "banded"
     wide, wst = block_case(3, 100, 1, seed=1)  # strips of 100 photos side by side: bandwidth ~ 6 x 100
-    sparse_choice = "cholmod" if solvers.cholmod_available() else "sparse"
-    assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == sparse_choice
+    assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == solvers.sparse_choice()
     auto = make_solver(SolverOptions("auto"), st)
     result = auto.solve(N, np.ones(N.shape[0]))
     assert auto.name == result.solver == "banded"
@@ -359,16 +379,53 @@ def test_auto_in_an_adjustment_reports_the_concrete_solver(strip8_dense):
     assert np.abs(r.state.xyz0 - ref.state.xyz0).max() < 1e-9 * FLYING_HEIGHT
 
 
+def _without(monkeypatch, *modules):
+    for m in modules:
+        monkeypatch.setitem(sys.modules, m, None)
+
+
 def test_without_scikit_sparse(monkeypatch):
     """make_solver('cholmod') names the install command; auto never picks cholmod."""
-    monkeypatch.setitem(sys.modules, "sksparse", None)
-    monkeypatch.setitem(sys.modules, "sksparse.cholmod", None)
-    assert not solvers.cholmod_available()
+    _without(monkeypatch, "sksparse", "sksparse.cholmod", "cvxopt", "cvxopt.cholmod")
+    assert not solvers.cholmod_available() and not solvers.cvxopt_available()
     with pytest.raises(SolverUnavailable, match=r"libsuitesparse-dev.*pip install 'striptri\[cholmod\]'"):
         make_solver(SolverOptions("cholmod"), Structure(10))
     wide, wst = block_case(3, 100, 1, seed=1)
     assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == "sparse"
     assert solvers.resolve_solver("auto", 10**6) == "sparse"
+
+
+def test_without_cvxopt(monkeypatch):
+    """make_solver('cvxopt') names the pip extra."""
+    _without(monkeypatch, "cvxopt", "cvxopt.cholmod")
+    assert not solvers.cvxopt_available()
+    with pytest.raises(SolverUnavailable, match=r"pip install 'striptri\[fast\]'"):
+        make_solver(SolverOptions("cvxopt"), Structure(10))
+
+
+def test_auto_takes_cvxopt_after_a_plain_pip_install(monkeypatch):
+    """Without scikit-sparse, auto's sparse factorisation is cvxopt's CHOLMOD when installed."""
+    pytest.importorskip("cvxopt.cholmod")
+    _without(monkeypatch, "sksparse", "sksparse.cholmod")
+    wide, wst = block_case(3, 100, 1, seed=1)
+    assert solvers.sparse_choice() == "cvxopt"
+    assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == "cvxopt"
+    auto = make_solver(SolverOptions("auto"), wst)
+    b = np.random.default_rng(2).normal(size=wide.shape[0])
+    result = auto.solve(wide, b)
+    assert auto.name == result.solver == "cvxopt"
+    assert scaled_error(wide, result.dx, dense_reference(wide, b)) < DIRECT_RTOL
+
+
+@pytest.mark.parametrize("reference", [True, False])
+def test_auto_prefers_cvxopt_to_cholmod_on_the_reference_blas(monkeypatch, reference):
+    """Both installed: cholmod, unless its CHOLMOD calls the reference BLAS (docs/solvers.md)."""
+    pytest.importorskip("cvxopt.cholmod")
+    pytest.importorskip("sksparse.cholmod")
+    from striptri.solvers import selection
+
+    monkeypatch.setattr(selection, "on_reference_blas", lambda solver: reference)
+    assert solvers.sparse_choice() == ("cvxopt" if reference else "cholmod")
 
 
 @pytest.mark.parametrize("bad", [dict(name="lu"), dict(relaxation=2.0), dict(relaxation=0.0),

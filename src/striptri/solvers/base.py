@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-SOLVERS = ("auto", "dense", "sparse", "banded", "cholmod", "gauss-seidel", "pcg")
+SOLVERS = ("auto", "dense", "sparse", "banded", "cholmod", "cvxopt", "gauss-seidel", "pcg")
 WARM_STARTS = ("zero", "previous", "projected")
 
 # A pivot of the Cholesky factor of the Jacobi-scaled N (unit diagonal) below this counts as zero:

@@ -9,6 +9,8 @@ from .banded import BandedSolver, choose_split
 from .base import SOLVERS, NormalSolver, SolveResult, SolverOptions, Structure
 from .direct import DenseSolver, ScipySparseSolver
 from .iterative import GaussSeidelSolver, PcgSolver
+from .cvxopt_cholesky import CvxoptSolver, cvxopt_available
+from .describe import on_reference_blas
 from .sparse_cholesky import CholmodSolver, cholmod_available
 
 # auto: measured on a 2-core machine (scripts/bench/bench_solvers.py, docs/solvers.md)
@@ -21,6 +23,7 @@ _SOLVER_CLASSES = {
     "sparse": ScipySparseSolver,
     "banded": BandedSolver,
     "cholmod": CholmodSolver,
+    "cvxopt": CvxoptSolver,
     "gauss-seidel": GaussSeidelSolver,
     "pcg": PcgSolver,
 }
@@ -33,9 +36,9 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
     ``auto`` (docs/solvers.md): ``dense`` up to DENSE_LIMIT unknowns; else ``banded`` when the
     photo part of N (camera columns split off as a border) has a lower bandwidth of at most
     BANDED_MAX_BANDWIDTH (and its band fits BANDED_MAX_STORAGE) - a strip, or a block of strips of
-    up to about 80 photos numbered strip after strip; else ``cholmod`` when
-    scikit-sparse is installed, ``sparse`` when not. Without N (its pattern not yet known) the choice
-    after ``dense`` is the sparse one.
+    up to about 80 photos numbered strip after strip; else the sparse Cholesky of
+    :func:`sparse_choice`. Without N (its pattern not yet known) the choice after ``dense`` is the
+    sparse one.
     """
     if name not in SOLVERS:
         raise ValueError(f"unknown solver {name!r}; choose one of {', '.join(SOLVERS)}")
@@ -49,7 +52,19 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
         k, w = choose_split(A, structure or Structure(n_unknowns))
         if w <= BANDED_MAX_BANDWIDTH and (w + 1) * k <= BANDED_MAX_STORAGE:
             return "banded"
-    return "cholmod" if cholmod_available() else "sparse"
+    return sparse_choice()
+
+
+def sparse_choice() -> str:
+    """The sparse factorisation ``auto`` takes for blocks (docs/solvers.md, measured on the
+    benchmark blocks): ``cholmod`` (scikit-sparse) when installed, unless its CHOLMOD runs on the
+    reference BLAS and ``cvxopt`` is installed (cvxopt's wheels bring their own OpenBLAS, 4 to 5
+    times faster there); then ``cvxopt``; ``sparse`` (scipy's SuperLU) when neither is installed."""
+    if cholmod_available() and not (cvxopt_available() and on_reference_blas("cholmod")):
+        return "cholmod"
+    if cvxopt_available():
+        return "cvxopt"
+    return "sparse"
 
 
 class AutoSolver(NormalSolver):

@@ -6,16 +6,40 @@ refactorises numerically (``Factor.cholesky_inplace``). If N's pattern ever grow
 analysed (an entry that was not there before), the solver analyses again and counts it in
 ``info["analyses"]``; a pattern that only loses entries (exact zeros) is fine as it is.
 
+Mode and ordering (:data:`MODE`, :data:`ORDERING`) were chosen by measurement on the normal
+matrices of the benchmark blocks of 1,000, 5,000 and 20,000 photos (docs/solvers.md,
+``scripts/bench/bench_solvers.py --projects``): the *supernodal* factorisation, which does its work
+in dense BLAS kernels, with CHOLMOD's nested dissection (METIS on the graph, then constrained
+minimum degree on the parts). With an optimised BLAS under CHOLMOD (Debian's OpenBLAS) that is 5 to
+10 times faster than the simplicial factorisation; on the reference BLAS it is still no slower.
+
+OpenMP: CHOLMOD 3.0 (SuiteSparse 5, Debian 12's) clears and copies memory in its supernodal
+factorisation in OpenMP regions with a compiled-in ``num_threads(4)`` (CHOLMOD_OMP_NUM_THREADS),
+whatever OMP_NUM_THREADS says: a fork and join for every large supernode. On a busy 2-core machine
+that made the numeric factorisation 2 to 3 times slower (and 15 times slower with the thread limit 2).
+:func:`cholmod_module` therefore switches libgomp's dynamic adjustment on (``omp_set_dynamic(1)``,
+in the calling thread, for the libgomp CHOLMOD is linked to): the runtime then gives those regions no
+more threads than there are idle cores. ``OMP_THREAD_LIMIT=1`` in the environment makes it one thread
+always (docs/solvers.md has the measurements).
+
 scikit-sparse is optional: ``pip install 'striptri[cholmod]'`` after
-``apt-get install libsuitesparse-dev`` (docs/solvers.md).
+``apt-get install libsuitesparse-dev libopenblas0-serial`` (docs/solvers.md).
 """
 
 from __future__ import annotations
+
+import ctypes
+import threading
 
 import numpy as np
 import scipy.sparse as sp
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
+
+MODES = ("supernodal", "simplicial")
+ORDERINGS = ("nesdis", "metis", "amd", "colamd", "best", "default", "natural")
+MODE = "supernodal"
+ORDERING = "nesdis"
 
 INSTALL_HINT = (
     "the 'cholmod' solver needs scikit-sparse: install SuiteSparse's headers and the extra with "
@@ -24,12 +48,30 @@ INSTALL_HINT = (
 )
 
 
+OPENMP_DYNAMIC = True  # the module doc; the benchmark switches it off to show why it is on
+_tamed = threading.local()
+
+
+def _tame_openmp(module) -> None:
+    """omp_set_dynamic(1) in this thread for the libgomp that ``module``'s CHOLMOD calls (once per
+    thread; nothing when CHOLMOD was built without OpenMP)."""
+    if not OPENMP_DYNAMIC or getattr(_tamed, "done", False):
+        return
+    try:
+        ctypes.CDLL(module.__file__).omp_set_dynamic(1)  # dlsym from the module: its own libgomp
+    except (OSError, AttributeError, TypeError):
+        pass
+    _tamed.done = True
+
+
 def cholmod_module():
-    """sksparse.cholmod, or SolverUnavailable with the install command."""
+    """sksparse.cholmod, or SolverUnavailable with the install command; in the calling thread,
+    CHOLMOD's OpenMP regions get no more threads than idle cores (module doc)."""
     try:
         from sksparse import cholmod
     except ImportError as exc:
         raise SolverUnavailable(INSTALL_HINT) from exc
+    _tame_openmp(cholmod)
     return cholmod
 
 
@@ -42,10 +84,18 @@ def cholmod_available() -> bool:
 
 
 class CholmodSolver(NormalSolver):
+    """``mode`` and ``ordering`` default to :data:`MODE` and :data:`ORDERING` (the benchmark
+    script passes others to compare them)."""
+
     name = "cholmod"
 
-    def __init__(self, options, structure):
+    def __init__(self, options, structure, *, mode: str = MODE, ordering: str = ORDERING):
         super().__init__(options, structure)
+        if mode not in MODES:
+            raise ValueError(f"unknown CHOLMOD mode {mode!r}; choose one of {', '.join(MODES)}")
+        if ordering not in ORDERINGS:
+            raise ValueError(f"unknown CHOLMOD ordering {ordering!r}; choose one of {', '.join(ORDERINGS)}")
+        self.mode, self.ordering = mode, ordering
         self._cholmod = cholmod_module()
         self._factor = None
         self._pattern: sp.csc_matrix | None = None
@@ -67,18 +117,19 @@ class CholmodSolver(NormalSolver):
         Ns, s = jacobi_scaled(N)
         A = Ns.T  # CSC view of the symmetric matrix; CHOLMOD reads its lower triangle
         if not self._pattern_fits(A):
-            # simplicial with AMD: Debian's SuiteSparse links the reference BLAS, which makes the
-            # supernodal mode slower here (block of 1000 photos: 58 against 99 ms per factorisation)
-            self._factor = self._cholmod.analyze(A, mode="simplicial", ordering_method="amd")
+            self._factor = self._cholmod.analyze(A, mode=self.mode, ordering_method=self.ordering)
             self._pattern = sp.csc_matrix((np.ones(A.nnz), A.indices.copy(), A.indptr.copy()), shape=A.shape)
             self.analyses += 1
         factor = self._factor
+        _tame_openmp(self._cholmod)  # this thread may not be the one that made the solver
         perm = factor.P()
         try:
             factor.cholesky_inplace(A)
         except self._cholmod.CholmodNotPositiveDefiniteError as exc:
             col = getattr(exc, "column", None)
             raise SingularNormalMatrix(int(perm[col]) if col is not None and 0 <= col < n else None) from exc
+        # D(): the squared diagonal of L (supernodal, L L') or D itself (simplicial, L D L')
         check_pivots(np.sqrt(np.maximum(factor.D(), 0.0)), perm)
         y = factor.solve_A(b * s)
-        return SolveResult(np.asarray(y).reshape(-1) * s, self.name, {"analyses": self.analyses})
+        return SolveResult(np.asarray(y).reshape(-1) * s, self.name,
+                           {"analyses": self.analyses, "mode": self.mode, "ordering": self.ordering})

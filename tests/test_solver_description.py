@@ -1,0 +1,122 @@
+"""solvers.describe: which factorisation and which BLAS solved the normal equations (summary.json)."""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+import sys
+import threading
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from striptri import solvers
+from striptri.solvers import SOLVERS, SolverOptions, Structure, describe, make_solver
+from striptri.solvers.cvxopt_cholesky import lower_triangle
+from striptri.solvers.describe import blas_path, on_reference_blas
+from striptri.solvers.synthetic import block_normal_matrix
+
+CONCRETE = [s for s in SOLVERS if s != "auto"]
+
+
+def _mapped_files() -> set[str]:
+    with open("/proc/self/maps") as f:
+        return {os.path.realpath(line.split()[-1]) for line in f if "/" in line}
+
+
+@pytest.mark.parametrize("name", CONCRETE)
+def test_every_solver_is_described_in_json(name):
+    d = describe(name)
+    assert set(d) == {"factorisation", "blas"}
+    assert all(isinstance(v, str) and v for v in d.values())
+    json.dumps(d)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/maps")
+@pytest.mark.parametrize("name", ["dense", "banded", "sparse", "cholmod", "cvxopt"])
+def test_the_blas_found_is_a_library_loaded_in_this_process(name):
+    if name == "cholmod":
+        pytest.importorskip("sksparse.cholmod")
+    if name == "cvxopt":
+        pytest.importorskip("cvxopt.cholmod")
+    path = blas_path(name)
+    assert path is not None and os.path.realpath(path) in _mapped_files()
+    assert os.path.realpath(path) in describe(name)["blas"]
+
+
+def test_the_description_follows_the_solver_info():
+    assert describe("banded", {"bandwidth": 17, "border": 3})["factorisation"] == (
+        "LAPACK banded Cholesky (pbtrf), bandwidth 17, dense border of 3 camera columns")
+    assert describe("banded", {"bandwidth": 17, "border": 0})["factorisation"] == (
+        "LAPACK banded Cholesky (pbtrf), bandwidth 17")
+
+
+def test_cholmod_names_its_version_mode_and_ordering():
+    pytest.importorskip("sksparse.cholmod")
+    N, st = block_normal_matrix(4, 10, np.random.default_rng(1), n_cameras=1)
+    solver = make_solver(SolverOptions("cholmod"), st)
+    result = solver.solve(N, np.ones(N.shape[0]))
+    text = describe(solver, result.info)["factorisation"]
+    assert text.startswith("CHOLMOD ") and "SuiteSparse" in text
+    assert result.info["mode"] in text and "ordering" in text
+    assert describe("cholmod", {"mode": "simplicial", "ordering": "amd"})["factorisation"].count("simplicial") == 1
+
+
+def test_an_auto_solver_is_described_by_its_choice():
+    N, st = block_normal_matrix(3, 100, np.random.default_rng(1), n_cameras=1)
+    auto = make_solver(SolverOptions("auto"), st)
+    with pytest.raises(ValueError, match="concrete"):
+        describe(auto)
+    result = auto.solve(N, np.ones(N.shape[0]))
+    assert describe(auto, result.info) == describe(result.solver, result.info)
+
+
+def test_unknown_solver_is_refused():
+    with pytest.raises(ValueError, match="unknown solver"):
+        describe("lu")
+
+
+def test_cholmod_runs_its_openmp_regions_with_dynamic_threads():
+    """Debian's CHOLMOD asks OpenMP for 4 threads per supernode whatever OMP_NUM_THREADS says;
+    the solver switches libgomp's dynamic adjustment on in the thread that factorises."""
+    cholmod = pytest.importorskip("sksparse.cholmod")
+    lib = ctypes.CDLL(cholmod.__file__)
+    try:
+        get_dynamic = lib.omp_get_dynamic
+    except AttributeError:
+        pytest.skip("CHOLMOD built without OpenMP")
+    N, st = block_normal_matrix(3, 8, np.random.default_rng(1))
+    seen = {}
+
+    def run():
+        make_solver(SolverOptions("cholmod"), st).solve(N, np.ones(N.shape[0]))
+        seen["dynamic"] = get_dynamic()
+
+    t = threading.Thread(target=run)  # a fresh thread: OpenMP's settings are per thread
+    t.start()
+    t.join()
+    assert seen["dynamic"] == 1
+
+
+def test_reference_blas_is_recognised():
+    """on_reference_blas agrees with the words of the description."""
+    for name in ("dense", "cholmod", "cvxopt"):
+        if name == "cholmod" and not solvers.cholmod_available():
+            continue
+        if name == "cvxopt" and not solvers.cvxopt_available():
+            continue
+        assert on_reference_blas(name) == describe(name)["blas"].startswith("reference BLAS")
+    assert not on_reference_blas("dense")  # scipy's wheels bring OpenBLAS
+
+
+def test_lower_triangle_of_cvxopt_matches_scipy():
+    N, _ = block_normal_matrix(3, 8, np.random.default_rng(4), n_cameras=2)
+    A = sp.csr_matrix(N)
+    A.sort_indices()
+    indptr, rows, values = lower_triangle(A)
+    ref = sp.tril(A, format="csc")
+    ref.sort_indices()
+    assert np.array_equal(indptr, ref.indptr) and np.array_equal(rows, ref.indices)
+    assert np.array_equal(values, ref.data)
