@@ -86,15 +86,17 @@ def parse_args(argv=None):
     ap.add_argument("--cases", nargs="+", choices=list(scale_cases.CASES), help="default: b1k b5k b20k close-range")
     ap.add_argument("--quick", action="store_true",
                     help="smoke run: cases b100 and close-small, one repeat, one Ceres thread (unless given)")
-    ap.add_argument("--repeats", type=int, default=None, help="rounds of runs, interleaved; medians [1]")
+    ap.add_argument("--repeats", nargs="+", default=None, metavar="N|CASE=N",
+                    help="rounds of runs, interleaved; medians. N for every case, CASE=N for one [1]")
     ap.add_argument("--threads", type=int, nargs="+", default=None, help="Ceres threads of the pycolmap runs [1 2]")
     ap.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS), help="striptri methods")
     ap.add_argument("--no-pycolmap", action="store_true", help="striptri only")
     ap.add_argument("--no-covariance", action="store_true", help="skip pycolmap's covariance estimate")
     ap.add_argument("--covariance-max-gb", type=float, default=1.0,
                     help="run pycolmap's covariance only when one dense matrix over the poses fits in this [1]")
-    ap.add_argument("--time-limit", type=float, default=1800.0,
-                    help="seconds after which a striptri or pycolmap run is stopped [1800]")
+    ap.add_argument("--time-limit", nargs="+", default=None, metavar="S|CASE=S",
+                    help="seconds after which a striptri or pycolmap run is stopped; S for every case, CASE=S "
+                         "for one [1800]")
     ap.add_argument("--memory-limit-gb", type=float, default=None,
                     help="address-space limit of every run (RLIMIT_AS) [none]")
     ap.add_argument("--blas-threads", type=int, default=1, help="BLAS threads of the striptri runs [1]")
@@ -103,10 +105,29 @@ def parse_args(argv=None):
     ap.add_argument("--json", type=Path, help="every measurement [DATA_DIR/bench_scale.json]")
     args = ap.parse_args(argv)
     args.cases = args.cases or list(scale_cases.QUICK_CASES if args.quick else scale_cases.DEFAULT_CASES)
-    args.repeats = args.repeats or 1
+    args.repeats = per_case(args.repeats, int, 1, ap)
+    args.time_limit = per_case(args.time_limit, float, 1800.0, ap)
     args.threads = args.threads or ([1] if args.quick else [1, 2])
     args.json = args.json or args.data_dir / "bench_scale.json"
     return args
+
+
+def per_case(values: list[str] | None, kind, default, ap) -> dict:
+    """["600", "close-range=900"] -> {None: 600, "close-range": 900} (None: every other case)."""
+    out = {None: default}
+    for v in values or []:
+        name, _, number = v.rpartition("=")
+        if name and name not in scale_cases.CASES:
+            ap.error(f"unknown case {name!r} in {v!r}")
+        try:
+            out[name or None] = kind(number)
+        except ValueError:
+            ap.error(f"not a number: {v!r}")
+    return out
+
+
+def for_case(setting: dict, name: str):
+    return setting.get(name, setting[None])
 
 
 # --------------------------------------------------------------------------- environment
@@ -184,19 +205,19 @@ def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float 
 
 # --------------------------------------------------------------------------- the runs
 
-def run_striptri(case_dir: Path, project: Path, method: str, args, truth) -> dict:
+def run_striptri(case_dir: Path, project: Path, method: str, args, truth, time_limit: float) -> dict:
     out = case_dir / f"out-{method}"
     if out.exists():
         shutil.rmtree(out)  # a previous run's output (this script made it)
     cmd = [sys.executable, "-m", "striptri", "adjust", str(project), "--out", str(out), "--method", method,
            "--keep-unconverged"]
-    rep = measured_run(cmd, child_env(args.blas_threads), args.time_limit, args.memory_limit_gb,
+    rep = measured_run(cmd, child_env(args.blas_threads), time_limit, args.memory_limit_gb,
                        case_dir / f"time-{method}.txt")
     rep["command"] = " ".join(["striptri"] + cmd[3:])
     rep.pop("stdout")
     summary = out / "summary.json"
     if rep["exit_status"] != 0 or not summary.is_file():
-        rep["status"] = (f"stopped at the time limit ({args.time_limit:.0f} s)" if rep["timed_out"]
+        rep["status"] = (f"stopped at the time limit ({time_limit:.0f} s)" if rep["timed_out"]
                          else f"failed (exit {rep['exit_status']}): {rep['stderr_tail']}")
         return rep
     s = json.loads(summary.read_text())
@@ -213,15 +234,16 @@ def run_striptri(case_dir: Path, project: Path, method: str, args, truth) -> dic
     return rep
 
 
-def run_pycolmap(case_dir: Path, data_file: Path, threads: int, covariance: bool, args, truth_xyz: np.ndarray) -> dict:
+def run_pycolmap(case_dir: Path, data_file: Path, threads: int, covariance: bool, args, truth_xyz: np.ndarray,
+                 time_limit: float) -> dict:
     out = case_dir / f"colmap-{threads}.npz"
     cmd = [sys.executable, str(HERE / "colmap_worker.py"), str(data_file), str(threads), str(out)]
     if covariance:
         cmd.append("--covariance")
-    rep = measured_run(cmd, child_env(threads), args.time_limit, args.memory_limit_gb, case_dir / f"time-colmap-{threads}.txt")
+    rep = measured_run(cmd, child_env(threads), time_limit, args.memory_limit_gb, case_dir / f"time-colmap-{threads}.txt")
     stdout = rep.pop("stdout").strip().splitlines()
     if rep["exit_status"] != 0 or not stdout:
-        rep["status"] = (f"stopped at the time limit ({args.time_limit:.0f} s)" if rep["timed_out"]
+        rep["status"] = (f"stopped at the time limit ({time_limit:.0f} s)" if rep["timed_out"]
                          else f"failed (exit {rep['exit_status']}): {rep['stderr_tail']}")
         return rep
     worker = json.loads(stdout[-1])
@@ -233,19 +255,55 @@ def run_pycolmap(case_dir: Path, data_file: Path, threads: int, covariance: bool
     return rep
 
 
-def prepare_colmap(project: Path, case: scale_cases.ScaleCase, data_file: Path) -> float:
-    """The ColmapData of the case (made here, with striptri) -> the dense covariance size in GB."""
-    import colmap_ba
-    from striptri.io import read_project
-
+def prepare_colmap(project: Path, case: scale_cases.ScaleCase, data_file: Path, env: dict) -> float:
+    """The ColmapData of the case, made in its own process (colmap_ba.py: striptri reads the
+    project) -> the size of one dense covariance matrix in GB."""
+    cmd = [sys.executable, str(HERE / "colmap_ba.py"), str(project), str(data_file)]
     if case.kind == "close":
         import close_range
 
-        data = colmap_ba.prepare(read_project(project), close_range.FORMAT, close_range.SIGMA_IMAGE)
-    else:
-        data = colmap_ba.prepare(read_project(project))
-    colmap_ba.save(data, data_file)
-    return colmap_ba.dense_covariance_bytes(data) / 1e9
+        cmd += ["--format", *map(str, close_range.FORMAT), "--pixel-size", str(close_range.SIGMA_IMAGE)]
+    done = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])["dense_covariance_bytes"] / 1e9
+
+
+_LIST_MODULES = """
+import json, sys
+from striptri.cli import main
+try:
+    main([sys.argv[1], sys.argv[2], "--out", sys.argv[3]])
+except SystemExit:
+    pass
+print(json.dumps(sorted(m for m in sys.modules if m != "__main__")))
+"""
+_IMPORT = """
+import importlib, json, sys
+for name in json.loads(sys.argv[1]):
+    try:
+        importlib.import_module(name)
+    except Exception:
+        pass
+"""
+
+
+def import_seconds(project: Path, work: Path, env: dict, repeats: int = 3) -> dict:
+    """Interpreter start and the imports of ``striptri adjust``, measured apart: the modules a run on
+    ``project`` has loaded, imported in a fresh interpreter (median of ``repeats``)."""
+    out = work / "out-imports"
+    if out.exists():
+        shutil.rmtree(out)
+    listed = subprocess.run([sys.executable, "-c", _LIST_MODULES, "adjust", str(project), str(out)], env=env,
+                            capture_output=True, text=True, check=True)
+    modules = json.loads(listed.stdout.strip().splitlines()[-1])
+    walls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", _IMPORT, json.dumps(modules)], env=env, check=True)
+        walls.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "pass"], env=env, check=True)
+    return {"seconds": statistics.median(walls), "interpreter_seconds": time.perf_counter() - t0,
+            "modules": len(modules), "all_seconds": walls}
 
 
 def median_run(runs: list[dict]) -> dict:
@@ -286,24 +344,25 @@ def run_case(name: str, args, log) -> dict:
     cov_gb = None
     data_file = case_dir / "colmap.npz"
     if use_colmap:
-        cov_gb = prepare_colmap(project, case, data_file)
+        cov_gb = prepare_colmap(project, case, data_file, child_env(args.blas_threads))
         truth_xyz = np.array([truth[p] for p in _photo_ids(project)])  # ColmapData keeps the photos' order
     plan = [("striptri", m) for m in args.methods]
     if use_colmap:
         plan += [("pycolmap", t) for t in args.threads]
     covariance_wanted = use_colmap and not args.no_covariance and cov_gb <= args.covariance_max_gb
     runs: dict[str, list[dict]] = {}
-    for r in range(args.repeats):
+    limit = for_case(args.time_limit, name)
+    for r in range(for_case(args.repeats, name)):
         for engine, what in plan:
             label = f"striptri {what}" if engine == "striptri" else f"pycolmap {what} thread" + ("s" if what > 1 else "")
             previous = runs.setdefault(label, [])
             if previous and previous[-1].get("status") != "ok":
                 continue  # stopped or failed once: not again
             if engine == "striptri":
-                rep = run_striptri(case_dir, project, what, args, truth)
+                rep = run_striptri(case_dir, project, what, args, truth, limit)
             else:
                 rep = run_pycolmap(case_dir, data_file, what, covariance_wanted and what == args.threads[0] and r == 0,
-                                   args, truth_xyz)
+                                   args, truth_xyz, limit)
             previous.append(rep)
             log("   " + one_line(label, rep))
     result = {"case": name, "kind": case.kind, "n_photos": case.n_photos, "recipe": case.recipe(), "counts": counts,
@@ -349,6 +408,8 @@ def ratios(result: dict, label: str) -> dict:
     if s.get("status") == "ok" and p.get("status") == "ok":
         out.update(whole_ratio=s["wall_s"] / p["adjust_s"], adjust_ratio=s["adjust_s"] / p["adjust_s"],
                    memory_ratio=s["peak_mib"] / p["ba_peak_mib"])
+        if s.get("cpu_s") and p["worker"].get("cpu_seconds"):
+            out["whole_cpu_ratio"] = s["cpu_s"] / p["worker"]["cpu_seconds"]
     return out
 
 
@@ -364,14 +425,14 @@ def agreement(result: dict, label: str) -> str:
 
 def runs_table(results: list[dict]) -> str:
     head = ("| case | photos | run | iters | whole s | adjust() s | CPU s | peak MiB | RMS centres m | vTPv "
-            "| whole / pycolmap | adjust() / pycolmap | memory / pycolmap | same accuracy |")
+            "| whole / pycolmap | adjust() / pycolmap | memory / pycolmap | whole / pycolmap (CPU) | same accuracy |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for res in results:
         for label, rep in res["runs"].items():
             if rep.get("status") != "ok":
                 peak = f"{rep['peak_mib']:.0f} (so far)" if rep.get("peak_mib") else "-"
                 lines.append(f"| {res['case']} | {res['n_photos']} | {label} | {rep.get('status')} | "
-                             f"> {rep['wall_s']:.0f} | | | {peak} | | | | | | |")
+                             f"> {rep['wall_s']:.0f} | | | {peak} | | | | | | | |")
                 continue
             it = f"{rep['iterations']}" + ("" if rep.get("converged", True) else " (not converged)")
             r = ratios(res, label) if label.startswith("striptri") else {}
@@ -384,6 +445,7 @@ def runs_table(results: list[dict]) -> str:
                 f"| {res['case']} | {res['n_photos']} | {label} | {it} | {whole:.2f} | {rep['adjust_s']:.2f} "
                 f"| {rep.get('cpu_s', float('nan')):.2f} | {peak} | {rep['rms_centres']:.5g} | {rep['vtpv']:.10g} "
                 f"| {_f(r.get('whole_ratio'))} | {_f(r.get('adjust_ratio'))} | {_f(r.get('memory_ratio'))} "
+                f"| {_f(r.get('whole_cpu_ratio'))} "
                 f"| {agreement(res, label) if label.startswith('striptri') else '-'} |")
     return "\n".join(lines)
 
@@ -462,18 +524,32 @@ def targets(results: list[dict]) -> list[str]:
     return lines
 
 
+RUNS_NOTE = (
+    "whole s: wall time of the whole process (striptri: the `striptri adjust` command; pycolmap: its worker, "
+    "with the interpreter, loading and building the Reconstruction). adjust() s: striptri's adjustment "
+    "(summary.json timings_s total); pycolmap: the bundle adjuster's set-up and solve. peak MiB: maximum "
+    "resident set size of the process (/usr/bin/time); pycolmap's in brackets: up to the end of its "
+    "bundle adjustment (VmHWM), the denominator of the memory ratio. CPU s: user + system time of the "
+    "process. Ratios: to pycolmap with one thread (its bundle adjustment's wall time and memory; the CPU "
+    "ratio: the whole command's CPU time to the bundle adjustment's, steadier than wall time on a loaded "
+    "machine, as every striptri run is single-threaded)."
+)
+PHASES_NOTE = (
+    "striptri's phases (s; summary.json timings_s, medians; for the bundle method the conditions column is "
+    "its initial_points and assembly its linearisation_and_reduction, and its back_substitution holds the "
+    "linearisation of each Gauss-Newton trial step; adjust_other: the rest of the adjustment's total; remainder: "
+    "whole wall time minus the phases, i.e. interpreter start, imports, writing the files; some imports happen "
+    "inside the phases, e.g. matplotlib's in report):"
+)
+
+
 def report_text(results: list[dict], meta: dict) -> str:
-    parts = [runs_table(results), "",
-             "whole s: wall time of the whole process (striptri: the `striptri adjust` command; pycolmap: its worker, "
-             "with the interpreter, loading and building the Reconstruction). adjust() s: striptri's adjustment "
-             "(summary.json timings_s total); pycolmap: the bundle adjuster's set-up and solve. peak MiB: maximum "
-             "resident set size of the process (/usr/bin/time); pycolmap's in brackets: up to the end of its "
-             "bundle adjustment (VmHWM), the denominator of the memory ratio. Ratios: to pycolmap with one thread "
-             "(its bundle adjustment's time and memory).", "",
-             "striptri's phases (s; summary.json timings_s, medians; for the bundle method the conditions column is "
-             "its initial_points and assembly its linearisation_and_reduction; adjust_other: the rest of the "
-             "adjustment's total; remainder: whole wall time minus the phases, i.e. interpreter start, imports, "
-             "writing the files):", "", phases_table(results), ""]
+    parts = [runs_table(results), "", RUNS_NOTE, "", PHASES_NOTE, "", phases_table(results), ""]
+    imp = meta.get("imports")
+    if imp:
+        parts += [f"Interpreter start and every import of `striptri adjust` ({imp['modules']} modules), measured apart "
+                  f"in a fresh interpreter: {imp['seconds']:.2f} s (the interpreter alone {imp['interpreter_seconds']:.2f} s).",
+                  ""]
     cov = covariance_lines(results)
     if cov:
         parts += ["Precision peers:"] + ["- " + c for c in cov] + [""]
@@ -501,13 +577,19 @@ def main(argv=None) -> int:
     meta = {"command": " ".join(["python", "scripts/bench/bench_scale.py"] + (argv if argv is not None else sys.argv[1:])),
             "machine": machine(), "versions": versions(), "load_average_start": os.getloadavg(),
             "started": time.strftime("%Y-%m-%d %H:%M:%S"),
-            "settings": {"repeats": args.repeats, "threads": args.threads, "methods": args.methods,
-                         "time_limit_s": args.time_limit, "memory_limit_gb": args.memory_limit_gb,
+            "settings": {"repeats": {k or "*": v for k, v in args.repeats.items()}, "threads": args.threads,
+                         "methods": args.methods, "time_limit_s": {k or "*": v for k, v in args.time_limit.items()},
+                         "memory_limit_gb": args.memory_limit_gb,
                          "blas_threads": args.blas_threads}}
     print(f"machine: {meta['machine']}; versions: {meta['versions']}")
     print(f"load average at the start: {' '.join(f'{x:.2f}' for x in meta['load_average_start'])}", flush=True)
     if not args.no_pycolmap and not scale_cases_pycolmap_available():
         print("pycolmap not installed (pip install pycolmap): its runs are skipped")
+    small = scale_cases.build_case(scale_cases.CASES["b100"], args.data_dir, env=child_env(args.blas_threads))
+    meta["imports"] = import_seconds(small, args.data_dir / "b100", child_env(args.blas_threads))
+    print(f"interpreter start and the imports of striptri adjust ({meta['imports']['modules']} modules, measured apart): "
+          f"{meta['imports']['seconds']:.2f} s (the interpreter alone {meta['imports']['interpreter_seconds']:.2f} s)",
+          flush=True)
     results = []
     t0 = time.perf_counter()
     for name in args.cases:

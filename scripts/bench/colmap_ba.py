@@ -37,6 +37,7 @@ nothing of striptri's.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -315,3 +316,27 @@ def covariance(pycolmap, rec, adjuster, ids, n_images: int) -> dict:
     t2 = time.perf_counter()
     return {"estimate_seconds": t1 - t0, "extract_seconds": t2 - t1, "ok": True,
             "poses": sum(p is not None for p in poses), "points": sum(p is not None for p in points)}
+
+
+def main(argv=None) -> int:
+    """python scripts/bench/colmap_ba.py PROJECT_DIR OUT.npz [--format W [H]] [--pixel-size P]:
+    the ColmapData of a project folder, saved (bench_scale.py runs it in its own process)."""
+    import argparse
+
+    from striptri.io import read_project
+
+    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
+    ap.add_argument("project", type=Path)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--format", type=float, nargs="+", default=[230.0], help="image size, plate units [230]")
+    ap.add_argument("--pixel-size", type=float, default=PIXEL_SIZE, help=f"plate units per pixel [{PIXEL_SIZE}]")
+    args = ap.parse_args(argv)
+    data = prepare(read_project(args.project), args.format if len(args.format) == 2 else args.format[0],
+                   args.pixel_size)
+    save(data, args.out)
+    print(json.dumps({"dense_covariance_bytes": dense_covariance_bytes(data)}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
