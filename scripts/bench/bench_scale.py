@@ -24,8 +24,9 @@ Per case, interleaved over ``--repeats`` rounds (medians reported):
   in its own process (colmap_worker.py; it holds numpy and pycolmap only), with each of
   ``--threads`` Ceres threads (OpenBLAS threads the same); its time is the adjuster's set-up and
   solve, its memory the peak of its process up to the end of the solve. With one thread, where the
-  dense matrix fits (``--covariance-max-gb``), also pycolmap's covariance estimate
-  (``pycolmap.estimate_ba_covariance``, every parameter), the peer of striptri's point precision.
+  dense matrix fits (``--covariance-max-gb``), once more followed by pycolmap's covariance estimate
+  (``pycolmap.estimate_ba_covariance``, every parameter), the peer of striptri's point precision
+  (a run of its own, after the timed ones, so that it changes neither their time nor their memory).
 
 Accuracy: the RMS of the projection centres against the simulator's truth and v^T P v of every run;
 striptri and pycolmap agree when the RMS is equal to 3 significant digits or v^T P v to 1e-6.
@@ -69,6 +70,7 @@ TIME = "/usr/bin/time"
 METHODS = ("conditions", "bundle")
 STRIPTRI_PHASES = ("read", "conditions", "assembly", "solve", "back_substitution", "final_checks", "adjust_other",
                    "gross_errors", "point_precision", "tables", "report", "remainder")
+COVARIANCE_RUN = "pycolmap 1 thread + covariance"
 BUNDLE_NAMES = {"initial_points": "conditions", "linearisation_and_reduction": "assembly"}  # table columns
 PIPELINE = ("read", "gross_errors", "point_precision", "tables", "report")
 TARGETS = (  # the issue's targets: (case, quantity, limit, text)
@@ -178,7 +180,7 @@ def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float 
     """Run cmd under /usr/bin/time and timeout(1). -> wall s (this process' clock), peak MiB, CPU s
     (user + system), exit status, timed_out, the last line of stderr, the load average around it."""
     full = [TIME, "-f", "%e %M %U %S", "-o", str(time_file),
-            "timeout", "--signal=TERM", "--kill-after=30", f"{time_limit:.0f}"] + cmd
+            "timeout", "--foreground", "--signal=TERM", "--kill-after=10", f"{time_limit:.0f}"] + cmd
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     proc = subprocess.Popen(full, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -188,8 +190,13 @@ def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float 
     except subprocess.TimeoutExpired:  # timeout(1) itself did not end it: stop the group this run started
         os.killpg(proc.pid, signal.SIGKILL)
         out, err = proc.communicate()
+    except BaseException:  # e.g. Ctrl-C here: the run is in a session of its own, stop it too
+        os.killpg(proc.pid, signal.SIGTERM)
+        raise
     wall = time.perf_counter() - t0
-    rep = {"wall_s": wall, "exit_status": proc.returncode, "timed_out": proc.returncode == 124,
+    # 124: ended by timeout's TERM; 137: killed 10 s later (a TERM is handled between Python bytecodes only)
+    timed_out = proc.returncode == 124 or (proc.returncode == 137 and wall >= time_limit)
+    rep = {"wall_s": wall, "exit_status": proc.returncode, "timed_out": timed_out,
            "load_average": [round(load_before, 2), round(os.getloadavg()[0], 2)], "stdout": out, "stderr_tail": ""}
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
     if lines:
@@ -231,6 +238,34 @@ def run_striptri(case_dir: Path, project: Path, method: str, args, truth, time_l
     rep.update(status="ok", phases=t, adjust_s=t.get("total"), iterations=s["iterations"], converged=s["converged"],
                vtpv=s["vtpv"], sigma0=s["sigma0"], redundancy=s["redundancy"], solver=s.get("solver"),
                rms_centres=scale_cases.rms_centres(out / "photos.csv", truth))
+    return rep
+
+
+_ADJUST_ALONE = """
+import json, sys, time
+t0 = time.perf_counter()
+from striptri.adjustment import AdjustmentOptions, adjust
+from striptri.io import read_project
+project = read_project(sys.argv[1])
+result = adjust(project, AdjustmentOptions(method=sys.argv[2], keep_unconverged=True))
+print(json.dumps({"timings": result.timings, "iterations": result.iterations, "converged": bool(result.converged),
+                  "vtpv": result.vtpv, "process_s": time.perf_counter() - t0}))
+"""
+
+
+def run_adjust_alone(case_dir: Path, project: Path, method: str, args, time_limit: float) -> dict:
+    """adjust() alone (read_project, then striptri.adjustment.adjust), for a command that did not
+    finish: how far the adjustment itself is from pycolmap."""
+    cmd = [sys.executable, "-c", _ADJUST_ALONE, str(project), method]
+    rep = measured_run(cmd, child_env(args.blas_threads), time_limit, args.memory_limit_gb,
+                       case_dir / f"time-alone-{method}.txt")
+    stdout = rep.pop("stdout").strip().splitlines()
+    if rep["exit_status"] != 0 or not stdout:
+        rep["status"] = (f"stopped at the time limit ({time_limit:.0f} s)" if rep["timed_out"]
+                         else f"failed (exit {rep['exit_status']}): {rep['stderr_tail']}")
+        return rep
+    rep.update(json.loads(stdout[-1]), status="ok")
+    rep["adjust_s"] = rep["timings"]["total"]
     return rep
 
 
@@ -352,7 +387,7 @@ def run_case(name: str, args, log) -> dict:
     covariance_wanted = use_colmap and not args.no_covariance and cov_gb <= args.covariance_max_gb
     runs: dict[str, list[dict]] = {}
     limit = for_case(args.time_limit, name)
-    for r in range(for_case(args.repeats, name)):
+    for _ in range(for_case(args.repeats, name)):
         for engine, what in plan:
             label = f"striptri {what}" if engine == "striptri" else f"pycolmap {what} thread" + ("s" if what > 1 else "")
             previous = runs.setdefault(label, [])
@@ -361,10 +396,18 @@ def run_case(name: str, args, log) -> dict:
             if engine == "striptri":
                 rep = run_striptri(case_dir, project, what, args, truth, limit)
             else:
-                rep = run_pycolmap(case_dir, data_file, what, covariance_wanted and what == args.threads[0] and r == 0,
-                                   args, truth_xyz, limit)
+                rep = run_pycolmap(case_dir, data_file, what, False, args, truth_xyz, limit)
             previous.append(rep)
             log("   " + one_line(label, rep))
+            if engine == "striptri" and rep["timed_out"]:
+                rep["adjust_alone"] = alone = run_adjust_alone(case_dir, project, what, args, limit)
+                log(f"   {label}, adjust() alone: " + (
+                    f"{alone['adjust_s']:.2f} s, {alone['iterations']} it, vTPv {alone['vtpv']:.10g}, peak "
+                    f"{alone['peak_mib']:.0f} MiB" if alone["status"] == "ok" else alone["status"]))
+    if covariance_wanted:  # a run of its own, after the timed ones: bundle adjustment, then the covariance
+        rep = run_pycolmap(case_dir, data_file, 1, True, args, truth_xyz, limit)
+        runs[COVARIANCE_RUN] = [rep]
+        log("   " + one_line(COVARIANCE_RUN, rep))
     result = {"case": name, "kind": case.kind, "n_photos": case.n_photos, "recipe": case.recipe(), "counts": counts,
               "runs": {label: median_run(v) for label, v in runs.items()}, "all_runs": runs}
     if use_colmap and not covariance_wanted and not args.no_covariance:
@@ -430,9 +473,7 @@ def runs_table(results: list[dict]) -> str:
     for res in results:
         for label, rep in res["runs"].items():
             if rep.get("status") != "ok":
-                peak = f"{rep['peak_mib']:.0f} (so far)" if rep.get("peak_mib") else "-"
-                lines.append(f"| {res['case']} | {res['n_photos']} | {label} | {rep.get('status')} | "
-                             f"> {rep['wall_s']:.0f} | | | {peak} | | | | | | | |")
+                lines.append(stopped_row(res, label, rep))
                 continue
             it = f"{rep['iterations']}" + ("" if rep.get("converged", True) else " (not converged)")
             r = ratios(res, label) if label.startswith("striptri") else {}
@@ -448,6 +489,26 @@ def runs_table(results: list[dict]) -> str:
                 f"| {_f(r.get('whole_cpu_ratio'))} "
                 f"| {agreement(res, label) if label.startswith('striptri') else '-'} |")
     return "\n".join(lines)
+
+
+def stopped_row(res: dict, label: str, rep: dict) -> str:
+    """A run that did not finish: how long it ran, its peak so far and, when it was stopped at the
+    time limit, adjust() alone."""
+    peak = f"{rep['peak_mib']:.0f} (so far)" if rep.get("peak_mib") else "-"
+    alone = rep.get("adjust_alone", {})
+    p = res["runs"].get("pycolmap 1 thread", {})
+    adjust_s = vtpv = whole_ratio = adjust_ratio = same = ""
+    if alone.get("status") == "ok":
+        adjust_s = f"{alone['adjust_s']:.2f} (alone, {alone['iterations']} it)"
+        vtpv = f"{alone['vtpv']:.10g}"
+        if p.get("status") == "ok":
+            adjust_ratio = f"{alone['adjust_s'] / p['adjust_s']:.2f}"
+            dv = abs(alone["vtpv"] - p["vtpv"]) / p["vtpv"]
+            same = f"{'yes' if dv < 1e-6 else 'NO'} (vTPv {dv:.0e}, adjust() alone)"
+    if p.get("status") == "ok":
+        whole_ratio = f"> {rep['wall_s'] / p['adjust_s']:.0f}"
+    return (f"| {res['case']} | {res['n_photos']} | {label} | {rep.get('status')} | > {rep['wall_s']:.0f} "
+            f"| {adjust_s} | | {peak} | | {vtpv} | {whole_ratio} | {adjust_ratio} | | | {same} |")
 
 
 def _f(x, spec=".2f") -> str:
@@ -472,7 +533,7 @@ def phases_table(results: list[dict]) -> str:
 def covariance_lines(results: list[dict]) -> list[str]:
     lines = []
     for res in results:
-        p = res["runs"].get("pycolmap 1 thread", {})
+        p = res["runs"].get(COVARIANCE_RUN, {})
         cov = p.get("worker", {}).get("covariance") if p.get("status") == "ok" else None
         s = res["runs"].get("striptri conditions", {})
         peer = (f"striptri's point_precision {s['phases']['point_precision']:.2f} s, gross_errors (reliability) "
