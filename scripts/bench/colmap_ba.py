@@ -5,11 +5,14 @@ pycolmap is not a dependency of striptri; it is used by the benchmark only: ``pi
 
 The striptri project becomes a pycolmap.Reconstruction:
 
-* one PINHOLE camera, f = c / PIXEL_SIZE pixels, principal point at the image centre; the format
-  (230 mm) is the image size. A plate point (x right, y up, mm, origin at the principal point)
-  becomes the pixel ``u = cx + x / PIXEL_SIZE, v = cy - y / PIXEL_SIZE`` (origin top left, v down).
-  PIXEL_SIZE equals the plate sigma, so one pixel is one standard deviation: Ceres' cost
-  ``1/2 sum r^2`` is ``v^T P v / 2``.
+* one camera. Without distortion a PINHOLE camera, f = c / pixel_size pixels; with distortion in
+  the ``image`` convention (lens.py: applied to the projected point, k dimensionless) and only
+  k1, k2 a RADIAL camera (f, cx, cy, k1, k2), which is the same model. The format is the image
+  size. A plate point (x right, y up, mm, origin at the fiducial centre) becomes the pixel
+  ``u = width/2 + x / pixel_size, v = height/2 - y / pixel_size`` (origin top left, v down), and the
+  principal point ``cx = width/2 + xp / pixel_size, cy = height/2 - yp / pixel_size``.
+  pixel_size equals the plate sigma (PIXEL_SIZE, 0.005 mm, for the aerial cases), so one pixel is
+  one standard deviation: Ceres' cost ``1/2 sum r^2`` is ``v^T P v / 2``.
 * COLMAP's camera looks along +z with y down; striptri's along -z with y up (p = (x, y, -c)).
   With D = diag(1, -1, -1): ``cam_from_world = D R_ground_from_cam^T (X - O)``, i.e. rotation
   D R^T and translation -D R^T O.
@@ -18,26 +21,28 @@ The striptri project becomes a pycolmap.Reconstruction:
 * points: every point that takes part in striptri's adjustment (groups.build_batches). Full
   control points at their given coordinates, held constant (the datum, like striptri's fixed
   control); the others start at the least-squares intersection of their rays from the approximate
-  orientations (triangulation.intersect_rays, as striptri's bundle starts);
-* intrinsics constant; poses start at the project's approximate orientations.
+  orientations and camera (triangulation.intersect_rays, as striptri's bundle starts);
+* intrinsics: held, or estimated as striptri estimates them (c free: the focal length; xp, yp
+  free: the principal point; k1, k2 free: the extra parameters; elements observed with a sigma
+  have no counterpart and are refused); poses start at the project's approximate orientations.
 
 Ceres: linear solver SPARSE_SCHUR forced (COLMAP's automatic choice takes a dense or iterative
 solver by image count), trust region Levenberg-Marquardt, tolerances tight enough to reach
 striptri's convergence.
+
+:func:`prepare` needs striptri (imported there); :func:`load`, :func:`build` and :func:`solve`
+need only numpy and pycolmap, so that a process running pycolmap (bench_scale.py's worker) holds
+nothing of striptri's.
 """
 
 from __future__ import annotations
 
+import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from pathlib import Path
 
 import numpy as np
-
-from striptri.groups import build_batches
-from striptri.model import FULL, Project
-from striptri.parameters import reduction_offset
-from striptri.camera import ray_ground
-from striptri.triangulation import intersect_rays
 
 PIXEL_SIZE = 0.005  # mm per pixel
 INSTALL_HINT = "pip install pycolmap"
@@ -66,27 +71,60 @@ class ColmapData:
     point_of_row: np.ndarray  # (m,) position in point_index, -1 if the point takes no part
     xyz0: np.ndarray  # (n, 3) approximate centres, reduced frame
     R: np.ndarray  # (n, 3, 3) approximate R_ground_from_cam
-    c: float
-    format: float
+    camera_model: str  # "PINHOLE" or "RADIAL"
+    camera_params: np.ndarray  # COLMAP's: PINHOLE (f, f, cx, cy), RADIAL (f, cx, cy, k1, k2), pixels
+    refine: np.ndarray  # (3,) bool: focal length, principal point, extra parameters
+    width: int
+    height: int
+    pixel_size: float  # plate units per pixel
 
 
-def prepare(project: Project, format_mm: float = 230.0) -> ColmapData:
-    """Pixels, start points and datum of a project with one camera and full (fixed) control only."""
+def save(data: ColmapData, path) -> None:
+    """ColmapData to an .npz file (for a process that should not import striptri)."""
+    np.savez(path, **{f.name: np.asarray(getattr(data, f.name)) for f in fields(ColmapData)})
+
+
+def load(path) -> ColmapData:
+    with np.load(Path(path)) as z:
+        values = {f.name: z[f.name] for f in fields(ColmapData)}
+    for name, kind in (("camera_model", str), ("width", int), ("height", int), ("pixel_size", float)):
+        values[name] = kind(values[name])
+    return ColmapData(**values)
+
+
+def prepare(project, format_mm=230.0, pixel_size: float = PIXEL_SIZE) -> ColmapData:
+    """Pixels, start points, camera and datum of a project with one camera and full (fixed)
+    control only. format_mm: the image size, square (a number) or (width, height)."""
+    from striptri import lens
+    from striptri.camera import ray_ground
+    from striptri.groups import build_batches
+    from striptri.model import FULL
+    from striptri.parameters import reduction_offset
+    from striptri.triangulation import intersect_rays
+
     if len(project.cameras) != 1:
         raise ValueError("the pycolmap comparison handles one camera")
-    c, xp, yp = project.cameras.interior[0, :3]
+    interior = project.cameras.interior[0]
+    sigma = project.cameras.sigma_interior[0]
+    convention = int(project.cameras.convention[0])
+    if np.any(np.isfinite(sigma) & (sigma > 0)):
+        raise ValueError("the pycolmap comparison estimates a camera element freely or holds it: observed elements "
+                         "are not supported")
+    free = np.isinf(sigma)
+    c, xp, yp = interior[:3]
     offset = reduction_offset(project)
     xyz0 = project.photos.xyz0 - offset
     R = project.photos.R_ground_from_cam
     pts = project.points
     ip = project.image_points
+    ideal = lens.ideal_from_observed(ip.xy, interior, convention).xy
     xyz = np.full((len(pts), 3), np.nan)
     for batch in build_batches(project):
         if batch.family == "collinearity":
             xyz[batch.point_index] = pts.xyz_given[batch.point_index] - offset
             continue
         ph, rows = batch.photo_index, batch.image_rows
-        r = ray_ground(R[ph], ip.xy[rows], project.cameras.interior[0, :3])
+        r = ray_ground(R[ph], ideal[rows], interior[:3])
         xyz[batch.point_index] = intersect_rays(xyz0[ph], r)
     taking_part = np.flatnonzero(np.isfinite(xyz[:, 0]))
     constant = pts.kind[taking_part] == FULL
@@ -94,24 +132,38 @@ def prepare(project: Project, format_mm: float = 230.0) -> ColmapData:
         raise ValueError("the pycolmap comparison holds control fixed: weighted control is not supported")
     position = np.full(len(pts), -1)
     position[taking_part] = np.arange(len(taking_part))
-    half = format_mm / 2 / PIXEL_SIZE
-    uv = np.column_stack([half + (ip.xy[:, 0] - xp) / PIXEL_SIZE, half - (ip.xy[:, 1] - yp) / PIXEL_SIZE])
+    width_mm, height_mm = np.broadcast_to(np.asarray(format_mm, dtype=float), (2,))
+    width, height = int(round(width_mm / pixel_size)), int(round(height_mm / pixel_size))
+    uv = np.column_stack([width / 2 + ip.xy[:, 0] / pixel_size, height / 2 - ip.xy[:, 1] / pixel_size])
+    f, cx, cy = c / pixel_size, width / 2 + xp / pixel_size, height / 2 - yp / pixel_size
+    others = np.ones(lens.NCP, dtype=bool)
+    others[[lens.C, lens.XP, lens.YP, lens.K1, lens.K2]] = False
+    radial = bool(free[lens.K1] or free[lens.K2] or interior[lens.K1] or interior[lens.K2])
+    if np.any(interior[others] != 0) or np.any(free[others]):
+        raise ValueError("the pycolmap comparison supports radial distortion k1, k2 only")
+    if radial and convention != lens.IMAGE:
+        raise ValueError("the pycolmap comparison needs the image convention of distortion (COLMAP's model)")
+    if free[lens.XP] != free[lens.YP] or free[lens.K1] != free[lens.K2]:
+        raise ValueError("pycolmap refines xp and yp together, and k1 and k2 together")
+    params = [f, cx, cy, interior[lens.K1], interior[lens.K2]] if radial else [f, f, cx, cy]
     return ColmapData(
         offset=offset, point_index=taking_part, xyz_start=xyz[taking_part], constant=constant, uv=uv,
-        photo_of_row=ip.photo_index, point_of_row=position[ip.point_index], xyz0=xyz0, R=R, c=float(c),
-        format=format_mm,
+        photo_of_row=ip.photo_index, point_of_row=position[ip.point_index], xyz0=xyz0, R=R,
+        camera_model="RADIAL" if radial else "PINHOLE", camera_params=np.array(params, dtype=float),
+        refine=np.array([free[lens.C], free[lens.XP], free[lens.K1]]), width=width, height=height,
+        pixel_size=float(pixel_size),
     )
 
 
 def build(pycolmap, data: ColmapData):
     """-> (reconstruction, config, point3D ids (p,))."""
-    size = int(round(data.format / PIXEL_SIZE))
-    f = data.c / PIXEL_SIZE
-    camera = pycolmap.Camera(model="PINHOLE", width=size, height=size, params=[f, f, size / 2, size / 2], camera_id=1)
+    camera = pycolmap.Camera(model=data.camera_model, width=data.width, height=data.height,
+                             params=data.camera_params.tolist(), camera_id=1)
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(camera)
     config = pycolmap.BundleAdjustmentConfig()
-    config.set_constant_cam_intrinsics(1)
+    if not data.refine.any():
+        config.set_constant_cam_intrinsics(1)
     n = len(data.xyz0)
     order = np.argsort(data.photo_of_row, kind="stable")
     starts = np.searchsorted(data.photo_of_row[order], np.arange(n + 1))
@@ -140,14 +192,17 @@ def build(pycolmap, data: ColmapData):
 
 
 def options(pycolmap, threads: int, initial_radius: float | None = None, max_iterations: int = 100,
-            refine_intrinsics: bool = False, function_tolerance: float = 1e-16):
+            refine_intrinsics: bool = False, function_tolerance: float = 1e-16,
+            refine: tuple[bool, bool, bool] | None = None):
     """COLMAP's bundle adjustment options with intrinsics constant (refine_intrinsics: focal length
-    and extra parameters estimated, the principal point held), SPARSE_SCHUR forced and tight
-    tolerances. initial_radius: Ceres' initial trust region radius (None: COLMAP's 1e4)."""
+    and extra parameters estimated, the principal point held; refine: focal length, principal point,
+    extra parameters, overriding refine_intrinsics), SPARSE_SCHUR forced and tight tolerances.
+    initial_radius: Ceres' initial trust region radius (None: COLMAP's 1e4)."""
+    focal, principal, extra = (refine_intrinsics, False, refine_intrinsics) if refine is None else map(bool, refine)
     opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = refine_intrinsics
-    opts.refine_principal_point = False
-    opts.refine_extra_params = refine_intrinsics
+    opts.refine_focal_length = focal
+    opts.refine_principal_point = principal
+    opts.refine_extra_params = extra
     opts.refine_sensor_from_rig = False
     opts.print_summary = False
     ceres = opts.ceres
@@ -182,6 +237,7 @@ class ColmapRun:
     xyz0: np.ndarray  # (n, 3) adjusted centres, ground frame (offset added)
     R: np.ndarray  # (n, 3, 3) adjusted R_ground_from_cam
     xyz_points: np.ndarray  # (p, 3) ground frame, rows of data.point_index
+    camera_params: np.ndarray  # COLMAP's camera parameters after the adjustment
 
     @property
     def vtpv(self) -> float:
@@ -190,10 +246,17 @@ class ColmapRun:
 
 
 def run(pycolmap, data: ColmapData, threads: int, initial_radius: float | None = None) -> ColmapRun:
+    return solve(pycolmap, data, threads, initial_radius)[0]
+
+
+def solve(pycolmap, data: ColmapData, threads: int, initial_radius: float | None = None):
+    """Build the reconstruction and run the bundle adjustment.
+    -> (ColmapRun, reconstruction, adjuster, point3D ids)."""
     t0 = time.perf_counter()
     rec, config, ids = build(pycolmap, data)
     t1, c1 = time.perf_counter(), time.process_time()
-    adjuster = pycolmap.create_default_ceres_bundle_adjuster(options(pycolmap, threads, initial_radius), config, rec)
+    opts = options(pycolmap, threads, initial_radius, refine=tuple(data.refine))
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(opts, config, rec)
     summary = adjuster.solve()
     t2, c2 = time.perf_counter(), time.process_time()
     cs = summary.ceres_summary
@@ -202,7 +265,7 @@ def run(pycolmap, data: ColmapData, threads: int, initial_radius: float | None =
     R = np.array([rec.image(i + 1).cam_from_world().rotation.matrix() for i in range(n)])
     R_ground_from_cam = np.swapaxes(R, 1, 2) @ D  # (D R^T)^T = R D
     xyz_points = np.array([rec.point3D(int(i)).xyz for i in ids]) + data.offset
-    return ColmapRun(
+    result = ColmapRun(
         seconds=t2 - t1,
         cpu_seconds=c2 - c1,
         ceres_seconds=float(cs.total_time_in_seconds),
@@ -215,4 +278,65 @@ def run(pycolmap, data: ColmapData, threads: int, initial_radius: float | None =
         xyz0=centres,
         R=R_ground_from_cam,
         xyz_points=xyz_points,
+        camera_params=np.array(rec.camera(1).params, dtype=float),
     )
+    return result, rec, adjuster, ids
+
+
+def interior_from_params(data: ColmapData, params: np.ndarray) -> dict:
+    """striptri's c, xp, yp (plate units) and k1, k2 from COLMAP's camera parameters."""
+    ps = data.pixel_size
+    if data.camera_model == "RADIAL":
+        f, cx, cy, k1, k2 = params
+    else:
+        f, _, cx, cy = params
+        k1 = k2 = 0.0
+    return {"c": f * ps, "xp": (cx - data.width / 2) * ps, "yp": (data.height / 2 - cy) * ps, "k1": k1, "k2": k2}
+
+
+def dense_covariance_bytes(data: ColmapData) -> float:
+    """Size of one dense matrix over the pose (and camera) parameters: COLMAP's covariance
+    estimate inverts the reduced camera system densely."""
+    n = 6 * len(data.xyz0) + len(data.camera_params)
+    return 8.0 * n * n
+
+
+def covariance(pycolmap, rec, adjuster, ids, n_images: int) -> dict:
+    """COLMAP's covariance estimate of the adjusted problem (pycolmap.estimate_ba_covariance,
+    every parameter: poses, points, camera), then every pose and point covariance taken out of
+    it. -> seconds of each step and whether it succeeded."""
+    t0 = time.perf_counter()
+    opts = pycolmap.BACovarianceOptions(params=pycolmap.BACovarianceOptionsParams.ALL)
+    cov = pycolmap.estimate_ba_covariance(opts, rec, adjuster)
+    t1 = time.perf_counter()
+    if cov is None:
+        return {"estimate_seconds": t1 - t0, "ok": False}
+    poses = [cov.get_cam_cov_from_world(i + 1) for i in range(n_images)]
+    points = [cov.get_point_cov(int(i)) for i in ids]
+    t2 = time.perf_counter()
+    return {"estimate_seconds": t1 - t0, "extract_seconds": t2 - t1, "ok": True,
+            "poses": sum(p is not None for p in poses), "points": sum(p is not None for p in points)}
+
+
+def main(argv=None) -> int:
+    """python scripts/bench/colmap_ba.py PROJECT_DIR OUT.npz [--format W [H]] [--pixel-size P]:
+    the ColmapData of a project folder, saved (bench_scale.py runs it in its own process)."""
+    import argparse
+
+    from striptri.io import read_project
+
+    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
+    ap.add_argument("project", type=Path)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--format", type=float, nargs="+", default=[230.0], help="image size, plate units [230]")
+    ap.add_argument("--pixel-size", type=float, default=PIXEL_SIZE, help=f"plate units per pixel [{PIXEL_SIZE}]")
+    args = ap.parse_args(argv)
+    data = prepare(read_project(args.project), args.format if len(args.format) == 2 else args.format[0],
+                   args.pixel_size)
+    save(data, args.out)
+    print(json.dumps({"dense_covariance_bytes": dense_covariance_bytes(data)}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
