@@ -213,6 +213,8 @@ def test_one_photo_points_follow_the_condition_count(solved):
 def test_every_solver_gives_the_conditions_result(solved, name, solver):
     if solver == "cholmod":
         pytest.importorskip("sksparse")
+    if solver == "cvxopt":
+        pytest.importorskip("cvxopt.cholmod")
     project, a, _ = solved(name)
     b = adjust_bundle(project, AdjustmentOptions(solver=solver))
     assert b.solver == solver

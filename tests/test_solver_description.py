@@ -120,3 +120,35 @@ def test_lower_triangle_of_cvxopt_matches_scipy():
     ref.sort_indices()
     assert np.array_equal(indptr, ref.indptr) and np.array_equal(rows, ref.indices)
     assert np.array_equal(values, ref.data)
+
+
+@pytest.mark.parametrize("solver", ["dense", "cholmod"])
+def test_summary_json_names_the_factorisation_and_blas_that_ran(tmp_path, solver):
+    """summary.json's "factorisation" and "blas" are describe() of the solver that solved the last
+    iteration, and report.html shows them."""
+    from pathlib import Path
+
+    from striptri.pipeline import run_adjust
+
+    if solver == "cholmod" and not solvers.cholmod_available():
+        pytest.skip("scikit-sparse not installed")
+    project = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6"
+    out = tmp_path / "out"
+    run_adjust(project, out, solver=solver)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["solver"] == solver
+    expected = describe(solver, {"mode": "supernodal"} if solver == "cholmod" else None)
+    assert summary["blas"] == expected["blas"]
+    assert summary["factorisation"].split(",")[0] == expected["factorisation"].split(",")[0]
+    assert ("supernodal" in summary["factorisation"]) == (solver == "cholmod")
+    html = (out / "report.html").read_text()
+    assert "BLAS it ran on" in html and summary["blas"].split(" (")[0] in html
+
+
+def test_sequential_method_says_it_factorises_no_normal_matrix_of_the_strip():
+    from types import SimpleNamespace
+
+    from striptri.pipeline import SEQUENTIAL_FACTORISATION, solver_description
+
+    d = solver_description(SimpleNamespace(solver="sequential", history=[]))
+    assert d["factorisation"] == SEQUENTIAL_FACTORISATION and d["blas"] == describe("dense")["blas"]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import report
+from . import report, solvers
 from .adjustment import (SUCCESSFUL_TERMINATIONS, AdjustmentOptions, AdjustmentResult, adjust, failure_message,
                          observations_of, termination_of)
 from .errors import InputError, Note, NumericalFailure
@@ -389,6 +389,19 @@ def _finite_or_none(x):
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+SEQUENTIAL_FACTORISATION = ("none of the whole strip: relative orientation and model joining model after model "
+                            "(small dense least squares), then the strip polynomials")
+
+
+def solver_description(result: AdjustmentResult) -> dict:
+    """summary.json's ``factorisation`` and ``blas``: what solved the normal equations, in words,
+    and the BLAS library it ran on, found at run time (striptri.solvers.describe)."""
+    if result.solver == "sequential":
+        return {"factorisation": SEQUENTIAL_FACTORISATION, "blas": solvers.blas("dense")}
+    info = result.history[-1].solver_info if result.history else None
+    return solvers.describe(result.solver, info)
+
+
 def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) -> dict:
     return {
         "method": result.method,
@@ -405,7 +418,9 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
         "n_unknowns": result.n_unknowns,
         "check_points": check_point_statistics(project, result, tri),
         "timings_s": {k: round(v, 6) for k, v in result.timings.items()},
-        # DESIGN's second-wave additions: why the iteration stopped, in words
+        # DESIGN's second-wave additions: which factorisation and BLAS solved the normal equations
+        **solver_description(result),
+        # why the iteration stopped, in words
         "termination": termination_of(result),
         "message": failure_message(result) if termination_of(result) not in SUCCESSFUL_TERMINATIONS
         else result.termination_message,

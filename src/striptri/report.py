@@ -270,6 +270,8 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
     rows = [
         ("method", _fmt(method.get(summary["method"], summary["method"]))),
         ("solver", _fmt(summary["solver"])),
+        ("factorisation of the normal equations", _fmt(summary.get("factorisation"))),
+        ("BLAS it ran on", _fmt(summary.get("blas"))),
         ("&sigma;<sub>0</sub> a posteriori (unit: the a-priori &sigma;)", _fmt(s0, ".4f")),
         ("v<sup>T</sup>P v", _fmt(summary["vtpv"])),
         ("redundancy r", _fmt(r)),

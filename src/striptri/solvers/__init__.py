@@ -33,7 +33,7 @@ from .base import (
     jacobi_scaled,
 )
 from .cvxopt_cholesky import CvxoptSolver, cvxopt_available
-from .describe import describe
+from .describe import blas, describe
 from .direct import DenseSolver, ScipySparseSolver, inverse
 from .iterative import SLOW_PCG, SLOW_SWEEPS, GaussSeidelSolver, PcgSolver, SlowConvergenceWarning
 from .selection import (
@@ -54,5 +54,5 @@ __all__ = [
     "DenseSolver", "ScipySparseSolver", "BandedSolver", "CholmodSolver", "CvxoptSolver", "GaussSeidelSolver",
     "PcgSolver",
     "AutoSolver", "make_solver", "resolve_solver", "sparse_choice", "solve", "inverse", "jacobi_scaled", "bandwidth",
-    "cholmod_available", "cvxopt_available", "describe",
+    "cholmod_available", "cvxopt_available", "describe", "blas",
 ]
