@@ -354,7 +354,9 @@ class Assembly:
         pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
                                layout.camera_elements)
         scatters = [pattern.scatters(photo, cam) for photo, cam in chunks]
-        return Assembly(pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns), scatters)
+        S = selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
+        pattern.reduction(S)
+        return Assembly(pattern, S, scatters)
 
 
 def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray,
@@ -586,6 +588,7 @@ def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
         else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
             crit = _observation_change(plate_hat - previous_plate, control_hat - previous_control, obs)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
+        acc = solved = None  # this iteration's N and u are not needed by the next one
         stop_if_diverging(history, "conditions", redundancy, causes)
         if has_converged(history, options.tolerance):
             converged = True

@@ -133,7 +133,7 @@ class BlockPattern:
         self.cc = np.unique(np.concatenate(cc + [np.arange(n_cameras, dtype=np.int64) * (n_cameras + 1)])) \
             if with_cameras else np.zeros(0, dtype=np.int64)
         self.n_full = 6 * n_photos + NCP * n_cameras
-        self._rows, self._cols = self._full_indices()
+        self._reduction = None  # (S, ReducedPattern): the CSR structure of S^T N_full S, worked out once
 
     @staticmethod
     def _keys(a, b, nb):
@@ -178,13 +178,84 @@ class BlockPattern:
             cols.append((6 * n + NCP * cb[:, None, None] + j3).ravel())
         return np.concatenate(rows), np.concatenate(cols)
 
+    @staticmethod
+    def _block_data(pp, pc, cc, with_cameras) -> np.ndarray:
+        """The block numbers in the order of _full_indices (without cameras pp itself, no copy)."""
+        return np.concatenate([pp.ravel(), pc.ravel(), pc.ravel(), cc.ravel()]) if with_cameras else pp.ravel()
+
     def matrix(self, pp, pc, cc) -> sp.csr_matrix:
         """N_full from the block data: pp (nb, 6, 6), pc (nbpc, 6, w), cc (nbcc, w, w)."""
-        data = [pp.ravel()]
-        if self.with_cameras:
-            data += [pc.ravel(), pc.ravel(), cc.ravel()]
-        data = np.concatenate(data)
-        return sp.csr_matrix((data, (self._rows, self._cols)), shape=(self.n_full, self.n_full))
+        rows, cols = self._full_indices()
+        return sp.csr_matrix((self._block_data(pp, pc, cc, self.with_cameras), (rows, cols)),
+                             shape=(self.n_full, self.n_full))
+
+    def reduced_matrix(self, S: sp.csr_matrix, pp, pc, cc) -> sp.csr_matrix:
+        """``S^T N_full S`` from the block data, the same matrix as ``S.T @ self.matrix(...) @ S``
+        but without forming N_full or a product: N's CSR structure and the place of every block
+        number in it are worked out at the first call for this S (:class:`ReducedPattern`); every
+        later iteration only gathers (and, for tied elements, sums) the numbers."""
+        return self.reduction(S).matrix(self._block_data(pp, pc, cc, self.with_cameras))
+
+    def reduction(self, S: sp.csr_matrix) -> "ReducedPattern":
+        """The ReducedPattern of S, worked out at the first call (the adjustments call this when
+        they make the pattern, before any chunk is linearised, when memory is lowest)."""
+        if self._reduction is None or self._reduction[0] is not S:
+            self._reduction = (S, ReducedPattern(self._full_indices(), S))
+        return self._reduction[1]
+
+
+class ReducedPattern:
+    """The CSR structure of ``N = S^T N_full S`` and, for each of its entries, the block numbers
+    that sum to it (BlockPattern.reduced_matrix).
+
+    S maps each full element to at most one unknown (0/1, fixed elements have none; elements tied
+    to one unknown share it). An entry (i, j) of N_full lands at (col[i], col[j]) of N, or nowhere
+    when either element is fixed; entries landing on the same place (tied elements) are summed.
+    Kept: ``order`` (the kept block numbers in CSR order), N's ``indptr`` and ``indices``, and, only
+    when elements are tied, the starts of each entry's run in ``order``."""
+
+    def __init__(self, full_indices, S: sp.csr_matrix):
+        rows, cols = full_indices
+        n_block_numbers = len(rows)
+        S = sp.csr_matrix(S)
+        n = S.shape[1]
+        per_row = np.diff(S.indptr)
+        if per_row.max(initial=0) > 1 or not np.all(S.data == 1.0):
+            raise ValueError("S must map each full element to at most one unknown with weight 1")
+        col_of = np.full(S.shape[0], -1, dtype=np.int64)
+        col_of[per_row == 1] = S.indices
+        r = col_of[rows]
+        del rows
+        c = col_of[cols]
+        del cols, full_indices
+        kept = np.flatnonzero((r >= 0) & (c >= 0))
+        key = r[kept]
+        del r
+        key *= n
+        key += c[kept]
+        del c
+        by_key = np.argsort(key, kind="stable")
+        key = key[by_key]
+        self.order = kept[by_key].astype(np.int32 if n_block_numbers < 2**31 else np.int64)
+        first = np.ones(len(key), dtype=bool)
+        first[1:] = key[1:] != key[:-1]
+        self.starts = None if first.all() else np.flatnonzero(first)
+        key = key[first]
+        index_type = np.int32 if max(n, len(key)) < 2**31 else np.int64
+        self.indices = (key % n).astype(index_type)
+        self.indptr = np.zeros(n + 1, dtype=index_type)
+        np.cumsum(np.bincount(key // n, minlength=n), out=self.indptr[1:])
+        self.shape = (n, n)
+
+    def matrix(self, block_data: np.ndarray) -> sp.csr_matrix:
+        data = block_data[self.order]
+        if self.starts is not None:
+            data = np.add.reduceat(data, self.starts)
+        # canonical CSR (sorted, unique indices): scipy need not check or sort it
+        N = sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
+        N.has_sorted_indices = True
+        N.has_canonical_format = True
+        return N
 
 
 def ray_columns(pattern: BlockPattern, photo: np.ndarray, cam: np.ndarray) -> np.ndarray:
@@ -252,9 +323,12 @@ class PatternAccumulator:
     def finish(self) -> "PatternAccumulator":
         pat, S = self.pattern, self.S
         w = pat.camera_width
-        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w), self.cc.reshape(len(pat.cc), w, w))
-        self.N = (S.T @ N_full @ S).tocsr() + self.extra.N
-        self.N.sum_duplicates()
+        self.N = pat.reduced_matrix(S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w),
+                                    self.cc.reshape(len(pat.cc), w, w))
+        self.pp = self.pc = self.cc = None  # N holds the numbers now
+        if self.extra.N.nnz:
+            self.N = (self.N + self.extra.N).tocsr()
+            self.N.sum_duplicates()
         self.u = S.T @ self.u_full + self.extra.u
         self.ug = S.T @ self.ug_full + self.extra.ug
         self.wPw += self.extra.wPw

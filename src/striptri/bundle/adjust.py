@@ -186,6 +186,10 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         dx = solved.dx
         t1 = time.perf_counter()
         step = _back_substitute(problem, state, xyz, dx, lam, kept=normals.kept)
+        # the kept chunks served their one back substitution (a failed step is assembled afresh):
+        # not alive beside the trial's
+        normals.kept = damped.kept = None
+        damped = None
         trial_state = state.updated(layout, dx)
         if lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
             trial = _assemble_or_none(problem, trial_state, step.xyz)

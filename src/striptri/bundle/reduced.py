@@ -228,8 +228,8 @@ class ReducedNormals:
     def finish(self) -> "ReducedNormals":
         pat, S = self.pattern, self.S
         w = pat.camera_width
-        N_full = pat.matrix(self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w), self.cc.reshape(len(pat.cc), w, w))
-        N = (S.T @ N_full @ S).tocsr()
+        N = pat.reduced_matrix(S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w),
+                               self.cc.reshape(len(pat.cc), w, w))
         b = S.T @ self.b_full
         for J, cols, e in self.rows:
             valid = cols >= 0
@@ -257,4 +257,6 @@ def block_pattern(batches, state: State, layout: UnknownLayout, chunk_size: int)
     pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
                            layout.camera_elements)
     scatters = [pattern.scatters(photo, cam) for photo, cam in chunks]
-    return pattern, selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns), scatters
+    S = selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
+    pattern.reduction(S)
+    return pattern, S, scatters
