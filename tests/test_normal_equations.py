@@ -61,3 +61,32 @@ def test_a_selection_with_weights_other_than_one_is_refused():
     S = _selection(rng, pat.n_full, False) * 2.0
     with pytest.raises(ValueError, match="at most one unknown"):
         ReducedPattern(pat._full_indices(), S)
+
+
+@pytest.mark.parametrize("one_camera", [True, False])
+def test_long_track_products_equal_the_ray_pair_products(monkeypatch, one_camera):
+    """Groups of FULL_PRODUCT_RAYS or more rays take the whole product Bw^T Bw (with the camera
+    columns summed first when all rays of each group have one camera): the same N and u as the
+    ray-pair products of short tracks."""
+    from striptri import normal_equations as ne
+
+    rng = np.random.default_rng(8 + one_camera)
+    m, k, n_photos, n_cameras, elements = 3, 14, 20, 3, np.array([0, 1, 2, 4])
+    photo = np.stack([rng.choice(n_photos, k, replace=False) for _ in range(m)])
+    cam = np.repeat(rng.integers(0, n_cameras, (m, 1)), k, 1) if one_camera else rng.integers(0, n_cameras, (m, k))
+    pat = BlockPattern(n_photos, n_cameras, True, [(photo, cam)], elements)
+    S = _selection(rng, pat.n_full, False)
+    width = 6 + len(elements)
+    nc = 2 * k - 3
+    Bw, ww, gw = rng.normal(size=(m, nc, k * width)), rng.normal(size=(m, nc)), rng.normal(size=(m, nc))
+
+    def assembled(threshold):
+        monkeypatch.setattr(ne, "FULL_PRODUCT_RAYS", threshold)
+        acc = ne.PatternAccumulator(pat, S)
+        acc.add_groups(Bw, ww, gw, photo, cam)
+        return acc.finish()
+
+    long, short = assembled(ne.FULL_PRODUCT_RAYS), assembled(k + 1)
+    scale = abs(short.N).max()
+    np.testing.assert_allclose(long.N.toarray(), short.N.toarray(), rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(long.u, short.u, rtol=1e-13)

@@ -171,43 +171,46 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = Fal
     if scale_form not in SCALE_FORMS:
         raise ValueError(f"unknown scale form {scale_form!r}")
 
-    pairs = [(0, j) for j in range(1, k)] if star else [(i, i + 1) for i in range(k - 1)]
-    for i, j in pairs:
-        b = O[:, j] - O[:, i]
-        g, dg_b, dg_r1, dg_r2 = coplanarity(b, r[:, i], r[:, j])
-        dr, dO, dX = new_row()
-        dr[:, i], dr[:, j] = dg_r1, dg_r2
-        dO[:, i], dO[:, j] = -dg_b, dg_b
-        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+    # the pair conditions, all pairs of a point at once (no loop over the rays of a long track):
+    # chain (i, i + 1), i = 0..k-2, or star (0, j), j = 1..k-1; ``second`` is each pair's second ray
+    n_pairs = k - 1
+    pair = np.arange(n_pairs)
+    first = np.zeros(n_pairs, dtype=int) if star else pair
+    second = pair + 1
+    if n_pairs > 0:
+        b = O[:, second] - O[:, first]  # (m, k - 1, 3)
+        r1, r2 = r[:, first], r[:, second]
+        g, dg_b, dg_r1, dg_r2 = coplanarity(b, r1, r2)
+        dr, dO = np.zeros((m, n_pairs, k, 3)), np.zeros((m, n_pairs, k, 3))
+        dr[:, pair, first], dr[:, pair, second] = dg_r1, dg_r2
+        dO[:, pair, first], dO[:, pair, second] = -dg_b, dg_b
+        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(np.zeros((m, n_pairs, 3)))
 
-    if star and k >= 3:
-        s1, _, ds1, _ = pair_scales(O[:, 1] - O[:, 0], r[:, 0], r[:, 1])
-        for j in range(2, k):
-            # scale of r_0 from the pair (0, 1) minus its scale from the pair (0, j)
-            sj, _, dsj, _ = pair_scales(O[:, j] - O[:, 0], r[:, 0], r[:, j])
-            dr, dO, dX = new_row()
-            dr[:, 0] = ds1[1] - dsj[1]
-            dr[:, 1] = ds1[2]
-            dr[:, j] = -dsj[2]
-            dO[:, 0] = -ds1[0] + dsj[0]
-            dO[:, 1] = ds1[0]
-            dO[:, j] = -dsj[0]
-            rows_g.append(s1 - sj), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
-
-    for i in range(1, k - 1) if not star else ():
-        # scale of r_i from the pair (i-1, i) (second ray) minus its scale from (i, i+1) (first ray)
-        b1 = O[:, i] - O[:, i - 1]
-        b2 = O[:, i + 1] - O[:, i]
-        _, t1, _, dt1 = pair_scales(b1, r[:, i - 1], r[:, i])
-        s2, _, ds2, _ = pair_scales(b2, r[:, i], r[:, i + 1])
-        dr, dO, dX = new_row()
-        dr[:, i - 1] += dt1[1]
-        dr[:, i] += dt1[2] - ds2[1]
-        dr[:, i + 1] += -ds2[2]
-        dO[:, i - 1] += -dt1[0]
-        dO[:, i] += dt1[0] + ds2[0]
-        dO[:, i + 1] += -ds2[0]
-        rows_g.append(t1 - s2), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+    if k >= 3:
+        sc, tc, ds, dt = pair_scales(b, r1, r2)  # the scales of every pair: (m, k - 1), derivatives (m, k - 1, 3)
+        q = np.arange(k - 2)
+        dr, dO = np.zeros((m, k - 2, k, 3)), np.zeros((m, k - 2, k, 3))
+        if star:
+            # scale of r_0 from the pair (0, 1) minus its scale from the pair (0, j), j = 2..k-1
+            j = q + 2
+            g = sc[:, :1] - sc[:, 1:]
+            dr[:, q, 0] = ds[1][:, :1] - ds[1][:, 1:]
+            dr[:, q, 1] = ds[2][:, :1]
+            dr[:, q, j] = -ds[2][:, 1:]
+            dO[:, q, 0] = -ds[0][:, :1] + ds[0][:, 1:]
+            dO[:, q, 1] = ds[0][:, :1]
+            dO[:, q, j] = -ds[0][:, 1:]
+        else:
+            # scale of r_i from the pair (i-1, i) (second ray) minus its scale from (i, i+1) (first
+            # ray), i = 1..k-2: pair q = i - 1 gives t, pair q + 1 gives s
+            g = tc[:, :-1] - sc[:, 1:]
+            dr[:, q, q] = dt[1][:, :-1]
+            dr[:, q, q + 1] = dt[2][:, :-1] - ds[1][:, 1:]
+            dr[:, q, q + 2] = -ds[2][:, 1:]
+            dO[:, q, q] = -dt[0][:, :-1]
+            dO[:, q, q + 1] = dt[0][:, :-1] + ds[0][:, 1:]
+            dO[:, q, q + 2] = -ds[0][:, 1:]
+        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(np.zeros((m, k - 2, 3)))
 
     if d in (1, 2) and k >= 2:
         b = O[:, 1] - O[:, 0]
@@ -225,7 +228,8 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = Fal
             dO[:, 0, axis] += 1.0
             dO[:, 1] = r[:, 0, axis, None] * ds[0]
             dX[:, axis] = -1.0
-            rows_g.append(P[:, axis] - X[:, axis]), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+            rows_g.append(P[:, axis, None] - X[:, axis, None]), rows_r.append(dr[:, None]), rows_O.append(dO[:, None])
+            rows_X.append(dX[:, None])
     elif d == 2 and k == 1:
         # the ray and the vertical through (X, Y): coplanarity with b = (X, Y, 0) - O, r2 = e_z
         foot = np.concatenate([X[:, :2], np.zeros((m, 1))], axis=1)
@@ -235,12 +239,12 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = Fal
         dr[:, 0] = dg_r1
         dO[:, 0] = -dg_b
         dX[:, :2] = dg_b[:, :2]
-        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+        rows_g.append(g[:, None]), rows_r.append(dr[:, None]), rows_O.append(dO[:, None]), rows_X.append(dX[:, None])
 
     if not rows_g:
         return RayConditions(np.zeros((m, 0)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, 3)))
     return RayConditions(
-        np.stack(rows_g, 1), np.stack(rows_r, 1), np.stack(rows_O, 1), np.stack(rows_X, 1)
+        np.concatenate(rows_g, 1), np.concatenate(rows_r, 1), np.concatenate(rows_O, 1), np.concatenate(rows_X, 1)
     )
 
 
@@ -251,7 +255,7 @@ def ray_chain(rc: RayConditions, R, p) -> Linearised:
     dr/dxp = -R e1, dr/dyp = -R e2, and with ``R <- R Exp(d)``: dr/dd = -R [p]x, so that
     ``(dg/dr) dr/dd = p x (R^T dg/dr)``. R: (m, k, 3, 3), p: (m, k, 3).
     """
-    Rt_g = np.einsum("mkji,mckj->mcki", R, rc.d_r)  # R^T dg/dr: (m, nc, k, 3)
+    Rt_g = np.matmul(rc.d_r[..., None, :], R[:, None])[..., 0, :]  # R^T dg/dr: (m, nc, k, 3)
     d_plate = Rt_g[..., :2]
     d_rot = np.cross(p[:, None], Rt_g)
     d_interior = np.stack([-Rt_g[..., 2], -Rt_g[..., 0], -Rt_g[..., 1]], -1)

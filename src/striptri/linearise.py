@@ -104,8 +104,11 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     d_camera[..., :3] = lin.d_interior
     if ideal is None:
         return replace(lin, d_interior=d_camera)
-    d_camera += np.einsum("mcka,mkan->mckn", lin.d_plate, ideal.d_camera)
-    d_plate = np.einsum("mcka,mkab->mckb", lin.d_plate, ideal.d_obs)
+    # chain rule through the lens model, per condition and ray: row vectors (m, nc, k, 1, 2) times
+    # the ray's (2, NCP) and (2, 2) derivatives (batched matmul: einsum has no BLAS path here)
+    rows = lin.d_plate[..., None, :]
+    d_camera += np.matmul(rows, ideal.d_camera[:, None])[..., 0, :]
+    d_plate = np.matmul(rows, ideal.d_obs[:, None])[..., 0, :]
     return replace(lin, d_plate=d_plate, d_interior=d_camera)
 
 
@@ -136,7 +139,7 @@ def linearise(
     A = np.concatenate(A_parts, 2)
 
     T = rotation_maps[batch.photo_index]  # (m, k, 3, 3)
-    d_rot = np.einsum("mcki,mkij->mckj", lin.d_rot, T)
+    d_rot = np.matmul(lin.d_rot[..., None, :], T[:, None])[..., 0, :]  # row vectors times T (m, nc, k, 3)
     width = 6 + layout.camera_width
     cam = state.camera_of_photo[batch.photo_index]
     B_parts, col_parts = [lin.d_centre, d_rot], [layout.photo_cols[batch.photo_index]]
@@ -148,7 +151,7 @@ def linearise(
     cols = np.concatenate(col_parts, 2).reshape(m, width * k)
 
     g = lin.g
-    scale = 1.0 / np.sqrt(np.einsum("mco,mo,mco->mc", A, Q, A))
+    scale = 1.0 / np.sqrt(np.matmul(A * A, Q[..., None])[..., 0])  # 1 / sigma of each condition
     A, B, g = A * scale[..., None], B * scale[..., None], g * scale
     if transform is not None:
         Tg = transform(batch)

@@ -273,6 +273,12 @@ def selection_matrix(photo_cols: np.ndarray, camera_cols: np.ndarray, n_unknowns
                          shape=(len(full), n_unknowns))
 
 
+# From this many rays per point on, the ray-pair blocks come from the whole product Bw^T Bw of a
+# group (BLAS) instead of batched products of its rays' column groups (faster for short tracks):
+# measured on 2 cores, 8 rays 2.5 ms vs 2.8 ms per chunk, 20 rays 3.4 ms vs 2.6 ms, 67 rays 5.1 vs 1.4 ms.
+FULL_PRODUCT_RAYS = 12
+
+
 class PatternAccumulator:
     """Sums the whitened groups into the block pattern (module doc); the same outputs as
     NormalAccumulator (N, u, wPw, ug, gPg) once :meth:`finish` has been called."""
@@ -304,13 +310,40 @@ class PatternAccumulator:
         scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam)
         # the ray-pair blocks B~_a^T B~_b directly in pattern order (m, k, k, r, s): batched products
         # of the rays' column groups, no transposed copy of a (m, 6k, 6k) product
-        B4 = Bw.reshape(m, Bw.shape[1], k, width)
-        left = B4.transpose(0, 2, 3, 1)[:, :, None]  # (m, k, 1, width, nc)
-        right = B4.transpose(0, 2, 1, 3)[:, None]  # (m, 1, k, nc, width)
-        scatter_pp.add(self.pp, np.matmul(left[..., :6, :], right[..., :6]))
-        if pat.with_cameras:
-            scatter_pc.add(self.pc, np.matmul(left[..., :6, :], right[..., 6:]))
-            scatter_cc.add(self.cc, np.matmul(left[..., 6:, :], right[..., 6:]))
+        if k >= FULL_PRODUCT_RAYS and pat.with_cameras and np.all(cam == cam[:, :1]):
+            # long tracks of one camera each (close range): the camera columns of a group's rays
+            # summed first (they are the same unknowns), then one (6k + w)^2 product per group;
+            # the ray-pair scatters get each sum once (photo a with the camera: pair (a, 0); the
+            # camera with itself: pair (0, 0); zeros elsewhere)
+            nc = Bw.shape[1]
+            B4 = Bw.reshape(m, nc, k, width)
+            Bc = B4[..., 6:].sum(axis=2)  # (m, nc, w)
+            Bpc = np.concatenate([B4[..., :6].reshape(m, nc, 6 * k), Bc], axis=2)
+            full = np.matmul(np.swapaxes(Bpc, 1, 2), Bpc)
+            pp = full[:, : 6 * k, : 6 * k].reshape(m, k, 6, k, 6).transpose(0, 1, 3, 2, 4)
+            scatter_pp.add(self.pp, pp)
+            w = width - 6
+            pc = np.zeros((m, k, k, 6, w))
+            pc[:, :, 0] = full[:, : 6 * k, 6 * k :].reshape(m, k, 6, w)
+            scatter_pc.add(self.pc, pc)
+            cc = np.zeros((m, k, k, w, w))
+            cc[:, 0, 0] = full[:, 6 * k :, 6 * k :]
+            scatter_cc.add(self.cc, cc)
+        elif k >= FULL_PRODUCT_RAYS:
+            # long tracks: one (k width)^2 product per group in BLAS, then viewed as ray-pair blocks
+            full = np.matmul(np.swapaxes(Bw, 1, 2), Bw).reshape(m, k, width, k, width).transpose(0, 1, 3, 2, 4)
+            scatter_pp.add(self.pp, full[..., :6, :6])
+            if pat.with_cameras:
+                scatter_pc.add(self.pc, full[..., :6, 6:])
+                scatter_cc.add(self.cc, full[..., 6:, 6:])
+        else:
+            B4 = Bw.reshape(m, Bw.shape[1], k, width)
+            left = B4.transpose(0, 2, 3, 1)[:, :, None]  # (m, k, 1, width, nc)
+            right = B4.transpose(0, 2, 1, 3)[:, None]  # (m, 1, k, nc, width)
+            scatter_pp.add(self.pp, np.matmul(left[..., :6, :], right[..., :6]))
+            if pat.with_cameras:
+                scatter_pc.add(self.pc, np.matmul(left[..., :6, :], right[..., 6:]))
+                scatter_cc.add(self.cc, np.matmul(left[..., 6:, :], right[..., 6:]))
         full_cols = full_cols.reshape(m, k * width)
         ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
         self.u_full += np.bincount(full_cols.ravel(), weights=ug[..., 0].ravel(), minlength=pat.n_full)
