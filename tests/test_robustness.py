@@ -1748,3 +1748,37 @@ def test_trend_of_the_corrections():
     assert termination.trend(h(10.0, 20.0, 40.0))[0] == "growing"
     assert termination.trend(h(10.0))[0] == "unknown"
     assert re.search(r"\(next\)\s+5 sd", termination.table(h(100.0), 10, 5.0))
+
+
+@pytest.mark.parametrize("what", ["Interrupted", "KeyboardInterrupt"])
+def test_a_signal_swallowed_by_a_weakref_callback_is_delivered_again(what):
+    """A signal handler that raises inside a weakref callback (a garbage collection) has its
+    exception ignored by Python, which prints a traceback and goes on; the command's
+    unraisablehook prints nothing and sends the signal again, so the command still stops."""
+    script = textwrap.dedent(f"""
+        import signal, sys, time, weakref
+        from striptri.cli import _raise_on_signals, _restore_signals
+        from striptri.errors import Interrupted
+        previous = _raise_on_signals()
+        class Thing:
+            pass
+        thing = Thing()
+        def callback(ref):
+            raise {"Interrupted(signal.SIGTERM)" if what == "Interrupted" else "KeyboardInterrupt()"}
+        ref = weakref.ref(thing, callback)
+        try:
+            del thing
+            time.sleep(5)
+            print("not interrupted")
+        except Interrupted as exc:
+            print("interrupted", exc.signum)
+        except KeyboardInterrupt:
+            print("keyboard interrupt")
+        finally:
+            _restore_signals(previous)
+        assert sys.unraisablehook is sys.__unraisablehook__
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == ("interrupted 15" if what == "Interrupted" else "keyboard interrupt")
+    assert "Traceback" not in proc.stderr and "ignored" not in proc.stderr

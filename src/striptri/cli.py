@@ -75,7 +75,13 @@ def _raise_interrupted(signum, frame):
 
 def _raise_on_signals() -> dict:
     """Turn SIGTERM and SIGHUP into Interrupted, and SIGINT into KeyboardInterrupt (even when the
-    shell started striptri with SIGINT ignored), while the command runs (main thread only)."""
+    shell started striptri with SIGINT ignored), while the command runs (main thread only).
+
+    A Python signal handler runs at the next bytecode boundary, which may lie in a finaliser or a
+    weakref callback (a garbage collection); Python ignores an exception raised there, prints
+    "Exception ignored in ..." with a traceback and goes on. :func:`_redeliver_swallowed_signals`
+    (sys.unraisablehook while the command runs) catches exactly that case, prints nothing and sends
+    the signal again a moment later, when the main thread is back in ordinary code."""
     previous = {}
     handlers = {**{sig: _raise_interrupted for sig in TERMINATION_SIGNALS}, signal.SIGINT: signal.default_int_handler}
     for sig, handler in handlers.items():
@@ -83,12 +89,38 @@ def _raise_on_signals() -> dict:
             previous[sig] = signal.signal(sig, handler)
         except ValueError:  # not the main thread: leave the signals as they are
             break
+    if previous:
+        previous["unraisablehook"] = sys.unraisablehook
+        sys.unraisablehook = functools.partial(_redeliver_swallowed_signals, previous["unraisablehook"])
     return previous
+
+
+REDELIVERY_DELAY_S = 0.01
+
+
+def _redeliver_swallowed_signals(hook, unraisable) -> None:
+    """sys.unraisablehook: an Interrupted or KeyboardInterrupt that Python had to ignore (raised by
+    a signal handler inside a finaliser or weakref callback) is sent again as its signal from a
+    timer thread, so that it interrupts the command where it can; anything else goes to ``hook``."""
+    exc = unraisable.exc_value
+    if isinstance(exc, Interrupted):
+        signum = exc.signum
+    elif isinstance(exc, KeyboardInterrupt):
+        signum = signal.SIGINT
+    else:
+        hook(unraisable)
+        return
+    import threading
+
+    threading.Timer(REDELIVERY_DELAY_S, os.kill, (os.getpid(), signum)).start()
 
 
 def _restore_signals(previous: dict) -> None:
     for sig, handler in previous.items():
-        signal.signal(sig, handler)
+        if sig == "unraisablehook":
+            sys.unraisablehook = handler
+        else:
+            signal.signal(sig, handler)
 
 
 def _quiet_broken_pipe():
