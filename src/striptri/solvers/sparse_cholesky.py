@@ -2,7 +2,8 @@
 
 The symbolic factorisation (ordering and the pattern of L, ``cholmod.analyze``) is made once per
 solver object, i.e. once per adjustment, at the first solve; every outer iteration then only
-refactorises numerically (``Factor.cholesky_inplace``). If N's pattern ever grows beyond the one
+refactorises numerically (``Factor.cholesky``: a new numeric factor from the kept analysis, dropped
+after the solve, so that the factor does not occupy memory while the next iteration assembles). If N's pattern ever grows beyond the one
 analysed (an entry that was not there before), the solver analyses again and counts it in
 ``info["analyses"]``; a pattern that only loses entries (exact zeros) is fine as it is.
 
@@ -98,15 +99,18 @@ class CholmodSolver(NormalSolver):
         self.mode, self.ordering = mode, ordering
         self._cholmod = cholmod_module()
         self._factor = None
-        self._pattern: sp.csc_matrix | None = None
+        self._pattern: tuple | None = None  # (indptr, indices, shape) of the analysed matrix
         self.analyses = 0
 
     def _pattern_fits(self, A: sp.csc_matrix) -> bool:
-        P = self._pattern
-        if P is None or P.shape != A.shape:
+        if self._pattern is None:
             return False
-        if np.array_equal(P.indptr, A.indptr) and np.array_equal(P.indices, A.indices):
+        indptr, indices, shape = self._pattern
+        if shape != A.shape:
+            return False
+        if np.array_equal(indptr, A.indptr) and np.array_equal(indices, A.indices):
             return True
+        P = sp.csc_matrix((np.ones(len(indices)), indices, indptr), shape=shape)
         ones = sp.csc_matrix((np.ones(A.nnz), A.indices, A.indptr), shape=A.shape)
         return (P + ones).nnz == P.nnz
 
@@ -118,13 +122,14 @@ class CholmodSolver(NormalSolver):
         A = Ns.T  # CSC view of the symmetric matrix; CHOLMOD reads its lower triangle
         if not self._pattern_fits(A):
             self._factor = self._cholmod.analyze(A, mode=self.mode, ordering_method=self.ordering)
-            self._pattern = sp.csc_matrix((np.ones(A.nnz), A.indices.copy(), A.indptr.copy()), shape=A.shape)
+            self._pattern = (A.indptr.copy(), A.indices.copy(), A.shape)  # the analysed pattern
             self.analyses += 1
-        factor = self._factor
         _tame_openmp(self._cholmod)  # this thread may not be the one that made the solver
-        perm = factor.P()
+        perm = self._factor.P()
         try:
-            factor.cholesky_inplace(A)
+            # a new numeric factor from the kept analysis (symbolic only), dropped after the solve:
+            # the factor's memory is not held while the next iteration assembles
+            factor = self._factor.cholesky(A)
         except self._cholmod.CholmodNotPositiveDefiniteError as exc:
             col = getattr(exc, "column", None)
             raise SingularNormalMatrix(int(perm[col]) if col is not None and 0 <= col < n else None) from exc
