@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from . import datum, diagnosis, solvers, termination
+from . import datum, diagnosis, progress, solvers, termination
 from .covariance import Covariance
 from .errors import NumericalFailure
 from .groups import build_batches
@@ -588,6 +588,7 @@ def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
         else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
             crit = _observation_change(plate_hat - previous_plate, control_hat - previous_control, obs)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info))
+        progress.iteration("conditions", len(history), vtpv, crit, t3 - t0, solved.info)
         acc = solved = None  # this iteration's N and u are not needed by the next one
         stop_if_diverging(history, "conditions", redundancy, causes)
         if has_converged(history, options.tolerance):

@@ -295,22 +295,29 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
 @click.option("--keep-unconverged", is_flag=True, default=False,
               help="Write the output of an adjustment that stopped without converging (converged: false in "
                    "summary.json, exit status 0) instead of failing with exit status 1.")
+@click.option("--quiet", is_flag=True, default=False,
+              help="No progress on stderr (shown otherwise once a run takes longer than 2 s: each iteration's "
+                   "vTPv, largest correction and seconds, then the phases after the adjustment).")
 @reports_errors
 def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders,
-           procedure, direction, polynomial_degree, init, keep_unconverged):
+           procedure, direction, polynomial_degree, init, keep_unconverged, quiet):
     """Adjust the project in PROJECT_DIR and write the results to --out.
 
     The output folder is checked before anything is computed and written only when the adjustment
     succeeds; an adjustment that does not converge is a failure (exit status 1) unless
     --keep-unconverged."""
+    import contextlib
+
+    from striptri import progress
     from striptri.pipeline import run_adjust
 
-    products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
-                          keep_unconverged=keep_unconverged, on_warning=_warn,
-                          method=method, solver=solver, init=init, direction=direction,
-                          procedure=None if procedure is None else int(procedure),
-                          polynomial_degree=polynomial_degree,
-                          max_iterations=max_iterations, scale_form=scale_form, datum=datum)
+    with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):
+        products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
+                              keep_unconverged=keep_unconverged, on_warning=_warn,
+                              method=method, solver=solver, init=init, direction=direction,
+                              procedure=None if procedure is None else int(procedure),
+                              polynomial_degree=polynomial_degree,
+                              max_iterations=max_iterations, scale_form=scale_form, datum=datum)
     s = products.summary
     b = s["blunders"]
     if b["method"] != "off" or b["suspect"]:

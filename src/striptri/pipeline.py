@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import report, solvers
+from . import progress, report, solvers
 from .adjustment import (SUCCESSFUL_TERMINATIONS, AdjustmentOptions, AdjustmentResult, adjust, failure_message,
                          observations_of, termination_of)
 from .errors import InputError, Note, NumericalFailure
@@ -180,6 +180,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
                 det = detect_blunders(project, options, BlunderOptions(method=blunders))
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.get("total", 0.0), 0.0)
+            progress.phase("reliability measures (gross errors)", phases["gross_errors"])
             if termination_of(result) not in SUCCESSFUL_TERMINATIONS:
                 warn("kept although the adjustment did not converge (--keep-unconverged): "
                      + failure_message(result))
@@ -194,6 +195,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
                 joint = joint_point_covariance(adjusted, result, points, options)
                 points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
             phases["point_precision"] = time.perf_counter() - t0
+            progress.phase("point precision", phases["point_precision"])
         finally:
             for w in caught:
                 warn(str(w.message))
@@ -205,6 +207,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         "residuals.csv": format_csv(residual_table(project, det)),
     }
     phases["tables"] = time.perf_counter() - t0
+    progress.phase("tables (CSV)", phases["tables"])
     summary = summary_of(adjusted, result, points)
     summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
     summary["blunders"] = blunder_summary(det)
@@ -216,6 +219,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
                               flags=det.flag[det.rows], figures={"structure": structure})
     summary["timings_s"]["report"] = round(time.perf_counter() - t0, 6)
+    progress.phase("report", summary["timings_s"]["report"])
     files = {**tables, "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n", "report.html": html}
     products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products

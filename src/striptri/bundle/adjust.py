@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from .. import datum, diagnosis, solvers, termination
+from .. import datum, diagnosis, progress, solvers, termination
 from ..adjustment import (
     AdjustmentOptions,
     AdjustmentResult,
@@ -229,6 +229,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         crit = max(largest_correction(dx, d, round_off_floor(state, layout)), step.max_point_correction)
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
                                  solver_info={**solved.info, **({"damping": lam} if lam else {})}))
+        progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, history[-1].solver_info)
         if lam == 0.0:
             stop_if_diverging(history, METHOD, problem.redundancy, causes)
         # a damped step is shortened: its small corrections alone do not show convergence, the

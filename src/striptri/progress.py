@@ -1,0 +1,118 @@
+"""Progress of long runs on stderr (docs/decisions.md, "Progress of long runs").
+
+The adjustment loops and the pipeline announce what they finish: each outer iteration (v^T P v,
+the largest correction in units of its standard deviation, seconds, the inner sweeps of an
+iterative solver) and each phase after the adjustment (reliability measures, point precision,
+tables, report). They call :func:`iteration` and :func:`phase`, which do nothing unless a
+reporter is active in the calling context (:func:`reporting`; the command line makes one unless
+``--quiet``), so the library, the tests and the study workers stay silent.
+
+:class:`StderrProgress` shows nothing for the first ``after`` seconds of a run (a short run stays
+silent: its stderr is empty when all is well), then the events so far and every later one: on a
+terminal as one status line that tqdm rewrites in place, with the finished phases written above
+it; otherwise (a log file, a pipe) as plain lines.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import math
+import os
+import sys
+import time
+
+PROGRESS_AFTER_S = 2.0  # a run shorter than this prints no progress (STRIPTRI_PROGRESS_AFTER overrides)
+
+_current: contextvars.ContextVar = contextvars.ContextVar("striptri_progress", default=None)
+
+
+def iteration(method: str, number: int, vtpv: float, max_correction: float, seconds: float,
+              solver_info: dict | None = None) -> None:
+    """An outer iteration has finished (no-op without an active reporter)."""
+    reporter = _current.get()
+    if reporter is not None:
+        reporter.iteration(method, number, vtpv, max_correction, seconds, solver_info or {})
+
+
+def phase(name: str, seconds: float) -> None:
+    """A phase of the run has finished (no-op without an active reporter)."""
+    reporter = _current.get()
+    if reporter is not None:
+        reporter.phase(name, seconds)
+
+
+@contextlib.contextmanager
+def reporting(reporter):
+    """Make ``reporter`` receive the events of the code run inside the block (this context only)."""
+    token = _current.set(reporter)
+    try:
+        yield reporter
+    finally:
+        _current.reset(token)
+        reporter.close()
+
+
+def _number(x: float, spec: str) -> str:
+    return format(x, spec) if x is not None and math.isfinite(x) else "n/a"
+
+
+def iteration_text(method: str, number: int, vtpv: float, max_correction: float, seconds: float,
+                   solver_info: dict) -> str:
+    text = (f"{method} iteration {number}: vTPv {_number(vtpv, '.6g')}, largest correction "
+            f"{_number(max_correction, '.3g')} sigma, {seconds:.2f} s")
+    inner = solver_info.get("inner_iterations")
+    if inner is not None:
+        text += f", {inner} inner sweeps"
+    return text
+
+
+class StderrProgress:
+    """The command line's reporter (module doc). ``stream``: where to write (stderr); ``after``:
+    seconds of silence at the start; ``tty``: terminal or not (default: ``stream.isatty()``)."""
+
+    def __init__(self, stream=None, after: float | None = None, tty: bool | None = None):
+        self.stream = stream if stream is not None else sys.stderr
+        if after is None:
+            after = float(os.environ.get("STRIPTRI_PROGRESS_AFTER", PROGRESS_AFTER_S))
+        self.after = after
+        isatty = getattr(self.stream, "isatty", None)
+        self.tty = bool(isatty and isatty()) if tty is None else tty
+        self.start = time.perf_counter()
+        self.pending: list[tuple[str, str]] = []  # events of the silent start: (kind, text)
+        self.bar = None
+
+    def _showing(self) -> bool:
+        return time.perf_counter() - self.start >= self.after
+
+    def iteration(self, method, number, vtpv, max_correction, seconds, solver_info) -> None:
+        self._event("iteration", iteration_text(method, number, vtpv, max_correction, seconds, solver_info))
+
+    def phase(self, name, seconds) -> None:
+        self._event("phase", f"{name}: {seconds:.2f} s")
+
+    def _event(self, kind: str, text: str) -> None:
+        self.pending.append((kind, text))
+        if not self._showing():
+            return
+        for kind, text in self.pending:
+            self._show(kind, text)
+        self.pending = []
+
+    def _show(self, kind: str, text: str) -> None:
+        if not self.tty:
+            print(f"striptri: {text}", file=self.stream, flush=True)
+            return
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(file=self.stream, bar_format="striptri: {desc} [{elapsed}]", leave=False)
+        if kind == "iteration":
+            self.bar.set_description_str(text)
+        else:
+            self.bar.write(f"striptri: {text}", file=self.stream)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
