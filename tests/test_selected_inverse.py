@@ -347,3 +347,22 @@ def test_entries_of_point_groups(method):
                                atol=1e-10 * np.abs(ref).max())
     with pytest.raises(IndexError):
         inv.entries(np.array([183]), np.array([0]))
+
+
+def test_banded_route_passes_once_for_many_requests(monkeypatch):
+    """The first request fills the band of the inverse; later requests (the chunks of
+    covariance.group_forms) read it without another pass over the factor, and stay exact."""
+    import striptri.selected_inverse as si
+
+    calls = []
+    original = si.BandedInverse._pass
+    monkeypatch.setattr(si.BandedInverse, "_pass", lambda self, band: (calls.append(1), original(self, band)))
+    N, starts = strip(40, 1, seed=12)
+    ref = dense_inverse(N)
+    inv = selected_inverse(N, starts, [(p, p + 1) for p in range(39)], method="banded")
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        rows = rng.integers(0, N.shape[0], 200)
+        cols = np.clip(rows + rng.integers(-20, 21, 200), 0, N.shape[0] - 1)  # within and beyond the band
+        np.testing.assert_allclose(inv.entries(rows, cols), ref[rows, cols], rtol=1e-9, atol=1e-12 * abs(ref).max())
+    assert len(calls) == 1, len(calls)

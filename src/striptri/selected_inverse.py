@@ -499,6 +499,13 @@ class BandedInverse(_Engine):
     Cholesky factorisation of the whole N~ (the same test as the ``banded`` solver).
 
     Entries further than nb apart are solved for with the factor (``solve``).
+
+    **The band of the inverse, kept.** The first request runs the pass once and keeps the band of
+    ``A^-1`` within the bandwidth w of the diagonal (lower band storage, the size of the factor);
+    every later request reads its entries there (``hi - lo <= w``: all 6x6 blocks of photos that
+    share a point in a strip) or, beyond the band, solves for them. Requests come chunk by chunk
+    (covariance.group_forms), so a pass per request would cost O(k^2 w^2 / chunk) on a long strip:
+    at 100,000 photos 67 s instead of 3 s.
     """
 
     name = "banded"
@@ -529,6 +536,7 @@ class BandedInverse(_Engine):
             self.S_inv = la.cho_solve((R, True), np.eye(m), check_finite=False)
             self.cross = -Y @ self.S_inv  # N~^-1[:k, k:]
         self.info = {"bandwidth": w, "border": m, "block": self.nb}
+        self.band = None  # (w + 1, k): band[d, j] = A^-1[j + d, j], filled by the first pass
 
     def solve(self, B):
         k = self.k
@@ -539,16 +547,17 @@ class BandedInverse(_Engine):
         return np.vstack([y1 - self.Y @ y2, y2])
 
     def compute(self, rows, cols):
-        """Entries asked for afterwards: from solves when they lie in fewer than nb columns (each
-        solve costs about what the pass spends on nb columns), else by another pass."""
-        few = len(np.unique(np.minimum(rows, cols))) < self.nb
+        """Entries asked for afterwards: from the kept band of the inverse (one pass fills it);
+        before it exists, from solves when they lie in fewer than nb columns (each solve costs
+        about what the pass spends on nb columns)."""
+        few = self.band is None and len(np.unique(np.minimum(rows, cols))) < self.nb
         return self._run(rows, cols, in_pass=not few)[0]
 
     def compute_with_diag(self, rows, cols):
         return self._run(rows, cols, in_pass=True)
 
     def _run(self, rows, cols, in_pass: bool):
-        k, nb = self.k, self.nb
+        k = self.k
         ok, out = _valid(rows, cols)
         hi, lo = np.maximum(rows, cols), np.minimum(rows, cols)
         photo = ok & (hi < k)
@@ -557,17 +566,16 @@ class BandedInverse(_Engine):
         if self.m:
             out[border] = self.S_inv[hi[border] - k, lo[border] - k]
             out[mixed] = self.cross[lo[mixed], hi[mixed] - k]
-        near = photo & (hi - lo < nb) & in_pass
+        if in_pass and self.band is None:
+            self.band = np.empty((self.w + 1, k))
+            self._pass(self.band)
+        if self.band is not None:
+            near = photo & (hi - lo <= self.w)
+            out[near] = self.band[hi[near] - lo[near], lo[near]]
+        else:
+            near = np.zeros_like(photo)
         far = photo & ~near
-        idx = np.flatnonzero(near)
-        order = np.argsort(lo[idx] // nb, kind="stable")
-        idx = idx[order]
-        t_of = lo[idx] // nb
-        n_blocks = -(-k // nb)
-        bounds = np.searchsorted(t_of, np.arange(n_blocks + 1))
-        diag = np.empty(k) if in_pass else None
-        if in_pass:
-            self._pass(idx, hi, lo, bounds, out, diag)
+        diag = self.band[0].copy() if in_pass else None
         if np.any(far):
             out[far] = self._solved_banded(hi[far], lo[far])
         if self.m:  # the rank-m correction Y S^-1 Y' of the photo part
@@ -576,9 +584,10 @@ class BandedInverse(_Engine):
                 diag = np.concatenate([diag + np.einsum("ij,ij->i", self.W, self.W), np.diag(self.S_inv)])
         return out, diag
 
-    def _pass(self, idx, hi, lo, bounds, out, diag):
-        """The backward block recurrence over A; reads the requested entries as it passes."""
-        k, nb, cb = self.k, self.nb, self.cb
+    def _pass(self, band):
+        """The backward block recurrence over A; writes the band of A^-1 within w of the diagonal
+        into ``band`` (lower band storage, band[d, j] = A^-1[j + d, j]) as it passes."""
+        k, nb, cb, w = self.k, self.nb, self.cb, self.w
         n_blocks = -(-k // nb)
         Z_next = None
         for t in range(n_blocks - 1, -1, -1):
@@ -594,16 +603,16 @@ class BandedInverse(_Engine):
                 Z_down = -(Z_next @ M) @ Linv  # Z_{t+1,t}
                 Z_tt = Linv.T @ (Linv - M.T @ Z_down)
             Z_tt = 0.5 * (Z_tt + Z_tt.T)
-            if diag is not None:
-                diag[s0:e0] = np.diag(Z_tt)
-            a, b = bounds[t], bounds[t + 1]
-            if b > a:
-                sel = idx[a:b]
-                r, c = hi[sel], lo[sel] - s0
-                inside = r < e0
-                out[sel[inside]] = Z_tt[r[inside] - s0, c[inside]]
-                if Z_down is not None:
-                    out[sel[~inside]] = Z_down[r[~inside] - e0, c[~inside]]
+            # the band of the block's columns: rows j..j+w, in Z_tt or (below the block) Z_down
+            d, c = np.meshgrid(np.arange(w + 1), np.arange(e0 - s0), indexing="ij")
+            r = c + d  # row offset from s0
+            in_tt = r < e0 - s0
+            values = np.zeros(d.shape)
+            values[in_tt] = Z_tt[r[in_tt], c[in_tt]]
+            if Z_down is not None:
+                below = ~in_tt & (r < e0 - s0 + Z_down.shape[0])
+                values[below] = Z_down[r[below] - (e0 - s0), c[below]]
+            band[:, s0:e0] = values
             Z_next = Z_tt
 
     def _solved_banded(self, rows, cols):
