@@ -8,7 +8,9 @@ Cases (scale_cases.py): blocks of 1,000, 5,000 and 20,000 photos made by ``strip
 ... --extra-ties 6 --control perimeter --seed 11`` with the height points turned into tie points
 (full control only, the same least-squares problem for pycolmap), and a synthetic close-range
 block like the issue's real project (close_range.py: 115 convergent photos, 150 targets, ~66 rays
-per target, self-calibration of c, xp, yp, k1, k2, six fixed full control points).
+per target, self-calibration of c, xp, yp, k1, k2, six fixed full control points). Not run by
+default: the long strips of issue 12, s10k and s100k (``striptri simulate strip --photos 10000 |
+100000 --control every-k --every-k 20 --every-k-kind XYZ --seed 11``; ``--cases s10k s100k``).
 
 Per case, interleaved over ``--repeats`` rounds (medians reported):
 

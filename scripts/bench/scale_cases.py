@@ -36,7 +36,8 @@ CLOSE_SEED = 3
 
 @dataclass(frozen=True)
 class ScaleCase:
-    """kind "block": photos per strip x strips; kind "close": photos, targets (close_range.py)."""
+    """kind "block": photos per strip x strips; kind "strip": photos, control every k models (full
+    control, issue 12's long strips); kind "close": photos, targets (close_range.py)."""
 
     name: str
     kind: str
@@ -49,6 +50,10 @@ class ScaleCase:
 
     def recipe(self) -> list[str]:
         """The command that makes the raw project (OUT for its folder)."""
+        if self.kind == "strip":
+            return ["striptri", "simulate", "strip", "--photos", str(self.photos), "--control", "every-k",
+                    "--every-k", str(self.strips_or_targets), "--every-k-kind", "XYZ", "--seed", str(SEED),
+                    "--out", "OUT"]
         if self.kind == "block":
             return ["striptri", "simulate", "block", "--photos", str(self.photos), "--strips",
                     str(self.strips_or_targets), "--extra-ties", "6", "--control", "perimeter", "--seed", str(SEED),
@@ -62,6 +67,9 @@ CASES = {
     "b5k": ScaleCase("b5k", "block", 100, 50),
     "b20k": ScaleCase("b20k", "block", 200, 100),
     "close-range": ScaleCase("close-range", "close", 115, 150),
+    # issue 12: long strips, full control every 20 models
+    "s10k": ScaleCase("s10k", "strip", 10000, 20),
+    "s100k": ScaleCase("s100k", "strip", 100000, 20),
     # quick mode (smoke run)
     "b100": ScaleCase("b100", "block", 20, 5),
     "close-small": ScaleCase("close-small", "close", 24, 40),
@@ -99,14 +107,14 @@ def build_case(case: ScaleCase, data_dir: Path, env: dict | None = None) -> Path
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     raw = folder / "raw"
-    if case.kind == "block":
+    if case.kind in ("block", "strip"):
         cmd = [sys.executable, "-m", "striptri"] + case.recipe()[1:]
     else:
         cmd = [sys.executable, str(HERE / "close_range.py")] + case.recipe()[2:]
     cmd[cmd.index("OUT")] = str(raw)
     subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
     project = folder / "project"
-    if case.kind == "block":
+    if case.kind in ("block", "strip"):
         full_control_only(raw, project)
         shutil.rmtree(raw)
     else:
