@@ -354,8 +354,8 @@ def _convergence_section(result: AdjustmentResult) -> list[str]:
     return [
         _section("convergence"),
         _img(png, "convergence history",
-             "Sum of the weighted squared residuals and the largest correction of an unknown (in units of the "
-             "standard deviation it would have if all others were known) per iteration, on log axes."
+             "Sum of the weighted squared residuals and the correction (the largest correction of any element "
+             "or function of the elements, in units of its standard deviation) per iteration, on log axes."
              + (" Right: inner iterations of the iterative solver." if has_inner else "")),
         _table(header, rows),
     ]

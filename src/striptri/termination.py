@@ -2,8 +2,9 @@
 
 The reasons (adjustment.TERMINATIONS, docs/decisions.md "Termination"):
 
-* ``converged`` - every correction below the tolerance in units of its standard deviation (or the
-  round-off floor, adjustment.has_converged); no message;
+* ``converged`` - the correction below the tolerance in units of its standard deviation, in every
+  element and every function of the elements (adjustment.correction_in_sigma; or the round-off
+  floor, adjustment.has_converged); no message;
 * ``cost_flat`` - bundle method: a step lowered the sum of squares by less than cost_tolerance of
   it while some correction was still above the tolerance; a result, with a message that says so;
 * ``iteration_limit`` - max_iterations reached first; a failure unless kept;
@@ -49,19 +50,30 @@ def _fmt(x: float, digits: int = 4) -> str:
     return "nan" if x is None or not math.isfinite(x) else f"{x:.{digits}g}"
 
 
-def table(history: Sequence, redundancy: int, next_correction: float | None = None) -> str:
-    """The last TABLE_ROWS iterations: v^T P v, sigma0 = sqrt(v^T P v / r) and the largest correction
-    in standard deviations; a last row with the next iteration's correction when given."""
+ELEMENT_FOOTNOTE = "    (sd: a correction in units of the standard deviation its element would have if all others were known)"
+FUNCTION_FOOTNOTE = ("    (sd: the largest correction of any element or function of the elements, in units of its standard "
+                     "deviation)")
+
+
+def table(history: Sequence, redundancy: int, next_correction: float | None = None, element: bool = False) -> str:
+    """The last TABLE_ROWS iterations: v^T P v, sigma0 = sqrt(v^T P v / r) and the correction in
+    standard deviations; a last row with the next iteration's correction when given. The correction
+    is the history's convergence measure (max_correction), or with ``element`` the largest single
+    element's (element_correction, the figure that shows divergence). The footnote says which: an
+    iteration of the simultaneous adjustments carries an element_correction, the sequential
+    method's measure is the element one."""
+    simultaneous = bool(history) and not math.isnan(getattr(history[-1], "element_correction", float("nan")))
+    column = "element_correction" if element and simultaneous else "max_correction"
+    footnote = FUNCTION_FOOTNOTE if simultaneous and column == "max_correction" else ELEMENT_FOOTNOTE
     lines = ["    iteration       v^T P v        sigma0   largest correction"]
     first = max(len(history) - TABLE_ROWS, 0)
     for k in range(first, len(history)):
         h = history[k]
         s0 = math.sqrt(h.vtpv / redundancy) if redundancy > 0 and math.isfinite(h.vtpv) and h.vtpv >= 0 else float("nan")
-        lines.append(f"    {k + 1:9d}  {_fmt(h.vtpv, 6):>12}  {_fmt(s0, 5):>12}   {_fmt(h.max_correction, 3)} sd")
+        lines.append(f"    {k + 1:9d}  {_fmt(h.vtpv, 6):>12}  {_fmt(s0, 5):>12}   {_fmt(getattr(h, column), 3)} sd")
     if next_correction is not None and math.isfinite(next_correction):
         lines.append(f"    {'(next)':>9}  {'':>12}  {'':>12}   {_fmt(next_correction, 3)} sd")
-    lines.append("    (sd: a correction in units of the standard deviation its element would have if all others "
-                 "were known)")
+    lines.append(footnote)
     return "\n".join(lines)
 
 
@@ -145,7 +157,7 @@ def diverged(method: str, history: Sequence, redundancy: int, causes: Callable[[
               "sensible step")
     head = f"{what_of(method)} diverged at iteration {len(history)}: {reason}."
     meaning = "The iteration is moving away from any solution; no result can be given."
-    return "\n".join([head, table(history, redundancy), meaning, causes_text(causes())])
+    return "\n".join([head, table(history, redundancy, element=True), meaning, causes_text(causes())])
 
 
 def cost_flat(method: str, history: Sequence, redundancy: int, cost_tolerance: float, tolerance: float) -> str:

@@ -12,10 +12,10 @@ two results compare element by element. Each iteration:
 2. diagnose the datum on N_rcs and solve with the solver object (solvers.make_solver);
 3. per chunk again: back-substitute the point corrections, x^ <- x^ (+) dx, X^ <- X^ + dX.
 
-Convergence: as in adjustment.py, ``max |dx_i| sqrt(N_ii) < tolerance`` over the orientation
-unknowns (N_ii of the reduced system: the standard deviation of the element if the other
-orientation elements were known, points free, the same as the N of the conditions method) and
-over the point coordinates (N_ii of the point's own 3x3 block).
+Convergence: as in adjustment.py, ``sqrt(d^T N d) < tolerance`` (adjustment.correction_in_sigma)
+for the whole step d = (dx, dX) of orientations and points, the norm of the change ``J d`` of the
+whitened residuals it makes: the largest correction of any function of the orientations and points
+in units of its standard deviation.
 
 At convergence both methods minimise the same v^T P v over the same observations, so the
 orientations, residuals, v^T P v, redundancy and N^-1 agree: the reduced camera system is the
@@ -38,6 +38,7 @@ from ..adjustment import (
     AdjustmentResult,
     Iteration,
     datum_defect_message,
+    energy_floor,
     has_converged,
     largest_correction,
     round_off_floor,
@@ -226,17 +227,20 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         timings["solve"] += t1 - t0
         timings["back_substitution"] += t2 - t1
         timings["linearisation_and_reduction"] += t3 - t2
-        crit = max(largest_correction(dx, d, round_off_floor(state, layout)), step.max_point_correction)
+        crit = step.correction
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
-                                 solver_info={**solved.info, **({"damping": lam} if lam else {})}))
+                                 solver_info={**solved.info, **({"damping": lam} if lam else {})},
+                                 element_correction=max(largest_correction(dx, d, round_off_floor(state, layout)),
+                                                        step.max_point_correction)))
         progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, history[-1].solver_info)
         if lam == 0.0:
             stop_if_diverging(history, METHOD, problem.redundancy, causes)
         # a damped step is shortened: its small corrections alone do not show convergence, the
         # undamped Gauss-Newton correction from where it ended must be small too
-        if has_converged(history, options.tolerance) and (lam_step == 0.0 or has_converged(
+        floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, round_off_floor(state, layout), d)
+        if has_converged(history, options.tolerance, floor) and (lam_step == 0.0 or has_converged(
                 history[:-1] + [replace(history[-1], max_correction=_undamped_correction(problem, solver, state, xyz))],
-                options.tolerance)):
+                options.tolerance, floor)):
             converged = True
             break
         if flat:
@@ -324,8 +328,8 @@ def _not_formed_message(problem: "_Problem", where: str = "at the approximate va
 
 
 def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndarray) -> float:
-    """The largest correction (standard deviations, orientations and points) of an undamped
-    Gauss-Newton step from (state, xyz); inf when it cannot be formed."""
+    """The correction (adjustment.correction_in_sigma, orientations and points together) of an
+    undamped Gauss-Newton step from (state, xyz); inf when it cannot be formed."""
     normals = _assemble_or_none(problem, state, xyz)
     if normals is None:
         return float("inf")
@@ -333,9 +337,7 @@ def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndar
         dx = solver.solve(normals.N, normals.b).dx
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         return float("inf")
-    step = _back_substitute(problem, state, xyz, dx, kept=normals.kept)
-    crit = largest_correction(dx, normals.N.diagonal(), round_off_floor(state, problem.layout))
-    return max(crit, step.max_point_correction)
+    return _back_substitute(problem, state, xyz, dx, kept=normals.kept).correction
 
 
 @dataclass
@@ -345,19 +347,22 @@ class _Step:
     control_hat: np.ndarray
     v_par: np.ndarray
     vtpv: float
-    max_point_correction: float
+    correction: float  # adjustment.correction_in_sigma of the step: sqrt of the sum of (J [dx; dX])^2
+    max_point_correction: float  # the largest |dX_i| sqrt(N_pp,ii) (adjustment.largest_correction's kind)
 
 
 def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray, damping: float = 0.0,
                      kept: list | None = None) -> _Step:
     """Point corrections and the adjusted observations l + v of the linearised step (v from
-    ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``). kept: the chunks the
+    ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``), and the step's size as
+    adjustment.correction_in_sigma measures it: ``sqrt(d^T N d)`` for the whole step d = (dx, dX),
+    the norm of the change ``J d = v + e`` of the whitened residuals it makes. kept: the chunks the
     assembly of these normals linearised at (state, xyz) with this damping (ReducedNormals.kept);
     linearised again when not given."""
     obs = problem.obs
     xyz_new = xyz.copy()
     plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
-    vtpv, crit = 0.0, 0.0
+    vtpv, energy, crit = 0.0, 0.0, 0.0
     for chunk in (kept if kept is not None else problem.chunks(state, xyz, damping)):
         dX, v_plate, v_control = point_corrections(chunk, dx)
         pt, rows = chunk.batch.point_index, chunk.batch.image_rows
@@ -366,6 +371,7 @@ def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.nd
         weighted = chunk.weight > 0
         control_hat[pt] = np.where(weighted, xyz_new[pt], obs.control[pt])
         vtpv += float(np.sum(v_plate**2) + np.sum(v_control**2))
+        energy += float(np.sum((v_plate + chunk.e) ** 2) + np.sum(chunk.weight * dX**2))
         d = np.einsum("mii->mi", chunk.N_pp)
         if dX.size:
             crit = max(crit, float(np.max(np.where(chunk.free, np.abs(dX) * np.sqrt(d), 0.0))))
@@ -376,7 +382,8 @@ def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.nd
         v_white = np.einsum("pi,pi->p", J, dxp[cols]) - e
         v_par = v_white * problem.pobs.sigma
         vtpv += float(np.sum(v_white**2))
-    return _Step(xyz_new, plate_hat, control_hat, v_par, vtpv, crit)
+        energy += float(np.sum((v_white + e) ** 2))
+    return _Step(xyz_new, plate_hat, control_hat, v_par, vtpv, float(np.sqrt(energy)), crit)
 
 
 def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _Problem) -> solvers.SolveResult:
@@ -428,8 +435,8 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     normals_at_solution: the undamped reduced normals the iteration formed at (state, xyz), with
     their kept chunks; formed here when not given.
 
-    Also returns the largest orientation correction the next iteration would make (standard
-    deviations, as in the history; None when the system is singular), a by-product of (59).
+    Also returns the correction the next iteration would make (adjustment.correction_in_sigma, as
+    in the history; None when the system is singular), a by-product of (59).
     """
     obs = problem.obs
     reuse = normals_at_solution is not None
@@ -461,7 +468,8 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     try:
         dx = solver.solve(normals.N, normals.b).dx if len(d) else np.zeros(0)
         reduced = normals.ee - normals.reduced - float(normals.b @ dx)
-        next_correction = float(np.max(np.abs(dx) * np.sqrt(np.maximum(d, 0.0)), initial=0.0)) if len(d) else None
+        # the undamped step's d^T N d = b_rcs^T dx + sum b_p^T N_pp^-1 b_p (adjustment.correction_in_sigma)
+        next_correction = float(np.sqrt(max(float(normals.b @ dx) + normals.reduced, 0.0))) if len(d) else None
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         reduced = float("nan")
     rel = abs(reduced - vtpv) / max(vtpv, 1e-300) if vtpv > 1e-20 else abs(reduced - vtpv)
