@@ -17,6 +17,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from dataclasses import replace
+
+from striptri import simulate as sim
 from striptri import solvers
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.io import read_project
@@ -29,6 +32,8 @@ from striptri.solvers import (
     Structure,
     make_solver,
 )
+from striptri.parameters import build_layout
+from striptri.solvers import memory, selection, strips
 from striptri.solvers.synthetic import block_normal_matrix, strip_normal_matrix
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
@@ -345,6 +350,192 @@ class TestPcg(IterativeSuite):
     slow_limit = solvers.SLOW_PCG
 
 
+class TestStripPcg(IterativeSuite):
+    """A strip is one block of its preconditioner, so a single strip converges within a few
+    iterations (the camera columns): the tests of speed use a block of strips instead."""
+
+    name = "strip-pcg"
+    slow_limit = solvers.SLOW_STRIP_PCG
+
+    def test_a_looser_tolerance_needs_fewer_iterations(self):
+        N, st = block_case(4, 10, 1, seed=3)
+        tight = self.assert_agrees(N, st, inner_tolerance=1e-12)
+        loose = self.assert_agrees(N, st, inner_tolerance=1e-6)
+        assert loose.info["inner_iterations"] < tight.info["inner_iterations"]
+
+    def test_warns_when_it_converges_slowly(self):
+        N, st = block_case(4, 10, 1, seed=6)
+        with pytest.warns(SlowConvergenceWarning, match="did not reach"):
+            result = self.make(st, max_inner_iterations=3).solve(N, np.ones(N.shape[0]))
+        assert result.info["slow"] is True and result.info["converged"] is False
+        assert result.info["inner_iterations"] == 3
+
+    @pytest.mark.parametrize("preconditioner", strips.PRECONDITIONERS)
+    def test_block_of_strips_with_cameras(self, preconditioner):
+        """Five strips of 12 photos and two cameras: five banded blocks of bandwidth 17 (Schmid
+        Fig. 10), the 6 camera columns one dense block; both preconditioners reach the reference."""
+        N, st = block_case(5, 12, 2, seed=4)
+        solver = strips.StripPcgSolver(SolverOptions("strip-pcg"), st, preconditioner)
+        result = self.assert_agrees(N, st, solver=solver)
+        assert {k: result.info[k] for k in ("strips", "bandwidth", "dense_block", "preconditioner")} == {
+            "strips": 5, "bandwidth": 17, "dense_block": 6, "preconditioner": preconditioner}
+        assert result.info["inner_iterations"] > 1  # the couplings between strips are iterated
+
+    def test_one_strip_is_solved_by_its_banded_factor(self):
+        N, st = strip_case(200, 0, seed=2)
+        result = self.assert_agrees(N, st)
+        assert result.info["inner_iterations"] == 1 and result.info["strips"] == 1
+
+    def test_groups_without_structure(self):
+        """No groups: columns of group -1 are one dense block up to DENSE_REST columns, runs of
+        RUN_BLOCKS blocks beyond; any partition gives the reference solution."""
+        N, st = strip_case(250, 1, seed=7)
+        bare = Structure(st.n_unknowns, st.block_starts)
+        part = strips.strip_partition(bare, N.shape[0])
+        assert part.n_groups == 3 and part.k == N.shape[0]  # 251 blocks: runs of 100, 100, 51
+        self.assert_agrees(N, bare)
+        small, sst = strip_case(20, 1, seed=7)
+        assert strips.strip_partition(Structure(sst.n_unknowns, sst.block_starts), small.shape[0]).k == 0
+
+    def test_strips_in_their_own_column_order(self):
+        """Photos of two strips interleaved in the column order: each strip gathers its columns."""
+        N, st = block_case(2, 15, 0, seed=5)
+        new = np.arange(30)
+        old_photo = new // 2 + 15 * (new % 2)  # new photos 0, 2, 4, ... are strip 0's, 1, 3, ... strip 1's
+        perm = (6 * np.repeat(old_photo, 6) + np.tile(np.arange(6), 30))  # old column of each new column
+        Np = sp.csr_matrix(N[perm][:, perm])
+        Np.sort_indices()
+        groups = np.tile([0, 1], 15)
+        stp = Structure(st.n_unknowns, st.block_starts, groups)
+        result = self.assert_agrees(Np, stp)
+        assert result.info["strips"] == 2 and result.info["bandwidth"] == 17
+
+
+def _simulated(n_photos, n_strips, layout, every_k=4, seed=5):
+    design = sim.SyntheticDesign(
+        flight=sim.FlightDesign(n_photos=n_photos, n_strips=n_strips),
+        points=sim.PointDesign(extra_ties_per_model=2),
+        control=sim.ControlDesign(layout=layout, every_k=every_k, every_k_kind="XYZ"),
+    )
+    truth = sim.make_truth(design, np.random.default_rng(seed))
+    return sim.perturb(truth, sim.NoiseOptions(), np.random.default_rng(seed + 1))
+
+
+@pytest.mark.parametrize("n_photos, n_strips, layout", [(1000, 1, "every-k"), (60, 6, "perimeter")])
+def test_strip_pcg_adjusts_like_the_direct_solver(n_photos, n_strips, layout):
+    """A 1,000-photo strip (full control every 20 models) and a 360-photo block of 6 strips:
+    strip-pcg's adjustment gives the direct solver's projection centres (within 1e-6 of the
+    flying height) and converges in every outer iteration."""
+    project = _simulated(n_photos, n_strips, layout, every_k=20 if n_strips == 1 else 4)
+    ref = adjust(project, AdjustmentOptions(solver="cholmod" if solvers.cholmod_available() else "sparse"))
+    r = adjust(project, AdjustmentOptions(solver="strip-pcg"))
+    assert r.converged and r.solver == "strip-pcg" and r.iterations == ref.iterations
+    assert np.abs(r.state.xyz0 - ref.state.xyz0).max() < 1e-6 * FLYING_HEIGHT
+    assert r.vtpv == pytest.approx(ref.vtpv, rel=1e-8)
+    infos = [h.solver_info for h in r.history]
+    assert all(i["converged"] and i["strips"] == n_strips and i["bandwidth"] == 17 for i in infos)
+    if n_strips == 1:
+        assert all(i["inner_iterations"] == 1 for i in infos)
+
+
+def test_block_groups_of_a_layout():
+    """Structure.groups from the photos' strips: one group per strip in order of appearance,
+    cameras -1; a photo held fixed has no block (and so no group)."""
+    project = _simulated(5, 3, "perimeter")
+    layout = build_layout(project)
+    groups = layout.block_groups(project.photos.strip_ids)
+    assert len(groups) == len(layout.block_starts())
+    np.testing.assert_array_equal(groups, np.repeat([0, 1, 2], 5))
+    held = replace(project.photos, sigma_xyz0=project.photos.sigma_xyz0.copy(),
+                   sigma_angles=project.photos.sigma_angles.copy())
+    held.sigma_xyz0[6], held.sigma_angles[6] = 0.0, 0.0
+    layout = build_layout(replace(project, photos=held))
+    np.testing.assert_array_equal(layout.block_groups(project.photos.strip_ids), np.r_[[0] * 5, [1] * 4, [2] * 5])
+
+
+def test_warm_starts_in_an_adjustment(monkeypatch):
+    """Warm starts of strip-pcg in an adjustment of a block (docs/solvers.md has the measurement):
+    the same result; 'projected' never needs more inner iterations than 'zero' (it starts from the
+    multiple of the last correction that is closest in the energy norm, never worse than zero),
+    'previous' needs more in the later outer iterations (the corrections shrink)."""
+    project = _simulated(30, 5, "perimeter")
+    counts = {}
+    for start in ("zero", "previous", "projected"):
+        monkeypatch.setitem(selection._SOLVER_CLASSES, "strip-pcg",
+                            lambda o, s, start=start: strips.StripPcgSolver(replace(o, warm_start=start), s))
+        r = adjust(project, AdjustmentOptions(solver="strip-pcg"))
+        assert r.converged and all(h.solver_info["warm_start"] == start for h in r.history)
+        counts[start] = np.array([h.solver_info["inner_iterations"] for h in r.history])
+    assert counts["zero"].shape == counts["projected"].shape == counts["previous"].shape
+    assert np.all(counts["projected"] <= counts["zero"] + 1)
+    assert counts["previous"][1:].sum() > counts["zero"][1:].sum()
+
+
+def test_auto_takes_strip_pcg_when_a_direct_factor_would_not_fit(monkeypatch):
+    """The factor's memory is estimated from N's pattern before factorising (solvers.memory) and
+    compared with the budget (STRIPTRI_MEMORY_BUDGET, else memory.MEMORY_BUDGET, else MemAvailable)."""
+    monkeypatch.delenv(memory.ENVIRONMENT, raising=False)
+    wide, wst = block_case(3, 100, 1, seed=1)
+    strip, sst = strip_case(100, 1, seed=1)
+    choice = solvers.sparse_choice()
+    estimate = memory.factor_bytes(wide, solvers.bandwidth(wide), choice)
+    monkeypatch.setattr(memory, "MEMORY_BUDGET", int(4 * estimate))
+    assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == choice
+    assert solvers.resolve_solver("auto", strip.shape[0], strip, sst) == "banded"
+    monkeypatch.setattr(memory, "MEMORY_BUDGET", int(estimate))  # the factor may take half of it
+    assert solvers.resolve_solver("auto", wide.shape[0], wide, wst) == "strip-pcg"
+    monkeypatch.setenv(memory.ENVIRONMENT, "1K")  # the environment variable wins
+    monkeypatch.setattr(memory, "MEMORY_BUDGET", 10**15)
+    assert solvers.resolve_solver("auto", strip.shape[0], strip, sst) == "strip-pcg"
+    auto = make_solver(SolverOptions("auto"), wst)
+    b = np.random.default_rng(3).normal(size=wide.shape[0])
+    result = auto.solve(wide, b)
+    assert auto.name == result.solver == "strip-pcg" and auto.iterative
+    assert scaled_error(wide, result.dx, dense_reference(wide, b)) < 1e-6
+
+
+def test_auto_adjustment_within_a_small_memory_budget(monkeypatch):
+    """With a budget too small for any factor the whole adjustment, final checks included, runs on
+    strip-pcg and gives the direct result."""
+    project = _simulated(30, 4, "perimeter")
+    ref = adjust(project, AdjustmentOptions(solver="dense"))
+    monkeypatch.setenv(memory.ENVIRONMENT, "1K")
+    made = []
+    original = selection._SOLVER_CLASSES["dense"]
+    monkeypatch.setitem(selection._SOLVER_CLASSES, "dense", lambda o, s: made.append(1) or original(o, s))
+    r = adjust(project)
+    assert r.solver == "strip-pcg" and r.converged and not made
+    assert np.abs(r.state.xyz0 - ref.state.xyz0).max() < 1e-6 * FLYING_HEIGHT
+    assert r.checks["vtpv_reduction_relative_difference"] < 1e-6
+
+
+@pytest.mark.parametrize("text, value", [("2G", 2 * 2**30), ("500M", 500 * 2**20), ("123456", 123456),
+                                         ("1.5k", 1536), ("2GiB", 2 * 2**30)])
+def test_memory_budget_from_the_environment(monkeypatch, text, value):
+    monkeypatch.setenv(memory.ENVIRONMENT, text)
+    assert memory.memory_budget() == value
+
+
+@pytest.mark.parametrize("text", ["lots", "-1G", "0"])
+def test_a_bad_memory_budget_is_refused(monkeypatch, text):
+    monkeypatch.setenv(memory.ENVIRONMENT, text)
+    with pytest.raises(ValueError, match=memory.ENVIRONMENT):
+        memory.memory_budget()
+
+
+def test_factor_estimate_against_cholmod():
+    """The estimate of nnz(L) is within a factor 2 of CHOLMOD's (nested dissection) on a synthetic
+    block and a strip (the fit itself: the benchmark blocks, docs/solvers.md)."""
+    cholmod = pytest.importorskip("sksparse.cholmod")
+    for N, _ in (block_case(20, 40, 0, seed=1), strip_case(800, 0, seed=1)):
+        A = sp.csc_matrix(N)
+        f = cholmod.analyze(A, mode="supernodal", ordering_method="nesdis")
+        f.cholesky_inplace(A)
+        actual = f.L().nnz
+        estimate = memory.factor_entries(N, solvers.bandwidth(N))
+        assert actual / 2 < estimate < 2 * actual, (estimate, actual)
+
+
 @pytest.fixture(scope="module")
 def strip8_dense():
     project = read_project(DATA / "strip8")
@@ -356,7 +547,7 @@ def strip8_dense():
 
 def test_every_solver_has_a_suite():
     suites = {cls.name for cls in (TestDense, TestSparse, TestBanded, TestCholmod, TestCvxopt, TestGaussSeidel,
-                                    TestPcg)}
+                                    TestPcg, TestStripPcg)}
     assert suites == set(SOLVERS) - {"auto"}
 
 

@@ -560,7 +560,8 @@ def _adjust(project: Project, options: AdjustmentOptions) -> AdjustmentResult:
             f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
         )
     solver = solvers.make_solver(
-        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts())
+        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts(),
+                                                          layout.block_groups(project.photos.strip_ids))
     )
     timings = {"conditions": 0.0, "assembly": 0.0, "solve": 0.0, "back_substitution": 0.0}
 
@@ -836,7 +837,8 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
     Also returns the largest correction (in standard deviations, as in the history) the next
     iteration would make, a by-product of (59) (None when N is singular): whether an iteration that
     stopped at max_iterations was still converging. The solve uses the adjustment's own solver
-    when it is a direct one (its analysis of the pattern is reused), else a direct one (``auto``).
+    when it is a direct one (its analysis of the pattern is reused), else ``auto``: a direct one,
+    or ``strip-pcg`` where a direct factor would not fit in memory (docs/solvers.md).
     """
     max_g = acc.max_misclosure  # formed with N in the same sweep (_assemble)
     if len(pobs):
@@ -847,8 +849,8 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
     next_correction = None
     try:
         direct = solver
-        if solver is None or isinstance(solver, (solvers.GaussSeidelSolver, solvers.PcgSolver)):
-            direct = solvers.make_solver(solvers.SolverOptions(name="auto"),
+        if solver is None or solver.iterative:  # auto: a direct factor unless it would not fit in memory
+            direct = solvers.make_solver(solvers.SolverOptions(name="auto"), solver.structure if solver else
                                          solvers.Structure(len(d), sweep.layout.block_starts()))
         if free_network is None:
             dx = direct.solve(acc.N, acc.u).dx

@@ -122,6 +122,33 @@ class UnknownLayout:
                 seen = int(new.max())
         return np.array(starts, dtype=int)
 
+    def block_groups(self, strip_ids) -> np.ndarray:
+        """For each block of :meth:`block_starts`, the index of its photo's strip (the strips
+        numbered in order of first appearance), -1 for a camera block. ``strip_ids``: (n_photos,)
+        strings; photos with an empty strip id form no strip (-1 as well): the solvers then group
+        them by themselves (solvers.strips)."""
+        ids = np.asarray(list(strip_ids), dtype=object)
+        photo_of_block = []
+        seen = -1
+        for i, cols in enumerate(list(self.photo_cols) + list(self.camera_cols)):
+            new = cols[cols > seen]
+            if len(new):
+                photo_of_block.append(i)
+                seen = int(new.max())
+        photo_of_block = np.array(photo_of_block, dtype=int)
+        n = len(self.photo_cols)
+        groups = np.full(len(photo_of_block), -1, dtype=int)
+        is_photo = photo_of_block < n
+        if len(ids) == n and is_photo.any():
+            names = ids[photo_of_block[is_photo]].astype(str)
+            _, first, inverse = np.unique(names, return_index=True, return_inverse=True)
+            rank = np.empty(len(first), dtype=int)
+            rank[np.argsort(first)] = np.arange(len(first))  # strips in order of first appearance
+            g = rank[inverse]
+            g[names == ""] = -1
+            groups[is_photo] = g
+        return groups
+
     def column_labels(self, photo_ids, camera_ids) -> list[str]:
         labels = [""] * self.n_unknowns
         for i, pid in enumerate(photo_ids):

@@ -150,7 +150,8 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     if problem.redundancy < 0:
         _explain_too_few(problem, state, xyz)
     solver = solvers.make_solver(
-        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts())
+        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts(),
+                                                          layout.block_groups(project.photos.strip_ids))
     )
 
     plate_hat, control_hat = obs.plate.copy(), obs.control.copy()

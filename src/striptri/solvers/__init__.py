@@ -16,6 +16,8 @@ factorisation and which BLAS library (found at run time) a solver used, for summ
   path after a plain ``pip install`` (:mod:`.cvxopt_cholesky`);
 * ``gauss-seidel`` - block Gauss-Seidel / SOR with the 6x6 photo blocks (:mod:`.iterative`);
 * ``pcg`` - block-Jacobi preconditioned conjugate gradients (:mod:`.iterative`);
+* ``strip-pcg`` - conjugate gradients preconditioned by block relaxation over whole strips, each
+  strip's banded factor one block (:mod:`.strips`);
 * ``auto`` - picks from N's pattern at the first solve (:func:`resolve_solver`, docs/solvers.md).
 """
 
@@ -46,13 +48,14 @@ from .selection import (
     sparse_choice,
 )
 from .sparse_cholesky import CholmodSolver, cholmod_available
+from .strips import SLOW_STRIP_PCG, StripPcgSolver, strip_partition
 
 __all__ = [
     "SOLVERS", "WARM_STARTS", "PIVOT_TOLERANCE", "DENSE_LIMIT", "BANDED_MAX_BANDWIDTH", "SLOW_SWEEPS", "SLOW_PCG",
     "SingularNormalMatrix", "SolverUnavailable", "SlowConvergenceWarning",
     "SolverOptions", "Structure", "SolveResult", "NormalSolver",
     "DenseSolver", "ScipySparseSolver", "BandedSolver", "CholmodSolver", "CvxoptSolver", "GaussSeidelSolver",
-    "PcgSolver",
+    "PcgSolver", "StripPcgSolver", "SLOW_STRIP_PCG", "strip_partition",
     "AutoSolver", "make_solver", "resolve_solver", "sparse_choice", "solve", "inverse", "jacobi_scaled", "bandwidth",
     "cholmod_available", "cvxopt_available", "describe", "blas",
 ]

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-SOLVERS = ("auto", "dense", "sparse", "banded", "cholmod", "cvxopt", "gauss-seidel", "pcg")
+SOLVERS = ("auto", "dense", "sparse", "banded", "cholmod", "cvxopt", "gauss-seidel", "pcg", "strip-pcg")
 WARM_STARTS = ("zero", "previous", "projected")
 
 # A pivot of the Cholesky factor of the Jacobi-scaled N (unit diagonal) below this counts as zero:
@@ -33,7 +33,7 @@ class SolverUnavailable(ImportError):
 class SolverOptions:
     """name: one of SOLVERS.
 
-    The iterative solvers (``gauss-seidel``, ``pcg``) stop at a relative residual
+    The iterative solvers (``gauss-seidel``, ``pcg``, ``strip-pcg``) stop at a relative residual
     ``|b~ - N~ y| / |b~| < inner_tolerance`` of the Jacobi-scaled system ``N~ = D N D``,
     ``b~ = D b``, ``dx = D y`` (a scale-free measure: metres, radians and millimetres alike), or after
     ``max_inner_iterations`` sweeps / iterations. ``relaxation`` is the over-relaxation factor
@@ -67,10 +67,15 @@ class SolverOptions:
 class Structure:
     """What a solver may know of N before seeing numbers: its size and its 6x6 photo blocks
     (``block_starts``: first column of each photo's block, camera columns after the last).
-    Without ``block_starts`` the solvers that need blocks take consecutive blocks of 6 columns."""
+    Without ``block_starts`` the solvers that need blocks take consecutive blocks of 6 columns.
+
+    ``groups`` (optional, one per block of ``block_starts``): the strip of each photo block (0, 1,
+    ...), -1 for a camera block or a photo of no strip. The strip solvers (:mod:`.strips`) relax
+    over these groups; without them they make groups of consecutive photos."""
 
     n_unknowns: int
     block_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    groups: np.ndarray | None = None
 
 
 @dataclass
@@ -90,6 +95,7 @@ class NormalSolver:
     iterations (a symbolic factorisation, the last solution)."""
 
     name = "base"
+    iterative = False  # True: the solution is approximate (inner iterations), no factor of N is made
 
     def __init__(self, options: SolverOptions, structure: Structure):
         self.options, self.structure = options, structure

@@ -108,7 +108,7 @@ def _module_file(solver: str) -> str | None:
             from cvxopt import cholmod as module
         elif solver == "sparse":
             from scipy.sparse.linalg._dsolve import _superlu as module
-        else:  # dense, banded, gauss-seidel, pcg: scipy.linalg's LAPACK
+        else:  # dense, banded, gauss-seidel, pcg, strip-pcg: scipy.linalg's LAPACK
             from scipy.linalg import _flapack as module
     except ImportError:
         return None
@@ -202,6 +202,17 @@ def factorisation(solver: str, info: dict | None = None) -> str:
         return "block Gauss-Seidel / SOR with the 6x6 photo blocks (no factorisation of N)"
     if solver == "pcg":
         return "block-Jacobi preconditioned conjugate gradients (no factorisation of N)"
+    if solver == "strip-pcg":
+        from .strips import PRECONDITIONER
+
+        kind = {"ssor": "symmetric block Gauss-Seidel", "jacobi": "block Jacobi"}
+        text = (f"conjugate gradients preconditioned by {kind[info.get('preconditioner', PRECONDITIONER)]} "
+                "over the strips (LAPACK banded Cholesky pbtrf of each strip; no factorisation of N)")
+        if "strips" in info:
+            text += f", {info['strips']} strips of bandwidth {info['bandwidth']}"
+            if info.get("dense_block"):
+                text += f", a dense block of {info['dense_block']} camera columns"
+        return text
     raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(s for s in SOLVERS if s != 'auto')}")
 
 

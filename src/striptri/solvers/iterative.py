@@ -58,6 +58,7 @@ class _IterativeSolver(NormalSolver):
 
     slow_limit = SLOW_SWEEPS
     unit = "iterations"
+    iterative = True
 
     def __init__(self, options, structure):
         super().__init__(options, structure)

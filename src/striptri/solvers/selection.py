@@ -9,8 +9,10 @@ from .banded import BandedSolver, choose_split
 from .base import SOLVERS, NormalSolver, SolveResult, SolverOptions, Structure
 from .direct import DenseSolver, ScipySparseSolver
 from .iterative import GaussSeidelSolver, PcgSolver
+from .strips import StripPcgSolver
 from .cvxopt_cholesky import CvxoptSolver, cvxopt_available
 from .describe import on_reference_blas
+from .memory import factor_bytes, fits
 from .sparse_cholesky import CholmodSolver, cholmod_available
 
 # auto: measured on a 2-core machine (scripts/bench/bench_solvers.py, docs/solvers.md)
@@ -26,6 +28,7 @@ _SOLVER_CLASSES = {
     "cvxopt": CvxoptSolver,
     "gauss-seidel": GaussSeidelSolver,
     "pcg": PcgSolver,
+    "strip-pcg": StripPcgSolver,
 }
 
 
@@ -35,10 +38,11 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
 
     ``auto`` (docs/solvers.md): ``dense`` up to DENSE_LIMIT unknowns; else ``banded`` when the
     photo part of N (camera columns split off as a border) has a lower bandwidth of at most
-    BANDED_MAX_BANDWIDTH (and its band fits BANDED_MAX_STORAGE) - a strip, or a block of strips of
-    up to about 80 photos numbered strip after strip; else the sparse Cholesky of
-    :func:`sparse_choice`. Without N (its pattern not yet known) the choice after ``dense`` is the
-    sparse one.
+    BANDED_MAX_BANDWIDTH (and its band fits BANDED_MAX_STORAGE and the memory budget) - a strip,
+    or a block of strips of up to about 80 photos numbered strip after strip; else the sparse
+    Cholesky of :func:`sparse_choice` when its factor, estimated from N's pattern before
+    factorising (:mod:`.memory`), fits the memory budget; else ``strip-pcg``, which needs no
+    factor of N. Without N (its pattern not yet known) the choice after ``dense`` is the sparse one.
     """
     if name not in SOLVERS:
         raise ValueError(f"unknown solver {name!r}; choose one of {', '.join(SOLVERS)}")
@@ -50,8 +54,13 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
         A = sp.csr_matrix(N)
         A.sort_indices()
         k, w = choose_split(A, structure or Structure(n_unknowns))
-        if w <= BANDED_MAX_BANDWIDTH and (w + 1) * k <= BANDED_MAX_STORAGE:
+        band_bytes = 8.0 * (w + 1 + n_unknowns - k) * k  # the band and Z = A^-1 B
+        if w <= BANDED_MAX_BANDWIDTH and (w + 1) * k <= BANDED_MAX_STORAGE and fits(band_bytes):
             return "banded"
+        choice = sparse_choice()
+        if not fits(factor_bytes(A, w, choice)):
+            return "strip-pcg"
+        return choice
     return sparse_choice()
 
 
@@ -76,6 +85,11 @@ class AutoSolver(NormalSolver):
     def __init__(self, options, structure):
         super().__init__(options, structure)
         self._chosen: NormalSolver | None = None
+
+    @property
+    def iterative(self) -> bool:
+        """Whether the solver chosen (none yet: False) is an iterative one."""
+        return self._chosen is not None and self._chosen.iterative
 
     def solve(self, N, b) -> SolveResult:
         if self._chosen is None or self._chosen.structure.n_unknowns != N.shape[0]:

@@ -10,6 +10,7 @@ photos and remove the defect, so N is positive definite and its condition grows 
 between control, as in a real strip. ``S`` gives the columns random units (metres, radians, mm).
 Photos are numbered strip after strip, along each strip, so a strip's N has nonzero 6x6 blocks only
 within two photos of the diagonal (Schmid Fig. 10) and camera columns (3 per camera) come last.
+The Structure names each block's strip (``groups``; cameras -1).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ def _rows(groups: np.ndarray, n_rows_each: int, rng: np.random.Generator):
 
 
 def _normal_matrix(n_photos: int, groups: list[np.ndarray], full: np.ndarray, partial: np.ndarray,
-                   n_cameras: int, rng: np.random.Generator, unit_spread: float):
+                   n_cameras: int, rng: np.random.Generator, unit_spread: float, photos_per_strip: int):
     coeffs, photos = [], []
     for g, n_rows in groups:
         a, p = _rows(g, n_rows, rng)
@@ -77,7 +78,8 @@ def _normal_matrix(n_photos: int, groups: list[np.ndarray], full: np.ndarray, pa
     N.sort_indices()
     starts = np.concatenate([np.arange(0, BLOCK * n_photos, BLOCK),
                              BLOCK * n_photos + np.arange(0, CAMERA * n_cameras, CAMERA)]).astype(int)
-    return N, Structure(n, starts)
+    strip_of_block = np.r_[np.arange(n_photos) // photos_per_strip, -np.ones(n_cameras, dtype=int)]
+    return N, Structure(n, starts, strip_of_block.astype(int))
 
 
 def strip_normal_matrix(n_photos: int, rng: np.random.Generator, *, n_cameras: int = 0,
@@ -97,7 +99,7 @@ def strip_normal_matrix(n_photos: int, rng: np.random.Generator, *, n_cameras: i
         groups.append((np.repeat(triples, points_per_model, axis=0), 3))
     full = np.unique([0, n_photos - 1]) if control else np.zeros(0, dtype=int)
     partial = np.setdiff1d(np.arange(0, n_photos, control_every), full) if control else full
-    return _normal_matrix(n_photos, groups, full, partial, n_cameras, rng, unit_spread)
+    return _normal_matrix(n_photos, groups, full, partial, n_cameras, rng, unit_spread, n_photos)
 
 
 def block_normal_matrix(n_strips: int, photos_per_strip: int, rng: np.random.Generator, *,
@@ -119,4 +121,4 @@ def block_normal_matrix(n_strips: int, photos_per_strip: int, rng: np.random.Gen
     full = np.unique(idx[[0, 0, -1, -1], [0, -1, 0, -1]])
     along = np.arange(0, P, control_every)
     partial = np.setdiff1d(np.concatenate([idx[0, along], idx[-1, along]]), full)
-    return _normal_matrix(n_strips * P, groups, full, partial, n_cameras, rng, unit_spread)
+    return _normal_matrix(n_strips * P, groups, full, partial, n_cameras, rng, unit_spread, P)

@@ -1,0 +1,101 @@
+"""Will a direct factor of N fit in memory? Estimated from N's pattern before factorising (auto).
+
+The estimate of the entries of the sparse Cholesky factor L (nested-dissection ordering) is
+
+    nnz(L) ~ max(nnz(N), min(n (w + 1), nnz(N) (ND_SLOPE log2 n + ND_INTERCEPT)))
+
+with nnz(N) the stored entries of the whole symmetric N, n its columns and w the bandwidth of its
+photo part in the adjustment's order (strip after strip):
+
+* ``nnz(N) (a log2 n + b)``: nested dissection of a block, a 2-D mesh of photos, fills like
+  ``n log n`` (George 1973). a, b are fitted to CHOLMOD's supernodal factor (NESDIS) of the
+  benchmark blocks (docs/solvers.md, "strip-pcg"): nnz(L) / nnz(N) = 2.17, 3.18, 4.03 at
+  1,000, 5,000 and 20,000 photos (6,000, 30,000, 120,000 columns);
+* ``n (w + 1)``: the band of the order as it is, an upper bound for a strip-like N (a long strip:
+  n x 18), which nested dissection does not beat by much;
+* ``nnz(N)``: L holds at least N's lower half, and on a strip CHOLMOD's L is as large as N
+  (10,000-photo strip: 1.81 million entries for 1.80 million in N).
+
+Bytes per entry of L (:data:`BYTES_PER_ENTRY`), from the peak memory of the factorisations of the
+20,000-photo block (docs/solvers.md, "Factorisations of real normal matrices": 600, 941 and 2412 MB
+for 43 million entries): cholmod 14, cvxopt 22, sparse (SuperLU: L and U, a worse ordering) 56;
+rounded up. banded: exactly ``8 (w + 1) k``.
+
+The budget (:func:`memory_budget`): the environment variable ``STRIPTRI_MEMORY_BUDGET`` (bytes, or
+with a suffix K, M, G: ``"2G"``), else :data:`MEMORY_BUDGET` when set (tests), else the kernel's
+``MemAvailable`` (/proc/meminfo). A direct factor is taken while its estimate is at most
+:data:`FACTOR_SHARE` of the budget (the rest is for N, the assembly and the solver's work).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import scipy.sparse as sp
+
+ND_SLOPE, ND_INTERCEPT = 0.430, -3.23  # nnz(L) / nnz(N) against log2(n), fitted (module doc)
+BYTES_PER_ENTRY = {"cholmod": 16, "cvxopt": 24, "sparse": 60, "banded": 8, "dense": 8}
+FACTOR_SHARE = 0.5
+MEMORY_BUDGET: int | None = None  # bytes; overrides MemAvailable (not the environment variable)
+ENVIRONMENT = "STRIPTRI_MEMORY_BUDGET"
+_SUFFIX = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+
+
+def factor_entries(N: sp.spmatrix, bandwidth: int) -> float:
+    """Estimated entries of a sparse Cholesky factor of N (module doc); ``bandwidth``: of N's
+    photo part in its own order."""
+    n, nnz = N.shape[0], N.nnz
+    if n == 0:
+        return 0.0
+    nested = nnz * (ND_SLOPE * math.log2(max(n, 2)) + ND_INTERCEPT)
+    return float(max(nnz, min(n * (bandwidth + 1.0), nested)))
+
+
+def factor_bytes(N: sp.spmatrix, bandwidth: int, solver: str) -> float:
+    """Estimated memory of the factor of N made by ``solver`` (cholmod, cvxopt, sparse, dense)."""
+    if solver == "dense":
+        return 8.0 * N.shape[0] ** 2
+    return BYTES_PER_ENTRY[solver] * factor_entries(N, bandwidth)
+
+
+def parse_bytes(text: str) -> int:
+    """'2G' -> 2147483648; '500M', '123456' (bytes)."""
+    t = text.strip().upper().removesuffix("B").removesuffix("I")
+    unit = t[-1:] if t[-1:] in _SUFFIX and not t[-1:].isdigit() else ""
+    number = t[: len(t) - len(unit)]
+    try:
+        value = float(number) * _SUFFIX[unit]
+    except ValueError:
+        raise ValueError(f"{ENVIRONMENT}: not a size in bytes: {text!r} (e.g. 2G, 500M, 123456)") from None
+    if not value > 0:
+        raise ValueError(f"{ENVIRONMENT} must be positive, not {text!r}")
+    return int(value)
+
+
+def available_memory() -> int | None:
+    """MemAvailable of /proc/meminfo in bytes (None where there is no such file)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def memory_budget() -> int | None:
+    """The memory a solve may use (module doc); None when unknown (then everything fits)."""
+    text = os.environ.get(ENVIRONMENT)
+    if text:
+        return parse_bytes(text)
+    if MEMORY_BUDGET is not None:
+        return int(MEMORY_BUDGET)
+    return available_memory()
+
+
+def fits(estimate_bytes: float, budget: int | None = None) -> bool:
+    """True when a factor of ``estimate_bytes`` fits FACTOR_SHARE of the budget."""
+    budget = memory_budget() if budget is None else budget
+    return budget is None or estimate_bytes <= FACTOR_SHARE * budget
