@@ -32,7 +32,7 @@ def test_each_iteration_and_phase_is_a_plain_line_on_a_pipe(tmp_path, method):
     assert len(iterations) == summary["iterations"] == len(summary["history"])
     for number, (line, h) in enumerate(zip(iterations, summary["history"]), start=1):
         assert line.startswith(f"striptri: {method} iteration {number}: vTPv {h['vtpv']:.6g}, "
-                               f"largest correction {h['max_correction']:.3g} sigma, ")
+                               f"correction {h['max_correction']:.3g} sigma, ")
     phases = [line.split(":")[1].strip() for line in lines if "iteration" not in line]
     assert phases == ["reliability measures (gross errors)", "point precision", "tables (CSV)", "report"]
     assert "\r" not in proc.stderr
@@ -74,3 +74,35 @@ def test_without_a_reporter_the_library_is_silent(tmp_path, capsys):
     run_adjust(DATA / "strip8", tmp_path / "out")
     captured = capsys.readouterr()
     assert captured.err == "" and captured.out == ""
+
+
+def test_inner_sweeps_of_an_iterative_solver_are_shown_while_it_runs(tmp_path, monkeypatch):
+    """A relaxation solver announces its inner iterations (progress.inner) during a solve; the
+    reporter shows them throttled (here: every call, the intervals set to zero), after the silent
+    start only, and in a log as plain lines naming the solver, the iteration and the residual."""
+    monkeypatch.setattr(progress, "INNER_LINE_EVERY_S", 0.0)
+    stream = io.StringIO()
+    from striptri.adjustment import AdjustmentOptions, adjust
+    from striptri.io import read_project
+
+    with progress.reporting(progress.StderrProgress(stream, after=0.0, tty=False)):
+        result = adjust(read_project(DATA / "block_3x6"), AdjustmentOptions(solver="pcg"))
+    lines = [line for line in stream.getvalue().splitlines() if "inner iteration" in line]
+    total = sum(h.solver_info["inner_iterations"] for h in result.history)
+    assert total >= 25 and len(lines) >= 1
+    for line in lines:
+        name, rest = line.removeprefix("striptri: ").split(": ", 1)
+        assert name == "pcg" and rest.startswith("inner iteration ") and "relative residual" in rest
+    # throttled by time: with the default interval a short solve writes at most one line per 10 s
+    monkeypatch.setattr(progress, "INNER_LINE_EVERY_S", 10.0)
+    stream = io.StringIO()
+    with progress.reporting(progress.StderrProgress(stream, after=0.0, tty=False)):
+        for k in range(100):
+            progress.inner("strip-pcg", 25 * (k + 1), 1e-3)
+    assert len(stream.getvalue().splitlines()) == 1
+    # before the silent start is over nothing is shown, and nothing is queued for later
+    stream = io.StringIO()
+    with progress.reporting(progress.StderrProgress(stream, after=1000.0, tty=False)) as reporter:
+        progress.inner("pcg", 25, 1e-3)
+        assert reporter.pending == []
+    assert stream.getvalue() == ""

@@ -1,9 +1,10 @@
 """Progress of long runs on stderr (docs/decisions.md, "Progress of long runs").
 
 The adjustment loops and the pipeline announce what they finish: each outer iteration (v^T P v,
-the largest correction in units of its standard deviation, seconds, the inner sweeps of an
-iterative solver) and each phase after the adjustment (reliability measures, point precision,
-tables, report). They call :func:`iteration` and :func:`phase`, which do nothing unless a
+the correction in units of its standard deviation, seconds, the inner sweeps of an iterative
+solver) and each phase after the adjustment (reliability measures, point precision, tables,
+report); the iterative solvers announce their inner iterations while they run. They call
+:func:`iteration`, :func:`phase` and :func:`inner`, which do nothing unless a
 reporter is active in the calling context (:func:`reporting`; the command line makes one unless
 ``--quiet``), so the library, the tests and the study workers stay silent.
 
@@ -23,6 +24,8 @@ import sys
 import time
 
 PROGRESS_AFTER_S = 2.0  # a run shorter than this prints no progress (STRIPTRI_PROGRESS_AFTER overrides)
+INNER_EVERY_S = 0.5  # inner sweeps: the terminal's status line is rewritten at most this often
+INNER_LINE_EVERY_S = 10.0  # and a plain line (a log) written at most this often
 
 _current: contextvars.ContextVar = contextvars.ContextVar("striptri_progress", default=None)
 
@@ -33,6 +36,15 @@ def iteration(method: str, number: int, vtpv: float, max_correction: float, seco
     reporter = _current.get()
     if reporter is not None:
         reporter.iteration(method, number, vtpv, max_correction, seconds, solver_info or {})
+
+
+def inner(solver: str, iterations: int, relative_residual: float) -> None:
+    """An iterative solver is in its inner iterations (called every few of them; no-op without an
+    active reporter, which shows it at most every INNER_EVERY_S on a terminal, INNER_LINE_EVERY_S in
+    a log)."""
+    reporter = _current.get()
+    if reporter is not None:
+        reporter.inner(solver, iterations, relative_residual)
 
 
 def phase(name: str, seconds: float) -> None:
@@ -59,7 +71,7 @@ def _number(x: float, spec: str) -> str:
 
 def iteration_text(method: str, number: int, vtpv: float, max_correction: float, seconds: float,
                    solver_info: dict) -> str:
-    text = (f"{method} iteration {number}: vTPv {_number(vtpv, '.6g')}, largest correction "
+    text = (f"{method} iteration {number}: vTPv {_number(vtpv, '.6g')}, correction "
             f"{_number(max_correction, '.3g')} sigma, {seconds:.2f} s")
     inner = solver_info.get("inner_iterations")
     if inner is not None:
@@ -81,6 +93,7 @@ class StderrProgress:
         self.start = time.perf_counter()
         self.pending: list[tuple[str, str]] = []  # events of the silent start: (kind, text)
         self.bar = None
+        self.last_inner = -math.inf
 
     def _showing(self) -> bool:
         return time.perf_counter() - self.start >= self.after
@@ -90,6 +103,20 @@ class StderrProgress:
 
     def phase(self, name, seconds) -> None:
         self._event("phase", f"{name}: {seconds:.2f} s")
+
+    def inner(self, solver, iterations, relative_residual) -> None:
+        """Inner sweeps: transient, shown (throttled) only once the silent start is over and
+        never queued for later."""
+        now = time.perf_counter()
+        every = INNER_EVERY_S if self.tty else INNER_LINE_EVERY_S
+        if not self._showing() or now - self.last_inner < every:
+            return
+        self.last_inner = now
+        for kind, text in self.pending:
+            self._show(kind, text)
+        self.pending = []
+        self._show("iteration", f"{solver}: inner iteration {iterations}, relative residual "
+                                f"{_number(relative_residual, '.1e')}")
 
     def _event(self, kind: str, text: str) -> None:
         self.pending.append((kind, text))

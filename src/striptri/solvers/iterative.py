@@ -39,6 +39,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .. import progress
 from .base import PIVOT_TOLERANCE, NormalSolver, SingularNormalMatrix, SolveResult, jacobi_scaled
 from .blocks import block_cholesky, block_diagonal_matrix, partition, strictly_block_lower
 
@@ -164,6 +165,8 @@ class GaussSeidelSolver(_IterativeSolver):
                 raise SingularNormalMatrix(None, "Gauss-Seidel diverged, which it cannot do for a "
                                                  "positive definite matrix")
             converged = residual < opts.inner_tolerance
+            if sweeps % INNER_REPORT_EVERY == 0:
+                progress.inner(self.name, sweeps, residual)
             if residual < 0.99 * best:
                 best, best_sweep = residual, sweeps
             # rounding floor reached (or hopelessly slow): more sweeps would not help
@@ -195,37 +198,50 @@ class PcgSolver(_IterativeSolver):
         y = self._start(Ns, s, b)
         if bnorm == 0.0:
             return self._report(np.zeros(n), 0, 0.0, True)
-        tol = opts.inner_tolerance
-        iterations, restarts = 0, 0
-        r = bs - Ns @ y
+        y, iterations, residual, converged, restarts = preconditioned_cg(
+            Ns, bs, y, lambda r: Minv @ r, bnorm, opts.inner_tolerance, opts.max_inner_iterations, self.name)
+        return self._report(y * s, iterations, residual, converged, {"restarts": restarts})
+
+
+INNER_REPORT_EVERY = 25  # inner iterations between two progress.inner calls (the reporter throttles by time)
+
+
+def preconditioned_cg(A, b, y, precondition, bnorm, tol, max_iterations, name="pcg"):
+    """Preconditioned conjugate gradients from y on A y = b to ``|b - A y| < tol |b|`` (the true
+    residual, checked when the recursive one gets there; at most 3 restarts from the true
+    residual), announcing its progress (progress.inner) under ``name``.
+    Returns (y, iterations, relative residual, converged, restarts)."""
+    iterations, restarts = 0, 0
+    r = b - A @ y
+    residual = float(np.linalg.norm(r)) / bnorm
+    converged = residual < tol
+    while not converged and iterations < max_iterations:
+        z = precondition(r)
+        p = z.copy()
+        rz = float(r @ z)
+        while iterations < max_iterations:
+            Ap = A @ p
+            curv = float(p @ Ap)
+            if not curv > PIVOT_TOLERANCE**2 * float(p @ p):
+                raise SingularNormalMatrix(None, "conjugate gradients met a direction of zero or negative curvature")
+            alpha = rz / curv
+            y += alpha * p
+            r -= alpha * Ap
+            iterations += 1
+            recursive = float(np.linalg.norm(r)) / bnorm
+            if recursive < tol:
+                break
+            if iterations % INNER_REPORT_EVERY == 0:
+                progress.inner(name, iterations, recursive)
+            z = precondition(r)
+            rz_new = float(r @ z)
+            p = z + (rz_new / rz) * p
+            rz = rz_new
+        r = b - A @ y
         residual = float(np.linalg.norm(r)) / bnorm
         converged = residual < tol
-        while not converged and iterations < opts.max_inner_iterations:
-            # one CG run from y; it stops on the recursive residual, then the true one is checked
-            zr = Minv @ r
-            p = zr.copy()
-            rz = float(r @ zr)
-            while iterations < opts.max_inner_iterations:
-                Ap = Ns @ p
-                curv = float(p @ Ap)
-                if not curv > PIVOT_TOLERANCE**2 * float(p @ p):
-                    raise SingularNormalMatrix(None, "conjugate gradients met a direction of zero or "
-                                                     "negative curvature")
-                alpha = rz / curv
-                y += alpha * p
-                r -= alpha * Ap
-                iterations += 1
-                if float(np.linalg.norm(r)) / bnorm < tol:
-                    break
-                zr = Minv @ r
-                rz_new = float(r @ zr)
-                p = zr + (rz_new / rz) * p
-                rz = rz_new
-            r = bs - Ns @ y  # the true residual (the recursive one drifts)
-            residual = float(np.linalg.norm(r)) / bnorm
-            converged = residual < tol
-            if not converged:
-                restarts += 1
-                if restarts > 3:
-                    break
-        return self._report(y * s, iterations, residual, converged, {"restarts": restarts})
+        if not converged:
+            restarts += 1
+            if restarts > 3:
+                break
+    return y, iterations, residual, converged, restarts

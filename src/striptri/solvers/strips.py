@@ -44,10 +44,10 @@ import scipy.linalg as la
 import scipy.sparse as sp
 from scipy.linalg import lapack
 
-from .base import PIVOT_TOLERANCE, SingularNormalMatrix, SolveResult, Structure, check_pivots, jacobi_scaled
+from .base import SingularNormalMatrix, SolveResult, Structure, check_pivots, jacobi_scaled
 from .blocks import partition
 from .direct import dense_cholesky
-from .iterative import _IterativeSolver
+from .iterative import _IterativeSolver, preconditioned_cg
 
 PRECONDITIONERS = ("ssor", "jacobi")
 PRECONDITIONER = "jacobi"  # measured: as fast or faster than ssor in time (docs/solvers.md, "strip-pcg")
@@ -232,45 +232,8 @@ class StripPcgSolver(_IterativeSolver):
         if bnorm == 0.0:
             return self._report(np.zeros(n), 0, 0.0, True, extra)
         y = self._start(Ns, s, b)[order]
-        y, iterations, residual, converged, restarts = _pcg(P, bs, y, M.solve, bnorm, opts.inner_tolerance,
-                                                          opts.max_inner_iterations)
+        y, iterations, residual, converged, restarts = preconditioned_cg(P, bs, y, M.solve, bnorm, opts.inner_tolerance,
+                                                                     opts.max_inner_iterations, self.name)
         dx = np.empty(n)
         dx[order] = y
         return self._report(dx * s, iterations, residual, converged, {**extra, "restarts": restarts})
-
-
-def _pcg(A, b, y, precondition, bnorm, tol, max_iterations):
-    """Preconditioned CG from y on A y = b to ``|b - A y| < tol |b|`` (the true residual, checked
-    when the recursive one gets there; at most 3 restarts from the true residual).
-    Returns (y, iterations, relative residual, converged, restarts)."""
-    iterations, restarts = 0, 0
-    r = b - A @ y
-    residual = float(np.linalg.norm(r)) / bnorm
-    converged = residual < tol
-    while not converged and iterations < max_iterations:
-        z = precondition(r)
-        p = z.copy()
-        rz = float(r @ z)
-        while iterations < max_iterations:
-            Ap = A @ p
-            curv = float(p @ Ap)
-            if not curv > PIVOT_TOLERANCE**2 * float(p @ p):
-                raise SingularNormalMatrix(None, "conjugate gradients met a direction of zero or negative curvature")
-            alpha = rz / curv
-            y += alpha * p
-            r -= alpha * Ap
-            iterations += 1
-            if float(np.linalg.norm(r)) / bnorm < tol:
-                break
-            z = precondition(r)
-            rz_new = float(r @ z)
-            p = z + (rz_new / rz) * p
-            rz = rz_new
-        r = b - A @ y
-        residual = float(np.linalg.norm(r)) / bnorm
-        converged = residual < tol
-        if not converged:
-            restarts += 1
-            if restarts > 3:
-                break
-    return y, iterations, residual, converged, restarts
