@@ -59,6 +59,8 @@ class _IterativeSolver(NormalSolver):
 
     slow_limit = SLOW_SWEEPS
     unit = "iterations"
+    advice = ("N is ill-conditioned for it (e.g. a long strip with little control). A direct solver ('banded', "
+              "'cholmod', 'sparse') is faster and exact here.")
     iterative = True
 
     def __init__(self, options, structure):
@@ -95,9 +97,7 @@ class _IterativeSolver(NormalSolver):
             what = "did not reach" if not converged else "needed many " + self.unit + " to reach"
             warnings.warn(
                 f"{self.name} solver {what} the relative residual {tol:g} "
-                f"({iterations} {self.unit}, residual {residual:.3g}); N is ill-conditioned for it "
-                "(e.g. a long strip with little control). A direct solver ('banded', 'cholmod', "
-                "'sparse') is faster and exact here.",
+                f"({iterations} {self.unit}, residual {residual:.3g}); " + self.advice,
                 SlowConvergenceWarning,
                 stacklevel=3,
             )

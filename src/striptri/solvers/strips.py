@@ -197,6 +197,9 @@ class StripPcgSolver(_IterativeSolver):
     """Conjugate gradients on N~ preconditioned by block relaxation over strips (module doc)."""
 
     name = "strip-pcg"
+    advice = ("a block of many strips needs many iterations (its bending across the strips). A direct solver "
+              "('cholmod', 'cvxopt', 'sparse') is faster where its factor fits in memory (docs/solvers.md, "
+              "'strip-pcg'); more control across the block, or cross strips, speed the iteration up.")
     slow_limit = SLOW_STRIP_PCG
 
     def __init__(self, options, structure, preconditioner: str | None = None):
