@@ -67,6 +67,11 @@ class _IterativeSolver(NormalSolver):
         super().__init__(options, structure)
         self._previous: np.ndarray | None = None
 
+    def _empty(self) -> SolveResult:
+        """The solution of a 0 x 0 system."""
+        return SolveResult(np.zeros(0), self.name, {"inner_iterations": 0, "relative_residual": 0.0,
+                                                     "converged": True, "slow": False})
+
     def _start(self, Ns, s, b) -> np.ndarray:
         """Initial y (scaled unknowns) per SolverOptions.warm_start."""
         n = len(b)
@@ -116,8 +121,7 @@ class GaussSeidelSolver(_IterativeSolver):
     def solve(self, N, b):
         n = N.shape[0]
         if n == 0:
-            return SolveResult(np.zeros(0), self.name, {"inner_iterations": 0, "relative_residual": 0.0,
-                                                         "converged": True, "slow": False})
+            return self._empty()
         opts = self.options
         omega = opts.relaxation
         Ns, s = jacobi_scaled(N)
@@ -184,8 +188,7 @@ class PcgSolver(_IterativeSolver):
     def solve(self, N, b):
         n = N.shape[0]
         if n == 0:
-            return SolveResult(np.zeros(0), self.name, {"inner_iterations": 0, "relative_residual": 0.0,
-                                                         "converged": True, "slow": False})
+            return self._empty()
         opts = self.options
         Ns, s = jacobi_scaled(N)
         blocks = partition(self.structure, n)

@@ -44,7 +44,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 from scipy.linalg import lapack
 
-from .base import SingularNormalMatrix, SolveResult, Structure, check_pivots, jacobi_scaled
+from .base import SingularNormalMatrix, Structure, check_pivots, jacobi_scaled
 from .blocks import partition
 from .direct import dense_cholesky
 from .iterative import _IterativeSolver, preconditioned_cg
@@ -218,8 +218,7 @@ class StripPcgSolver(_IterativeSolver):
     def solve(self, N, b):
         n = N.shape[0]
         if n == 0:
-            return SolveResult(np.zeros(0), self.name, {"inner_iterations": 0, "relative_residual": 0.0,
-                                                         "converged": True, "slow": False})
+            return self._empty()
         opts = self.options
         Ns, s = jacobi_scaled(N)
         part = self._partition(n)
