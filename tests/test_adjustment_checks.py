@@ -23,11 +23,11 @@ def test_schmid_checks_hold_after_convergence(adjusted):
     _, r = adjusted
     assert r.converged
     # final check: the adjusted observations satisfy every condition (in units of its sigma)
-    assert r.checks["max_condition_misclosure_sigma"] < 1e-7
+    assert r.checks.max_condition_misclosure_sigma < 1e-7
     # (58): B^T k = 0, the right-hand side of the normal equations vanishes at the solution
-    assert r.checks["max_BTk_sigma"] < 1e-7
+    assert r.checks.max_BTk_sigma < 1e-7
     # (59): v^T P v equals the reduced sum [LL.u] of the normal equations
-    assert r.checks["vtpv_reduction_relative_difference"] < 1e-8
+    assert r.checks.vtpv_reduction_relative_difference < 1e-8
 
 
 def test_vtpv_equals_the_weighted_residuals(adjusted):
@@ -67,6 +67,6 @@ def test_dense_and_sparse_solvers_agree(adjusted):
 def test_xz_scale_form_equals_3d_on_a_strip_along_x():
     project = read_project(DATA / "strip8")
     a = adjust(project)
-    b = adjust(project, AdjustmentOptions(scale_form="xz"))
+    b = adjust(project, AdjustmentOptions.of(scale_form="xz"))
     np.testing.assert_allclose(b.state.xyz0, a.state.xyz0, atol=1e-9 * 1500)
     assert b.vtpv == pytest.approx(a.vtpv, rel=1e-9)

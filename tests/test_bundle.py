@@ -171,10 +171,10 @@ def test_checks_after_convergence(solved, name):
     gradients vanish, and v^T P v equals the reduced sum (Schmid 58, 59 in the bundle's form)."""
     _, _, bundle = solved(name)
     checks = bundle.result.checks
-    assert checks["max_condition_misclosure_sigma"] < 1e-8
-    assert checks["max_BTk_sigma"] < 1e-8
-    assert checks["max_point_gradient_sigma"] < 1e-8
-    assert checks["vtpv_reduction_relative_difference"] < 1e-8
+    assert checks.max_condition_misclosure_sigma < 1e-8
+    assert checks.max_BTk_sigma < 1e-8
+    assert checks.max_point_gradient_sigma < 1e-8
+    assert checks.vtpv_reduction_relative_difference < 1e-8
 
 
 @pytest.mark.parametrize("name", ["pair", "strip8", "strip, weighted control", "pair, one-photo points of every kind"])

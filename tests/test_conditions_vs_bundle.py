@@ -42,7 +42,7 @@ STAT = 1e-6  # agreement between two converged solutions, in standard deviations
 # name -> (geometry, observation noise, adjustment options)
 CASES = {
     "fixed control": (PairOptions(), NoiseOptions(), AdjustmentOptions()),
-    "fixed control, Schmid's xz scales": (PairOptions(), NoiseOptions(), AdjustmentOptions(scale_form="xz")),
+    "fixed control, Schmid's xz scales": (PairOptions(), NoiseOptions(), AdjustmentOptions.of(scale_form="xz")),
     "weighted control": (PairOptions(points=mixed_points(weighted=True)), NoiseOptions(), AdjustmentOptions()),
     "fixed and weighted, GNSS, national grid": (
         PairOptions(points=mixed_points(weighted="alternate"), grid_offset=NATIONAL_GRID),
@@ -64,7 +64,7 @@ CASES = {
         PairOptions(n_photos=3, points=strip_points()), NoiseOptions(), AdjustmentOptions()
     ),
     "strip of three, Schmid's xz scales": (
-        PairOptions(n_photos=3, points=strip_points()), NoiseOptions(), AdjustmentOptions(scale_form="xz")
+        PairOptions(n_photos=3, points=strip_points()), NoiseOptions(), AdjustmentOptions.of(scale_form="xz")
     ),
 }
 HAS_GNSS = {name for name, (_, noise, _) in CASES.items() if noise.sigma_gnss is not None}
@@ -133,9 +133,9 @@ def test_schmid_final_checks(solved, name):
     """Schmid (58-59) after convergence: B^T k = 0, v^T P v = [LL.u], every condition (including
     the observation equations of observed centres) satisfied by the adjusted observations."""
     _, _, res, _ = solved[name]
-    assert res.checks["max_BTk_sigma"] < 1e-8
-    assert res.checks["vtpv_reduction_relative_difference"] < 1e-8
-    assert res.checks["max_condition_misclosure_sigma"] < 1e-8
+    assert res.checks.max_BTk_sigma < 1e-8
+    assert res.checks.vtpv_reduction_relative_difference < 1e-8
+    assert res.checks.max_condition_misclosure_sigma < 1e-8
 
 
 def test_case_coverage(solved):
@@ -267,7 +267,7 @@ def test_invariant_to_recombining_conditions(geometry, noise):
     _, project = make_pair(geometry, noise, seed=11)
     plain = adjust(project)
     transform = RandomRecombination(seed=5)
-    mixed = adjust(project, AdjustmentOptions(condition_transform=transform))
+    mixed = adjust(project, AdjustmentOptions.of(condition_transform=transform))
     assert transform.calls > 0
     assert plain.converged and mixed.converged
     sig_xyz = np.sqrt(np.einsum("nii->ni", _photo_Q(plain)[:, :3, :3])) * plain.sigma0

@@ -80,7 +80,7 @@ def test_the_defaults_converge_at_every_length(strips, n):
     _, _, reference = strips[n]
     assert reference.converged and reference.termination == "converged"
     assert reference.iterations <= 10
-    assert reference.checks["max_condition_misclosure_sigma"] < 1e-6
+    assert reference.checks.max_condition_misclosure_sigma < 1e-6
 
 
 @pytest.mark.parametrize("n", [100, 10_000])

@@ -127,4 +127,4 @@ def test_each_datum_defect_is_named_and_the_free_network_solves_it(case, free_co
         assert word in str(failure.value)
     r = adjust(q, AdjustmentOptions(datum="inner"))
     assert r.converged and len(r.free_network) == free_count
-    assert r.checks["max_condition_misclosure_sigma"] < 1e-7
+    assert r.checks.max_condition_misclosure_sigma < 1e-7

@@ -1353,7 +1353,7 @@ def test_case1_and_2_c_in_micrometres_names_the_unit(strip8, method):
 
 def test_case1_cost_flat_is_a_result_with_a_message(strip8):
     """The bundle's cost tolerance met before the corrections: "cost_flat", a success, explained."""
-    result = adjust(strip8, AdjustmentOptions(method="bundle", cost_tolerance=0.5))
+    result = adjust(strip8, AdjustmentOptions.of(method="bundle", cost_tolerance=0.5))
     assert result.termination == "cost_flat" and result.termination in SUCCESSFUL_TERMINATIONS
     assert result.history[-1].max_correction > 1e-8
     msg = result.termination_message

@@ -117,7 +117,7 @@ def test_result_fields_follow_their_definitions():
     assert np.all(np.linalg.eigvalsh(N) > 0)
     sig_xyz, _ = r.photo_mean_errors("omega-phi-kappa")
     assert np.all(np.isfinite(sig_xyz)) and np.all(sig_xyz > 0)
-    assert r.checks["absolute_orientation_redundancy"] > 0
+    assert r.checks.absolute_orientation_redundancy > 0
     # the pipeline's triangulation takes the result as it takes a simultaneous one
     tri = triangulate_result(project, r)
     assert tri.determined.sum() > 0.9 * len(project.points)

@@ -506,7 +506,7 @@ def test_auto_adjustment_within_a_small_memory_budget(monkeypatch):
     r = adjust(project)
     assert r.solver == "strip-pcg" and r.converged and not made
     assert np.abs(r.state.xyz0 - ref.state.xyz0).max() < 1e-6 * FLYING_HEIGHT
-    assert r.checks["vtpv_reduction_relative_difference"] < 1e-6
+    assert r.checks.vtpv_reduction_relative_difference < 1e-6
 
 
 @pytest.mark.parametrize("text, value", [("2G", 2 * 2**30), ("500M", 500 * 2**20), ("123456", 123456),

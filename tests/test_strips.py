@@ -50,7 +50,7 @@ def test_strip_flown_along_y_converges_with_the_3d_form_and_refuses_the_xz_form(
     assert r.converged
     np.testing.assert_allclose(r.state.xyz0 + r.offset, truth.xyz0, atol=1.0)
     with pytest.raises(NumericalFailure, match="unsuitable"):
-        adjust(project, AdjustmentOptions(scale_form="xz"))
+        adjust(project, AdjustmentOptions.of(scale_form="xz"))
 
 
 def test_result_does_not_depend_on_the_orientation_of_the_ground_frame():
@@ -67,7 +67,7 @@ def test_result_does_not_depend_on_the_orientation_of_the_ground_frame():
 
 def test_scale_forms_agree_on_a_strip_flown_along_x():
     project = read_project(DATA / "strip8")
-    a, b = adjust(project), adjust(project, AdjustmentOptions(scale_form="xz"))
+    a, b = adjust(project), adjust(project, AdjustmentOptions.of(scale_form="xz"))
     np.testing.assert_allclose(b.state.xyz0, a.state.xyz0, atol=1e-6)
     assert b.vtpv == pytest.approx(a.vtpv, rel=1e-9)
 

@@ -49,7 +49,7 @@ COST_TOLERANCE = 1e-10
 def run_striptri(bal, method: str, max_iterations: int):
     t0, c0 = time.perf_counter(), time.process_time()
     project = bal_to_project(bal).project
-    result = adjust(project, AdjustmentOptions(method=method, max_iterations=max_iterations,
+    result = adjust(project, AdjustmentOptions.of(method=method, max_iterations=max_iterations,
                                                cost_tolerance=COST_TOLERANCE))
     return {"adjuster": f"striptri {method}", "seconds": time.perf_counter() - t0, "cpu": time.process_time() - c0,
             "iterations": result.iterations, "final_cost": result.vtpv / 2, "converged": result.converged,

@@ -52,7 +52,7 @@ def worker(project: str, solver: str, out: str) -> None:
         "solver": r.solver, "converged": bool(r.converged), "iterations": int(r.iterations),
         "inner": [int(i) for i in inner], "inner_converged": [bool(h.solver_info.get("converged", True))
                                                              for h in r.history],
-        "solve_s": r.timings["solve"], "final_checks_s": r.timings.get("final_checks", 0.0), "adjust_s": seconds,
+        "solve_s": r.timings.solve, "final_checks_s": r.timings.final_checks or 0.0, "adjust_s": seconds,
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "vtpv": float(r.vtpv),
         "warnings": sorted({type(w.message).__name__ for w in caught}),
         "last_info": {k: v for k, v in r.history[-1].solver_info.items() if isinstance(v, (int, float, str, bool))},

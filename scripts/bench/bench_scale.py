@@ -250,7 +250,7 @@ from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.io import read_project
 project = read_project(sys.argv[1])
 result = adjust(project, AdjustmentOptions(method=sys.argv[2], keep_unconverged=True))
-print(json.dumps({"timings": result.timings, "iterations": result.iterations, "converged": bool(result.converged),
+print(json.dumps({"timings": result.timings.as_dict(), "iterations": result.iterations, "converged": bool(result.converged),
                   "vtpv": result.vtpv, "process_s": time.perf_counter() - t0}))
 """
 

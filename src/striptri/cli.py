@@ -16,7 +16,7 @@ import sys
 import click
 
 from striptri import __version__
-from striptri.adjustment import DATUMS, METHODS
+from striptri.core.options import DATUMS, METHODS
 from striptri.errors import InputError, Interrupted, NumericalFailure
 from striptri.solvers import SOLVERS
 

@@ -18,8 +18,15 @@ class InputError(Exception):
 
 class NumericalFailure(Exception):
     """An adjustment that cannot be carried out, explained in a photogrammetrist's words
-    (datum defect, divergence, a photograph without enough measurements)."""
+    (datum defect, divergence, a photograph without enough measurements).
 
+    reason: why, as summary.json's "termination" names it (core.result.TERMINATIONS: "diverged",
+    "datum_defect", "singular", "not_finite", "iteration_limit"), or "failed" for the failures that
+    are none of those (too few observations, an unsuitable option)."""
+
+    def __init__(self, message: str, reason: str = "failed"):
+        super().__init__(message)
+        self.reason = reason
 
 
 @dataclass(frozen=True)

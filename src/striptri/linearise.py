@@ -19,22 +19,8 @@ from .errors import NumericalFailure
 from .lens import NCP, ideal_from_observed
 from .conditions import collinearity, ray_chain, ray_conditions
 from .groups import COLLINEARITY, GroupBatch
+from .core.observations import Observations  # noqa: F401  (re-exported: striptri.linearise.Observations)
 from .parameters import State, UnknownLayout
-
-
-@dataclass(frozen=True)
-class Observations:
-    """All observations of the point groups (original values l and cofactors).
-
-    plate: (m_ip, 2) measured plate coordinates; q_plate: (m_ip, 2) their variances.
-    control: (n_pt, 3) given coordinates (0 where not given); q_control: (n_pt, 3) variances,
-    0 = held fixed or not given.
-    """
-
-    plate: np.ndarray
-    q_plate: np.ndarray
-    control: np.ndarray
-    q_control: np.ndarray
 
 
 @dataclass

@@ -19,8 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import progress, report, solvers
-from .adjustment import (SUCCESSFUL_TERMINATIONS, AdjustmentOptions, AdjustmentResult, adjust, failure_message,
-                         observations_of, termination_of)
+from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, observations_of
 from .errors import InputError, Note, NumericalFailure
 from .groups import rays_per_point
 from .io.csvtable import format_csv
@@ -55,12 +54,12 @@ def options_for(project: Project, **overrides) -> AdjustmentOptions:
                 cost_tolerance=s.cost_tolerance)
     toml = project.source / "project.toml" if project.source is not None else "project.toml"
     try:
-        AdjustmentOptions(**base)
+        AdjustmentOptions.of(**base)
     except ValueError as exc:
         raise InputError(toml, None, str(exc)) from None
     given = {k: v for k, v in overrides.items() if v is not None}
     try:
-        return AdjustmentOptions(**{**base, **given})
+        return AdjustmentOptions.of(**{**base, **given})
     except ValueError as exc:
         flags = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in given.items())
         raise InputError("command line", None, f"{exc} (given: {flags or 'no options'})") from None
@@ -155,6 +154,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     from dataclasses import replace as _replace
 
     from .reliability import BlunderOptions, detect_blunders
+    from .reliability.outcome import without_tests
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)
@@ -175,13 +175,13 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         try:
             t0 = time.perf_counter()
             if options.method == "sequential":
-                det = _without_tests(project, adjust(project, options))
+                det = without_tests(project, adjust(project, options), "not tested (sequential method)")
             else:
                 det = detect_blunders(project, options, BlunderOptions(method=blunders))
             adjusted, result = det.project, det.result
-            phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.get("total", 0.0), 0.0)
+            phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total, 0.0)
             progress.phase("reliability measures (gross errors)", phases["gross_errors"])
-            if termination_of(result) not in SUCCESSFUL_TERMINATIONS:
+            if not result.converged:
                 warn("kept although the adjustment did not converge (--keep-unconverged): "
                      + failure_message(result))
             elif result.termination_message:  # e.g. converged by the cost tolerance: say so
@@ -250,20 +250,6 @@ def check_products_options(options: AdjustmentOptions, point_precision: str, blu
     if options.method == "sequential" and (blunders != "off" or point_precision != "schmid90"):
         raise ValueError("gross-error detection and the joint point precision (92) need a simultaneous "
                          "adjustment; with --method sequential use --blunders off")
-
-
-def _without_tests(project: Project, result: AdjustmentResult):
-    """The residuals of a sequential adjustment without w-tests: its normal matrix is not that of a
-    simultaneous adjustment, so normalised residuals and MDBs would mean nothing (docs/sequential.md)."""
-    from types import SimpleNamespace
-
-    m = len(project.image_points)
-    nan = np.full((m, 2), np.nan)
-    return SimpleNamespace(
-        method="off", critical=float("nan"), delta0=float("nan"), project=project, result=result,
-        rows=np.arange(m), v=result.plate_residuals, w=nan, row_w=np.full(m, np.nan), mdb=nan,
-        flag=np.array([""] * m, dtype=object), rounds=[], stopped="not tested (sequential method)",
-    )
 
 
 def blunder_summary(det) -> dict:
@@ -414,21 +400,20 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
         "redundancy": result.redundancy,
         "vtpv": _finite_or_none(result.vtpv),
         "iterations": result.iterations,
-        "converged": termination_of(result) in SUCCESSFUL_TERMINATIONS,
+        "converged": result.converged,
         "n_photos": len(project.photos),
         "n_points": len(project.points),
         "n_observations": result.n_observations,
         "n_conditions": result.n_conditions,
         "n_unknowns": result.n_unknowns,
         "check_points": check_point_statistics(project, result, tri),
-        "timings_s": {k: round(v, 6) for k, v in result.timings.items()},
+        "timings_s": {k: round(v, 6) for k, v in result.timings.as_dict().items()},
         # DESIGN's second-wave additions: which factorisation and BLAS solved the normal equations
         **solver_description(result),
         # why the iteration stopped, in words
-        "termination": termination_of(result),
-        "message": failure_message(result) if termination_of(result) not in SUCCESSFUL_TERMINATIONS
-        else result.termination_message,
-        "checks": {k: _finite_or_none(v) for k, v in result.checks.items()},
+        "termination": result.termination,
+        "message": result.termination_message if result.converged else failure_message(result),
+        "checks": {k: _finite_or_none(v) for k, v in result.checks.as_dict().items()},
         "history": [
             {"vtpv": _finite_or_none(h.vtpv), "max_correction": _finite_or_none(h.max_correction),
              **_solver_report(h.solver_info)}

@@ -17,7 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .adjustment import AdjustmentOptions, AdjustmentResult, Sweep, observations_of
+from .conditions_method.adjust import Sweep
+from .core.observations import observations_of
+from .core.options import AdjustmentOptions
+from .core.result import AdjustmentResult
 from .covariance import ray_slots
 from .errors import NumericalFailure
 from .model import Project

@@ -32,7 +32,7 @@ from .precision import W_CRITICAL
 from .rotations import angles_from_R
 
 if TYPE_CHECKING:
-    from .adjustment import AdjustmentResult
+    from .core.result import AdjustmentResult
     from .triangulation import Triangulated
 
 MAX_PHOTO_PANELS = 24  # all photos get a residual panel up to this many; beyond, the worst WORST_PANELS

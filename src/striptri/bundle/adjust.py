@@ -12,7 +12,7 @@ two results compare element by element. Each iteration:
 2. diagnose the datum on N_rcs and solve with the solver object (solvers.make_solver);
 3. per chunk again: back-substitute the point corrections, x^ <- x^ (+) dx, X^ <- X^ + dX.
 
-Convergence: as in adjustment.py, ``sqrt(d^T N d) < tolerance`` (adjustment.correction_in_sigma)
+Convergence: as in the method of conditions, ``sqrt(d^T N d) < tolerance`` (core.convergence.correction_in_sigma)
 for the whole step d = (dx, dX) of orientations and points, the norm of the change ``J d`` of the
 whitened residuals it makes: the largest correction of any function of the orientations and points
 in units of its standard deviation.
@@ -33,22 +33,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from .. import datum, diagnosis, progress, solvers, termination
-from ..adjustment import (
-    AdjustmentOptions,
-    AdjustmentResult,
-    Iteration,
-    datum_defect_message,
-    energy_floor,
-    has_converged,
-    largest_correction,
-    round_off_floor,
-    observations_of,
-    singular_message,
-    stop_if_diverging,
-)
+from ..core.convergence import energy_floor, has_converged, largest_correction, round_off_floor, stop_if_diverging
+from ..core.explain import datum_defect_message, reduction_check, solve_or_explain
+from ..core.observations import Observations, observations_of
+from ..core.options import AdjustmentOptions
+from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
 from ..errors import NumericalFailure
 from ..groups import GroupBatch, build_batches, merge_layouts
-from ..linearise import Observations
 from ..model import Project
 from ..parameter_observations import ParameterObservations, build_parameter_observations
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
@@ -72,8 +63,8 @@ class BundleSolution:
 def adjust_bundle(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
     """Adjust all photographs and object points simultaneously by collinearity (method "bundle").
 
-    Same options and result type as adjustment.adjust; ``options.method``, ``scale_form`` and
-    ``condition_transform`` do not apply. Raises NumericalFailure (datum defect, too few
+    Same options and result type as the other methods (striptri.core); of the per-method options
+    it reads ``options.bundle``. Raises NumericalFailure (datum defect, too few
     observations, divergence) like the method of conditions.
     """
     return solve_bundle(project, options).result
@@ -145,8 +136,8 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     approx = project.points.xyz_approx
     xyz = initial_points(problem.batches, state, obs, problem.unknowns, options.chunk_size,
                          None if approx is None else approx - problem.offset)
-    timings = {"initial_points": time.perf_counter() - t_start, "linearisation_and_reduction": 0.0,
-               "solve": 0.0, "back_substitution": 0.0}
+    timings = Timings(initial_points=time.perf_counter() - t_start, linearisation_and_reduction=0.0, solve=0.0,
+                      back_substitution=0.0)
     if problem.redundancy < 0:
         _explain_too_few(problem, state, xyz)
     solver = solvers.make_solver(
@@ -167,7 +158,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     lam, nu = 0.0, 2.0
     normals = _assemble_or_none(problem, state, xyz)
     if normals is None:
-        raise NumericalFailure(_not_formed_message(problem))
+        raise NumericalFailure(_not_formed_message(problem), reason="not_finite")
     causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
     while len(history) < options.max_iterations:
         t0 = time.perf_counter()
@@ -210,10 +201,10 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
                     f"Levenberg-Marquardt damping grew past {LM_MAX:g} without a better step.",
                     termination.table(history, problem.redundancy) if history else "",
                     "It is stuck away from a solution (or points are crossing the plane of a camera).",
-                    termination.causes_text(causes())]).replace("\n\n", "\n"))
+                    termination.causes_text(causes())]).replace("\n\n", "\n"), reason="diverged")
             lam, nu = max(lam * nu, LM_START), 2.0 * nu
             normals = problem.assemble(state, xyz, lam)
-            timings["linearisation_and_reduction"] += t2 - t1
+            timings.add("linearisation_and_reduction", t2 - t1)
             continue
         if lam > 0.0:
             rho = actual / predicted if predicted > 0 else 1.0
@@ -221,13 +212,13 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
             lam = lam if lam >= LM_FLOOR else 0.0
         nu = 2.0
         plate_hat, control_hat, v_par, vtpv = step.plate_hat, step.control_hat, step.v_par, step.vtpv
-        flat = options.cost_tolerance > 0 and 0 <= actual <= options.cost_tolerance * normals.ee
+        flat = options.bundle.cost_tolerance > 0 and 0 <= actual <= options.bundle.cost_tolerance * normals.ee
         state, xyz = trial_state, step.xyz
         normals = trial if trial is not None and lam == 0.0 else problem.assemble(state, xyz, lam)
         t3 = time.perf_counter()
-        timings["solve"] += t1 - t0
-        timings["back_substitution"] += t2 - t1
-        timings["linearisation_and_reduction"] += t3 - t2
+        timings.add("solve", t1 - t0)
+        timings.add("back_substitution", t2 - t1)
+        timings.add("linearisation_and_reduction", t3 - t2)
         crit = step.correction
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
                                  solver_info={**solved.info, **({"damping": lam} if lam else {})},
@@ -251,47 +242,25 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     t0 = time.perf_counter()
     normals, checks, next_correction = _final_checks(problem, solver, state, xyz, plate_hat, control_hat, v_par,
                                                      vtpv, normals if lam == 0.0 else None)
-    timings["final_checks"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_start
+    timings.final_checks = time.perf_counter() - t0
+    timings.total = time.perf_counter() - t_start
     status, message = "converged", ""
     if cost_flat:
         status = "cost_flat"
-        message = termination.cost_flat(METHOD, history, problem.redundancy, options.cost_tolerance,
+        message = termination.cost_flat(METHOD, history, problem.redundancy, options.bundle.cost_tolerance,
                                          options.tolerance)
     elif not converged:
         status = "iteration_limit"
         message = termination.iteration_limit(METHOD, history, problem.redundancy, options.max_iterations,
                                               options.tolerance, next_correction, causes)
 
-    redundancy = problem.redundancy
-    n_weighted_control = int(np.count_nonzero(obs.q_control > 0))
-    result = AdjustmentResult(
-        method=METHOD,
-        solver=solver.name,
-        state=state,
-        layout=layout,
-        offset=problem.offset,
-        sigma0=float(np.sqrt(vtpv / redundancy)) if redundancy > 0 else float("nan"),
-        redundancy=int(redundancy),
-        vtpv=float(vtpv),
-        iterations=len(history),
-        converged=converged,
-        history=history,
-        n_conditions=int(problem.n_conditions),
-        n_observations=2 * len(project.image_points) + n_weighted_control + len(pobs),
-        n_unknowns=layout.n_unknowns,
-        n_parameter_observations=len(pobs),
-        plate_residuals=plate_hat - obs.plate,
-        plate_adjusted=plate_hat,
-        control_residuals=control_hat - obs.control,
-        control_adjusted=control_hat,
-        parameter_residuals=v_par,
-        N=normals.N,
-        checks=checks,
-        timings=timings,
-        termination=status,
+    result = AdjustmentResult.of(
+        project, obs, plate_adjusted=plate_hat, control_adjusted=control_hat, vtpv=vtpv,
+        redundancy=problem.redundancy, history=history, layout=layout, method=METHOD, solver=solver.name,
+        state=state, offset=problem.offset, n_conditions=int(problem.n_conditions),
+        n_observations=observation_count(project, obs, len(pobs)), n_parameter_observations=len(pobs),
+        parameter_residuals=v_par, N=normals.N, checks=checks, timings=timings, termination=status,
         termination_message=message,
-        ids=(project.photos.ids, project.cameras.ids),
     )
     return BundleSolution(result=result, xyz_points=xyz, n_point_unknowns=problem.unknowns.n_unknowns)
 
@@ -329,7 +298,7 @@ def _not_formed_message(problem: "_Problem", where: str = "at the approximate va
 
 
 def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndarray) -> float:
-    """The correction (adjustment.correction_in_sigma, orientations and points together) of an
+    """The correction (core.convergence.correction_in_sigma, orientations and points together) of an
     undamped Gauss-Newton step from (state, xyz); inf when it cannot be formed."""
     normals = _assemble_or_none(problem, state, xyz)
     if normals is None:
@@ -348,15 +317,15 @@ class _Step:
     control_hat: np.ndarray
     v_par: np.ndarray
     vtpv: float
-    correction: float  # adjustment.correction_in_sigma of the step: sqrt of the sum of (J [dx; dX])^2
-    max_point_correction: float  # the largest |dX_i| sqrt(N_pp,ii) (adjustment.largest_correction's kind)
+    correction: float  # core.convergence.correction_in_sigma of the step: sqrt of the sum of (J [dx; dX])^2
+    max_point_correction: float  # the largest |dX_i| sqrt(N_pp,ii) (core.convergence.largest_correction's kind)
 
 
 def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray, damping: float = 0.0,
                      kept: list | None = None) -> _Step:
     """Point corrections and the adjusted observations l + v of the linearised step (v from
     ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``), and the step's size as
-    adjustment.correction_in_sigma measures it: ``sqrt(d^T N d)`` for the whole step d = (dx, dX),
+    core.convergence.correction_in_sigma measures it: ``sqrt(d^T N d)`` for the whole step d = (dx, dX),
     the norm of the change ``J d = v + e`` of the whitened residuals it makes. kept: the chunks the
     assembly of these normals linearised at (state, xyz) with this damping (ReducedNormals.kept);
     linearised again when not given."""
@@ -388,31 +357,21 @@ def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.nd
 
 
 def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _Problem) -> solvers.SolveResult:
-    """Solve the reduced camera system; a datum defect or a singularity is explained as a
-    NumericalFailure (adjustment.datum_defect_message, adjustment.singular_message)."""
-    layout, offset, project = problem.layout, problem.offset, problem.project
+    """Solve the reduced camera system N_rcs dx = b_rcs (core.explain.solve_or_explain: a datum
+    defect or a singularity explained); numbers that are not finite explained first."""
     if not (np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
-        raise NumericalFailure(_not_formed_message(problem, "at the current values"))
-    defects = datum.diagnose(normals, state, layout, offset=offset)
-    if defects:
-        raise NumericalFailure(datum_defect_message(project, defects))
-    try:
-        return solver.solve(normals.N, normals.b)
-    except solvers.SingularNormalMatrix as exc:
-        defects = datum.diagnose(normals, state, layout, datum.LOOSE_TOLERANCE, offset)
-        if defects:
-            raise NumericalFailure(datum_defect_message(project, defects)) from exc
-        raise NumericalFailure(singular_message(project, layout, exc.column, "the reduced normal equations of the "
-                                                "bundle adjustment are singular")) from exc
+        raise NumericalFailure(_not_formed_message(problem, "at the current values"), reason="not_finite")
+    return solve_or_explain(normals, normals.b, solver, state, problem.layout, problem.project, problem.offset,
+                            "the reduced normal equations of the bundle adjustment are singular")
 
 
 def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
     normals = _assemble_or_none(problem, state, xyz)
     if normals is None:
-        raise NumericalFailure(_not_formed_message(problem))
+        raise NumericalFailure(_not_formed_message(problem), reason="not_finite")
     defects = datum.diagnose(normals, state, problem.layout, offset=problem.offset)
     if defects:
-        raise NumericalFailure(datum_defect_message(problem.project, defects))
+        raise NumericalFailure(datum_defect_message(problem.project, defects), reason="datum_defect")
     raise NumericalFailure(
         f"too few observations: {problem.n_conditions} observation equations beyond the "
         f"{problem.unknowns.n_unknowns} point coordinates, and {len(problem.pobs)} observed elements, "
@@ -436,7 +395,7 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     normals_at_solution: the undamped reduced normals the iteration formed at (state, xyz), with
     their kept chunks; formed here when not given.
 
-    Also returns the correction the next iteration would make (adjustment.correction_in_sigma, as
+    Also returns the correction the next iteration would make (core.convergence.correction_in_sigma, as
     in the history; None when the system is singular), a by-product of (59).
     """
     obs = problem.obs
@@ -469,15 +428,10 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     try:
         dx = solver.solve(normals.N, normals.b).dx if len(d) else np.zeros(0)
         reduced = normals.ee - normals.reduced - float(normals.b @ dx)
-        # the undamped step's d^T N d = b_rcs^T dx + sum b_p^T N_pp^-1 b_p (adjustment.correction_in_sigma)
+        # the undamped step's d^T N d = b_rcs^T dx + sum b_p^T N_pp^-1 b_p (core.convergence.correction_in_sigma)
         next_correction = float(np.sqrt(max(float(normals.b @ dx) + normals.reduced, 0.0))) if len(d) else None
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         reduced = float("nan")
-    rel = abs(reduced - vtpv) / max(vtpv, 1e-300) if vtpv > 1e-20 else abs(reduced - vtpv)
-    checks = {
-        "max_condition_misclosure_sigma": max_g,
-        "max_BTk_sigma": btk,
-        "max_point_gradient_sigma": max_gp,
-        "vtpv_reduction_relative_difference": rel,
-    }
+    checks = Checks(max_condition_misclosure_sigma=max_g, max_BTk_sigma=btk,
+                    vtpv_reduction_relative_difference=reduction_check(reduced, vtpv), max_point_gradient_sigma=max_gp)
     return normals, checks, next_correction

@@ -42,7 +42,7 @@ import numpy as np
 from striptri import model, rotations
 from striptri.errors import InputError
 from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
-from striptri.adjustment import DATUMS, METHODS
+from striptri.core.options import DATUMS, METHODS
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
 from striptri.io.project_notes import project_notes, unread_files_note

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from ..adjustment import AdjustmentOptions
+from ..core.options import AdjustmentOptions
 from ..model import Project
 from .measures import (
     ALPHA0,

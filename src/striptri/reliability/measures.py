@@ -30,7 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtri  # the normal quantile; scipy.stats would cost 0.4 s of imports
 
-from ..adjustment import AdjustmentOptions, AdjustmentResult
+from ..core.options import AdjustmentOptions
+from ..core.result import AdjustmentResult
 from ..model import Project
 from ..precision import residual_cofactors
 

@@ -7,7 +7,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..adjustment import SUCCESSFUL_TERMINATIONS, AdjustmentResult, observations_of
+from ..core.observations import observations_of
+from ..core.result import SUCCESSFUL_TERMINATIONS, AdjustmentResult
 from ..groups import build_batches
 from ..model import GIVEN_AXES, Project
 from ..parameters import with_state
@@ -168,6 +169,20 @@ def untested(method: str, project: Project, result: AdjustmentResult, blunders: 
         stopped=f"not tested: the adjustment ended with \"{result.termination}\"",
         critical=critical_value(blunders.alpha0), delta0=noncentrality(blunders.alpha0, blunders.beta0),
         seconds=seconds,
+    )
+
+
+def without_tests(project: Project, result: AdjustmentResult, stopped: str) -> BlunderResult:
+    """The outcome of an adjustment whose residuals are not tested (method "off", ``stopped`` says
+    why: e.g. the sequential method, whose normal matrix is not that of a simultaneous adjustment,
+    so that normalised residuals and MDBs would mean nothing, docs/sequential.md): every row kept,
+    its residual, w, redundancy and MDB nan, no flag."""
+    m = len(project.image_points)
+    nan = np.full((m, 2), np.nan)
+    return BlunderResult(
+        method="off", result=result, project=project, rows=np.arange(m), w=nan, redundancy=nan.copy(),
+        mdb=nan.copy(), bnr=nan.copy(), v=result.plate_residuals, flag=np.full(m, FLAG_OK, dtype=object),
+        rejected=[], rounds=[], stopped=stopped, critical=float("nan"), delta0=float("nan"),
     )
 
 

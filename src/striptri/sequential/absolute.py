@@ -59,7 +59,7 @@ def fit_similarity(xyz_model: np.ndarray, xyz_given: np.ndarray, given: np.ndarr
     n_eq = int(given.sum())
     if n_eq < 7:
         raise NumericalFailure(f"the control gives {n_eq} coordinates for the 7 elements of the strip's absolute "
-                               "orientation; at least two full points and one height point are needed.")
+                               "orientation; at least two full points and one height point are needed.", reason="datum_defect")
     t, s, R = start.t.copy(), start.scale, start.R_ground_from_model.copy()
     rows = np.flatnonzero(given.any(1))
     Xm, Xg, gv = xyz_model[rows], xyz_given[rows], given[rows]
@@ -72,7 +72,7 @@ def fit_similarity(xyz_model: np.ndarray, xyz_given: np.ndarray, given: np.ndarr
         sv = np.linalg.svd(J, compute_uv=False)
         if sv[-1] < 1e-10 * sv[0]:
             raise NumericalFailure("the control does not fix the strip's absolute orientation (e.g. all on one "
-                                   "line, or no height); add control away from the strip axis.")
+                                   "line, or no height); add control away from the strip axis.", reason="datum_defect")
         dx = np.linalg.lstsq(J, e, rcond=None)[0]
         t, R, s = t + dx[:3], exp_so3(dx[3:6]) @ R, s * np.exp(dx[6])
         if np.max(np.abs(dx[:3])) < tolerance * max(1.0, s * np.abs(Xm).max()) and np.max(np.abs(dx[3:])) < tolerance:

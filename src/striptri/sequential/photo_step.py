@@ -29,21 +29,17 @@ import numpy as np
 
 from ..camera import plate_vector
 from ..conditions import RayConditions, collinearity, coplanarity, ray_chain
+from ..core.convergence import has_converged
 from ..errors import NumericalFailure
 from ..rotations import exp_so3
-
-
-def has_converged(history, tolerance: float) -> bool:
-    from ..adjustment import has_converged as criterion  # adjustment imports the sequential package lazily
-
-    return criterion(history, tolerance)
+from ..termination import table
 
 MODES = ("relative", "full")
 
 
 class StepIteration(NamedTuple):
     """One iteration of a step: v^T P v and the largest correction in standard deviations (the
-    fields of adjustment.Iteration that termination.table reads)."""
+    fields of core.result.Iteration that termination.table reads)."""
 
     vtpv: float
     max_correction: float
@@ -90,7 +86,7 @@ def orient_photo(
     and their standard deviations; col_xy, col_sigma: (n, 2) plate coordinates in photo j of the
     known points col_X (n, 3) (model frame). Start: R_j, O_j. Convergence: every correction below
     ``tolerance`` times its standard deviation with all other unknowns known, or the round-off floor
-    (adjustment.has_converged, as adjust()).
+    (core.convergence.has_converged, as adjust()).
     label: the photograph in messages ("photo 1005").
     """
     if mode not in MODES:
@@ -151,7 +147,7 @@ def orient_photo(
             dx = -np.linalg.solve(N, u)
         except np.linalg.LinAlgError as exc:
             raise NumericalFailure(f"the orientation of {label} is not determined by its points (too few, or on a "
-                                   "line), or its equations are not finite numbers") from exc
+                                   "line), or its equations are not finite numbers", reason="singular") from exc
         k = -(w + B @ dx) / M
         vtpv = float(np.sum(k * k * M))
         if m:
@@ -169,10 +165,9 @@ def orient_photo(
         crit = float(np.max(np.abs(dx) * np.sqrt(np.diag(N))))
         history.append(StepIteration(vtpv, crit))
         if not (np.isfinite(crit) and np.isfinite(vtpv)):
-            from ..termination import table
-
             raise NumericalFailure(f"the orientation of {label} diverged at iteration {iteration}: its numbers became "
-                                   "infinite or not a number.\n" + table(history, n_conditions - n_unknowns))
+                                   "infinite or not a number.\n" + table(history, n_conditions - n_unknowns),
+                                   reason="diverged")
         if has_converged(history, tolerance):  # the tolerance, or the round-off floor (as adjust())
             converged = True
             break

@@ -35,7 +35,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from .. import diagnosis, termination
-from ..adjustment import AdjustmentResult, Iteration, observations_of
+from ..core.observations import observations_of
+from ..core.options import AdjustmentOptions
+from ..core.result import AdjustmentResult, Iteration, SequentialChecks, Timings
 from ..errors import NumericalFailure
 from ..camera import project as project_plate
 from ..conditions import collinearity
@@ -45,13 +47,14 @@ from ..parameters import State, build_layout, with_state
 from .strip import SequentialOptions, SequentialSolution, distortion_free, triangulate_strip
 
 
-def adjust_sequential(project: Project, options=None) -> AdjustmentResult:
-    """Schut's sequential strip triangulation as an AdjustmentResult (module doc). ``options``: a
-    SequentialOptions, or an AdjustmentOptions (SequentialOptions.from_adjustment_options)."""
+def adjust_sequential(project: Project, options: AdjustmentOptions | SequentialOptions | None = None) -> AdjustmentResult:
+    """Schut's sequential strip triangulation as an AdjustmentResult (module doc). ``options``: an
+    AdjustmentOptions (its ``sequential`` part, SequentialOptions.from_adjustment_options) or a
+    SequentialOptions."""
     t0 = time.perf_counter()
     if options is None:
         options = SequentialOptions()
-    elif not isinstance(options, SequentialOptions):
+    elif isinstance(options, AdjustmentOptions):
         options = SequentialOptions.from_adjustment_options(options)
     project = distortion_free(project)
     sol = _triangulate_explained(project, options)
@@ -66,11 +69,11 @@ def _triangulate_explained(project: Project, options: SequentialOptions) -> Sequ
     except (NumericalFailure, np.linalg.LinAlgError) as exc:
         with np.errstate(all="ignore"):
             causes = diagnosis.likely_causes(project, "iteration")
-        text = str(exc) if isinstance(exc, NumericalFailure) else (
-            f"the sequential triangulation met a singular system of equations ({exc})")
+        text, reason = (str(exc), exc.reason) if isinstance(exc, NumericalFailure) else (
+            f"the sequential triangulation met a singular system of equations ({exc})", "singular")
         if not causes:
-            raise NumericalFailure(text) from exc
-        raise NumericalFailure(text + "\n" + termination.causes_text(causes)) from exc
+            raise NumericalFailure(text, reason) from exc
+        raise NumericalFailure(text + "\n" + termination.causes_text(causes), reason) from exc
 
 
 def sequential_approximations(project: Project, options: SequentialOptions | None = None) -> Project:
@@ -132,7 +135,6 @@ def result_of(project: Project, sol: SequentialSolution, seconds: float = 0.0) -
     v = _reprojection(project, sol)
     all_steps = list(sol.steps) + list(sol.relative_steps) + list(sol.resections)
     redundancy, vtpv = sol.redundancy, sol.vtpv
-    sigma0 = float(np.sqrt(vtpv / redundancy)) if redundancy > 0 else float("nan")
     res = sol.control_residuals
     scale_res = np.concatenate([r for r in sol.scale_residuals if len(r)] or [np.zeros((0, 3))]) * sol.similarity.scale
 
@@ -140,30 +142,27 @@ def result_of(project: Project, sol: SequentialSolution, seconds: float = 0.0) -
         a = a[np.isfinite(a)]
         return float(np.sqrt(np.mean(a * a))) if len(a) else float("nan")
 
-    checks = {
-        "absolute_orientation_rms_X_m": rms(res[:, 0]),
-        "absolute_orientation_rms_Y_m": rms(res[:, 1]),
-        "absolute_orientation_rms_Z_m": rms(res[:, 2]),
-        "absolute_orientation_redundancy": float(np.isfinite(res).sum() - 7),
-        "scale_transfer_rms_m": rms(scale_res),
-        "reprojection_rms_plate": rms(v),
-        "procedure": float(sol.options.procedure),
-        "backward": float(sol.options.direction == "backward"),
-    }
+    checks = SequentialChecks(
+        absolute_orientation_rms_X_m=rms(res[:, 0]),
+        absolute_orientation_rms_Y_m=rms(res[:, 1]),
+        absolute_orientation_rms_Z_m=rms(res[:, 2]),
+        absolute_orientation_redundancy=float(np.isfinite(res).sum() - 7),
+        scale_transfer_rms_m=rms(scale_res),
+        reprojection_rms_plate=rms(v),
+        procedure=float(sol.options.procedure),
+        backward=float(sol.options.direction == "backward"),
+    )
     history = [Iteration(vtpv=s.vtpv, max_correction=s.max_correction, seconds=0.0) for s in sol.steps]
     status, message = _termination(project, sol)
-    return AdjustmentResult(
-        method="sequential", solver="sequential", state=state, layout=layout, offset=sol.offset,
-        sigma0=sigma0, redundancy=int(redundancy), vtpv=float(vtpv),
+    return AdjustmentResult.of(
+        project, obs, plate_adjusted=project.image_points.xy + v, control_adjusted=obs.control.copy(), vtpv=vtpv,
+        redundancy=redundancy, history=history, layout=layout,
         iterations=int(sum(s.iterations for s in all_steps) + sol.similarity_iterations),
-        converged=status == "converged", history=history,
+        method="sequential", solver="sequential", state=state, offset=sol.offset,
         n_conditions=int(sum(s.n_conditions for s in sol.steps)), n_observations=2 * len(project.image_points),
-        n_unknowns=layout.n_unknowns, n_parameter_observations=n_pobs,
-        plate_residuals=v, plate_adjusted=project.image_points.xy + v,
-        control_residuals=np.zeros_like(obs.control), control_adjusted=obs.control.copy(),
-        parameter_residuals=np.zeros(n_pobs), N=_conditional_normal_matrix(project, sol, layout, state),
-        checks=checks, timings={"total": seconds}, termination=status, termination_message=message,
-        ids=(project.photos.ids, project.cameras.ids),
+        n_parameter_observations=n_pobs, parameter_residuals=np.zeros(n_pobs),
+        N=_conditional_normal_matrix(project, sol, layout, state), checks=checks, timings=Timings(total=seconds),
+        termination=status, termination_message=message,
     )
 
 

@@ -31,10 +31,12 @@ import numpy as np
 
 from ..camera import plate_vector
 from ..conditions import closest_scales
+from ..core.options import DIRECTIONS, PROCEDURES, SequentialOptions  # noqa: F401  (re-exported)
 from ..errors import NumericalFailure
 from ..lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
 from ..model import CHECK, GIVEN_AXES, Project
 from ..parameters import reduction_offset
+from ..termination import table, trend
 from ..triangulation import intersect_rays
 from .absolute import (
     Similarity,
@@ -44,45 +46,6 @@ from .absolute import (
     umeyama,
 )
 from .photo_step import PhotoStep, orient_photo
-
-PROCEDURES = (1, 2)
-DIRECTIONS = ("forward", "backward")
-
-
-@dataclass(frozen=True)
-class SequentialOptions:
-    """procedure: 1 (relative orientation + scale transfer) or 2 (Schmid's (20) & (14));
-    direction: "forward" or "backward"; polynomial_degree: None (similarity only) or 1..3, the degree
-    of the strip correction in the along-strip coordinate; tolerance, max_iterations: of every
-    per-photo adjustment (criterion as adjust())."""
-
-    procedure: int = 1
-    direction: str = "forward"
-    polynomial_degree: int | None = None
-    tolerance: float = 1e-10
-    max_iterations: int = 30
-
-    def __post_init__(self):
-        if self.procedure not in PROCEDURES:
-            raise ValueError(f"unknown procedure {self.procedure!r}; choose 1 or 2")
-        if self.direction not in DIRECTIONS:
-            raise ValueError(f"unknown direction {self.direction!r}; choose forward or backward")
-        if self.polynomial_degree is not None and not 1 <= self.polynomial_degree <= 3:
-            raise ValueError("polynomial_degree must be None or 1, 2 or 3")
-        if self.max_iterations < 1:
-            raise ValueError("max_iterations must be at least 1")
-
-    @staticmethod
-    def from_adjustment_options(options) -> SequentialOptions:
-        """Read procedure, direction and polynomial_degree from an AdjustmentOptions (defaults where
-        it has no such field); its max_iterations, raised to at least 30, limits every per-photo
-        adjustment (a few iterations each, but some of the relative orientation's starts need more)."""
-        return SequentialOptions(
-            procedure=int(getattr(options, "procedure", 1)),
-            direction=getattr(options, "direction", "forward"),
-            polynomial_degree=getattr(options, "polynomial_degree", None),
-            max_iterations=max(getattr(options, "max_iterations", 30), 30),
-        )
 
 
 @dataclass
@@ -183,15 +146,13 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
         text = (f"the relative orientation of photographs {names[0]} and {names[1]} did not converge to a solution "
                 f"with the points in front of both ({len(starts)} starts, {tried} of them without numerical failure).")
         if closest is not None and closest.history:
-            from ..termination import table, trend
-
             text += (f"\nThe start that came closest stopped at the limit of {closest.iterations} iterations with "
                      f"its largest correction still {closest.max_correction:.3g} sd:\n"
                      + table(closest.history, closest.redundancy))
             if trend(closest.history)[0] == "shrinking":
                 text += ("\nIts corrections were still shrinking: raise [adjustment] max_iterations in project.toml "
                          "(each step of the sequential method may take max(30, max_iterations) iterations).")
-        raise NumericalFailure(text)
+        raise NumericalFailure(text, reason="iteration_limit" if closest is not None else "failed")
     return best
 
 

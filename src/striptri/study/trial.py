@@ -66,7 +66,7 @@ def run_task(task: Task) -> tuple[list[dict], dict[str, np.ndarray]]:
     rows, along = [], {}
     for label in task.methods:
         method, procedure, direction = METHOD_SPECS[label]
-        options = AdjustmentOptions(method=method, procedure=procedure or 1, direction=direction or "forward")
+        options = AdjustmentOptions.of(method=method, procedure=procedure or 1, direction=direction or "forward")
         row = {"method": method, "procedure": procedure, "direction": direction, "n_photos": task.n_photos,
                "layout": task.layout, "sigma_image": task.sigma_image, "trial": task.trial, "seed": task.seed}
         start = time.perf_counter()

@@ -1,0 +1,393 @@
+"""Schmid's simultaneous adjustment by condition equations (DESIGN section 4).
+
+General case of least squares (Helmert), linearised at the adjusted observations (Pope 1972):
+``A v + B dx + w = 0`` per group, ``N = sum B^T M^-1 B``, ``u = sum B^T M^-1 w``, ``N dx = -u``,
+``k = -M^-1 (w + B dx)``, ``v = Q A^T k``; then ``x^ <- x^ (+) dx``, ``l^ <- l + v``, repeated.
+
+Convergence: core.convergence (``sqrt(dx^T N dx) < tolerance``, the largest correction of any
+function of the unknowns in units of its standard deviation).
+
+Each iteration linearises its conditions once, chunk by chunk: the assembly whitens each chunk,
+sums it into N and u and keeps the whitened chunk for the back substitution after the solve.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .. import datum, diagnosis, progress, solvers, termination
+from ..core.convergence import (ROUNDING_FLOOR, correction_in_sigma, energy_floor, has_converged, largest_correction,
+                                round_off_floor, stop_if_diverging)
+from ..core.explain import (datum_defect_message, not_finite_message, reduction_check, singular_message,
+                            solve_or_explain)
+from ..core.observations import Observations, observations_of
+from ..core.options import AdjustmentOptions
+from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
+from ..errors import NumericalFailure
+from ..groups import build_batches
+from ..linearise import linearise
+from ..model import Project
+from ..normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, whiten
+from ..parameter_observations import ParameterObservations, build_parameter_observations
+from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
+
+METHOD = "conditions"
+
+
+class Sweep:
+    """One sweep over all groups at a fixed (x^, l^)."""
+
+    def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options):
+        self.batches, self.state, self.layout = batches, state, layout
+        self.obs, self.plate_hat, self.control_hat, self.options = obs, plate_hat, control_hat, options
+        self.T = layout.rotation_maps(state)
+        self.seconds = 0.0  # time spent evaluating and linearising the conditions
+
+    def systems(self):
+        for batch in self.batches:
+            for chunk in batch.chunks(self.options.chunk_size):
+                t0 = time.perf_counter()
+                system = linearise(
+                    chunk, self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat,
+                    self.options.conditions.scale_form, self.options.conditions.condition_transform,
+                )
+                self.seconds += time.perf_counter() - t0
+                yield chunk, system
+
+
+@dataclass
+class _WhitenedChunk:
+    """What the back substitution needs of one chunk, kept from the assembly of the same iteration
+    (normal_equations.whiten): Bw = L^-1 B (m, nc, nu), ww = L^-1 w (m, nc), the columns (m, nu)
+    and Gt = L^-1 A Q (m, nc, no), so that v = -Gt^T (ww + Bw dx)."""
+
+    chunk: object
+    Bw: np.ndarray
+    ww: np.ndarray
+    cols: np.ndarray
+    Gt: np.ndarray
+
+
+def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool = False):
+    """N and u of one sweep: point groups into the block pattern, then the observed elements.
+    keep: also keep each chunk's whitened system for the back substitution (acc.kept), so that an
+    iteration linearises its conditions once. acc.max_misclosure: the largest |g| of a condition
+    in units of its standard deviation (Schmid's final check)."""
+    acc = PatternAccumulator(assembly.pattern, assembly.S)
+    acc.kept = [] if keep else None
+    acc.max_misclosure = 0.0
+    cam_of_photo = sweep.state.camera_of_photo
+    for (chunk, system), scatters in zip(sweep.systems(), assembly.scatters):
+        if keep:
+            Bw, ww, gw, _, Gt = whiten(system, residual_map=True)
+            acc.kept.append(_WhitenedChunk(chunk, Bw, ww, system.cols, Gt))
+        else:
+            Bw, ww, gw, _ = whiten(system)
+        acc.add_groups(Bw, ww, gw, chunk.photo_index, cam_of_photo[chunk.photo_index], scatters)
+        if system.g.size:
+            acc.max_misclosure = max(acc.max_misclosure, float(np.max(np.abs(system.g))))
+    if len(pobs):
+        f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
+        acc.add_rows(grad, cols, pobs.misclosure(f), pobs.sigma)
+    return acc.finish()
+
+
+def _assemble_checked(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", project: Project,
+                      iteration: int, keep: bool = False):
+    """_assemble, with numbers that are not finite (an overflow: wild values, c in another unit)
+    explained as a NumericalFailure naming the points whose conditions fail and the likely cause."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            acc = _assemble(sweep, pobs, assembly, keep)
+    except np.linalg.LinAlgError:
+        acc = None
+    if acc is not None and np.isfinite(acc.u).all() and np.isfinite(acc.N.data).all() and np.isfinite(acc.wPw):
+        return acc
+    raise NumericalFailure(not_finite_message(project, _non_finite_points(sweep), iteration), reason="not_finite")
+
+
+def _non_finite_points(sweep: Sweep) -> np.ndarray:
+    """Indices of the points whose linearised conditions are not finite or whose M = A Q A^T is not
+    positive definite (after a failed assembly; one more sweep)."""
+    bad = []
+    with np.errstate(all="ignore"):
+        for chunk, system in sweep.systems():
+            M = np.einsum("mco,mo,mdo->mcd", system.A, system.Q, system.A)
+            ok = (np.isfinite(system.B).all(axis=(1, 2)) & np.isfinite(system.w).all(axis=1)
+                  & np.isfinite(M).all(axis=(1, 2)))
+            ok[ok] &= np.all(np.linalg.eigvalsh(M[ok]) > 0, axis=1)
+            bad.append(chunk.point_index[~ok])
+    return np.concatenate(bad) if bad else np.zeros(0, dtype=int)
+
+
+@dataclass(frozen=True)
+class Assembly:
+    """What the assembly computes once per adjustment: the block pattern of N, the selection S,
+    and each chunk's scatter (normal_equations.ChunkScatter), in the order Sweep.systems yields
+    the chunks."""
+
+    pattern: BlockPattern
+    S: sp.csr_matrix
+    scatters: list
+
+    @staticmethod
+    def of(batches, state: State, layout: UnknownLayout, chunk_size: int) -> "Assembly":
+        chunks = [
+            (c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size)
+        ]
+        pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
+                               layout.camera_elements)
+        scatters = [pattern.scatters(photo, cam) for photo, cam in chunks]
+        S = selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
+        pattern.reduction(S)
+        return Assembly(pattern, S, scatters)
+
+
+def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray,
+                     obs: Observations):
+    """New adjusted observations l + v from the corrections dx, with the whitened systems the
+    assembly kept: ``t = L^-1 (w + B dx)``, ``k = -L^-T t``, ``v = Q A^T k = -(L^-1 A Q)^T t`` and
+    ``v^T P v = k^T M k = t^T t``."""
+    plate_hat = obs.plate.copy()
+    control_hat = obs.control.copy()
+    dxp = np.concatenate([dx, [0.0]])
+    vtpv = 0.0
+    for white in kept:
+        t = white.ww + np.matmul(white.Bw, dxp[white.cols][..., None])[..., 0]
+        v = -np.matmul(np.swapaxes(white.Gt, 1, 2), t[..., None])[..., 0]
+        vtpv += float(np.sum(t * t))
+        chunk = white.chunk
+        m, kk = chunk.image_rows.shape
+        plate_hat[chunk.image_rows] = obs.plate[chunk.image_rows] + v[:, : 2 * kk].reshape(m, kk, 2)
+        if chunk.has_control:
+            control_hat[chunk.point_index] = obs.control[chunk.point_index] + v[:, 2 * kk :]
+    v_par = np.zeros(len(pobs))
+    if len(pobs):
+        f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
+        v_par = -(pobs.misclosure(f) - np.einsum("pi,pi->p", grad, dxp[cols]))
+        vtpv += float(np.sum((v_par / pobs.sigma) ** 2))
+    return plate_hat, control_hat, v_par, vtpv
+
+
+def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork) -> solvers.SolveResult:
+    """Minimum constraints, then the S-transformation onto the inner constraints (datum.FreeNetwork)."""
+    N_min, mask = fn.minimum_constraint_system(acc.N)
+    solved = solver.solve(N_min, -acc.u * (1.0 - mask))
+    return solvers.SolveResult(fn.transform(solved.dx), solved.solver, solved.info)
+
+
+def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
+                      project: Project, offset, free_network=None, diagnose: bool = True) -> solvers.SolveResult:
+    """Solve N dx = -u (core.explain.solve_or_explain); a free network by minimum constraints and
+    the S-transformation onto its inner constraints, a singular one explained."""
+    if free_network is None:
+        return solve_or_explain(acc, -acc.u, solver, state, layout, project, offset, diagnose=diagnose)
+    try:
+        return _solve_free_network(acc, solver, free_network)
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError) as exc:
+        raise NumericalFailure(singular_message(
+            project, layout, getattr(exc, "column", None),
+            "the free network's normal equations are singular beyond the datum", datum_fixed=False),
+            reason="singular") from exc
+
+
+def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
+    """Adjust all photographs of the project simultaneously by Schmid's method of conditions
+    (module doc), from the approximate values in the project. Returns the result whether it
+    converged or stopped at its iteration limit (``termination``); raises NumericalFailure, with its
+    reason, for a datum defect, a singular system, numbers that overflow or divergence."""
+    t_start = time.perf_counter()
+    offset = reduction_offset(project)
+    state = initial_state(project, offset)
+    layout = build_layout(project)
+    batches = build_batches(project)
+    obs = observations_of(project, offset)
+    pobs = build_parameter_observations(project, offset)
+    n_conditions = sum(len(b) * b.n_conditions for b in batches)
+    assembly = Assembly.of(batches, state, layout, options.chunk_size)
+    if options.conditions.scale_form == "xz":
+        _require_strip_along_x(batches, state)
+    free_network = None
+    if options.datum == "inner":
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        acc0 = _assemble_checked(sweep, pobs, assembly, project, 1)
+        free = datum.free_directions(acc0, state, layout)
+        if len(free):
+            free_network = datum.FreeNetwork.of(free, acc0.N)
+    n_datum = 0 if free_network is None else len(free_network)
+    redundancy = n_conditions + len(pobs) - layout.n_unknowns + n_datum
+    if redundancy < 0:
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        defects = datum.diagnose(_assemble_checked(sweep, pobs, assembly, project, 1), state, layout, offset=offset)
+        if defects:
+            raise NumericalFailure(datum_defect_message(project, defects), reason="datum_defect")
+        raise NumericalFailure(
+            f"too few conditions: {n_conditions} condition equations and {len(pobs)} observed elements "
+            f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
+        )
+    solver = solvers.make_solver(
+        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts(),
+                                                          layout.block_groups(project.photos.strip_ids))
+    )
+    timings = Timings(conditions=0.0, assembly=0.0, solve=0.0, back_substitution=0.0)
+
+    plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
+    history: list[Iteration] = []
+    converged = False
+    v_par = np.zeros(len(pobs))
+    vtpv = np.nan
+    causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
+    for _ in range(options.max_iterations):
+        t0 = time.perf_counter()
+        sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
+        acc = _assemble_checked(sweep, pobs, assembly, project, len(history) + 1, keep=True)
+        t1 = time.perf_counter()
+        t_conditions = sweep.seconds
+        if free_network is not None:
+            free_network = free_network.at(state, layout, acc.N)
+        solved = _solve_or_explain(acc, solver, state, layout, project, offset, free_network,
+                                   diagnose=not history)
+        dx = solved.dx
+        t2 = time.perf_counter()
+        previous_plate, previous_control = plate_hat, control_hat
+        with np.errstate(over="ignore", invalid="ignore"):
+            plate_hat, control_hat, v_par, vtpv = _back_substitute(acc.kept, sweep, pobs, dx, obs)
+        acc.kept = None  # the whitened systems are not needed beyond the back substitution
+        state = state.updated(layout, dx)
+        t3 = time.perf_counter()
+        timings.add("conditions", t_conditions)
+        timings.add("assembly", t1 - t0 - t_conditions)
+        timings.add("solve", t2 - t1)
+        timings.add("back_substitution", t3 - t2)
+        if len(dx):
+            crit = correction_in_sigma(dx, acc.N)
+            element_floor, n_diag = round_off_floor(state, layout), acc.N.diagonal()
+            floor = energy_floor(layout.n_unknowns, element_floor, n_diag)
+            element = largest_correction(dx, n_diag, element_floor)
+        else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
+            crit = element = _observation_change(plate_hat - previous_plate, control_hat - previous_control, obs)
+            floor = ROUNDING_FLOOR
+        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info,
+                                 element_correction=element))
+        progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, solved.info)
+        acc = solved = None  # this iteration's N and u are not needed by the next one
+        stop_if_diverging(history, METHOD, redundancy, causes)
+        if has_converged(history, options.tolerance, floor):
+            converged = True
+            break
+
+    t0 = time.perf_counter()
+    final = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
+    acc = _assemble_checked(final, pobs, assembly, project, len(history) + 1)
+    if free_network is not None:
+        free_network = free_network.at(state, layout, acc.N)
+    checks, next_correction = _final_checks(final, acc, vtpv, pobs, v_par, free_network, solver)
+    timings.final_checks = time.perf_counter() - t0
+    timings.total = time.perf_counter() - t_start
+    if not len(dx) and not converged:
+        next_correction = None  # no unknowns: the final checks make no correction
+    status, message = "converged", ""
+    if not converged:
+        status = "iteration_limit"
+        message = termination.iteration_limit(METHOD, history, int(redundancy), options.max_iterations,
+                                              options.tolerance, next_correction, causes)
+
+    return AdjustmentResult.of(
+        project, obs, plate_adjusted=plate_hat, control_adjusted=control_hat, vtpv=vtpv, redundancy=redundancy,
+        history=history, layout=layout, method=METHOD, solver=solver.name, state=state, offset=offset,
+        n_conditions=int(n_conditions), n_observations=observation_count(project, obs, len(pobs)),
+        n_parameter_observations=len(pobs), parameter_residuals=v_par, N=acc.N, checks=checks, timings=timings,
+        free_network=free_network, termination=status, termination_message=message,
+    )
+
+
+def _observation_change(d_plate: np.ndarray, d_control: np.ndarray, obs: Observations) -> float:
+    """The largest change of an adjusted observation in one iteration, in units of its standard
+    deviation: the convergence criterion when there are no unknowns (a pure forward intersection,
+    where only the adjusted observations l^ = l + v are iterated)."""
+    sig = np.sqrt(obs.q_plate)
+    c = np.max(np.abs(d_plate) / np.where(sig > 0, sig, np.inf), initial=0.0)
+    qc = obs.q_control
+    c_control = np.max(np.abs(d_control) / np.where(qc > 0, np.sqrt(np.where(qc > 0, qc, 1.0)), np.inf), initial=0.0)
+    return float(max(c, c_control))
+
+
+def normal_matrix_at_approximations(project: Project, options: AdjustmentOptions = AdjustmentOptions()):
+    """N of the first iteration (at the approximate values) and the layout: enough to show the
+    structure of the normal equations of any project without adjusting it. A project without
+    unknowns gives a 0 x 0 N; numbers that overflow are a NumericalFailure (as in adjust)."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        offset = reduction_offset(project)
+        state, layout = initial_state(project, offset), build_layout(project)
+        batches = build_batches(project)
+        obs = observations_of(project, offset)
+        assembly = Assembly.of(batches, state, layout, options.chunk_size)
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        acc = _assemble_checked(sweep, build_parameter_observations(project, offset), assembly, project, 1)
+    return acc.N, layout
+
+
+def _require_strip_along_x(batches, state: State, max_angle_deg: float = 30.0) -> None:
+    """Schmid's projected scale condition (94) intersects the rays in their XZ projection, which is
+    well conditioned only when the bases run along X. Refuse it otherwise rather than return a
+    weak or wrong adjustment."""
+    worst = 0.0
+    for batch in batches:
+        if batch.k < 3:
+            continue
+        b = np.diff(state.xyz0[batch.photo_index], axis=1)  # consecutive bases of every chain
+        horiz = np.linalg.norm(b[..., :2], axis=-1)
+        angle = np.degrees(np.arccos(np.clip(np.abs(b[..., 0]) / np.maximum(horiz, 1e-300), 0, 1)))
+        worst = max(worst, float(angle.max(initial=0.0)))
+    if worst > max_angle_deg:
+        raise NumericalFailure(
+            f"Schmid's projected scale condition (94, --scale-form xz) is unsuitable for these photos: "
+            f"some bases make {worst:.0f} deg with the X axis (at most {max_angle_deg:.0f} deg allowed), and the "
+            "XZ projection of their rays degenerates for a strip not flown along X. Use the "
+            "direction-free form (--scale-form 3d, the default)."
+        )
+
+
+def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par: np.ndarray,
+                  free_network=None, solver: solvers.NormalSolver | None = None) -> tuple[Checks, float | None]:
+    """Schmid's checks after convergence.
+
+    * every condition holds for the adjusted observations and the final unknowns (his final
+      check): the largest misclosure g(l^, x^), in units of its standard deviation;
+    * (58) B^T k = 0: at the solution the right-hand side u of the normal equations vanishes;
+      reported as max |u_i| / sqrt(N_ii);
+    * (59) v^T P v equals [LL.u], the reduced sum w^T M^-1 w - u^T N^-1 u formed in the
+      reduction of the normal equations; reported as the relative difference.
+
+    Also returns the largest correction (in standard deviations, as in the history) the next
+    iteration would make, a by-product of (59) (None when N is singular): whether an iteration that
+    stopped at max_iterations was still converging. The solve uses the adjustment's own solver
+    when it is a direct one (its analysis of the pattern is reused), else ``auto``: a direct one,
+    or ``strip-pcg`` where a direct factor would not fit in memory (docs/solvers.md).
+    """
+    max_g = acc.max_misclosure  # formed with N in the same sweep (_assemble)
+    if len(pobs):
+        f, _, _ = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
+        max_g = max(max_g, float(np.max(np.abs((pobs.misclosure(f) + v_par) / pobs.sigma))))
+    d = acc.N.diagonal()
+    btk = float(np.max(np.abs(acc.u) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
+    next_correction = None
+    try:
+        direct = solver
+        if solver is None or solver.iterative:  # auto: a direct factor unless it would not fit in memory
+            direct = solvers.make_solver(solvers.SolverOptions(name="auto"), solver.structure if solver else
+                                         solvers.Structure(len(d), sweep.layout.block_starts()))
+        if free_network is None:
+            dx = direct.solve(acc.N, acc.u).dx
+        else:
+            dx = -_solve_free_network(acc, direct, free_network).dx
+        reduced = acc.wPw - float(acc.u @ dx)
+        next_correction = correction_in_sigma(dx, acc.N)
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
+        reduced = float("nan")
+    return Checks(max_condition_misclosure_sigma=max_g, max_BTk_sigma=btk,
+                  vtpv_reduction_relative_difference=reduction_check(reduced, vtpv)), next_correction
