@@ -438,8 +438,8 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     rows_of = np.argsort(ip.photo_index, kind="stable")
     bounds = np.searchsorted(ip.photo_index[rows_of], np.arange(n_ph + 1))
     groups = [rows_of[bounds[p]:bounds[p + 1]] for p in shown]
-    titles = [f"{ids[p]}  ({stats['count'][p]} pts, {unit.factor * np.hypot(*stats['rms'][p]) / np.sqrt(2):{unit.spec}} {unit.label})"
-              for p in shown]
+    rms_photo = unit.factor * np.hypot(*stats["rms"].T) / np.sqrt(2)  # RMS per coordinate, in unit.label
+    titles = [f"{ids[p]}  ({stats['count'][p]} pts, {rms_photo[p]:{unit.spec}} {unit.label})" for p in shown]
     png = fig.plate_residuals_per_photo(xy, v, flagged, groups, titles, h, mag, bar, bar_label)
     parts.append("<h3>Per photograph</h3>")
     parts.append(_img(png, "residual vectors per photograph",
