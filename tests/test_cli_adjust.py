@@ -447,6 +447,16 @@ def _damage_toml_bad_iterations(p: Path):
     return "project.toml", line, ["max_iterations"]
 
 
+def _damage_toml_bad_plate_unit(p: Path):
+    path = p / "project.toml"
+    text = path.read_text(encoding="utf-8")
+    assert 'rotation = "omega-phi-kappa"\n' in text
+    path.write_text(text.replace('rotation = "omega-phi-kappa"\n', 'rotation = "omega-phi-kappa"\nplate = "pixels"\n'),
+                    encoding="utf-8")
+    line = 1 + path.read_text(encoding="utf-8").splitlines().index('plate = "pixels"')
+    return "project.toml", line, ["[units] plate", "'pixels'", "'mm', 'px'"]
+
+
 BAD_INPUT = {
     "missing_file": _damage_missing_file,
     "missing_column": _damage_missing_column,
@@ -462,6 +472,7 @@ BAD_INPUT = {
     "undecodable_bytes": _damage_undecodable,
     "toml_bad_value": _damage_toml_bad_value,
     "toml_bad_max_iterations": _damage_toml_bad_iterations,
+    "toml_bad_plate_unit": _damage_toml_bad_plate_unit,
 }
 
 

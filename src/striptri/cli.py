@@ -354,8 +354,9 @@ def structure(project_dir, out_png):
               help="Format of SRC [detected: an .xml file is a DBAT script, another file BAL, a folder with "
                    "cameras.txt COLMAP, with cameras.csv a project].")
 @click.option("--pixel-size", type=_Finite(min=0.0, min_open=True), default=None,
-              help="Plate units per pixel on the COLMAP or DBAT side: the plate unit of a COLMAP source, the "
-                   "pixel of COLMAP or DBAT output from a project [1].")
+              help="Plate units per pixel on the COLMAP or DBAT side: the plate unit of a COLMAP source (1: "
+                   "pixels, [units] plate = \"px\"; otherwise mm per pixel, the pixel pitch), the pixel of COLMAP "
+                   "or DBAT output from a project [1].")
 @click.option("--drop-distortion", is_flag=True, default=False,
               help="BAL, DBAT: hold the distortion at 0 (a pinhole camera) instead of keeping it.")
 @reports_errors

@@ -291,7 +291,8 @@ def plate_residuals_per_photo(xy_plate, v_plate, flagged, groups, titles, half_f
 
 
 def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magnification: float,
-                            bar_length: float, bar_label: str, cell_means=None, field=None) -> bytes:
+                            bar_length: float, bar_label: str, cell_means=None, field=None,
+                            plate_unit: str = "mm") -> bytes:
     """All residual vectors of all photos over one format (systematic image errors show as a
     pattern), and, when cell_means = (centres (k, 2), means (k, 2), counts (k,), magnification,
     bar_length, bar_label) is given, the mean residual of each cell of a grid in a second panel.
@@ -299,7 +300,8 @@ def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magn
     field = (rms (g, g), unit_label, n_all), for many measurements: the left panel shows instead the
     RMS residual length of each cell of a g x g grid over the format (rms in the plate units of
     the vectors, row 0 at -half_format; nan where no measurement falls) as a raster, and on top only
-    the vectors given (the caller passes the worst), out of n_all measurements.
+    the vectors given (the caller passes the worst), out of n_all measurements. plate_unit: the
+    unit of the plate coordinates on the axes ("mm" or "px", model.PLATE_UNITS).
     """
     from matplotlib.collections import LineCollection
 
@@ -327,8 +329,8 @@ def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magn
                      fontsize=8.5)
     _scale_bar(ax, bar_length * magnification, bar_label, half_format)
     ax.tick_params(labelsize=7)
-    ax.set_xlabel("x (mm)", fontsize=8)
-    ax.set_ylabel("y (mm)", fontsize=8)
+    ax.set_xlabel(f"x ({plate_unit})", fontsize=8)
+    ax.set_ylabel(f"y ({plate_unit})", fontsize=8)
     if cell_means is not None:
         centres, means, counts, mag2, bar2, label2 = cell_means
         ax = axes[0, 1]
@@ -340,7 +342,7 @@ def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magn
         _scale_bar(ax, bar2 * mag2, label2, half_format)
         ax.set_title(f"mean residual per cell, vectors x{mag2:g}", fontsize=9)
         ax.tick_params(labelsize=7)
-        ax.set_xlabel("x (mm)", fontsize=8)
+        ax.set_xlabel(f"x ({plate_unit})", fontsize=8)
     fig.tight_layout()
     return _png(fig)
 

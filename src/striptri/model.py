@@ -3,7 +3,8 @@
 Ids (strings) live here only to name things in output; the mathematics works on integer indices.
 Conventions (DESIGN.md section 1):
 
-* ground frame right-handed, metres, Z up; plate frame x, y in the units of c (mm by default);
+* ground frame right-handed, metres, Z up; plate frame x, y in the units of c, named by
+  ``ProjectSettings.plate_unit`` (mm by default, px for pixels);
 * ``R_ground_from_cam`` maps the camera-frame vector ``p = (x - xp, y - yp, -c)`` to the ground;
 * angles in the tables are radians, in the convention named by ``ProjectSettings.rotation``;
 * a standard deviation of ``nan`` means "no observation": a photo element is then free, a control
@@ -35,6 +36,8 @@ GIVEN_AXES = {
 
 ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi")
 ANGLE_UNITS = ("deg", "gon", "rad")
+# Values of [units] plate: the unit of the plate quantities (c, xp, yp, x, y and their sigmas).
+PLATE_UNITS = ("mm", "px")
 # Values accepted for [adjustment] method and solver in project.toml (DESIGN sections 4, 5, 8).
 
 
@@ -158,6 +161,7 @@ class ProjectSettings:
     max_iterations: int = 30
     datum: str = "control"
     cost_tolerance: float = 0.0  # bundle method: AdjustmentOptions.cost_tolerance (0 = off)
+    plate_unit: str = "mm"  # PLATE_UNITS: mm of the plate (film, sensor) or px (pixels of the image)
 
 
 @dataclass(frozen=True)

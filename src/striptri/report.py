@@ -21,6 +21,7 @@ from __future__ import annotations
 import base64
 import html
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -170,8 +171,39 @@ def _card(value: str, label: str, cls: str = "") -> str:
     return f"<div class='card {cls}'><div class='v'>{value}</div><div class='k'>{label}</div></div>"
 
 
-def _micron(x) -> str:
-    return _fmt(None if x is None else 1000.0 * x, ".1f")
+@dataclass(frozen=True)
+class ResidualUnit:
+    """How the report shows plate residuals, from the project's plate unit ([units] plate): a
+    residual of v plate units is shown as ``v * factor`` ``label``, with ``spec`` digits.
+
+    plate: "mm" or "px" (model.PLATE_UNITS), the unit of the plate coordinates and of c;
+    plate_words: that unit in a sentence. A plate in mm has its residuals in micrometres of the
+    plate (factor 1000), one in pixels keeps pixels (factor 1)."""
+
+    plate: str
+    plate_words: str
+    factor: float
+    label: str
+    spec: str
+
+    def __call__(self, v) -> str:
+        """A residual (plate units; None or nan: a dash) as text in this unit."""
+        return _fmt(None if v is None else self.factor * v, self.spec)
+
+    def length(self, v: float) -> str:
+        """A length v (plate units) for a scale bar: "5 µm", "0.5 px"."""
+        return f"{v * self.factor:g} {self.label}"
+
+
+RESIDUAL_UNITS = {
+    "mm": ResidualUnit(plate="mm", plate_words="mm", factor=1000.0, label="µm", spec=".1f"),
+    "px": ResidualUnit(plate="px", plate_words="pixels", factor=1.0, label="px", spec=".2f"),
+}
+
+
+def residual_unit(project: Project) -> ResidualUnit:
+    """The ResidualUnit of project's plate unit (ProjectSettings.plate_unit)."""
+    return RESIDUAL_UNITS[project.settings.plate_unit]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -367,6 +399,7 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     xy, v = ip.xy, result.plate_residuals
     if len(xy) == 0:
         return [_section("residuals"), "<p>No plate measurements.</p>"]
+    unit = residual_unit(project)
     h = _half_format(xy)
     length = np.hypot(v[:, 0], v[:, 1])
     sig = ip.sigma_xy[np.isfinite(ip.sigma_xy) & (ip.sigma_xy > 0)]
@@ -381,14 +414,14 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     mag_all = fig.nice_number(0.5 * mag)
     bar = fig.nice_number(0.3 * h / mag)
     bar_all = fig.nice_number(0.3 * h / mag_all)
-    bar_label = f"{bar * 1000:g} µm"
+    bar_label = unit.length(bar)
     n_ph = len(project.photos)
     ids = project.photos.ids
     rms_all = np.sqrt(np.mean(v**2, axis=0))
     parts = [
         _section("residuals"),
-        f"<p>RMS of the plate residuals: v<sub>x</sub> {_micron(rms_all[0])} µm, v<sub>y</sub> "
-        f"{_micron(rms_all[1])} µm over {len(xy)} measurements (plate coordinates in mm). "
+        f"<p>RMS of the plate residuals: v<sub>x</sub> {unit(rms_all[0])} {unit.label}, v<sub>y</sub> "
+        f"{unit(rms_all[1])} {unit.label} over {len(xy)} measurements (plate coordinates in {unit.plate_words}). "
         f"Vectors are drawn magnified <b>{mag:g} times</b> per photograph (<b>{mag_all:g} times</b> over "
         f"all photographs); the bar is the length of a residual of {bar_label}. "
         f"Dark blue: residuals; <span class='flag'>red</span>: {flag_text}.</p>",
@@ -405,13 +438,13 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     rows_of = np.argsort(ip.photo_index, kind="stable")
     bounds = np.searchsorted(ip.photo_index[rows_of], np.arange(n_ph + 1))
     groups = [rows_of[bounds[p]:bounds[p + 1]] for p in shown]
-    titles = [f"{ids[p]}  ({stats['count'][p]} pts, {1000 * np.hypot(*stats['rms'][p]) / np.sqrt(2):.1f} µm)"
-              for p in shown]
+    rms_photo = unit.factor * np.hypot(*stats["rms"].T) / np.sqrt(2)  # RMS per coordinate, in unit.label
+    titles = [f"{ids[p]}  ({stats['count'][p]} pts, {rms_photo[p]:{unit.spec}} {unit.label})" for p in shown]
     png = fig.plate_residuals_per_photo(xy, v, flagged, groups, titles, h, mag, bar, bar_label)
     parts.append("<h3>Per photograph</h3>")
     parts.append(_img(png, "residual vectors per photograph",
                       f"Residual vectors on the format of {what}; panel title: photo, measurements, RMS residual "
-                      f"per coordinate. Frame: &plusmn;{h:g} mm about the principal point."))
+                      f"per coordinate. Frame: &plusmn;{h:g} {unit.plate} about the principal point."))
     # all photographs stacked, and the mean residual per cell of a 5 x 5 grid
     cells = 5
     centres_5, means, counts = _cell_statistics(xy, v, h, cells)
@@ -421,12 +454,13 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     if biggest > resolvable:
         mag2 = fig.nice_number(0.3 * h / biggest)
         bar2 = fig.nice_number(0.3 * h / mag2)
-        cell_means = (centres_5, means, counts, mag2, bar2, f"{bar2 * 1000:g} µm")
+        cell_means = (centres_5, means, counts, mag2, bar2, unit.length(bar2))
         right = (f" Right: the mean residual in each cell of a {cells} &times; {cells} grid (x{mag2:g}); a regular "
                  "pattern there points to a systematic image error (lens distortion, film deformation) rather than "
                  "noise.")
     if len(xy) <= MAX_VECTORS:
-        png = fig.plate_residuals_stacked(xy, v, flagged, h, mag_all, bar_all, f"{bar_all * 1000:g} µm", cell_means)
+        png = fig.plate_residuals_stacked(xy, v, flagged, h, mag_all, bar_all, unit.length(bar_all), cell_means,
+                                          plate_unit=unit.plate)
         left = f"the residuals of all photographs drawn over one format (x{mag_all:g})."
     else:  # a raster of the RMS residual per cell, and the worst vectors on top
         _, ms, count = _cell_statistics(xy, length[:, None] ** 2, h, FIELD_CELLS)
@@ -434,10 +468,11 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
         worst = np.argsort(-(flagged * (1.0 + absw.max(initial=0.0)) + absw), kind="stable")[:WORST_VECTORS]
         mag_w = min(mag_all, fig.nice_number(0.3 * h / max(float(length[worst].max()), 1e-300)))
         bar_w = fig.nice_number(0.3 * h / mag_w)
-        png = fig.plate_residuals_stacked(xy[worst], v[worst], flagged[worst], h, mag_w, bar_w, f"{bar_w * 1000:g} µm",
-                                          cell_means, field=(rms * 1000.0, "µm", len(xy)))
+        png = fig.plate_residuals_stacked(xy[worst], v[worst], flagged[worst], h, mag_w, bar_w, unit.length(bar_w),
+                                          cell_means, field=(rms * unit.factor, unit.label, len(xy)),
+                                          plate_unit=unit.plate)
         left = (f"the RMS length of the residuals of all {len(xy)} measurements in each cell of a {FIELD_CELLS} "
-                f"&times; {FIELD_CELLS} grid over the format (µm; white: no measurement), and on top the "
+                f"&times; {FIELD_CELLS} grid over the format ({unit.label}; white: no measurement), and on top the "
                 f"{len(worst)} with the largest normalised residual |w| (<span class='flag'>red</span>: flagged), "
                 f"drawn x{mag_w:g}.")
     caption = ("Left: " + left + right) if right else left[:1].upper() + left[1:]
@@ -603,6 +638,7 @@ def _check_points_section(project: Project, result: AdjustmentResult, points: Tr
 
 def _measurement_rows(project: Project, result: AdjustmentResult, w: np.ndarray, rows_idx) -> list:
     ip = project.image_points
+    unit = residual_unit(project)
     out = []
     for i in rows_idx:
         wi = w[i]
@@ -610,13 +646,15 @@ def _measurement_rows(project: Project, result: AdjustmentResult, w: np.ndarray,
                     html.escape(project.points.ids[ip.point_index[i]]),
                     KIND_NAMES[int(project.points.kind[ip.point_index[i]])],
                     _fmt(ip.xy[i, 0], ".3f"), _fmt(ip.xy[i, 1], ".3f"),
-                    _micron(result.plate_residuals[i, 0]), _micron(result.plate_residuals[i, 1]),
+                    unit(result.plate_residuals[i, 0]), unit(result.plate_residuals[i, 1]),
                     _fmt(wi[0], ".2f"), _fmt(wi[1], ".2f")])
     return out
 
 
-_MEAS_HEADER = ["photo", "point", "kind", "x (mm)", "y (mm)", "v<sub>x</sub> (µm)", "v<sub>y</sub> (µm)",
-                "w<sub>x</sub>", "w<sub>y</sub>"]
+def _measurement_header(unit: ResidualUnit) -> list[str]:
+    """Column names of a table of _measurement_rows: plate coordinates and residuals in their units."""
+    return ["photo", "point", "kind", f"x ({unit.plate})", f"y ({unit.plate})", f"v<sub>x</sub> ({unit.label})",
+            f"v<sub>y</sub> ({unit.label})", "w<sub>x</sub>", "w<sub>y</sub>"]
 
 
 def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
@@ -631,7 +669,8 @@ def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
         f"<p>{len(idx)} measurement{'s' if len(idx) != 1 else ''} flagged ({flag_text}), largest |w| first. "
         "w is the normalised residual "
         "v / (&sigma; &radic;q<sub>vv</sub>) of Baarda's data snooping.</p>",
-        _table(_MEAS_HEADER, _measurement_rows(project, result, w, idx[:MAX_TABLE_ROWS]), left=3),
+        _table(_measurement_header(residual_unit(project)), _measurement_rows(project, result, w, idx[:MAX_TABLE_ROWS]),
+               left=3),
         note,
     ]
 
@@ -640,11 +679,12 @@ def _largest_section(project, result, w, absw, n: int = 15) -> list[str]:
     worst = np.argsort(-absw, kind="stable")[:n]
     return [_section("largest"),
             f"<p>The {len(worst)} measurements with the largest normalised residual, flagged or not.</p>",
-            _table(_MEAS_HEADER, _measurement_rows(project, result, w, worst), left=3)]
+            _table(_measurement_header(residual_unit(project)), _measurement_rows(project, result, w, worst), left=3)]
 
 
 def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> list[str]:
     unit = project.settings.angle_unit
+    plate = residual_unit(project)
     per_rad = 1.0 / RADIANS_PER_UNIT[unit]
     digits = {"deg": 5, "gon": 5, "rad": 7}[unit]
     xyz = result.state.xyz0 + result.offset
@@ -669,7 +709,7 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
                      str(stats["count"][p])]
                     + [_fmt(x, ".2f") for x in xyz[p]] + [_fmt(x, f".{digits - 1}f") for x in opk[p]]
                     + [_fmt(x, ".3f") for x in sig_xyz[p]] + [_fmt(x, f".{digits}f") for x in sig_ang[p]]
-                    + [_micron(x) for x in stats["rms"][p]] + [_fmt(stats["wmax"][p], ".2f"),
+                    + [plate(x) for x in stats["rms"][p]] + [_fmt(stats["wmax"][p], ".2f"),
                        _cell(str(stats["flagged"][p]), "flag" if stats["flagged"][p] else "")])
     header = ["photo", "strip", "pts", "X0", "Y0", "Z0", "&omega;", "&phi;", "&kappa;", "&sigma;X0", "&sigma;Y0",
               "&sigma;Z0", "&sigma;&omega;", "&sigma;&phi;", "&sigma;&kappa;", "RMS v<sub>x</sub>",
@@ -678,7 +718,7 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
         _section("photos"),
         f"<p>Adjusted exterior orientation (centres in m, angles &omega;, &phi;, &kappa; in {unit}) with their "
         "mean errors &sigma;<sub>0</sub>&radic;Q<sub>ii</sub>, and the residuals of each photograph (RMS in "
-        "µm).</p>",
+        f"{plate.label}).</p>",
         _table(header, rows, cls="photos", left=2, row_classes=classes),
         note,
     ]
@@ -695,7 +735,8 @@ def _camera_section(project: Project, result: AdjustmentResult) -> list[str]:
     if not blocks:
         out.append("<p>No camera element was estimated (every camera is held).</p>")
         return out
-    out.append("<p>Estimated interior orientation and additional parameters (plate units; k, p of the "
+    out.append(f"<p>Estimated interior orientation and additional parameters (plate units, here "
+               f"{residual_unit(project).plate_words}; k, p of the "
                "plate convention per plate unit, of the image convention dimensionless) with their mean "
                "errors, the correlations among them and each one's largest correlation with an exterior "
                "element. Correlations near &plusmn;1 mean the data cannot separate the two.</p>")

@@ -77,7 +77,8 @@ def bal_distortion_pixels(bal: BalProblem) -> np.ndarray:
 
 def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
     """A striptri project of a BAL problem: one camera and one photo per BAL camera, one tie point
-    per BAL point, plate coordinates = BAL pixels, sigma 1 pixel, free-network datum.
+    per BAL point, plate coordinates = BAL pixels ([units] plate = "px"), sigma 1 pixel,
+    free-network datum.
 
     The camera is BAL's: principal distance f, principal point at the image centre (held), radial
     distortion k1, k2 in the image convention (lens.IMAGE: applied to the projected point in
@@ -132,7 +133,7 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
         points=_tie_points([str(j) for j in range(npts)]),
         # BAL problems want the bundle method with damping and a cost tolerance (docs/formats.md)
         settings=model.ProjectSettings(sigma_image=1.0, datum="control", method="bundle", max_iterations=100,
-                                       cost_tolerance=1e-10),
+                                       cost_tolerance=1e-10, plate_unit="px"),
         source=bal.path,
     )
     project = replace(project, points=replace(project.points, xyz_approx=bal.xyz_world.copy()))
@@ -194,7 +195,8 @@ def project_to_bal(project: model.Project, xyz_ground: np.ndarray | None = None)
 def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: ColmapNames | None = None,
                       source: Path | None = None) -> Scene:
     """A striptri project of a COLMAP model (frames in the module doc). pixel_size: plate units per
-    pixel (1.0: plate coordinates in pixels). Photo ids are the image names; camera and point ids
+    pixel (1.0: plate coordinates in pixels, [units] plate = "px"; otherwise mm per pixel, "mm":
+    colmap_plate_unit). Photo ids are the image names; camera and point ids
     from names, else the COLMAP ids. Every COLMAP point is a tie point; observations without a 3D
     point are left out (counted in notes). Image sigma: one pixel. Raises InputError for a PINHOLE
     camera with fx != fy (striptri has one principal distance)."""
@@ -245,11 +247,32 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
         image_points=model.ImagePoints(photo_index=obs_image, point_index=obs_point, xy=xy,
                                        sigma_xy=np.full((len(xy), 2), s)),
         points=_tie_points([names.points.get(int(p), str(int(p))) for p in colmap.point3d_ids]),
-        settings=model.ProjectSettings(sigma_image=s, datum="inner"),
+        settings=model.ProjectSettings(sigma_image=s, datum="inner", plate_unit=colmap_plate_unit(s)),
         source=source,
     )
     project = replace(project, points=replace(project.points, xyz_approx=colmap.xyz_world.copy()))
     return Scene(project=project, xyz_ground=colmap.xyz_world.copy(), plate_units_per_pixel=s, notes=notes)
+
+
+def pixel_size_note(plate_unit: str, pixel_size: float, target: str) -> list[str]:
+    """Notes on writing a project whose plate unit is plate_unit ("mm" or "px") as pixels of pixel_size
+    plate units (COLMAP or DBAT output, target names it): a project in mm at 1 mm per pixel, or one
+    in pixels at another size, is most likely a forgotten or a wrong --pixel-size."""
+    if plate_unit == "mm" and pixel_size == 1.0:
+        return [f"the project's plate coordinates are in mm and the pixel size is 1: one {target} pixel is 1 mm "
+                "(give the pixel pitch in mm with --pixel-size, e.g. 0.005 for 5 um pixels)"]
+    if plate_unit == "px" and pixel_size != 1.0:
+        return [f"the project's plate coordinates are pixels ([units] plate = \"px\") and the pixel size is "
+                f"{pixel_size:g}: one {target} pixel is {pixel_size:g} of the project's pixels"]
+    return []
+
+
+def colmap_plate_unit(pixel_size: float) -> str:
+    """The plate unit (model.PLATE_UNITS) of a project converted from COLMAP at pixel_size plate
+    units per pixel: "px" at 1 (the plate coordinates are the pixels), else "mm" (pixel_size is the
+    pixel pitch in mm, e.g. 0.0045 for a 4.5 um sensor: a pixel of 1 mm does not occur).
+    docs/decisions.md, "Plate units"."""
+    return "px" if pixel_size == 1.0 else "mm"
 
 
 # --------------------------------------------------------------------------- COLMAP distortion
@@ -339,6 +362,7 @@ def project_to_colmap(project: model.Project, xyz_ground: np.ndarray | None = No
                      + (" ..." if len(lost) > 5 else ""))
     if np.any(project.points.kind != model.TIE):
         notes.append("COLMAP has no control: point kinds, given coordinates and sigmas are not written")
+    notes += pixel_size_note(project.settings.plate_unit, s, "COLMAP")
     return colmap, names, notes
 
 

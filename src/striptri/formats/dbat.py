@@ -50,7 +50,7 @@ from striptri import lens, model, rotations
 from striptri.errors import InputError, NumericalFailure
 from striptri.lens import NCP
 from striptri.resection import resect_missing
-from striptri.formats.conversions import Scene
+from striptri.formats.conversions import Scene, pixel_size_note
 from striptri.io.csvtable import read_input_bytes
 
 DISTORTION_NAMES = ("K1", "K2", "K3", "P1", "P2")
@@ -885,4 +885,4 @@ def dbat_files(project: model.Project, pixel_size: float = 1.0) -> tuple[dict[st
         files["control_weighted.txt"] = "# id, label, x, y, z, sx, sy, sz\n" + _csv(ctrl_weighted)
     if prior_rows:
         files["prior_eo.txt"] = "# id, x, y, z, omega, phi, kappa (degrees)\n" + _csv(prior_rows)
-    return files, notes
+    return files, notes + pixel_size_note(project.settings.plate_unit, s, "DBAT")

@@ -14,6 +14,8 @@ Choices made here (also in docs/file-formats.md):
 * angles (and their sigmas) are in the unit of ``[units] angles`` and are converted to radians;
   the photos.csv angle columns are named after ``[units] rotation``: omega, phi, kappa or
   alpha, omega, chi;
+* the plate quantities (c, xp, yp, x, y and their sigmas) are in the unit ``[units] plate`` names
+  (mm, the default, or px); it labels the report and converts nothing;
 * empty sigma: photos.csv -> free (nan), 0 -> held fixed, > 0 observed; cameras.csv and
   control.csv -> held fixed (nan; 0 also means held fixed), > 0 observed, and in cameras.csv the
   word ``free`` -> estimated without a prior (inf); image_points.csv -> ``[defaults] sigma_image``;
@@ -67,7 +69,7 @@ ANGLE_COLUMNS = {
 BASE_AXES = {"bx": 0, "by": 1, "bz": 2}
 # Keys project.toml may hold, per section.
 TOML_KEYS = {
-    "units": ("angles", "rotation"),
+    "units": ("angles", "rotation", "plate"),
     "defaults": ("sigma_image",),
     "adjustment": ("method", "solver", "max_iterations", "cost_tolerance"),
     "datum": ("mode",),
@@ -211,10 +213,10 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
     def fail(section: str, key: str, reason: str) -> InputError:
         return InputError(path, _toml_line(text, section, key), f"[{section}] {key}: {reason}")
 
-    def choice(section: str, key: str, allowed: tuple[str, ...], default: str) -> str:
+    def choice(section: str, key: str, allowed: tuple[str, ...], default: str, meaning: str = "") -> str:
         value = get(section, key, default)
         if not isinstance(value, str) or value not in allowed:
-            raise fail(section, key, f"{value!r} is not one of {', '.join(repr(a) for a in allowed)}")
+            raise fail(section, key, f"{value!r} is not one of {', '.join(repr(a) for a in allowed)}{meaning}")
         return value
 
     sigma_image = get("defaults", "sigma_image", defaults.sigma_image)
@@ -242,6 +244,9 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
         max_iterations=max_iterations,
         datum=choice("datum", "mode", DATUMS, defaults.datum),
         cost_tolerance=float(cost_tolerance),
+        plate_unit=choice("units", "plate", model.PLATE_UNITS, defaults.plate_unit,
+                          " (the unit of c and of the plate coordinates: mm of the film or sensor, px for the "
+                          "pixels of the image)"),
     )
 
 

@@ -68,14 +68,18 @@ def reader_point_order(project: model.Project) -> np.ndarray:
 
 
 def settings_toml(settings: model.ProjectSettings) -> str:
-    """project.toml holding every setting explicitly ([datum] only when it is not the default)."""
-    datum = "" if settings.datum == model.ProjectSettings().datum else f'\n[datum]\nmode = "{settings.datum}"\n'
+    """project.toml holding every setting explicitly ([datum] mode and [units] plate only when they
+    are not the default, so that the simulator's projects in mm keep their files)."""
+    defaults = model.ProjectSettings()
+    datum = "" if settings.datum == defaults.datum else f'\n[datum]\nmode = "{settings.datum}"\n'
+    plate = "" if settings.plate_unit == defaults.plate_unit else f'plate = "{settings.plate_unit}"\n'
     return (
         "# striptri project settings (docs/file-formats.md)\n"
         "[units]\n"
         f'angles = "{settings.angle_unit}"\n'
         f'rotation = "{settings.rotation}"\n'
-        "\n[defaults]\n"
+        + plate
+        + "\n[defaults]\n"
         f"sigma_image = {float(settings.sigma_image)!r}\n"
         "\n[adjustment]\n"
         f'method = "{settings.method}"\n'
