@@ -13,7 +13,7 @@ import pytest
 import scipy.sparse as sp
 
 from striptri import solvers
-from striptri.solvers import SOLVERS, SolverOptions, Structure, describe, make_solver
+from striptri.solvers import SOLVERS, SolverOptions, describe, make_solver
 from striptri.solvers.cvxopt_cholesky import lower_triangle
 from striptri.solvers.describe import blas_path, on_reference_blas
 from striptri.solvers.synthetic import block_normal_matrix

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import progress, report, solvers
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, observations_of
-from .errors import InputError, Note, NumericalFailure
+from .errors import InputError
 from .groups import rays_per_point
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location

@@ -213,7 +213,6 @@ class ReducedNormals:
         self.b_full += np.bincount(full_cols.ravel(), weights=b3.ravel(), minlength=pat.n_full)
         self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
         if pat.with_cameras:
-            w = pat.camera_width
             scatter_pc.add_pairs_by_ray(self.pc, N5[:, :, :6, :, 6:])
             scatter_cc.add_pairs_by_ray(self.cc, N5[:, :, 6:, :, 6:])
         self.ee += chunk.sum_of_squares()
