@@ -45,7 +45,8 @@ def reports_errors(command):
         except InputError as exc:
             _fail(exc, EXIT_INPUT)
         except NumericalFailure as exc:
-            _fail(exc, EXIT_NUMERICAL)
+            reason = "" if exc.reason == "failed" else f"\n(termination: {exc.reason}; nothing was written)"
+            _fail(f"{exc}{reason}", EXIT_NUMERICAL)
         except MemoryError:
             _fail("not enough memory for this project on this machine (the arrays of the adjustment did not fit); "
                   "nothing was written", EXIT_NUMERICAL)

@@ -34,7 +34,7 @@ import scipy.sparse as sp
 
 from .. import datum, diagnosis, progress, solvers, termination
 from ..core.convergence import energy_floor, has_converged, largest_correction, round_off_floor, stop_if_diverging
-from ..core.explain import datum_defect_message, reduction_check, solve_or_explain
+from ..core.explain import datum_defect_failure, reduction_check, solve_or_explain
 from ..core.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
@@ -371,7 +371,7 @@ def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
         raise NumericalFailure(_not_formed_message(problem), reason="not_finite")
     defects = datum.diagnose(normals, state, problem.layout, offset=problem.offset)
     if defects:
-        raise NumericalFailure(datum_defect_message(problem.project, defects), reason="datum_defect")
+        raise datum_defect_failure(problem.project, defects)
     raise NumericalFailure(
         f"too few observations: {problem.n_conditions} observation equations beyond the "
         f"{problem.unknowns.n_unknowns} point coordinates, and {len(problem.pobs)} observed elements, "

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 from .. import datum, diagnosis, progress, solvers, termination
 from ..core.convergence import (ROUNDING_FLOOR, correction_in_sigma, energy_floor, has_converged, largest_correction,
                                 round_off_floor, stop_if_diverging)
-from ..core.explain import (datum_defect_message, not_finite_message, reduction_check, singular_message,
+from ..core.explain import (datum_defect_failure, not_finite_message, reduction_check, singular_message,
                             solve_or_explain)
 from ..core.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
@@ -224,7 +224,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
         sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
         defects = datum.diagnose(_assemble_checked(sweep, pobs, assembly, project, 1), state, layout, offset=offset)
         if defects:
-            raise NumericalFailure(datum_defect_message(project, defects), reason="datum_defect")
+            raise datum_defect_failure(project, defects)
         raise NumericalFailure(
             f"too few conditions: {n_conditions} condition equations and {len(pobs)} observed elements "
             f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."

@@ -22,13 +22,13 @@ def solve_or_explain(normals, rhs: np.ndarray, solver: solvers.NormalSolver, sta
     which equations)."""
     defects = datum.diagnose(normals, state, layout, offset=offset) if diagnose else []
     if defects:
-        raise NumericalFailure(datum_defect_message(project, defects), reason="datum_defect")
+        raise datum_defect_failure(project, defects)
     try:
         return solver.solve(normals.N, rhs)
     except solvers.SingularNormalMatrix as exc:
         defects = datum.diagnose(normals, state, layout, datum.LOOSE_TOLERANCE, offset)
         if defects:
-            raise NumericalFailure(datum_defect_message(project, defects), reason="datum_defect") from exc
+            raise datum_defect_failure(project, defects) from exc
         raise NumericalFailure(singular_message(project, layout, exc.column, what), reason="singular") from exc
 
 
@@ -50,18 +50,30 @@ def not_finite_message(project: Project, points: np.ndarray, iteration: int) -> 
                                       "(photos.csv, cameras.csv, image_points.csv, control.csv)."))
 
 
+def datum_defect_failure(project: Project, defects: list[str]) -> NumericalFailure:
+    """The NumericalFailure of directions the datum test finds free: "datum_defect" with
+    datum.explain's words, or "singular" when weights or values beyond reason fool the test
+    (datum_defect_message names them instead)."""
+    message = datum_defect_message(project, defects)
+    trusted = not message.startswith(UNTRUSTED)
+    return NumericalFailure(message, reason="datum_defect" if trusted else "singular")
+
+
+UNTRUSTED = "the normal equations cannot be trusted: "
+
+
 def datum_defect_message(project: Project, defects: list[str]) -> str:
     """datum.explain, unless weights beyond double precision fool the datum test (they are named
     instead); with photos in several groups that share no points, the groups are named too."""
     with np.errstate(all="ignore"):
         weights = diagnosis.extreme_weights(project)
         if weights:
-            return ("the normal equations cannot be trusted: " + " ".join(weights)
+            return (UNTRUSTED + " ".join(weights)
                     + " (With such weights the datum test reports directions as free that are not.)")
         groups = diagnosis.photo_groups(project).explain()
         values = diagnosis.implausible_values(project) + diagnosis.camera_units(project)
     if values:  # numbers that make the normal equations meaningless fool the datum test too
-        return ("the normal equations cannot be trusted: " + " ".join(values)
+        return (UNTRUSTED + " ".join(values)
                 + " (With such values the datum test reports directions as free that are not.)")
     return "\n".join([datum.explain(defects)] + groups)
 

@@ -92,10 +92,12 @@ class SequentialOptions:
 
     @staticmethod
     def from_adjustment_options(options: "AdjustmentOptions") -> "SequentialOptions":
-        """The sequential options of an AdjustmentOptions, with its max_iterations, raised to at
-        least SEQUENTIAL_STEP_ITERATIONS, as the limit of every per-photo step."""
+        """The sequential options of an AdjustmentOptions, with the larger of its max_iterations and
+        the sequential options' own (by default SEQUENTIAL_STEP_ITERATIONS) as the limit of every
+        per-photo step: [adjustment] max_iterations can raise the steps' limit, not lower it below
+        what some relative orientations need."""
         return replace(options.sequential,
-                       max_iterations=max(options.max_iterations, SEQUENTIAL_STEP_ITERATIONS))
+                       max_iterations=max(options.max_iterations, options.sequential.max_iterations))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,138 @@
+"""The termination reason of every method, on cases that end each way (issue 13): converged, the
+iteration limit, divergence and a datum defect. A result carries it as ``termination`` (with
+``termination_message``); a failure as NumericalFailure.reason; summary.json, the report and the
+command line show it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from striptri.adjustment import METHODS, AdjustmentOptions, SequentialOptions, adjust
+from striptri.core.result import SUCCESSFUL_TERMINATIONS, TERMINATIONS
+from striptri.errors import NumericalFailure
+from striptri.io import read_project
+from striptri.model import CHECK, TIE
+from striptri.rotations import R_from_opk
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
+
+
+@pytest.fixture(scope="module")
+def strip8():
+    return read_project(DATA / "strip8")
+
+
+def without_control(project):
+    """Every control point made a tie point (check points stay): nothing fixes the datum."""
+    kind = project.points.kind
+    return replace(project, points=replace(project.points, kind=np.where(kind == CHECK, CHECK, TIE)))
+
+
+def turned(project, photo_id: str, degrees: float):
+    angles = project.photos.angles.copy()
+    angles[project.photos.ids.index(photo_id), 2] += np.radians(degrees)
+    return replace(project, photos=replace(project.photos, angles=angles, R_ground_from_cam=R_from_opk(angles)))
+
+
+def failure(project, options) -> NumericalFailure:
+    with pytest.raises(NumericalFailure) as info:
+        adjust(project, options)
+    return info.value
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_converged(strip8, method):
+    result = adjust(strip8, AdjustmentOptions(method=method))
+    assert result.termination == "converged" and result.converged and result.termination_message == ""
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_iteration_limit_is_a_failure_with_its_reason(strip8, method):
+    """The limit reached before convergence: NumericalFailure "iteration_limit" with the history's
+    figures (the sequential method: its steps' own limit, which [adjustment] max_iterations can only
+    raise, here lowered through its options)."""
+    options = AdjustmentOptions(method=method, max_iterations=1, sequential=SequentialOptions(max_iterations=2))
+    exc = failure(strip8, options)
+    assert exc.reason == "iteration_limit"
+    assert "did not converge" in str(exc) and "largest correction" in str(exc)
+
+
+@pytest.mark.parametrize("method", ("conditions", "bundle"))
+def test_iteration_limit_kept_is_a_result_that_says_so(strip8, method):
+    result = adjust(strip8, AdjustmentOptions(method=method, max_iterations=1, keep_unconverged=True))
+    assert result.termination == "iteration_limit" and not result.converged
+    assert "still shrinking" in result.termination_message
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_datum_defect(strip8, method):
+    """No control: the simultaneous methods find the seven free directions of a similarity; the
+    sequential method cannot orient its strip model absolutely."""
+    exc = failure(without_control(strip8), AdjustmentOptions(method=method))
+    assert exc.reason == "datum_defect"
+    assert ("datum" if method != "sequential" else "absolute orientation") in str(exc)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_divergence(method):
+    """block_3x6 with the approximate kappa of photo 2003 typed 90 deg off. The method of
+    conditions diverges (its corrections double for four iterations in a row: the divergence rule,
+    core.convergence.stop_if_diverging). The bundle's Levenberg-Marquardt damping recovers from
+    the same start and converges. The sequential method triangulates single strips and refuses
+    the block before iterating ("failed", not a termination of an iteration)."""
+    block = turned(read_project(DATA / "block_3x6"), "2003", 90.0)
+    expected = {"conditions": "diverged", "bundle": "converged", "sequential": "failed"}[method]
+    if expected in SUCCESSFUL_TERMINATIONS:
+        assert adjust(block, AdjustmentOptions(method=method)).termination == expected
+    else:
+        exc = failure(block, AdjustmentOptions(method=method))
+        assert exc.reason == expected
+        if expected == "diverged":
+            assert "diverged at iteration" in str(exc)
+
+
+def test_every_reason_is_named():
+    assert set(TERMINATIONS) >= {"converged", "cost_flat", "iteration_limit", "diverged", "datum_defect"}
+    assert set(SUCCESSFUL_TERMINATIONS) == {"converged", "cost_flat"}
+
+
+def cli(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "striptri", *map(str, args)], capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_summary_report_and_command_line_show_a_kept_iteration_limit(tmp_path):
+    out = tmp_path / "out"
+    proc = cli("adjust", DATA / "strip8", "--out", out, "--max-iterations", "1", "--keep-unconverged", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["termination"] == "iteration_limit" and summary["converged"] is False
+    assert "did not converge" in summary["message"]
+    assert "iteration_limit" in (out / "report.html").read_text()
+    assert "NOT converged (iteration_limit; kept)" in proc.stdout
+
+
+def test_command_line_names_the_reason_of_a_failure(tmp_path):
+    project = tmp_path / "project"
+    project.mkdir()
+    for f in (p for p in (DATA / "strip8").iterdir() if p.is_file()):
+        (project / f.name).write_bytes(f.read_bytes())
+    control = (project / "control.csv").read_text().splitlines()
+    header = control[0].split(",")
+    kind = header.index("kind")
+    rows = [line.split(",") for line in control[1:] if line and not line.startswith("#")]
+    checks = [row for row in rows if row[kind] == "check"]  # the control points become tie points
+    assert len(checks) < len(rows)
+    (project / "control.csv").write_text("\n".join([control[0]] + [",".join(r) for r in checks]) + "\n")
+    proc = cli("adjust", project, "--out", tmp_path / "out", "--quiet")
+    assert proc.returncode == 1
+    assert proc.stderr.count("striptri: error:") == 1
+    assert "(termination: datum_defect; nothing was written)" in proc.stderr
+    assert not (tmp_path / "out").exists()
