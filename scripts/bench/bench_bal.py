@@ -7,7 +7,7 @@ from the BAL file's values and estimate, per camera, the orientation, f, k1 and 
 the points are eliminated (striptri's bundle method, Ceres' SPARSE_SCHUR). The cost is BAL's
 ``1/2 sum r^2`` in pixels (sigma 1 px): striptri's ``v^T P v / 2``. The datum does not change the
 minimum: striptri holds the first camera and one coordinate of the farthest one
-(formats.dbat.photo_datum), Ceres leaves the gauge free. Observations whose point lies behind its
+(formats.scene.photo_datum), Ceres leaves the gauge free. Observations whose point lies behind its
 camera at the start (31 in problem-49-7776, contributing 110.4 to the initial cost) are left out
 of both: COLMAP's cost gives them no residual, so keeping them would compare different problems
 (``--keep-behind`` keeps them for striptri).

@@ -20,6 +20,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .camera import ray_ground
+from .lens import ideal_from_observed
 from .model import CHECK, FULL, GIVEN_AXES, HEIGHT, PLAN, TIE, Project
 
 COLLINEARITY, RAYS = "collinearity", "rays"
@@ -121,9 +123,6 @@ MIN_RAY_ANGLE = np.radians(2.0)  # rays meeting at a smaller angle are nearly pa
 def approximate_rays(project: Project) -> np.ndarray | None:
     """Unit ground directions (m_ip, 3) of the measurements at the approximate orientations (through
     the camera model), or None when some photo has no approximate orientation."""
-    from .camera import ray_ground
-    from .lens import ideal_from_observed
-
     ph, ip, cams = project.photos, project.image_points, project.cameras
     if not (np.isfinite(ph.xyz0).all() and np.isfinite(ph.R_ground_from_cam).all()) or len(ip) == 0:
         return None

@@ -14,12 +14,17 @@ point; the camera looks down its -z axis (DESIGN section 1).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .bundle.collinearity import collinearity_jacobians
-from .rotations import exp_so3
+from .camera import ray_ground
+from .errors import NumericalFailure
+from .lens import ideal_from_observed
+from .model import FULL
+from .rotations import angles_from_R, exp_so3
+from .triangulation import intersect_rays
 
 
 @dataclass(frozen=True)
@@ -118,14 +123,6 @@ def resect_missing(project, max_rounds: int = 50):
     from photos already oriented (two rays or more), as DBAT's spatial_resection and
     forward_intersection do. Measurements are taken through the camera model at the cameras'
     current values. -> (project, notes). Raises NumericalFailure naming the photos left over."""
-    from dataclasses import replace
-
-    from .camera import ray_ground
-    from .errors import NumericalFailure
-    from .lens import ideal_from_observed
-    from .model import FULL
-    from .triangulation import intersect_rays
-
     ph, ip, pts, cams = project.photos, project.image_points, project.points, project.cameras
     todo = ~np.isfinite(ph.xyz0).all(axis=1)
     if not todo.any():
@@ -169,8 +166,6 @@ def resect_missing(project, max_rounds: int = 50):
         raise NumericalFailure(f"no approximate orientation for {len(left)} photos ({', '.join(left[:5])}"
                                f"{', ...' if len(left) > 5 else ''}): they see fewer than four known points "
                                "(coplanar) or six (in general position); give approximate orientations")
-    from .rotations import angles_from_R
-
     angles = np.where(todo[:, None], angles_from_R(R, project.settings.rotation), ph.angles)
     photos = replace(ph, xyz0=xyz0, R_ground_from_cam=R, angles=angles)
     return replace(project, photos=photos), [f"approximate orientations of {done_by_resection} photos by spatial "

@@ -30,24 +30,10 @@ from striptri.camera import ray_ground
 from striptri.errors import InputError
 from striptri.formats.bal import BalProblem
 from striptri.formats.colmap import ColmapModel, R_from_quaternion, quaternion_from_R
+from striptri.formats.scene import Scene, photo_datum
 
 # striptri camera frame (y up, looking along -z) from the COLMAP camera frame (y down, along +z).
 D_STRIPTRI_FROM_COLMAP = np.diag([1.0, -1.0, -1.0])
-
-
-@dataclass(frozen=True)
-class Scene:
-    """A project and approximate ground coordinates of its object points.
-
-    xyz_ground: (n_points, 3), nan where not known. plate_units_per_pixel: the pixel size in plate
-    units when the plate coordinates came from pixels (BAL: 1.0), else None. notes: what the
-    conversion dropped or assumed, in words for the user.
-    """
-
-    project: model.Project
-    xyz_ground: np.ndarray
-    plate_units_per_pixel: float | None = None
-    notes: list[str] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -84,7 +70,7 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
     distortion k1, k2 in the image convention (lens.IMAGE: applied to the projected point in
     normalised coordinates, BAL's ``f (1 + k1 |p|^2 + k2 |p|^4) p``). f, k1 and k2 are free, as in
     the BAL problem. Datum: the first camera and one coordinate of the camera farthest from it
-    held (dbat.photo_datum), a minimal datum for both methods; the cost at the minimum does not
+    held (scene.photo_datum), a minimal datum for both methods; the cost at the minimum does not
     depend on it. drop_distortion: k1 = k2 = 0, held (a pinhole camera; said in Scene.notes with
     the largest displacement it causes). A BAL focal length must be > 0."""
     path = bal.path or Path("<BAL problem>")
@@ -111,8 +97,6 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
     cams = [str(i) for i in range(ncam)]
     photos = _photos(cams, np.arange(ncam), [""] * ncam, xyz0, R_gc)
     if ncam >= 2:
-        from striptri.formats.dbat import photo_datum
-
         photos, note = photo_datum(photos, 0, "units")
         notes.append(note)
     interior = np.zeros((ncam, lens.NCP))

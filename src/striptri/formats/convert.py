@@ -6,7 +6,7 @@ Side files written next to the standard ones:
 
 * COLMAP output: ``striptri_ids.csv`` (table, colmap_id, striptri_id, strip_id), the striptri ids of
   cameras and points and the strip of each image, read back when present (COLMAP ignores it);
-* DBAT output: a folder with the script ``project.xml`` and the text files it names (formats.dbat);
+* DBAT output: a folder with the script ``project.xml`` and the text files it names (formats.dbat.writer);
 * BAL output: a folder with ``problem.txt`` (the BAL file) and ``striptri_ids.csv`` (BAL camera
   index -> photo id, BAL point index -> point id);
 * project output: ``approx_points.csv`` (point_id, X, Y, Z), the approximate ground coordinates of
@@ -33,13 +33,14 @@ from striptri.formats.bal import bal_text, read_bal
 from striptri.formats.colmap import colmap_files, read_colmap
 from striptri.formats.conversions import (
     ColmapNames,
-    Scene,
     approximate_points,
     bal_to_project,
     colmap_to_project,
     project_to_bal,
     project_to_colmap,
 )
+from striptri.formats.dbat import dbat_files, dbat_to_project, read_dbat
+from striptri.formats.scene import Scene
 from striptri.io.csvtable import format_csv, input_present, read_csv
 from striptri.io.output import OutputReservation, check_output_location
 from striptri.io.project_reader import parse_project, read_project
@@ -85,8 +86,6 @@ def read_scene(src: str | Path, source_format: str | None = None, pixel_size: fl
     if fmt == "bal":
         return fmt, bal_to_project(read_bal(src), drop_distortion=drop_distortion)
     if fmt == "dbat":
-        from striptri.formats.dbat import dbat_to_project, read_dbat
-
         return fmt, dbat_to_project(read_dbat(src), drop_distortion=drop_distortion)
     if fmt == "colmap":
         model_ = read_colmap(src)
@@ -153,8 +152,6 @@ def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_
         known = {note.text for note in project.notes}  # a project source's own notes are said already
         notes += [f"converted project: {note}" for note in _validate_project(src, files) if note.text not in known]
     elif to == "dbat":
-        from striptri.formats.dbat import dbat_files
-
         files, more = dbat_files(project, 1.0 if pixel_size is None else pixel_size)
         notes += more
     elif to == "bal":

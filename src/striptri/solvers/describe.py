@@ -16,6 +16,8 @@ import os
 import re
 
 from .base import SOLVERS
+from .sparse_cholesky import MODE, ORDERING
+from .strips import PRECONDITIONER
 
 # BLAS symbols a solver's module may call, tried in this order (scipy's wheels prefix theirs)
 _BLAS_SYMBOLS = ("dgemm_", "scipy_dgemm_", "scipy_dgemm_64_", "dgemm_64_", "dpotrf_", "scipy_dpotrf_", "dtrsv_",
@@ -101,7 +103,7 @@ def _blas_in_words(path: str) -> str:
 
 def _module_file(solver: str) -> str | None:
     """The compiled module whose BLAS calls do the factorisation of ``solver``."""
-    try:
+    try:  # imported here: scikit-sparse and cvxopt are optional (ImportError: not installed)
         if solver == "cholmod":
             from sksparse import cholmod as module
         elif solver == "cvxopt":
@@ -188,8 +190,6 @@ def factorisation(solver: str, info: dict | None = None) -> str:
     if solver == "sparse":
         return "scipy SuperLU (L D U with diagonal pivots), minimum-degree ordering of the photo blocks"
     if solver == "cholmod":
-        from .sparse_cholesky import MODE, ORDERING
-
         mode, ordering = info.get("mode", MODE), info.get("ordering", ORDERING)
         module_file = _module_file("cholmod")
         name = _cholmod_version(module_file) if module_file else "CHOLMOD"
@@ -203,8 +203,6 @@ def factorisation(solver: str, info: dict | None = None) -> str:
     if solver == "pcg":
         return "block-Jacobi preconditioned conjugate gradients (no factorisation of N)"
     if solver == "strip-pcg":
-        from .strips import PRECONDITIONER
-
         kind = {"ssor": "symmetric block Gauss-Seidel", "jacobi": "block Jacobi"}
         text = (f"conjugate gradients preconditioned by {kind[info.get('preconditioner', PRECONDITIONER)]} "
                 "over the strips (LAPACK banded Cholesky pbtrf of each strip; no factorisation of N)")

@@ -1,0 +1,246 @@
+"""The ``sparse`` and ``cholmod`` routes of the selected inversion: a block's N, by the Takahashi
+recurrence on the supernodes of its sparse Cholesky factor (:class:`SupernodalInverse`).
+
+The pattern comes from :mod:`.symbolic`; the numeric factorisation is a supernodal Cholesky here
+(``sparse``) or CHOLMOD's (``cholmod``), read into the same supernodes.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+from scipy.linalg import blas, lapack
+
+from ..solvers import SingularNormalMatrix, Structure
+from ..solvers.base import check_pivots
+from ..solvers.sparse_cholesky import cholmod_module
+from .engine import Engine
+from .symbolic import symbolic
+
+
+class SupernodalInverse(Engine):
+    """Selected inversion of a block's N on the supernodes of its sparse Cholesky factor.
+
+    Order (:mod:`.symbolic`): nested dissection (CHOLMOD, when installed) or SuperLU's minimum degree
+    on the block graph (photo and camera blocks kept whole; camera blocks, coupled to many photos,
+    come late), postordered along its elimination tree. Symbolic
+    factorisation on the block graph: the rows of L below block column j are its neighbours after
+    it and the rows of its children below j. Consecutive blocks j, j + 1 with parent(j) = j + 1
+    form one supernode when they share their rows, or when little is stored in vain
+    (``relaxed_columns``, ``relaxed_zeros``); a supernode is one dense (rows x columns) array: the
+    columns of L, and then of Z = N~^-1, on its rows.
+
+    Numeric factorisation, ``numeric="numpy"``: right-looking supernodal Cholesky - per supernode
+    ``L11 = chol(F11)`` (LAPACK potrf, with the solvers' pivot test), ``L21 = F21 L11^-T``, and
+    ``L21 L21'`` subtracted from the supernodes that own its rows. ``numeric="cholmod"``: CHOLMOD
+    factorises N~ in the same order (natural ordering of the permuted matrix) and its L is read in.
+
+    Selected inverse: the Takahashi equations (package docstring) per supernode, backwards:
+    ``Z_BP = -Z_BB L21 L11^-1``, ``Z_PP = L11^-T (L11^-1 - L21' Z_BP)``, where ``Z_BB`` (B the rows
+    below P, a clique of the filled graph) is gathered from the later supernodes that own them.
+    Work and memory are those of the factorisation (``info["stored"]`` entries). Every block of
+    N^-1 between two photos that share a point (or a camera) lies in the pattern; other entries are
+    solved for with the factor.
+    """
+
+    name = "sparse"
+
+    def __init__(self, As: sp.csr_matrix, structure: Structure, numeric: str = "numpy", keep_factor: bool = True,
+                 matrix=None, *, ordering: str, relaxed_columns: int, relaxed_zeros: float):
+        """As: the scaled N~ (n x n CSR). keep_factor False: Z takes L's place, and ``matrix()``
+        gives N~ back to factorise again for a solve. ordering, relaxed_columns, relaxed_zeros: the
+        symbolic analysis (:func:`.symbolic.symbolic`; the package's BLOCK_ORDERING,
+        RELAXED_SUPERNODE, RELAXED_ZEROS)."""
+        super().__init__()
+        self.n = As.shape[0]
+        self.name = "cholmod" if numeric == "cholmod" else "sparse"
+        self._numeric = numeric
+        sym = self.sym = symbolic(As, structure, ordering, relaxed_columns, relaxed_zeros)
+        L = self._factor(As)
+        if keep_factor:
+            self._L, self.Z = L, self._takahashi(L, np.empty_like(L))
+        else:  # Z takes L's place; solves factorise again (matrix() gives N~ back)
+            self._L, self.Z = None, self._takahashi(L, L)
+            self._matrix = matrix if matrix is not None else (lambda: As)
+        self.info = dict(sym.info, factor_kept=keep_factor)
+
+    def _factor(self, As: sp.csr_matrix) -> np.ndarray:
+        return self._cholmod_factor(As) if self._numeric == "cholmod" else self._numpy_factor(As)
+
+    @property
+    def L(self) -> np.ndarray:
+        """The supernodal factor (flat storage); factorised again on first use when Z took its place."""
+        if self._L is None:
+            self._L = self._factor(self._matrix())
+        return self._L
+
+    def _view(self, flat: np.ndarray, p: int) -> np.ndarray:
+        sym = self.sym
+        return flat[sym.offset[p]: sym.offset[p + 1]].reshape(len(sym.rows[p]), sym.width(p))
+
+    def _scatter(self, M: sp.csr_matrix, columns: np.ndarray, row_position: np.ndarray | None) -> np.ndarray:
+        """Flat supernodal storage holding the entries of M in the stored pattern (rows at or below the
+        supernode's first column). Supernode p takes the columns ``columns[start[p]:start[p+1]]`` of
+        the symmetric or lower-triangular CSC/CSR-transposed M (given by indptr/indices/data), whose
+        row indices are positions after ``row_position`` (None: they are positions already)."""
+        sym = self.sym
+        F = np.zeros(int(sym.offset[-1]))
+        where = np.full(self.n, -1)
+        for p in range(sym.count):
+            a, b = sym.start[p], sym.start[p + 1]
+            cols = columns[a:b]
+            first, count = M.indptr[cols], M.indptr[cols + 1] - M.indptr[cols]
+            idx = np.repeat(first - np.concatenate([[0], np.cumsum(count)[:-1]]), count) + np.arange(count.sum())
+            r = M.indices[idx] if row_position is None else row_position[M.indices[idx]]
+            c = np.repeat(np.arange(b - a), count)
+            keep = r >= a
+            r, c, v = r[keep], c[keep], M.data[idx][keep]
+            rows = sym.rows[p]
+            where[rows] = np.arange(len(rows))
+            local = where[r]
+            inside = local >= 0
+            if not np.all(inside):  # CHOLMOD's relaxed supernodes may store zeros elsewhere
+                if np.any(v[~inside] != 0):  # pragma: no cover - the symbolic pattern holds L
+                    raise RuntimeError("entry of the factor outside the symbolic pattern")
+                local, c, v = local[inside], c[inside], v[inside]
+            self._view(F, p)[local, c] = v
+            where[rows] = -1
+        return F
+
+    def _numpy_factor(self, As: sp.csr_matrix) -> np.ndarray:
+        sym = self.sym
+        L = self._scatter(As, sym.order, self._position())  # As symmetric: its rows are its columns
+        for p in range(sym.count):
+            F = self._view(L, p)
+            w = sym.width(p)
+            c, info = lapack.dpotrf(F[:w], lower=1, clean=1, overwrite_a=0)
+            if info > 0:
+                raise SingularNormalMatrix(int(sym.order[sym.start[p] + info - 1]))
+            check_pivots(np.diag(c), sym.order[sym.start[p]: sym.start[p + 1]])
+            F[:w] = c
+            if len(F) > w:
+                L21 = blas.dtrsm(1.0, c, F[w:], side=1, lower=1, trans_a=1)  # F21 L11^-T
+                F[w:] = L21
+                # the update's lower triangle (the diagonal blocks of later supernodes are read
+                # only there by potrf): syrk, half the work of L21 L21'
+                U = blas.dsyrk(1.0, L21, lower=1)
+                for q, s, e, pos, local in sym.targets[p]:
+                    G = self._view(L, q)
+                    G[np.ix_(pos, local)] -= U[s:, s:e]
+        return L
+
+    def _cholmod_factor(self, As: sp.csr_matrix) -> np.ndarray:
+        cholmod = cholmod_module()
+        order = self.sym.order
+        inv = self._position()
+        C = As.tocoo()
+        r, c = inv[C.row], inv[C.col]
+        low = r >= c  # CHOLMOD reads the lower triangle
+        Ap = sp.csc_matrix((C.data[low], (r[low], c[low])), shape=As.shape)
+        try:  # CHOLMOD reports a failed factorisation either at once or when L is read
+            factor = cholmod.cholesky(Ap, ordering_method="natural")
+            Lc = sp.csc_matrix(factor.L())
+        except cholmod.CholmodNotPositiveDefiniteError as exc:
+            col = getattr(exc, "column", None)
+            raise SingularNormalMatrix(int(order[col]) if col is not None and 0 <= col < self.n else None) from exc
+        if not np.array_equal(factor.P(), np.arange(self.n)):  # pragma: no cover - natural means natural
+            raise RuntimeError("CHOLMOD reordered a matrix given in natural order")
+        Lc.sort_indices()
+        check_pivots(Lc.diagonal(), order)
+        return self._scatter(Lc, np.arange(self.n), None)
+
+    def _takahashi(self, L: np.ndarray, Z: np.ndarray) -> np.ndarray:
+        """Z on the stored pattern, supernode by supernode backwards (class doc), into ``Z`` (which
+        may be ``L`` itself: a supernode's columns of L are needed only for its own columns of Z).
+        ``Y = Z_BB L21`` (symm: reads Z_BB's lower triangle), ``Z_BP = -Y L11^-1`` and
+        ``Z_PP = L11^-T (I + L21' Y) L11^-1`` (triangular solves; the last supernode, the root of
+        the tree, by LAPACK potri)."""
+        sym = self.sym
+        for p in range(sym.count - 1, -1, -1):
+            F = self._view(L, p)
+            w = sym.width(p)
+            L11 = F[:w].copy()
+            Zp = self._view(Z, p)
+            b = len(F) - w
+            if b:
+                L21 = F[w:]
+                Zbb = np.empty((b, b))
+                for q, s, e, pos, local in sym.targets[p]:
+                    Zbb[s:, s:e] = self._view(Z, q)[np.ix_(pos, local)]
+                Y = blas.dsymm(1.0, Zbb, L21, side=0, lower=1)  # Z_BB L21, Z_BB symmetric (lower)
+                S = L21.T @ Y
+                S[np.diag_indices(w)] += 1.0
+                Zp[w:] = blas.dtrsm(-1.0, L11, Y, side=1, lower=1)  # -Y L11^-1
+                Zpp = blas.dtrsm(1.0, L11, blas.dtrsm(1.0, L11, S, side=1, lower=1), side=0, lower=1, trans_a=1)
+                Zp[:w] = 0.5 * (Zpp + Zpp.T)
+            else:
+                Zpp, _ = lapack.dpotri(L11, lower=1)
+                Zp[:w] = np.tril(Zpp) + np.tril(Zpp, -1).T
+        return Z
+
+    @functools.cached_property
+    def _position_of(self) -> np.ndarray:
+        inv = np.empty(self.n, dtype=int)
+        inv[self.sym.order] = np.arange(self.n)
+        return inv
+
+    def _position(self) -> np.ndarray:
+        """Column of N~ -> its position in the order."""
+        return self._position_of
+
+    def _positions(self, rows, cols):
+        inv = self._position()
+        pr, pc = inv[rows], inv[cols]
+        return np.maximum(pr, pc), np.minimum(pr, pc)
+
+    looks_up = True
+
+    def lookup(self, rows, cols):
+        ok = (rows >= 0) & (cols >= 0)
+        pi, pj = self._positions(rows, cols)  # -1 reads some position: masked by ok
+        flat, found = self.sym.locate(pi, pj)
+        found &= ok
+        vals = self.Z[np.where(found, flat, 0)]
+        vals[~found] = 0.0
+        return vals, found | ~ok
+
+    def compute(self, rows, cols):
+        vals, found = self.lookup(rows, cols)
+        if not np.all(found):
+            vals[~found] = self.solved_entries(rows[~found], cols[~found])
+        return vals
+
+    def diag(self):
+        sym = self.sym
+        widths = np.diff(sym.start)
+        sn = np.repeat(np.arange(sym.count), widths)
+        local = np.arange(self.n) - sym.start[sn]
+        d_pos = self.Z[sym.offset[sn] + local * widths[sn] + local]
+        d = np.empty(self.n)
+        d[sym.order] = d_pos
+        return d
+
+    def solve(self, B):
+        sym = self.sym
+        y = B[sym.order].copy()
+        for p in range(sym.count):
+            F = self._view(self.L, p)
+            w = sym.width(p)
+            a, b = sym.start[p], sym.start[p + 1]
+            y[a:b] = la.solve_triangular(F[:w], y[a:b], lower=True, check_finite=False)
+            if len(F) > w:
+                y[sym.rows[p][w:]] -= F[w:] @ y[a:b]
+        for p in range(sym.count - 1, -1, -1):
+            F = self._view(self.L, p)
+            w = sym.width(p)
+            a, b = sym.start[p], sym.start[p + 1]
+            rhs = y[a:b]
+            if len(F) > w:
+                rhs = rhs - F[w:].T @ y[sym.rows[p][w:]]
+            y[a:b] = la.solve_triangular(F[:w], rhs, lower=True, trans="T", check_finite=False)
+        X = np.empty_like(y)
+        X[sym.order] = y
+        return X
