@@ -76,11 +76,6 @@ def adjust(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -
     return result
 
 
-def termination_of(result: AdjustmentResult) -> str:
-    """The reason the iteration stopped (result.termination; kept for callers of the first wave)."""
-    return result.termination
-
-
 def failure_message(result: AdjustmentResult) -> str:
     """What to tell the user about an adjustment that did not converge: the method's own message
     or, failing that, the last figures of the iteration history."""

@@ -1,0 +1,125 @@
+"""The shape of the package (issue 13): no import cycle among striptri's modules, counting the
+imports inside functions too (so no function-level import can be a way round one), and the three
+methods as siblings below ``striptri.adjustment`` that import only what lies below them."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PACKAGE = SRC / "striptri"
+METHOD_PACKAGES = ("striptri.conditions_method", "striptri.bundle", "striptri.sequential")
+
+
+def module_files() -> dict[str, Path]:
+    files = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = list(path.relative_to(SRC).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        files[".".join(parts)] = path
+    return files
+
+
+def imports_of(name: str, path: Path, modules: dict[str, Path]) -> list[tuple[str, int, bool]]:
+    """(imported striptri module, line, at module level?) of every import statement in the file,
+    those inside functions included; ``from package import name`` counts as an import of the
+    submodule when ``name`` is one, else of the package."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = []
+    tree = ast.parse(path.read_text())
+    top_level = {id(node) for node in tree.body}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join(base + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+        else:
+            continue
+        for target in targets:
+            if target.startswith("striptri") and target in modules and target != name:
+                found.append((target, node.lineno, id(node) in top_level))
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    modules = module_files()
+    return {name: {t for t, _, _ in imports_of(name, path, modules)} for name, path in modules.items()}
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    """The check below can fail: a cycle of three and one of two are found, a chain is not."""
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"e"}, "e": {"d"}, "f": {"a"}}
+    assert sorted(cycles(graph)) == [["a", "b", "c"], ["d", "e"]]
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+
+
+def test_no_import_cycle_in_striptri_counting_imports_inside_functions():
+    graph = import_graph()
+    assert len(graph) > 80  # every module was read
+    assert cycles(graph) == []
+
+
+def test_the_graph_sees_imports_inside_functions():
+    """striptri.cli imports the pipeline inside its commands (start-up time): the graph has it."""
+    assert "striptri.pipeline" in import_graph()["striptri.cli"]
+
+
+@pytest.mark.parametrize("method", METHOD_PACKAGES)
+def test_a_method_imports_no_sibling_and_not_the_dispatcher(method):
+    """Each method imports striptri.core and the modules below, never another method or
+    striptri.adjustment (which imports them all)."""
+    graph = import_graph()
+    own = [name for name in graph if name == method or name.startswith(method + ".")]
+    assert own
+    forbidden = {"striptri.adjustment", *(m for m in METHOD_PACKAGES if m != method)}
+    for name in own:
+        bad = {t for t in graph[name] if t in forbidden or any(t.startswith(f + ".") for f in forbidden)}
+        assert not bad, f"{name} imports {sorted(bad)}"
+
+
+def test_core_imports_no_method():
+    graph = import_graph()
+    for name in (n for n in graph if n.startswith("striptri.core")):
+        bad = {t for t in graph[name] if t == "striptri.adjustment" or any(
+            t == m or t.startswith(m + ".") for m in METHOD_PACKAGES)}
+        assert not bad, f"{name} imports {sorted(bad)}"
