@@ -22,19 +22,16 @@ import base64
 import html
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from . import figures as fig
+from .core.result import AdjustmentResult
 from .io.project_reader import RADIANS_PER_UNIT
+from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, Project
-from .precision import W_CRITICAL
+from .precision import PHOTO_ELEMENTS, W_CRITICAL, camera_correlations
 from .rotations import angles_from_R
-
-if TYPE_CHECKING:
-    from .core.result import AdjustmentResult
-    from .triangulation import Triangulated
+from .triangulation import Triangulated
 
 MAX_PHOTO_PANELS = 24  # all photos get a residual panel up to this many; beyond, the worst WORST_PANELS
 WORST_PANELS = 12
@@ -727,9 +724,6 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
 def _camera_section(project: Project, result: AdjustmentResult) -> list[str]:
     """The estimated camera elements with their mean errors, their correlations and, for each, the
     exterior element it is most correlated with (precision.camera_correlations)."""
-    from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
-    from .precision import PHOTO_ELEMENTS, camera_correlations
-
     out = [_section("camera")]
     blocks = camera_correlations(result)
     if not blocks:
