@@ -117,6 +117,17 @@ def test_summary_report_and_command_line_show_a_kept_iteration_limit(tmp_path):
     assert "did not converge" in summary["message"]
     assert "iteration_limit" in (out / "report.html").read_text()
     assert "NOT converged (iteration_limit; kept)" in proc.stdout
+    assert summary["plate_unit"] == "mm"
+
+
+def test_report_names_the_termination_of_a_converged_run(tmp_path):
+    out = tmp_path / "out"
+    proc = cli("adjust", DATA / "strip8", "--out", out, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((out / "summary.json").read_text())["termination"] == "converged"
+    report = (out / "report.html").read_text()
+    assert "termination (why the iteration stopped)" in report
+    assert "converged: every correction below the tolerance" in report
 
 
 def test_command_line_names_the_reason_of_a_failure(tmp_path):

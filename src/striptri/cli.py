@@ -325,7 +325,8 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
         click.echo(f"gross errors ({b['method']}): {b['rejected']} measurements rejected, {b['suspect']} suspect, "
                    f"{b['dropped']} dropped, in {b['adjustments']} adjustments")
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
-    state = "converged" if s["converged"] else f"NOT converged ({s['termination']}; kept)"
+    state = {"converged": "converged", "cost_flat": "converged (cost_flat: the sum of squares no longer decreased)"}.get(
+        s["termination"], f"NOT converged ({s['termination']}; kept)")
     click.echo(f"{state} in {s['iterations']} iterations: sigma0 {sigma0}, redundancy {s['redundancy']}, "
                f"{s['n_photos']} photos, {s['n_points']} points -> {out_dir}")
 

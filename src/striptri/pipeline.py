@@ -413,6 +413,7 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
         # why the iteration stopped, in words
         "termination": result.termination,
         "message": result.termination_message if result.converged else failure_message(result),
+        "plate_unit": project.settings.plate_unit,  # of c, the plate coordinates and residuals.csv's vx, vy
         "checks": {k: _finite_or_none(v) for k, v in result.checks.as_dict().items()},
         "history": [
             {"vtpv": _finite_or_none(h.vtpv), "max_correction": _finite_or_none(h.max_correction),

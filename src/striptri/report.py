@@ -306,6 +306,7 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         ("redundancy r", _fmt(r)),
         ("iterations", _fmt(summary["iterations"])),
         ("converged", f"<span class='{'ok' if conv else 'no'}'>{_fmt(conv)}</span>"),
+        ("termination (why the iteration stopped)", _termination_text(summary)),
     ]
     if r > 0 and s0 is not None:
         lo, hi = np.sqrt(chi2_quantile(np.array([0.025, 0.975]), r) / r)
@@ -334,6 +335,23 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         "<div><h3>Timings (s)</h3>" + _table(["step", "seconds"], timings, left=1) + "</div>",
         "</div>",
     ]
+
+
+TERMINATION_WORDS = {
+    "converged": "converged: every correction below the tolerance in units of its standard deviation",
+    "cost_flat": "cost_flat: the sum of squares no longer decreased (the bundle's cost tolerance)",
+    "iteration_limit": "iteration_limit: max_iterations reached before convergence (kept on request)",
+}
+
+
+def _termination_text(summary: dict) -> str:
+    """summary.json's termination in words, with its message when it has one."""
+    reason = str(summary.get("termination"))
+    text = html.escape(TERMINATION_WORDS.get(reason, reason))
+    message = summary.get("message")
+    if message and reason != "iteration_limit":  # the iteration limit's message is in the warnings
+        text += f"<br><small>{html.escape(message)}</small>"
+    return f"<span class='{'ok' if summary['converged'] else 'no'}'>{text}</span>"
 
 
 def _warnings_section(summary: dict) -> list[str]:
