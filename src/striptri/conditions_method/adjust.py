@@ -195,114 +195,151 @@ def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, stat
             reason="singular") from exc
 
 
+class _Problem:
+    """Everything fixed during the adjustment: the reduced frame, the unknowns' layout, the point
+    groups and observations, the pattern of N, the redundancy, and the free network's inner
+    constraints when the datum is "inner"."""
+
+    def __init__(self, project: Project, options: AdjustmentOptions):
+        self.project, self.options = project, options
+        self.offset = reduction_offset(project)
+        self.initial_state = initial_state(project, self.offset)
+        self.layout = build_layout(project)
+        self.batches = build_batches(project)
+        self.obs = observations_of(project, self.offset)
+        self.pobs = build_parameter_observations(project, self.offset)
+        self.n_conditions = sum(len(b) * b.n_conditions for b in self.batches)
+        self.assembly = Assembly.of(self.batches, self.initial_state, self.layout, options.chunk_size)
+        if options.conditions.scale_form == "xz":
+            _require_strip_along_x(self.batches, self.initial_state)
+        self.free_network = self._free_network() if options.datum == "inner" else None
+        n_datum = 0 if self.free_network is None else len(self.free_network)
+        self.redundancy = self.n_conditions + len(self.pobs) - self.layout.n_unknowns + n_datum
+        if self.redundancy < 0:
+            self._explain_too_few()
+
+    def sweep(self, state: State, plate_hat: np.ndarray, control_hat: np.ndarray) -> Sweep:
+        return Sweep(self.batches, state, self.layout, self.obs, plate_hat, control_hat, self.options)
+
+    def assemble(self, sweep: Sweep, iteration: int, keep: bool = False):
+        return _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep)
+
+    def _at_start(self):
+        return self.assemble(self.sweep(self.initial_state, self.obs.plate, self.obs.control), 1)
+
+    def _free_network(self):
+        """The inner constraints on the directions the control leaves free (None: none are)."""
+        acc = self._at_start()
+        free = datum.free_directions(acc, self.initial_state, self.layout)
+        return datum.FreeNetwork.of(free, acc.N) if len(free) else None
+
+    def _explain_too_few(self):
+        defects = datum.diagnose(self._at_start(), self.initial_state, self.layout, offset=self.offset)
+        if defects:
+            raise datum_defect_failure(self.project, defects)
+        raise NumericalFailure(
+            f"too few conditions: {self.n_conditions} condition equations and {len(self.pobs)} observed elements "
+            f"for {self.layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
+        )
+
+
+@dataclass
+class _Estimate:
+    """Where the iteration stands: the unknowns x^, the adjusted observations l^ and what the last
+    back substitution gave (residuals of the observed elements, v^T P v)."""
+
+    state: State
+    plate_hat: np.ndarray
+    control_hat: np.ndarray
+    v_par: np.ndarray
+    vtpv: float = float("nan")
+
+
 def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
     """Adjust all photographs of the project simultaneously by Schmid's method of conditions
     (module doc), from the approximate values in the project. Returns the result whether it
     converged or stopped at its iteration limit (``termination``); raises NumericalFailure, with its
     reason, for a datum defect, a singular system, numbers that overflow or divergence."""
     t_start = time.perf_counter()
-    offset = reduction_offset(project)
-    state = initial_state(project, offset)
-    layout = build_layout(project)
-    batches = build_batches(project)
-    obs = observations_of(project, offset)
-    pobs = build_parameter_observations(project, offset)
-    n_conditions = sum(len(b) * b.n_conditions for b in batches)
-    assembly = Assembly.of(batches, state, layout, options.chunk_size)
-    if options.conditions.scale_form == "xz":
-        _require_strip_along_x(batches, state)
-    free_network = None
-    if options.datum == "inner":
-        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
-        acc0 = _assemble_checked(sweep, pobs, assembly, project, 1)
-        free = datum.free_directions(acc0, state, layout)
-        if len(free):
-            free_network = datum.FreeNetwork.of(free, acc0.N)
-    n_datum = 0 if free_network is None else len(free_network)
-    redundancy = n_conditions + len(pobs) - layout.n_unknowns + n_datum
-    if redundancy < 0:
-        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
-        defects = datum.diagnose(_assemble_checked(sweep, pobs, assembly, project, 1), state, layout, offset=offset)
-        if defects:
-            raise datum_defect_failure(project, defects)
-        raise NumericalFailure(
-            f"too few conditions: {n_conditions} condition equations and {len(pobs)} observed elements "
-            f"for {layout.n_unknowns} unknowns. Add control or tie points, or fix elements."
-        )
+    problem = _Problem(project, options)
     solver = solvers.make_solver(
-        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts(),
-                                                          layout.block_groups(project.photos.strip_ids))
-    )
+        solvers.SolverOptions(name=options.solver),
+        solvers.Structure(problem.layout.n_unknowns, problem.layout.block_starts(),
+                          problem.layout.block_groups(project.photos.strip_ids)))
     timings = Timings(conditions=0.0, assembly=0.0, solve=0.0, back_substitution=0.0)
-
-    plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
+    obs = problem.obs
+    now = _Estimate(problem.initial_state, obs.plate.copy(), obs.control.copy(), np.zeros(len(problem.pobs)))
     history: list[Iteration] = []
     converged = False
-    v_par = np.zeros(len(pobs))
-    vtpv = np.nan
     causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
+    no_unknowns = problem.layout.n_unknowns == 0
     for _ in range(options.max_iterations):
-        t0 = time.perf_counter()
-        sweep = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
-        acc = _assemble_checked(sweep, pobs, assembly, project, len(history) + 1, keep=True)
-        t1 = time.perf_counter()
-        t_conditions = sweep.seconds
-        if free_network is not None:
-            free_network = free_network.at(state, layout, acc.N)
-        solved = _solve_or_explain(acc, solver, state, layout, project, offset, free_network,
-                                   diagnose=not history)
-        dx = solved.dx
-        t2 = time.perf_counter()
-        previous_plate, previous_control = plate_hat, control_hat
-        with np.errstate(over="ignore", invalid="ignore"):
-            plate_hat, control_hat, v_par, vtpv = _back_substitute(acc.kept, sweep, pobs, dx, obs)
-        acc.kept = None  # the whitened systems are not needed beyond the back substitution
-        state = state.updated(layout, dx)
-        t3 = time.perf_counter()
-        timings.add("conditions", t_conditions)
-        timings.add("assembly", t1 - t0 - t_conditions)
-        timings.add("solve", t2 - t1)
-        timings.add("back_substitution", t3 - t2)
-        if len(dx):
-            crit = correction_in_sigma(dx, acc.N)
-            element_floor, n_diag = round_off_floor(state, layout), acc.N.diagonal()
-            floor = energy_floor(layout.n_unknowns, element_floor, n_diag)
-            element = largest_correction(dx, n_diag, element_floor)
-        else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
-            crit = element = _observation_change(plate_hat - previous_plate, control_hat - previous_control, obs)
-            floor = ROUNDING_FLOOR
-        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info,
-                                 element_correction=element))
-        progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, solved.info)
-        acc = solved = None  # this iteration's N and u are not needed by the next one
-        stop_if_diverging(history, METHOD, redundancy, causes)
+        now, floor = _iteration(problem, solver, now, history, timings)
+        stop_if_diverging(history, METHOD, problem.redundancy, causes)
         if has_converged(history, options.tolerance, floor):
             converged = True
             break
 
     t0 = time.perf_counter()
-    final = Sweep(batches, state, layout, obs, plate_hat, control_hat, options)
-    acc = _assemble_checked(final, pobs, assembly, project, len(history) + 1)
+    final = problem.sweep(now.state, now.plate_hat, now.control_hat)
+    acc = problem.assemble(final, len(history) + 1)
+    free_network = problem.free_network
     if free_network is not None:
-        free_network = free_network.at(state, layout, acc.N)
-    checks, next_correction = _final_checks(final, acc, vtpv, pobs, v_par, free_network, solver)
+        free_network = free_network.at(now.state, problem.layout, acc.N)
+    checks, next_correction = _final_checks(final, acc, now.vtpv, problem.pobs, now.v_par, free_network, solver)
     timings.final_checks = time.perf_counter() - t0
     timings.total = time.perf_counter() - t_start
-    if not len(dx) and not converged:
-        next_correction = None  # no unknowns: the final checks make no correction
     status, message = "converged", ""
     if not converged:
         status = "iteration_limit"
-        message = termination.iteration_limit(METHOD, history, int(redundancy), options.max_iterations,
-                                              options.tolerance, next_correction, causes)
-
+        message = termination.iteration_limit(METHOD, history, int(problem.redundancy), options.max_iterations,
+                                              options.tolerance, None if no_unknowns else next_correction, causes)
     return AdjustmentResult.of(
-        project, obs, plate_adjusted=plate_hat, control_adjusted=control_hat, vtpv=vtpv, redundancy=redundancy,
-        history=history, layout=layout, method=METHOD, solver=solver.name, state=state, offset=offset,
-        n_conditions=int(n_conditions), n_observations=observation_count(project, obs, len(pobs)),
-        n_parameter_observations=len(pobs), parameter_residuals=v_par, N=acc.N, checks=checks, timings=timings,
-        free_network=free_network, termination=status, termination_message=message,
+        project, obs, plate_adjusted=now.plate_hat, control_adjusted=now.control_hat, vtpv=now.vtpv,
+        redundancy=problem.redundancy, history=history, layout=problem.layout, method=METHOD, solver=solver.name,
+        state=now.state, offset=problem.offset, n_conditions=int(problem.n_conditions),
+        n_observations=observation_count(project, obs, len(problem.pobs)),
+        n_parameter_observations=len(problem.pobs), parameter_residuals=now.v_par, N=acc.N, checks=checks,
+        timings=timings, free_network=free_network, termination=status, termination_message=message,
     )
+
+
+def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteration], timings: Timings):
+    """One iteration from ``now``: assemble N and u (keeping the whitened chunks), solve, back-
+    substitute and update; appends to ``history`` and ``timings``. Returns the new estimate and the
+    round-off floor of its correction (core.convergence.energy_floor)."""
+    t0 = time.perf_counter()
+    state, layout = now.state, problem.layout
+    sweep = problem.sweep(state, now.plate_hat, now.control_hat)
+    acc = problem.assemble(sweep, len(history) + 1, keep=True)
+    t1 = time.perf_counter()
+    if problem.free_network is not None:
+        problem.free_network = problem.free_network.at(state, layout, acc.N)
+    solved = _solve_or_explain(acc, solver, state, layout, problem.project, problem.offset, problem.free_network,
+                               diagnose=not history)
+    dx = solved.dx
+    t2 = time.perf_counter()
+    with np.errstate(over="ignore", invalid="ignore"):
+        plate_hat, control_hat, v_par, vtpv = _back_substitute(acc.kept, sweep, problem.pobs, dx, problem.obs)
+    acc.kept = None  # the whitened systems are not needed beyond the back substitution
+    state = state.updated(layout, dx)
+    t3 = time.perf_counter()
+    timings.add("conditions", sweep.seconds)
+    timings.add("assembly", t1 - t0 - sweep.seconds)
+    timings.add("solve", t2 - t1)
+    timings.add("back_substitution", t3 - t2)
+    if len(dx):
+        crit = correction_in_sigma(dx, acc.N)
+        element_floor, n_diag = round_off_floor(state, layout), acc.N.diagonal()
+        floor = energy_floor(layout.n_unknowns, element_floor, n_diag)
+        element = largest_correction(dx, n_diag, element_floor)
+    else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
+        crit = element = _observation_change(plate_hat - now.plate_hat, control_hat - now.control_hat, problem.obs)
+        floor = ROUNDING_FLOOR
+    history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info,
+                             element_correction=element))
+    progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, solved.info)
+    return _Estimate(state, plate_hat, control_hat, v_par, vtpv), floor
 
 
 def _observation_change(d_plate: np.ndarray, d_control: np.ndarray, obs: Observations) -> float:
