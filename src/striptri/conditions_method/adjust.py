@@ -23,7 +23,7 @@ from .. import datum, diagnosis, progress, solvers, termination
 from ..core.convergence import (ROUNDING_FLOOR, correction_in_sigma, energy_floor, has_converged, largest_correction,
                                 round_off_floor, stop_if_diverging)
 from ..core.explain import (datum_defect_failure, not_finite_message, reduction_check, singular_message,
-                            solve_or_explain)
+                            solve_or_explain, solver_for)
 from ..core.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
@@ -262,10 +262,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     reason, for a datum defect, a singular system, numbers that overflow or divergence."""
     t_start = time.perf_counter()
     problem = _Problem(project, options)
-    solver = solvers.make_solver(
-        solvers.SolverOptions(name=options.solver),
-        solvers.Structure(problem.layout.n_unknowns, problem.layout.block_starts(),
-                          problem.layout.block_groups(project.photos.strip_ids)))
+    solver = solver_for(options, problem.layout, project)
     timings = Timings(conditions=0.0, assembly=0.0, solve=0.0, back_substitution=0.0)
     obs = problem.obs
     now = _Estimate(problem.initial_state, obs.plate.copy(), obs.control.copy(), np.zeros(len(problem.pobs)))

@@ -93,6 +93,7 @@ def energy_floor(n_unknowns: int, element_floor: np.ndarray | None = None, n_dia
 
 
 CONTRACTION_MAX = 0.5  # the rate below which the next correction is predicted from the last two
+STALLED = 0.5  # a correction below the round-off floor that shrinks by less than this factor has stalled
 
 
 def has_converged(history: list[Iteration], tolerance: float, floor: float = ROUNDING_FLOOR) -> bool:
@@ -119,7 +120,7 @@ def has_converged(history: list[Iteration], tolerance: float, floor: float = ROU
         before = history[-3].max_correction
         if 0.0 < previous < CONTRACTION_MAX * before and c * max(c / previous, previous / before) < tolerance:
             return True
-    return c < floor and c > 0.5 * previous
+    return c < floor and c > STALLED * previous
 
 
 # The divergence rule (stop_if_diverging): corrections that grow by more than DIVERGENCE_GROWTH in

@@ -12,6 +12,14 @@ from ..model import Project
 from ..parameters import State, UnknownLayout
 
 
+def solver_for(options, layout: UnknownLayout, project: Project) -> solvers.NormalSolver:
+    """The solver of ``options.solver`` for the normal equations of these unknowns, told their
+    6x6 blocks and the strip of each (solvers.Structure), made once per adjustment."""
+    return solvers.make_solver(solvers.SolverOptions(name=options.solver),
+                               solvers.Structure(layout.n_unknowns, layout.block_starts(),
+                                                 layout.block_groups(project.photos.strip_ids)))
+
+
 def solve_or_explain(normals, rhs: np.ndarray, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
                      project: Project, offset: np.ndarray, what: str = "the normal equations are singular",
                      diagnose: bool = True) -> solvers.SolveResult:

@@ -39,6 +39,12 @@ def umeyama(xyz_model: np.ndarray, xyz_ground: np.ndarray) -> Similarity:
     return Similarity(mu_g - scale * R @ mu_m, scale, R)
 
 
+# The similarity's Jacobian is rank-deficient (control on a line, or no height) when its smallest
+# singular value is below this fraction of the largest: far above round-off (1e-16 relative), far
+# below the ratio of any usable layout (three points spanning a triangle give 1e-3 and more).
+RANK_TOLERANCE = 1e-10
+
+
 @dataclass(frozen=True)
 class SimilarityFit:
     similarity: Similarity
@@ -70,7 +76,7 @@ def fit_similarity(xyz_model: np.ndarray, xyz_given: np.ndarray, given: np.ndarr
         J = np.concatenate([np.broadcast_to(np.eye(3), (len(rows), 3, 3)), -skew(sRX), sRX[:, :, None]], 2)
         J, e = J[gv], (Xg - pred)[gv]
         sv = np.linalg.svd(J, compute_uv=False)
-        if sv[-1] < 1e-10 * sv[0]:
+        if sv[-1] < RANK_TOLERANCE * sv[0]:
             raise NumericalFailure("the control does not fix the strip's absolute orientation (e.g. all on one "
                                    "line, or no height); add control away from the strip axis.", reason="datum_defect")
         dx = np.linalg.lstsq(J, e, rcond=None)[0]

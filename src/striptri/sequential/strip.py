@@ -47,6 +47,16 @@ from .absolute import (
 )
 from .photo_step import PhotoStep, orient_photo
 
+# A start of a relative orientation from the linear base (_linear_base) only when its component
+# along the held axis exceeds this fraction of the base (a smaller one scales the others wildly).
+LINEAR_BASE_MIN = 0.1
+# Two converged relative orientations whose v^T P v differ by less than this fraction are the same
+# solution: the first found is kept (the starts are tried in order of plausibility).
+SAME_SOLUTION = 1e-9
+# Full control points whose second singular value is below this fraction of their extent lie on a
+# line: they cannot start the absolute orientation alone, the approximate centres are added.
+ON_A_LINE = 1e-3
+
 
 @dataclass
 class SequentialSolution:
@@ -123,7 +133,7 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
         b_axis[held] = sign * length
         for R_rel in (R_rel0, np.eye(3)):
             b_lin = _linear_base(R_rel, cop_xy, interior_i, interior_j)
-            if abs(b_lin[held]) > 0.1:
+            if abs(b_lin[held]) > LINEAR_BASE_MIN:
                 starts.append((R_rel, b_lin * (sign * length / b_lin[held])))
             starts.append((R_rel, b_axis))
     for R_rel, b in starts:
@@ -140,7 +150,7 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
             continue
         if not _in_front(R_i, O_i, ro, interior_i, interior_j):
             continue
-        if best is None or ro.vtpv < best.vtpv * (1 - 1e-9):
+        if best is None or ro.vtpv < best.vtpv * (1 - SAME_SOLUTION):
             best = ro
     if best is None:
         text = (f"the relative orientation of photographs {names[0]} and {names[1]} did not converge to a solution "
@@ -275,7 +285,8 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
     xyz_given = pts.xyz_given - offset
     full = np.flatnonzero(given.all(1))
     start_m, start_g = Xm[full], xyz_given[full]
-    if len(full) < 3 or np.linalg.svd(start_m - start_m.mean(0), compute_uv=False)[1] < 1e-3 * np.ptp(start_m, 0).max():
+    spread = np.linalg.svd(start_m - start_m.mean(0), compute_uv=False)[1] if len(full) >= 3 else 0.0
+    if len(full) < 3 or spread < ON_A_LINE * np.ptp(start_m, 0).max():
         start_m = np.concatenate([start_m, Om])  # the approximate centres help to start
         start_g = np.concatenate([start_g, Oa])
     fit = fit_similarity(np.where(have[:, None], Xm, 0.0), np.where(given, xyz_given, 0.0), given,
