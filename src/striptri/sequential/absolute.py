@@ -41,7 +41,7 @@ def umeyama(xyz_model: np.ndarray, xyz_ground: np.ndarray) -> Similarity:
 
 # The similarity's Jacobian is rank-deficient (control on a line, or no height) when its smallest
 # singular value is below this fraction of the largest: far above round-off (1e-16 relative), far
-# below the ratio of any usable layout (three points spanning a triangle give 1e-3 and more).
+# below the ratio of a layout that fixes the similarity.
 RANK_TOLERANCE = 1e-10
 
 
