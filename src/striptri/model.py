@@ -42,13 +42,20 @@ def given_axes(kind) -> np.ndarray:
     """Which of X, Y, Z the points of kind codes ``kind`` give as observations of the adjustment:
     (...,) int -> (..., 3) bool (a single code gives (3,)). Check points give none: their
     coordinates are reference values, withheld (needed_axes)."""
-    return _GIVEN_AXES_TABLE[np.asarray(kind, dtype=np.int64)]
+    return _GIVEN_AXES_TABLE[_kind_codes(kind)]
 
 
 def needed_axes(kind) -> np.ndarray:
     """Which of X, Y, Z a control.csv row of kind codes ``kind`` must carry: the given axes, and all
     three for a check point (its reference coordinates). (...,) int -> (..., 3) bool."""
-    return _NEEDED_AXES_TABLE[np.asarray(kind, dtype=np.int64)]
+    return _NEEDED_AXES_TABLE[_kind_codes(kind)]
+
+
+def _kind_codes(kind) -> np.ndarray:
+    codes = np.asarray(kind, dtype=np.int64)
+    if codes.size and (codes.min() < 0 or codes.max() >= len(_GIVEN_AXES_TABLE)):
+        raise ValueError(f"unknown point kind code(s) {sorted(set(codes[(codes < 0) | (codes > CHECK)].tolist()))}")
+    return codes
 
 ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi")
 ANGLE_UNITS = ("deg", "gon", "rad")

@@ -33,7 +33,7 @@ from ..camera import plate_vector
 from ..conditions import closest_scales
 from ..errors import NumericalFailure
 from ..lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
-from ..model import CHECK, GIVEN_AXES, Project
+from ..model import CHECK, Project
 from ..parameters import reduction_offset
 from ..triangulation import intersect_rays
 from .absolute import (
@@ -309,8 +309,7 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
         steps.append(step)
 
     # absolute orientation
-    given = np.array([GIVEN_AXES[int(k)] for k in pts.kind], dtype=bool).reshape(-1, 3)
-    given &= np.isfinite(pts.xyz_given) & have[:, None] & (pts.kind != CHECK)[:, None]
+    given = pts.given_axes & np.isfinite(pts.xyz_given) & have[:, None] & (pts.kind != CHECK)[:, None]
     xyz_given = pts.xyz_given - offset
     full = np.flatnonzero(given.all(1))
     start_m, start_g = Xm[full], xyz_given[full]
