@@ -20,13 +20,11 @@ from striptri import model, solvers
 from striptri import simulate as sim
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.bundle import adjust_bundle, solve_bundle
-from striptri.bundle.collinearity import collinearity_jacobians
 from striptri.camera import project as camera_project
 from striptri.errors import NumericalFailure
 from striptri.io import read_project
 from striptri.parameter_observations import build_parameter_observations
 from striptri.pipeline import triangulate_result
-from striptri.rotations import R_from_opk, exp_so3
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
 H = 1500.0  # flying height of the shipped and generated projects (m)
@@ -231,34 +229,6 @@ def test_chunks_do_not_change_the_result(solved):
     np.testing.assert_allclose(chunked.xyz_points, whole.xyz_points, rtol=0, atol=1e-9)
     np.testing.assert_allclose(chunked.result.N.toarray(), whole.result.N.toarray(), rtol=1e-12,
                                atol=1e-12 * abs(whole.result.N).max())
-
-
-def test_collinearity_jacobians_against_central_differences():
-    """d xy / d (X, O, rotation vector of R <- R Exp(d), c, xp, yp), in the parametrisation the
-    adjustment updates."""
-    rng = np.random.default_rng(7)
-    m = 5
-    R = R_from_opk(rng.normal(0, 0.3, (m, 3)))
-    O = rng.normal(0, 100, (m, 3)) + [0, 0, 1500.0]
-    X = rng.normal(0, 300, (m, 3))
-    interior = np.array([152.0, 0.01, -0.02]) + rng.normal(0, 0.01, (m, 3))
-    jac = collinearity_jacobians(R, O, interior, X)
-
-    def numeric(f, h):
-        """Central differences of f along the three unit vectors, step h: (m, 2, 3)."""
-        return np.stack([(f(h * e) - f(-h * e)) / (2 * h) for e in np.eye(3)], -1)
-
-    def xy(R_=R, O_=O, interior_=interior, X_=X):
-        return collinearity_jacobians(R_, O_, interior_, X_).xy
-
-    def check(analytic, f, h):
-        num = numeric(f, h)
-        np.testing.assert_allclose(analytic, num, rtol=0, atol=1e-7 * np.abs(num).max())
-
-    check(jac.d_point, lambda e: xy(X_=X + e), 1e-2)  # metres
-    check(jac.d_centre, lambda e: xy(O_=O + e), 1e-2)
-    check(jac.d_rot, lambda e: xy(R_=R @ exp_so3(np.broadcast_to(e, (m, 3)))), 1e-5)  # radians
-    check(jac.d_interior, lambda e: xy(interior_=interior + e), 1e-3)  # mm
 
 
 def _two_full_points_only(project):

@@ -128,6 +128,25 @@ def assert_same_project(p: model.Project, q: model.Project) -> None:
     assert p.settings == q.settings
 
 
+def test_given_axes_of_the_point_kinds():
+    """model.given_axes, the one place that turns kind codes into given axes: Schmid's height (Z),
+    plan (XY) and full (XYZ) points give those axes, tie and check points none (a check point's
+    coordinates are reference values: needed in control.csv, never observations)."""
+    kinds = np.array([model.TIE, model.HEIGHT, model.PLAN, model.FULL, model.CHECK, model.PLAN])
+    expected = np.array([[0, 0, 0], [0, 0, 1], [1, 1, 0], [1, 1, 1], [0, 0, 0], [1, 1, 0]], dtype=bool)
+    np.testing.assert_array_equal(model.given_axes(kinds), expected)
+    np.testing.assert_array_equal(model.given_axes(model.HEIGHT), [False, False, True])
+    assert model.given_axes(np.zeros(0, dtype=int)).shape == (0, 3)
+    needed = expected.copy()
+    needed[4] = True
+    np.testing.assert_array_equal(model.needed_axes(kinds), needed)
+    points = model.ObjectPoints(ids=[str(i) for i in range(6)], kind=kinds, xyz_given=np.zeros((6, 3)),
+                                sigma_given=np.full((6, 3), np.nan))
+    np.testing.assert_array_equal(points.given_axes, expected)
+    with pytest.raises(ValueError, match="unknown point kind"):
+        model.given_axes([7])
+
+
 @pytest.mark.parametrize("rotation", model.ROTATION_CONVENTIONS)
 @pytest.mark.parametrize("angle_unit", model.ANGLE_UNITS)
 def test_round_trip(tmp_path, angle_unit, rotation):

@@ -17,7 +17,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from synthetic_pairs import NoiseOptions, PairOptions, make_pair, strip_points
 
-from striptri import conditions, model
+from striptri import collinearity, conditions, model
 from striptri.adjustment import observations_of
 from striptri.groups import build_batches
 from striptri.linearise import evaluate, linearise
@@ -274,6 +274,41 @@ def test_collinearity(k, rotate):
     assert_jacobian(lin.d_centre, numeric_jacobian(lambda x: g(O_=x), O, 1e-2), 1)
     assert_jacobian(lin.d_interior, numeric_jacobian(lambda x: g(i_=x), interior, 1e-3), 1)
     assert_jacobian(lin.d_control, numeric_jacobian(lambda x: g(X_=x), X, 1e-2), 1)
+
+
+@pytest.mark.parametrize("k", [1, 3])
+@pytest.mark.parametrize("rotate", [False, True], ids=["near-vertical", "steep"])
+def test_collinearity_jacobians(k, rotate):
+    """striptri.collinearity, the one collinearity (Schmid 14) of the conditions, the bundle, the
+    triangulation and the resection: its plate coordinates against the formula written out here,
+    its derivatives with respect to the point, the centre, the rotation vector of R <- R Exp(d) and
+    (c, xp, yp) against central differences. Called batched over (m, k) rays with each point
+    broadcast over its k rays, as the callers do."""
+    rng = np.random.default_rng([9, k, rotate])
+    m = 5
+    _, R, O, interior, X = _primitives(rng, m, k, rotate)
+    jac = collinearity.collinearity_jacobians(R, O, interior, X[:, None, :])
+    assert jac.xy_plate.shape == (m, k, 2)
+    derivatives = (jac.d_ground, jac.d_centre, jac.d_rotation, jac.d_interior)
+    assert all(d.shape == (m, k, 2, 3) for d in derivatives)
+
+    # one ray per row for the differences: (m k, ...)
+    n = m * k
+    R1, O1, i1 = R.reshape(n, 3, 3), O.reshape(n, 3), interior.reshape(n, 3)
+    X1 = np.repeat(X, k, axis=0)
+    d0 = np.zeros((n, 3))
+
+    def xy(d_=d0, O_=O1, i_=i1, X_=X1):
+        mvec = np.einsum("nji,nj->ni", R1 @ exp_map(d_), X_ - O_)
+        return i_[:, 1:] - i_[:, :1] * mvec[:, :2] / mvec[:, 2:]
+
+    np.testing.assert_allclose(jac.xy_plate.reshape(n, 2), xy(), rtol=0, atol=1e-9)  # mm
+    np.testing.assert_array_equal(collinearity.plate_from_ground(R, O, interior, X[:, None, :]), jac.xy_plate)
+    d_ground, d_centre, d_rotation, d_interior = (d.reshape(n, 2, 3) for d in derivatives)
+    assert_jacobian(d_ground, numeric_jacobian(lambda x: xy(X_=x), X1, 1e-2), 1)
+    assert_jacobian(d_centre, numeric_jacobian(lambda x: xy(O_=x), O1, 1e-2), 1)
+    assert_jacobian(d_rotation, numeric_jacobian(lambda x: xy(d_=x), d0, 1e-6), 1)
+    assert_jacobian(d_interior, numeric_jacobian(lambda x: xy(i_=x), i1, 1e-3), 1)
 
 
 # ---------------------------------------------------------------------------------------------

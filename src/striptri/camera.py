@@ -1,4 +1,5 @@
-"""Collinearity (Schmid 14) and ray directions (Schmid 11), batched over a leading axis.
+"""Ray directions (Schmid 11) and collinearity (Schmid 14, from striptri.collinearity), batched
+over a leading axis.
 
 With ``m = R^T (X - O)`` (the ground vector in the camera frame):
 ``x = xp - c m_x / m_z``, ``y = yp - c m_y / m_z``. The ray of a plate point is
@@ -9,6 +10,8 @@ the plate scale, like Schmid's u, v, w).
 from __future__ import annotations
 
 import numpy as np
+
+from .collinearity import camera_from_ground, plate_from_ground
 
 
 def plate_vector(xy_plate: np.ndarray, interior: np.ndarray) -> np.ndarray:
@@ -30,13 +33,11 @@ def ray_ground(R_ground_from_cam: np.ndarray, xy_plate: np.ndarray, interior: np
 
 
 def project(R_ground_from_cam: np.ndarray, xyz0: np.ndarray, interior: np.ndarray, xyz_ground: np.ndarray) -> np.ndarray:
-    """Plate coordinates of ground points (Schmid 14). All batched alike -> (..., 2)."""
-    m = np.einsum("...ji,...j->...i", R_ground_from_cam, xyz_ground - xyz0)
-    c = interior[..., 0]
-    return np.stack([interior[..., 1] - c * m[..., 0] / m[..., 2], interior[..., 2] - c * m[..., 1] / m[..., 2]], -1)
+    """Plate coordinates of ground points (Schmid 14; collinearity.plate_from_ground). All batched
+    alike -> (..., 2)."""
+    return plate_from_ground(R_ground_from_cam, xyz0, interior, xyz_ground)
 
 
 def in_front(R_ground_from_cam: np.ndarray, xyz0: np.ndarray, xyz_ground: np.ndarray) -> np.ndarray:
     """True where the ground point lies in front of the camera (m_z < 0). -> (...,) bool."""
-    m = np.einsum("...ji,...j->...i", R_ground_from_cam, xyz_ground - xyz0)
-    return m[..., 2] < 0
+    return camera_from_ground(R_ground_from_cam, xyz0, xyz_ground)[..., 2] < 0

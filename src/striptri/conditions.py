@@ -11,7 +11,8 @@ Two families:
   point, plus the given control coordinates ``X``. They return derivatives with respect to r, O
   and X; :func:`ray_chain` carries them on to the plate coordinates, the rotation corrections and
   the interior orientation.
-* collinearity (Schmid 14) for full control, written directly in the primitives.
+* collinearity (Schmid 14) for full control, from striptri.collinearity (the projection and its
+  Jacobians, shared with the bundle and the triangulation).
 
 The primitives, for a group of k rays and nc conditions, are returned as a :class:`Linearised`:
 ``d_plate (m, nc, k, 2)``, ``d_rot (m, nc, k, 3)`` (rotation vector, ``R <- R Exp(d)``),
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rotations import skew
+from .collinearity import collinearity_jacobians
 
 
 @dataclass
@@ -134,11 +135,14 @@ class RayConditions:
 SCALE_FORMS = ("3d", "xz")
 
 
-def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = False) -> RayConditions:
+def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d",
+                   star: bool = False) -> RayConditions:
     """Conditions of one point seen by k >= 1 photos along its chain, with d given coordinates.
 
-    r, O: (m, k, 3) rays and centres in chain order; X: (m, 3) given coordinates (ignored where
-    not given); given_axes: three bools (X, Y, Z given). Conditions, in this order:
+    r, xyz_centre: (m, k, 3) ground-frame rays (Schmid 11) and projection centres O in chain order;
+    xyz_control: (m, 3) given coordinates X (ignored where not given); given_axes: three bools
+    (X, Y, Z given). Derivatives with respect to O and X are RayConditions.d_O and d_X.
+    Conditions, in this order:
 
     * k - 1 coplanarities of consecutive pairs (Schmid 20);
     * k - 2 scale transfers of consecutive triples (Schmid 93; ``scale_form`` "3d": closest-approach
@@ -178,7 +182,7 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = Fal
     first = np.zeros(n_pairs, dtype=int) if star else pair
     second = pair + 1
     if n_pairs > 0:
-        b = O[:, second] - O[:, first]  # (m, k - 1, 3)
+        b = xyz_centre[:, second] - xyz_centre[:, first]  # (m, k - 1, 3)
         r1, r2 = r[:, first], r[:, second]
         g, dg_b, dg_r1, dg_r2 = coplanarity(b, r1, r2)
         dr, dO = np.zeros((m, n_pairs, k, 3)), np.zeros((m, n_pairs, k, 3))
@@ -213,14 +217,14 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = Fal
         rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(np.zeros((m, k - 2, 3)))
 
     if d in (1, 2) and k >= 2:
-        b = O[:, 1] - O[:, 0]
+        b = xyz_centre[:, 1] - xyz_centre[:, 0]
         s, _, ds, _ = pair_scales(b, r[:, 0], r[:, 1])
-        P = O[:, 0] + s[:, None] * r[:, 0]
+        xyz_meet = xyz_centre[:, 0] + s[:, None] * r[:, 0]  # the first pair's intersection
         for axis, given in enumerate(given_axes):
             if not given:
                 continue
             dr, dO, dX = new_row()
-            # P_axis = O0_axis + s r0_axis
+            # xyz_meet_axis = O0_axis + s r0_axis
             dr[:, 0] = r[:, 0, axis, None] * ds[1]
             dr[:, 0, axis] += s
             dr[:, 1] = r[:, 0, axis, None] * ds[2]
@@ -228,13 +232,14 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = Fal
             dO[:, 0, axis] += 1.0
             dO[:, 1] = r[:, 0, axis, None] * ds[0]
             dX[:, axis] = -1.0
-            rows_g.append(P[:, axis, None] - X[:, axis, None]), rows_r.append(dr[:, None]), rows_O.append(dO[:, None])
+            rows_g.append(xyz_meet[:, axis, None] - xyz_control[:, axis, None])
+            rows_r.append(dr[:, None]), rows_O.append(dO[:, None])
             rows_X.append(dX[:, None])
     elif d == 2 and k == 1:
         # the ray and the vertical through (X, Y): coplanarity with b = (X, Y, 0) - O, r2 = e_z
-        foot = np.concatenate([X[:, :2], np.zeros((m, 1))], axis=1)
+        foot = np.concatenate([xyz_control[:, :2], np.zeros((m, 1))], axis=1)
         ez = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (m, 3))
-        g, dg_b, dg_r1, _ = coplanarity(foot - O[:, 0], r[:, 0], ez)
+        g, dg_b, dg_r1, _ = coplanarity(foot - xyz_centre[:, 0], r[:, 0], ez)
         dr, dO, dX = new_row()
         dr[:, 0] = dg_r1
         dO[:, 0] = -dg_b
@@ -248,14 +253,15 @@ def ray_conditions(r, O, X, given_axes, scale_form: str = "3d", star: bool = Fal
     )
 
 
-def ray_chain(rc: RayConditions, R, p) -> Linearised:
+def ray_chain(rc: RayConditions, R_ground_from_cam, p) -> Linearised:
     """Carry derivatives with respect to rays on to the primitives.
 
     ``r = R p`` with ``p = (x - xp, y - yp, -c)``: dr/dx = R e1, dr/dy = R e2, dr/dc = -R e3,
     dr/dxp = -R e1, dr/dyp = -R e2, and with ``R <- R Exp(d)``: dr/dd = -R [p]x, so that
-    ``(dg/dr) dr/dd = p x (R^T dg/dr)``. R: (m, k, 3, 3), p: (m, k, 3).
+    ``(dg/dr) dr/dd = p x (R^T dg/dr)``. R_ground_from_cam (R): (m, k, 3, 3), p: (m, k, 3) in the
+    camera frame.
     """
-    Rt_g = np.matmul(rc.d_r[..., None, :], R[:, None])[..., 0, :]  # R^T dg/dr: (m, nc, k, 3)
+    Rt_g = np.matmul(rc.d_r[..., None, :], R_ground_from_cam[:, None])[..., 0, :]  # R^T dg/dr: (m, nc, k, 3)
     d_plate = Rt_g[..., :2]
     d_rot = np.cross(p[:, None], Rt_g)
     d_interior = np.stack([-Rt_g[..., 2], -Rt_g[..., 0], -Rt_g[..., 1]], -1)
@@ -266,44 +272,29 @@ def ray_chain(rc: RayConditions, R, p) -> Linearised:
 # Collinearity (full control)
 
 
-def collinearity(xy_plate, R, O, interior, X) -> Linearised:
+def collinearity(xy_plate, R_ground_from_cam, xyz_centre, interior, xyz_ground) -> Linearised:
     """Collinearity of a full control point with each of its k photos (Schmid 14).
 
     ``g = xy_plate - (xp - c m_x/m_z, yp - c m_y/m_z)``, ``m = R^T (X - O)``, two conditions per
-    photo in the order (x_1, y_1, x_2, y_2, ...). xy_plate: (m, k, 2); R: (m, k, 3, 3);
-    O, interior: (m, k, 3); X: (m, 3).
+    photo in the order (x_1, y_1, x_2, y_2, ...). xy_plate: (m, k, 2); R_ground_from_cam:
+    (m, k, 3, 3); xyz_centre, interior (c, xp, yp): (m, k, 3); xyz_ground (the control point):
+    (m, 3). The projection and its derivatives are striptri.collinearity's.
     """
-    mgrp, k, _ = xy_plate.shape
-    mvec = np.einsum("mkji,mkj->mki", R, X[:, None, :] - O)
-    c = interior[..., 0]
-    mz = mvec[..., 2]
-    proj = np.stack([interior[..., 1] - c * mvec[..., 0] / mz, interior[..., 2] - c * mvec[..., 1] / mz], -1)
-    g = (xy_plate - proj).reshape(mgrp, 2 * k)
-    # d proj / d m: (m, k, 2, 3)
-    dproj_dm = np.zeros((mgrp, k, 2, 3))
-    dproj_dm[..., 0, 0] = -c / mz
-    dproj_dm[..., 1, 1] = -c / mz
-    dproj_dm[..., 0, 2] = c * mvec[..., 0] / mz**2
-    dproj_dm[..., 1, 2] = c * mvec[..., 1] / mz**2
-    dproj_dX = np.einsum("mkaj,mkij->mkai", dproj_dm, R)  # dm/dX = R^T
-    dproj_drot = np.einsum("mkaj,mkji->mkai", dproj_dm, skew(mvec))  # dm/dd = [m]x
-    dproj_dint = np.zeros((mgrp, k, 2, 3))
-    dproj_dint[..., 0, 0] = -mvec[..., 0] / mz
-    dproj_dint[..., 1, 0] = -mvec[..., 1] / mz
-    dproj_dint[..., 0, 1] = 1.0
-    dproj_dint[..., 1, 2] = 1.0
-
+    n_groups, k, _ = xy_plate.shape
+    jac = collinearity_jacobians(R_ground_from_cam, xyz_centre, interior, xyz_ground[:, None, :])
+    g = (xy_plate - jac.xy_plate).reshape(n_groups, 2 * k)
+    # condition 2j + a depends on ray j only: its row of each (m, k, 2, 3) derivative of the projection
     nc = 2 * k
-    d_plate = np.zeros((mgrp, nc, k, 2))
-    d_rot = np.zeros((mgrp, nc, k, 3))
-    d_centre = np.zeros((mgrp, nc, k, 3))
-    d_interior = np.zeros((mgrp, nc, k, 3))
-    for j in range(k):
-        for a in range(2):
-            row = 2 * j + a
-            d_plate[:, row, j, a] = 1.0
-            d_rot[:, row, j] = -dproj_drot[:, j, a]
-            d_centre[:, row, j] = dproj_dX[:, j, a]
-            d_interior[:, row, j] = -dproj_dint[:, j, a]
-    d_control = -dproj_dX.reshape(mgrp, nc, 3)
+    row, ray = np.arange(nc), np.repeat(np.arange(k), 2)
+
+    def on_its_ray(d_projection, width=3):
+        out = np.zeros((n_groups, nc, k, width))
+        out[:, row, ray] = d_projection.reshape(n_groups, nc, width)
+        return out
+
+    d_plate = on_its_ray(np.broadcast_to(np.eye(2), (n_groups, k, 2, 2)), 2)
+    d_rot = on_its_ray(-jac.d_rotation)
+    d_centre = on_its_ray(-jac.d_centre)
+    d_interior = on_its_ray(-jac.d_interior)
+    d_control = -jac.d_ground.reshape(n_groups, nc, 3)
     return Linearised(g, d_plate, d_rot, d_centre, d_interior, d_control)

@@ -33,7 +33,7 @@ from scipy.sparse.csgraph import connected_components
 from .camera import plate_vector
 from .datum import describe
 from .groups import adjusted_kind
-from .model import FULL, GIVEN_AXES, HEIGHT, PLAN, Project
+from .model import FULL, HEIGHT, PLAN, Project, given_axes
 from .rotations import angles_from_R, angles_jacobian
 
 # -- weights ----------------------------------------------------------------------------------------
@@ -75,7 +75,6 @@ MISFIT_SHARE = 0.75
 PAIR_CHUNK = 200_000  # ray pairs evaluated at once (bounds the memory)
 LIST_MAX = 8  # photos, points or groups named in one message before "and N more"
 
-_GIVEN = np.array([GIVEN_AXES[k] for k in sorted(GIVEN_AXES)], dtype=bool)  # kind code -> given X, Y, Z
 ANGLE_UNITS = {"deg": 180.0 / np.pi, "gon": 200.0 / np.pi, "rad": 1.0}
 THIRD_ANGLE = {"omega-phi-kappa": "kappa", "alpha-omega-chi": "chi"}
 
@@ -605,7 +604,7 @@ def _datum_rows(project: Project, label, rays, kinds, extent, centroids):
     ph, ip, pts = project.photos, project.image_points, project.points
     rows, owner = [], []
     # control points: the group of any photo that sees them; approximate positions where not given
-    given = _GIVEN[kinds]
+    given = given_axes(kinds)
     has_cond = 2 * rays - (3 - given.sum(axis=1)) > 0  # groups.condition_count
     ctrl = np.flatnonzero(has_cond & np.isin(kinds, (FULL, PLAN, HEIGHT)) & given.any(axis=1))
     if len(ctrl):

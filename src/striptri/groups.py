@@ -22,7 +22,7 @@ import numpy as np
 
 from .camera import ray_ground
 from .lens import ideal_from_observed
-from .model import CHECK, FULL, GIVEN_AXES, HEIGHT, PLAN, TIE, Project
+from .model import CHECK, FULL, HEIGHT, PLAN, TIE, Project, given_axes
 
 COLLINEARITY, RAYS = "collinearity", "rays"
 
@@ -70,7 +70,7 @@ def adjusted_kind(kind: np.ndarray) -> np.ndarray:
 
 def condition_count(kind: int, k: int) -> int:
     """2k - (3 - d) conditions for a point of k rays with d given coordinates (0 if not positive)."""
-    d = sum(GIVEN_AXES[kind])
+    d = int(given_axes(kind).sum())
     return max(0, 2 * k - (3 - d))
 
 
@@ -105,7 +105,7 @@ def build_batches(project: Project) -> list[GroupBatch]:
                     GroupBatch(
                         family=COLLINEARITY if kind == FULL else RAYS,
                         k=k,
-                        given_axes=GIVEN_AXES[kind],
+                        given_axes=tuple(given_axes(kind).tolist()),
                         point_index=sel[pick],
                         image_rows=rows[pick],
                         photo_index=ip.photo_index[rows[pick]],

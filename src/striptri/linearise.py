@@ -64,10 +64,10 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     convention corrects the measurement and adds the residual).
     """
     xy = plate_hat[batch.image_rows]
-    R = state.R[batch.photo_index]
-    O = state.xyz0[batch.photo_index]
+    R_ground_from_cam = state.R[batch.photo_index]
+    xyz_centre = state.xyz0[batch.photo_index]
     params, conv = state.camera_terms(batch.photo_index)
-    X = control_hat[batch.point_index]
+    xyz_control = control_hat[batch.point_index]
     meas = None if plate_measured is None else plate_measured[batch.image_rows]
     ideal = ideal_from_observed(xy, params, conv, meas) if with_lens else None
     if ideal is not None:
@@ -80,12 +80,12 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
                 "values of k1, k2, k3")
         xy = ideal.xy
     if batch.family == COLLINEARITY:
-        lin = collinearity(xy, R, O, params[..., :3], X)
+        lin = collinearity(xy, R_ground_from_cam, xyz_centre, params[..., :3], xyz_control)
     else:
         p = plate_vector(xy, params[..., :3])
-        r = np.einsum("mkij,mkj->mki", R, p)
-        rc = ray_conditions(r, O, X, batch.given_axes, scale_form, batch.star)
-        lin = ray_chain(rc, R, p)
+        r = np.einsum("mkij,mkj->mki", R_ground_from_cam, p)
+        rc = ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star)
+        lin = ray_chain(rc, R_ground_from_cam, p)
     d_camera = np.zeros(lin.d_interior.shape[:-1] + (NCP,))
     d_camera[..., :3] = lin.d_interior
     if ideal is None:

@@ -25,7 +25,8 @@ from .lens import NCP, PLATE
 TIE, HEIGHT, PLAN, FULL, CHECK = 0, 1, 2, 3, 4
 KIND_NAMES = {TIE: "tie", HEIGHT: "Z", PLAN: "XY", FULL: "XYZ", CHECK: "check"}
 KIND_CODES = {"XYZ": FULL, "XY": PLAN, "Z": HEIGHT, "CHECK": CHECK}
-# Which of X, Y, Z a kind gives (used in the adjustment; check points are withheld).
+# Which of X, Y, Z a kind gives (used in the adjustment; check points are withheld). Read it
+# through given_axes / needed_axes below, the one place that turns kinds into axes.
 GIVEN_AXES = {
     TIE: (False, False, False),
     HEIGHT: (False, False, True),
@@ -33,6 +34,29 @@ GIVEN_AXES = {
     FULL: (True, True, True),
     CHECK: (False, False, False),
 }
+_GIVEN_AXES_TABLE = np.array([GIVEN_AXES[code] for code in range(len(GIVEN_AXES))], dtype=bool)  # (5, 3)
+_NEEDED_AXES_TABLE = _GIVEN_AXES_TABLE.copy()
+_NEEDED_AXES_TABLE[CHECK] = True
+
+
+def given_axes(kind) -> np.ndarray:
+    """Which of X, Y, Z the points of kind codes ``kind`` give as observations of the adjustment:
+    (...,) int -> (..., 3) bool (a single code gives (3,)). Check points give none: their
+    coordinates are reference values, withheld (needed_axes)."""
+    return _GIVEN_AXES_TABLE[_kind_codes(kind)]
+
+
+def needed_axes(kind) -> np.ndarray:
+    """Which of X, Y, Z a control.csv row of kind codes ``kind`` must carry: the given axes, and all
+    three for a check point (its reference coordinates). (...,) int -> (..., 3) bool."""
+    return _NEEDED_AXES_TABLE[_kind_codes(kind)]
+
+
+def _kind_codes(kind) -> np.ndarray:
+    codes = np.asarray(kind, dtype=np.int64)
+    if codes.size and (codes.min() < 0 or codes.max() >= len(_GIVEN_AXES_TABLE)):
+        raise ValueError(f"unknown point kind code(s) {sorted(set(codes[(codes < 0) | (codes > CHECK)].tolist()))}")
+    return codes
 
 ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi")
 ANGLE_UNITS = ("deg", "gon", "rad")
@@ -127,6 +151,11 @@ class ObjectPoints:
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    @property
+    def given_axes(self) -> np.ndarray:
+        """(np, 3) bool: which of X, Y, Z each point gives to the adjustment (model.given_axes)."""
+        return given_axes(self.kind).reshape(len(self), 3)
 
 
 @dataclass(frozen=True)

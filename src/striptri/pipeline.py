@@ -19,16 +19,17 @@ from pathlib import Path
 import numpy as np
 
 from . import progress, report, solvers
-from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, observations_of
+from .adjusted_points import triangulate_adjusted
+from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message
 from .errors import InputError
 from .groups import rays_per_point
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
 from .io.project_reader import RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
-from .model import CHECK, GIVEN_AXES, KIND_NAMES, Project
+from .model import CHECK, KIND_NAMES, Project
 from .rotations import angles_from_R
-from .triangulation import Triangulated, triangulate
+from .triangulation import Triangulated
 
 
 @dataclass
@@ -269,17 +270,9 @@ def blunder_summary(det) -> dict:
 
 
 def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulated:
-    """Ground points from the adjusted rays, with Schmid's (90) precision split."""
-    s, lay = result.state, result.layout
-    obs = observations_of(project, result.offset)
-    given_mask = np.array([GIVEN_AXES[int(k)] for k in project.points.kind], dtype=bool).reshape(-1, 3)
-    ip = project.image_points
-    return triangulate(
-        s.R, s.xyz0, s.interior[s.camera_of_photo], lay.rotation_maps(s), lay.photo_cols, lay.camera_cols,
-        s.camera_of_photo, ip.photo_index, ip.point_index, result.plate_adjusted, ip.sigma_xy,
-        len(project.points), np.where(given_mask, result.control_adjusted, 0.0), given_mask, obs.q_control,
-        result.covariance, convention_photo=s.convention[s.camera_of_photo], xy_measured=ip.xy,
-    )
+    """Ground points from the adjusted rays, with Schmid's (90) precision split
+    (adjusted_points.triangulate_adjusted with the orientation part)."""
+    return triangulate_adjusted(project, result, orientation_part=True)
 
 
 def _angle_scale(project: Project) -> float:

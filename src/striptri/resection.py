@@ -18,8 +18,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .bundle.collinearity import collinearity_jacobians
 from .camera import ray_ground
+from .collinearity import camera_from_ground, collinearity_jacobians, plate_from_ground
 from .errors import NumericalFailure
 from .lens import ideal_from_observed
 from .model import FULL
@@ -97,24 +97,23 @@ def resect(xy: np.ndarray, X: np.ndarray, c: float, iterations: int = 20) -> Res
     xy, X = np.asarray(xy, dtype=float), np.asarray(X, dtype=float)
     if len(X) < 4:
         raise ValueError(f"a resection needs at least four known points, this photo has {len(X)}")
-    R, O = _closed_form(xy, X, c)
+    R_ground_from_cam, xyz_centre = _closed_form(xy, X, c)
     interior = np.array([c, 0.0, 0.0])
     rms = np.inf
     for it in range(1, iterations + 1):
-        jac = collinearity_jacobians(R, O, interior, X)
-        e = (xy - jac.xy).ravel()
-        J = np.concatenate([jac.d_centre, jac.d_rot], -1).reshape(-1, 6)
+        jac = collinearity_jacobians(R_ground_from_cam, xyz_centre, interior, X)
+        e = (xy - jac.xy_plate).ravel()
+        J = np.concatenate([jac.d_centre, jac.d_rotation], -1).reshape(-1, 6)
         dx = np.linalg.lstsq(J, e, rcond=None)[0]
-        O = O + dx[:3]
-        R = R @ exp_so3(dx[3:])
+        xyz_centre = xyz_centre + dx[:3]
+        R_ground_from_cam = R_ground_from_cam @ exp_so3(dx[3:])
         rms = float(np.sqrt(np.mean(e**2)))
-        if np.abs(dx[:3]).max() <= 1e-12 * (1 + np.abs(O).max()) and np.abs(dx[3:]).max() <= 1e-12:
+        if np.abs(dx[:3]).max() <= 1e-12 * (1 + np.abs(xyz_centre).max()) and np.abs(dx[3:]).max() <= 1e-12:
             break
-    jac = collinearity_jacobians(R, O, interior, X)
-    rms = float(np.sqrt(np.mean((xy - jac.xy) ** 2)))
-    if not np.all(np.isfinite(R)) or np.any(np.einsum("ji,nj->ni", R, X - O)[:, 2] >= 0):
+    rms = float(np.sqrt(np.mean((xy - plate_from_ground(R_ground_from_cam, xyz_centre, interior, X)) ** 2)))
+    if not np.all(np.isfinite(R_ground_from_cam)) or np.any(camera_from_ground(R_ground_from_cam, xyz_centre, X)[:, 2] >= 0):
         raise ValueError("the resection puts some known points behind the camera")
-    return Resection(R=R, centre=O, rms=rms, iterations=it)
+    return Resection(R=R_ground_from_cam, centre=xyz_centre, rms=rms, iterations=it)
 
 
 def resect_missing(project, max_rounds: int = 50):

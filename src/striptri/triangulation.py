@@ -6,9 +6,10 @@
   non-vanishing auxiliaries II, [2], [5] of the XZ projection;
 * :func:`independent_pair_triangulation` - the independent procedure after orientation (75-80):
   one coplanarity condition adjusts the four plate coordinates, then (74) gives X, Y, Z;
-* :func:`triangulate` - coordinates of every point from its adjusted rays by least squares on
-  the collinearity equations, with given coordinates held or weighted, and their precision split
-  into an orientation part and a measurement part (Schmid 87-90).
+* :func:`triangulate` - coordinates of every point from its rays (:class:`RayObservations`) by
+  least squares on the collinearity equations, with given coordinates (:class:`GivenCoordinates`)
+  held or weighted, and their precision split into an orientation part and a measurement part
+  (Schmid 87-90). For an adjusted result, call ``adjusted_points.triangulate_adjusted``.
 """
 
 from __future__ import annotations
@@ -17,15 +18,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import plate_vector, project, ray_ground
+from .camera import plate_vector, ray_ground
+from .collinearity import collinearity_jacobians, plate_from_ground
 from .covariance import group_forms, ray_slots
 from .conditions import coplanarity, ray_chain, RayConditions
 from .lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
-from .rotations import skew
+from .parameters import State, UnknownLayout
 
 
-def intersect_rays(O: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None, safe: bool = False) -> np.ndarray:
-    """Least-squares intersection of rays O_i + t r_i. O, r: (m, k, 3); mask: (m, k) -> (m, 3).
+def intersect_rays(xyz_centre: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None,
+                   safe: bool = False) -> np.ndarray:
+    """Least-squares intersection of rays O_i + t r_i (ground frame). xyz_centre (the O_i), r:
+    (m, k, 3); mask: (m, k) -> (m, 3).
 
     Minimises sum_i |(I - r^_i r^_i^T)(X - O_i)|^2 (r^ the unit direction). Parallel rays raise
     numpy's LinAlgError, or with ``safe`` give nan for that point (safe_solve).
@@ -35,28 +39,29 @@ def intersect_rays(O: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None,
     if mask is not None:
         P = P * mask[..., None, None]
     lhs = P.sum(axis=1)
-    rhs = np.einsum("mkij,mkj->mi", P, O)
+    rhs = np.einsum("mkij,mkj->mi", P, xyz_centre)
     if safe:
         return safe_solve(lhs, rhs)
     return np.linalg.solve(lhs, rhs[..., None])[..., 0]
 
 
-def schmid_pair_intersection(O1, r1, O2, r2):
-    """Intersection of a pair by Schmid (72-74). All (m, 3) -> X (m, 3), mu1, mu2 (m,).
+def schmid_pair_intersection(xyz_centre1, r1, xyz_centre2, r2):
+    """Intersection of a pair by Schmid (72-74). Centres O', O'' and ground rays r', r'': all
+    (m, 3) -> X (m, 3), mu1, mu2 (m,).
 
     ``II = u'' w' - u' w''``, ``[2] = bx w'' - bz u''``, ``[5] = bz u' - bx w'``,
     ``mu' = -[2]/II``, ``mu'' = [5]/II`` (auxiliaries that do not vanish for a strip along X);
     ``X = O' + mu' r'`` and ``O'' + mu'' r''`` agree for intersecting rays; the mean is returned.
     """
-    b = O2 - O1
+    b = xyz_centre2 - xyz_centre1
     bx, bz = b[:, 0], b[:, 2]
     u1, w1, u2, w2 = r1[:, 0], r1[:, 2], r2[:, 0], r2[:, 2]
     II = u2 * w1 - u1 * w2
     a2 = bx * w2 - bz * u2
     a5 = bz * u1 - bx * w1
     mu1, mu2 = -a2 / II, a5 / II
-    X = 0.5 * ((O1 + mu1[:, None] * r1) + (O2 + mu2[:, None] * r2))
-    return X, mu1, mu2
+    xyz_ground = 0.5 * ((xyz_centre1 + mu1[:, None] * r1) + (xyz_centre2 + mu2[:, None] * r2))
+    return xyz_ground, mu1, mu2
 
 
 @dataclass
@@ -69,28 +74,29 @@ class PairTriangulation:
     misclosure: np.ndarray  # (m,) coplanarity of the adjusted observations (final check)
 
 
-def independent_pair_triangulation(R1, O1, int1, xy1, R2, O2, int2, xy2, sigma_xy, iterations: int = 5):
+def independent_pair_triangulation(R1_ground_from_cam, xyz_centre1, int1, xy1, R2_ground_from_cam, xyz_centre2,
+                                   int2, xy2, sigma_xy, iterations: int = 5):
     """Schmid's independent triangulation (75-80) with the orientation held.
 
-    R*: (m, 3, 3); O*, int*: (m, 3); xy*: (m, 2); sigma_xy: (m, 4) standard deviations of
-    x', y', x'', y''. The single condition (20) ``{a} v + w = 0`` gives ``N = sum a^2/p`` (78),
+    R*_ground_from_cam: (m, 3, 3); xyz_centre*, int*: (m, 3); xy*: (m, 2); sigma_xy: (m, 4)
+    standard deviations of x', y', x'', y''. The single condition (20) ``{a} v + w = 0`` gives ``N = sum a^2/p`` (78),
     ``k = -w / N`` (77), ``v = a k / p`` (79) and the check ``v^T P v = -w k`` (80), iterated at
     the adjusted observations until the condition holds.
     """
     l = np.concatenate([xy1, xy2], axis=1)
     q = sigma_xy**2
     lhat = l.copy()
-    R = np.stack([R1, R2], 1)
-    O = np.stack([O1, O2], 1)
+    R_ground_from_cam = np.stack([R1_ground_from_cam, R2_ground_from_cam], 1)
+    xyz_centre = np.stack([xyz_centre1, xyz_centre2], 1)
     interior = np.stack([int1, int2], 1)
     for _ in range(iterations):
         xy = lhat.reshape(-1, 2, 2)
         p = plate_vector(xy, interior)
-        r = np.einsum("mkij,mkj->mki", R, p)
-        g, dg_b, dg_r1, dg_r2 = coplanarity(O[:, 1] - O[:, 0], r[:, 0], r[:, 1])
+        r = np.einsum("mkij,mkj->mki", R_ground_from_cam, p)
+        g, dg_b, dg_r1, dg_r2 = coplanarity(xyz_centre[:, 1] - xyz_centre[:, 0], r[:, 0], r[:, 1])
         m = len(g)
         d_r = np.stack([dg_r1, dg_r2], 1)[:, None]  # (m, 1, 2, 3)
-        lin = ray_chain(RayConditions(g[:, None], d_r, np.zeros_like(d_r), np.zeros((m, 1, 3))), R, p)
+        lin = ray_chain(RayConditions(g[:, None], d_r, np.zeros_like(d_r), np.zeros((m, 1, 3))), R_ground_from_cam, p)
         a = lin.d_plate.reshape(m, 4)
         w = g + np.einsum("mi,mi->m", a, l - lhat)
         N = np.einsum("mi,mi->m", a * q, a)
@@ -98,11 +104,11 @@ def independent_pair_triangulation(R1, O1, int1, xy1, R2, O2, int2, xy2, sigma_x
         v = q * a * k[:, None]
         lhat = l + v
     xy = lhat.reshape(-1, 2, 2)
-    r = ray_ground(R, xy, interior)
-    g_final, *_ = coplanarity(O[:, 1] - O[:, 0], r[:, 0], r[:, 1])
-    X, _, _ = schmid_pair_intersection(O[:, 0], r[:, 0], O[:, 1], r[:, 1])
+    r = ray_ground(R_ground_from_cam, xy, interior)
+    g_final, *_ = coplanarity(xyz_centre[:, 1] - xyz_centre[:, 0], r[:, 0], r[:, 1])
+    xyz_ground, _, _ = schmid_pair_intersection(xyz_centre[:, 0], r[:, 0], xyz_centre[:, 1], r[:, 1])
     vtpv = np.sum(v * v / q, axis=1)
-    return PairTriangulation(xyz=X, v=v, vtpv=vtpv, k=k, w=w, misclosure=g_final)
+    return PairTriangulation(xyz=xyz_ground, v=v, vtpv=vtpv, k=k, w=w, misclosure=g_final)
 
 
 @dataclass
@@ -116,75 +122,87 @@ class Triangulated:
     determined: np.ndarray
 
 
-def _collinearity_jacobians(R, O, interior, X):
-    """Plate coordinates and their derivatives for rays (m, k): w.r.t. X (m,k,2,3), the centre
-    (m,k,2,3), the rotation vector (m,k,2,3) and the interior c, xp, yp (m,k,2,3)."""
-    mvec = np.einsum("mkji,mkj->mki", R, X[:, None, :] - O)
-    c = interior[..., 0]
-    mz = mvec[..., 2]
-    xy = np.stack([interior[..., 1] - c * mvec[..., 0] / mz, interior[..., 2] - c * mvec[..., 1] / mz], -1)
-    dm = np.zeros(mvec.shape[:2] + (2, 3))
-    dm[..., 0, 0] = -c / mz
-    dm[..., 1, 1] = -c / mz
-    dm[..., 0, 2] = c * mvec[..., 0] / mz**2
-    dm[..., 1, 2] = c * mvec[..., 1] / mz**2
-    dX = np.einsum("mkaj,mkij->mkai", dm, R)
-    drot = np.einsum("mkaj,mkji->mkai", dm, skew(mvec))
-    dint = np.zeros_like(dm)
-    dint[..., 0, 0] = -mvec[..., 0] / mz
-    dint[..., 1, 0] = -mvec[..., 1] / mz
-    dint[..., 0, 1] = 1.0
-    dint[..., 1, 2] = 1.0
-    return xy, dX, -dX, drot, dint
-
-
-def ray_terms(R, O, params, convention, X, xy_obs, xy_measured=None, with_lens: bool = True):
+def ray_terms(R_ground_from_cam, xyz_centre, params, convention, xyz_ground, xy_obs, xy_measured=None,
+              with_lens: bool = True):
     """Collinearity of rays (m, k) in the residual space of the camera model (striptri.lens):
-    residual ``obs - pred`` (m, k, 2) and the derivatives of the prediction with respect to X,
-    the centre, the rotation vector (m, k, 2, 3) and the camera elements (m, k, 2, NCP).
-    params: (m, k, NCP); convention: (m, k); X: (m, 3); xy_obs, xy_measured: as
-    lens.projection_terms. with_lens=False: no additional parameter is nonzero or estimated."""
-    pred, dX, dO, drot, dint = _collinearity_jacobians(R, O, params[..., :3], X)
+    residual ``obs - pred`` (m, k, 2) and the derivatives of the prediction with respect to the
+    point, the centre, the rotation vector (m, k, 2, 3) and the camera elements (m, k, 2, NCP).
+
+    R_ground_from_cam: (m, k, 3, 3); xyz_centre: (m, k, 3); params: (m, k, NCP); convention:
+    (m, k); xyz_ground: (m, 3) one point per row; xy_obs, xy_measured: as lens.projection_terms.
+    with_lens=False: no additional parameter is nonzero or estimated. The ideal projection and its
+    Jacobians are striptri.collinearity's."""
+    jac = collinearity_jacobians(R_ground_from_cam, xyz_centre, params[..., :3], xyz_ground[:, None, :])
     if not with_lens:
-        dcam = np.zeros(dint.shape[:-1] + (NCP,))
-        dcam[..., :3] = dint
-        return xy_obs - pred, dX, dO, drot, dcam
-    t = projection_terms(pred, xy_obs, params, convention, xy_measured)
-    return t.obs - t.pred, t.d_ideal @ dX, t.d_ideal @ dO, t.d_ideal @ drot, t.d_camera
+        d_camera = np.zeros(jac.d_interior.shape[:-1] + (NCP,))
+        d_camera[..., :3] = jac.d_interior
+        return xy_obs - jac.xy_plate, jac.d_ground, jac.d_centre, jac.d_rotation, d_camera
+    t = projection_terms(jac.xy_plate, xy_obs, params, convention, xy_measured)
+    return (t.obs - t.pred, t.d_ideal @ jac.d_ground, t.d_ideal @ jac.d_centre, t.d_ideal @ jac.d_rotation,
+            t.d_camera)
 
 
-def triangulate(
-    R_photo, O_photo, interior_photo, rotation_maps, photo_cols, camera_cols, camera_of_photo,
-    photo_index, point_index, xy_plate, sigma_xy, n_points, xyz_given, given_mask, q_given, Qxx=None,
-    iterations: int = 6, convention_photo=None, xy_measured=None,
-) -> Triangulated:
-    """Least-squares coordinates of every point from its rays, with given coordinates.
+@dataclass(frozen=True)
+class RayObservations:
+    """The image points whose rays are intersected, one row each (struct of arrays).
+
+    photo_index, point_index: (m,) int. xy_plate: (m, 2) plate coordinates of the rays (of an
+    adjustment: its adjusted observations); sigma_xy: (m, 2) their standard deviations (weights
+    1/sigma^2). xy_measured: (m, 2) the measurements when xy_plate are adjusted observations
+    (lens.ideal_from_observed), None when xy_plate are the measurements."""
+
+    photo_index: np.ndarray
+    point_index: np.ndarray
+    xy_plate: np.ndarray
+    sigma_xy: np.ndarray
+    xy_measured: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class GivenCoordinates:
+    """The given coordinates of all n points (control), reduced frame like the orientation.
+
+    xyz_ground: (n, 3), read only where ``given``; given: (n, 3) bool, which of X, Y, Z each point
+    gives (model.given_axes); q_given: (n, 3) variances, > 0 a weighted observation of the
+    coordinate, 0 held fixed."""
+
+    xyz_ground: np.ndarray
+    given: np.ndarray
+    q_given: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.given)
+
+
+def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: State, layout: UnknownLayout,
+                Qxx=None, iterations: int = 6) -> Triangulated:
+    """Least-squares coordinates of every point of ``control`` (n points) from its ``rays``, with
+    given coordinates held or weighted; the orientation (``state``: R_ground_from_cam, centres and
+    camera elements per photo) is held.
 
     Per point: unknown = the coordinates that are neither given nor weighted-fixed; observations
     = its plate coordinates (weights 1/sigma^2) and its weighted given coordinates (q_given > 0).
-    Fixed given coordinates (given_mask and q_given == 0) are held. The covariance has a
-    measurement part ``(J^T P J + P_given)^-1`` and, when Qxx (N^-1 of the orientation unknowns,
-    a dense array or a covariance.Covariance) is given, an orientation part ``G Qxx G^T`` with
-    ``G = -(J^T P J + P_given)^-1 J^T P J_orient`` (Schmid 87-90), both without the factor sigma0^2.
-    The orientation part is formed per batch of points with k rays by covariance.group_forms
-    (Qxx read by blocks of the photo pairs that share a point, matrix products).
+    Fixed given coordinates (given and q_given == 0) are held. The covariance has a measurement
+    part ``(J^T P J + P_given)^-1`` and, when Qxx (N^-1 of the orientation unknowns in the columns
+    of ``layout``, a dense array or a covariance.Covariance) is given, an orientation part
+    ``G Qxx G^T`` with ``G = -(J^T P J + P_given)^-1 J^T P J_orient`` (Schmid 87-90), both without
+    the factor sigma0^2. The orientation part is formed per batch of points with k rays by
+    covariance.group_forms (Qxx read by blocks of the photo pairs that share a point, matrix
+    products).
 
     Gauss-Newton from the rays' intersection, at most ``iterations`` steps: a batch stops when every
     step is below CONVERGED times its point's size (from adjusted observations the rays meet, and
-    one step reaches the point to rounding).
-
-    R_photo, O_photo: per photo; interior_photo (n_photos, NCP) and convention_photo (n_photos,)
-    the camera elements and lens convention of each photo's camera (striptri.lens; None: plate);
-    photo_index, point_index, xy_plate, sigma_xy, xy_measured: per image point (xy_measured: the
-    measurements when xy_plate are adjusted observations, see lens.ideal_from_observed).
+    one step reaches the point to rounding). A point is determined when its rays and given
+    coordinates are at least three observations for its unknowns and its 3x3 normal matrix is
+    regular; the others are nan in ``xyz`` and False in ``determined``.
     """
-    interior_photo = np.asarray(interior_photo, dtype=float)
-    if interior_photo.shape[-1] < NCP:
-        interior_photo = np.concatenate(
-            [interior_photo, np.zeros(interior_photo.shape[:-1] + (NCP - interior_photo.shape[-1],))], -1)
-    if convention_photo is None:
-        convention_photo = np.zeros(len(interior_photo), dtype=int)
-    with_lens = has_distortion(interior_photo) or bool((np.asarray(camera_cols)[..., DISTORTION_ELEMENTS] >= 0).any())
+    n_points = len(control)
+    camera_of_photo = state.camera_of_photo
+    interior_photo = state.interior[camera_of_photo]  # (n_photos, NCP)
+    convention_photo = state.convention[camera_of_photo]
+    photo_cols, camera_cols = layout.photo_cols, np.asarray(layout.camera_cols)
+    with_lens = has_distortion(interior_photo) or bool((camera_cols[..., DISTORTION_ELEMENTS] >= 0).any())
+    photo_index, point_index = rays.photo_index, rays.point_index
     xyz = np.full((n_points, 3), np.nan)
     cov_m = np.zeros((n_points, 3, 3))
     cov_o = np.zeros((n_points, 3, 3))
@@ -192,12 +210,15 @@ def triangulate(
     order = np.lexsort((photo_index, point_index))
     counts = np.bincount(point_index, minlength=n_points)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    given_mask, q_given = control.given, control.q_given
+    xyz_given = np.where(given_mask, control.xyz_ground, 0.0)
     fixed = given_mask & ~(q_given > 0)
     weighted = given_mask & (q_given > 0)
-    camera_cols = np.asarray(camera_cols)
     estimated = np.flatnonzero((camera_cols >= 0).any(axis=0))  # camera elements estimated anywhere
-    if Qxx is not None and n_unknowns_of(Qxx):
+    with_orientation = Qxx is not None and n_unknowns_of(Qxx) > 0
+    if with_orientation:
         forms = Qxx.group_forms if hasattr(Qxx, "group_forms") else _dense_forms(Qxx)
+        rotation_maps = layout.rotation_maps(state)
     for k in np.unique(counts[counts > 0]):
         sel_k = np.flatnonzero(counts == k)
         # determined when the rays and the given coordinates (held or weighted) are at least three
@@ -208,36 +229,39 @@ def triangulate(
             ok = np.ones(len(sel), dtype=bool)
             rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
             ph = photo_index[rows]
-            R, O = R_photo[ph], O_photo[ph]
+            R_ground_from_cam, xyz_centre = state.R[ph], state.xyz0[ph]
             interior, conv = interior_photo[ph], convention_photo[ph]
-            xy_obs = xy_plate[rows]
-            meas = None if xy_measured is None else xy_measured[rows]
+            xy_obs = rays.xy_plate[rows]
+            meas = None if rays.xy_measured is None else rays.xy_measured[rows]
             free = ~fixed[sel]  # (m, 3)
             xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
-            X = _initial_points(R, O, interior[..., :3], xy_ray, xyz_given[sel], given_mask[sel])
+            xyz_point = _initial_points(R_ground_from_cam, xyz_centre, interior[..., :3], xy_ray, xyz_given[sel],
+                                        given_mask[sel])
             Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
-            wxy = 1.0 / sigma_xy[rows] ** 2  # (m, k, 2)
+            wxy = 1.0 / rays.sigma_xy[rows] ** 2  # (m, k, 2)
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 for _ in range(iterations):
-                    res, dX, *_ = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
+                    res, dX, *_ = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs, meas,
+                                            with_lens)
                     Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
-                    gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - X)
+                    gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - xyz_point)
                     Nx, gx = _hold(Nx, gx, free)
                     step = safe_solve(Nx, gx)
-                    X = X + step
-                    if _converged(step, X):
+                    xyz_point = xyz_point + step
+                    if _converged(step, xyz_point):
                         break
-                _, dX, dO, drot, dint = ray_terms(R, O, interior, conv, X, xy_obs, meas, with_lens)
+                _, dX, dO, drot, dint = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs,
+                                                  meas, with_lens)
                 Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
                 Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
                 # a point whose rays are parallel (or numbers not finite) is not determined: left out
                 Qm, ok = safe_inverse(Nx)
-                ok &= np.isfinite(X).all(axis=1)
+                ok &= np.isfinite(xyz_point).all(axis=1)
                 Qm = Qm * (free[:, :, None] & free[:, None, :])
-            xyz[sel[ok]] = X[ok]
+            xyz[sel[ok]] = xyz_point[ok]
             cov_m[sel[ok]] = Qm[ok]
             determined[sel[ok]] = True
-            if Qxx is not None and n_unknowns_of(Qxx):
+            if with_orientation:
                 m = len(sel)
                 JX = dX.reshape(m, 2 * k, 3)
                 G_rows = -Qm @ np.swapaxes(JX * wxy.reshape(m, 2 * k, 1), 1, 2)  # (m, 3, 2k): dX/d(plate)
@@ -256,11 +280,11 @@ SINGULAR_RCOND = 1e-14  # a point's 3x3 normal matrix whose eigenvalues span mor
 CONVERGED = 1e-12  # the iteration of a batch of points ends when every step is below this times the point's size
 
 
-def _converged(step: np.ndarray, X: np.ndarray) -> bool:
+def _converged(step: np.ndarray, xyz_ground: np.ndarray) -> bool:
     """True when every finite step (m, 3) is below CONVERGED times its point's largest coordinate
     (plus 1): further Gauss-Newton steps would only move the points by rounding. Points whose step
     is not finite (not determined) do not hold the batch back."""
-    scale = np.max(np.abs(np.where(np.isfinite(X), X, 0.0)), axis=1, keepdims=True) + 1.0
+    scale = np.max(np.abs(np.where(np.isfinite(xyz_ground), xyz_ground, 0.0)), axis=1, keepdims=True) + 1.0
     return bool(np.all((np.abs(step) <= CONVERGED * scale) | ~np.isfinite(step)))
 
 
@@ -312,17 +336,17 @@ def _hold(Nx, gx, free):
     return Nx, gx
 
 
-def _initial_points(R, O, interior, xy, xyz_given, given):
+def _initial_points(R_ground_from_cam, xyz_centre, interior, xy, xyz_given, given):
     """Starting coordinates: the ray intersection (k >= 2), or the ray met with the given
     height / the vertical through the given plan position (one ray); given values (held or
     weighted) where there are any."""
     fixed = given
     m, k, _ = xy.shape
-    r = ray_ground(R, xy, interior)
+    r = ray_ground(R_ground_from_cam, xy, interior)
     if k >= 2:
-        X = intersect_rays(O, r, safe=True)
+        xyz_ground = intersect_rays(xyz_centre, r, safe=True)
     else:
-        r0, O0 = r[:, 0], O[:, 0]
+        r0, O0 = r[:, 0], xyz_centre[:, 0]
         height = np.where(fixed[:, 2], xyz_given[:, 2], np.nan)
         t = np.where(np.isfinite(height), (height - O0[:, 2]) / r0[:, 2], np.nan)
         # without a given height, the point on the ray nearest the vertical through (X, Y)
@@ -331,10 +355,10 @@ def _initial_points(R, O, interior, xy, xyz_given, given):
         t_plan = np.einsum("mi,mi->m", horiz - O0[:, :2], r0[:, :2]) / np.where(d2 > 0, d2, 1.0)
         t = np.where(np.isfinite(t), t, t_plan)
         t = np.where(t > 0, t, 1.0)
-        X = O0 + t[:, None] * r0
-    return np.where(fixed, xyz_given, X)
+        xyz_ground = O0 + t[:, None] * r0
+    return np.where(fixed, xyz_given, xyz_ground)
 
 
-def reproject(R, O, interior, X):
-    """Plate coordinates of points X seen from photos (batched alike)."""
-    return project(R, O, interior, X)
+def reproject(R_ground_from_cam, xyz_centre, interior, xyz_ground):
+    """Plate coordinates of ground points seen from photos (batched alike; collinearity.plate_from_ground)."""
+    return plate_from_ground(R_ground_from_cam, xyz_centre, interior, xyz_ground)

@@ -2,7 +2,7 @@
 eliminated point by point into the reduced camera system; the independent check of Schmid's
 method of conditions (DESIGN section 4).
 
-* :mod:`.collinearity` - observation equations (Schmid 14) and their analytic Jacobians;
+* observation equations: the collinearity of :mod:`striptri.collinearity` (Schmid 14, analytic Jacobians);
 * :mod:`.points` - which point coordinates are unknowns, which points take part, start values;
 * :mod:`.reduced` - per-point Schur complement, reduced camera system, back-substitution;
 * :mod:`.adjust` - the iteration: ``adjust_bundle(project, options) -> AdjustmentResult``.

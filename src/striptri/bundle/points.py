@@ -24,7 +24,7 @@ from ..camera import ray_ground
 from ..lens import ideal_from_observed
 from ..groups import GroupBatch
 from ..linearise import Observations
-from ..model import GIVEN_AXES, Project
+from ..model import Project
 from ..parameters import State
 from ..triangulation import intersect_rays
 
@@ -56,8 +56,7 @@ class PointUnknowns:
 def point_unknowns(project: Project, batches: list[GroupBatch], obs: Observations) -> PointUnknowns:
     """Which coordinates are unknowns (module doc). obs: adjustment.observations_of(project, offset)."""
     pts = project.points
-    kind_axes = np.array([GIVEN_AXES[int(k)] for k in pts.kind], dtype=bool).reshape(-1, 3)
-    given = kind_axes & np.isfinite(pts.xyz_given)
+    given = pts.given_axes & np.isfinite(pts.xyz_given)
     weighted = given & (obs.q_control > 0)
     held = given & ~weighted
     included = np.zeros(len(pts), dtype=bool)
@@ -85,37 +84,40 @@ def initial_points(batches: list[GroupBatch], state: State, obs: Observations, u
     single = []
     for batch in batches:
         for chunk in batch.chunks(chunk_size):
-            O, r = _rays(chunk, state, obs)
+            xyz_centre, r = _rays(chunk, state, obs)
             pt = chunk.point_index
             if chunk.k >= 2:
-                X = intersect_rays(O, r)
+                xyz_ground = intersect_rays(xyz_centre, r)
             else:
-                X = np.full((len(pt), 3), np.nan)
-                single.append((chunk, O[:, 0], r[:, 0]))
+                xyz_ground = np.full((len(pt), 3), np.nan)
+                single.append((chunk, xyz_centre[:, 0], r[:, 0]))
             if approx is not None:
-                X = np.where(np.isfinite(approx[pt]).all(axis=1)[:, None], approx[pt], X)
-            xyz[pt] = np.where(given_any[pt], unknowns.given[pt], X)
+                xyz_ground = np.where(np.isfinite(approx[pt]).all(axis=1)[:, None], approx[pt], xyz_ground)
+            xyz[pt] = np.where(given_any[pt], unknowns.given[pt], xyz_ground)
     if single:
         z_known = xyz[:, 2][np.isfinite(xyz[:, 2])]
         z_fallback = float(np.median(z_known)) if len(z_known) else 0.0
-        for chunk, O0, r0 in single:
+        for chunk, xyz_centre0, r0 in single:
             pt = chunk.point_index
-            xyz[pt, 2] = np.where(np.isfinite(xyz[pt, 2]), xyz[pt, 2], _height_on_ray(O0, r0, xyz[pt, :2], z_fallback))
+            xyz[pt, 2] = np.where(np.isfinite(xyz[pt, 2]), xyz[pt, 2],
+                                  _height_on_ray(xyz_centre0, r0, xyz[pt, :2], z_fallback))
     return xyz
 
 
 def _rays(chunk: GroupBatch, state: State, obs: Observations):
+    """Projection centres and ground rays (Schmid 11) of a chunk's measurements: (m, k, 3) each."""
     ph = chunk.photo_index
     params, conv = state.camera_terms(ph)
     xy = ideal_from_observed(obs.plate[chunk.image_rows], params, conv).xy
     return state.xyz0[ph], ray_ground(state.R[ph], xy, params[..., :3])
 
 
-def _height_on_ray(O0, r0, xy_given, z_fallback: float) -> np.ndarray:
-    """Z of the point of the ray O0 + t r0 nearest the vertical through xy_given; the ray's height
-    at z_fallback where the ray is too steep for that. (m, 3), (m, 3), (m, 2) -> (m,)."""
+def _height_on_ray(xyz_centre, r0, xy_given, z_fallback: float) -> np.ndarray:
+    """Z of the point of the ray O + t r0 nearest the vertical through xy_given; the ray's height
+    at z_fallback where the ray is too steep for that. xyz_centre (O), r0: (m, 3); xy_given: (m, 2)
+    -> (m,)."""
     d2 = np.sum(r0[:, :2] ** 2, axis=1)
     steep = d2 < (_STEEP_RAY**2) * np.sum(r0**2, axis=1)
-    t = np.einsum("mi,mi->m", xy_given - O0[:, :2], r0[:, :2]) / np.where(steep, 1.0, d2)
-    z = O0[:, 2] + t * r0[:, 2]
+    t = np.einsum("mi,mi->m", xy_given - xyz_centre[:, :2], r0[:, :2]) / np.where(steep, 1.0, d2)
+    z = xyz_centre[:, 2] + t * r0[:, 2]
     return np.where(steep | ~(t > 0), z_fallback, z)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from ..collinearity import plate_from_ground
 from ..groups import GroupBatch
 from ..lens import projection_terms
 from ..linearise import Observations
@@ -74,10 +75,10 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     ph, rows, pt = batch.photo_index, batch.image_rows, batch.point_index
     cam = state.camera_of_photo[ph]
     params, conv = state.camera_terms(ph)
-    X = xyz[pt]
+    xyz_ground = xyz[pt]
     # residual space and derivatives through the camera model (lens.py), as triangulation does
-    e, d_point, d_centre, d_rot, d_camera = ray_terms(state.R[ph], state.xyz0[ph], params, conv, X, obs.plate[rows],
-                                                      with_lens=layout.lens_in_play(state))
+    e, d_point, d_centre, d_rot, d_camera = ray_terms(state.R[ph], state.xyz0[ph], params, conv, xyz_ground,
+                                                      obs.plate[rows], with_lens=layout.lens_in_play(state))
     d_rot = d_rot @ rotation_maps[ph]
     sigma = np.sqrt(obs.q_plate[rows])
     s = (1.0 / sigma)[..., None]
@@ -92,7 +93,7 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     e = e / sigma
     cols = np.concatenate(col_parts, -1)
     weight = unknowns.weight[pt]
-    control_misclosure = np.where(weight > 0, unknowns.given[pt] - X, 0.0)
+    control_misclosure = np.where(weight > 0, unknowns.given[pt] - xyz_ground, 0.0)
     N_pp = np.einsum("mkai,mkaj->mij", Jp, Jp)
     N_pp += (weight + ~free)[:, :, None] * np.eye(3)
     if damping:
@@ -108,10 +109,9 @@ def residual_sum_of_squares(batch: GroupBatch, state: State, layout: UnknownLayo
     plane of a camera."""
     ph, rows, pt = batch.photo_index, batch.image_rows, batch.point_index
     params, conv = state.camera_terms(ph)
-    X = xyz[pt]
+    xyz_ground = xyz[pt]
     with np.errstate(divide="ignore", invalid="ignore"):
-        m = np.einsum("mkji,mkj->mki", state.R[ph], X[:, None, :] - state.xyz0[ph])
-        pred = params[..., 1:3] - params[..., :1] * m[..., :2] / m[..., 2:3]
+        pred = plate_from_ground(state.R[ph], state.xyz0[ph], params[..., :3], xyz_ground[:, None, :])
         xy_obs = obs.plate[rows]
         if layout.lens_in_play(state):
             terms = projection_terms(pred, xy_obs, params, conv)
@@ -120,7 +120,7 @@ def residual_sum_of_squares(batch: GroupBatch, state: State, layout: UnknownLayo
             e = xy_obs - pred
         total = float(np.sum((e / np.sqrt(obs.q_plate[rows])) ** 2))
     weight = unknowns.weight[pt]
-    total += float(np.sum(weight * np.where(weight > 0, unknowns.given[pt] - X, 0.0) ** 2))
+    total += float(np.sum(weight * np.where(weight > 0, unknowns.given[pt] - xyz_ground, 0.0) ** 2))
     return total if np.isfinite(total) else np.inf
 
 

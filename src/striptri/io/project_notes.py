@@ -130,10 +130,11 @@ def _control_notes(table: CsvTable, points: model.ObjectPoints, rays: np.ndarray
                    "control points measured on one photo only, which gives them no condition (a height point "
                    "needs two rays; a check point needs two to be intersected and compared)")
     items = []
+    needed_rows = model.needed_axes(points.kind[:n_control]).reshape(-1, 3)
+    given_rows = model.given_axes(points.kind[:n_control]).reshape(-1, 3)
     for i in range(n_control):
         kind = int(points.kind[i])
-        needed = (True, True, True) if kind == model.CHECK else model.GIVEN_AXES[kind]
-        given = model.GIVEN_AXES[kind]
+        needed, given = needed_rows[i], given_rows[i]
         unused = [a for a, n in zip("XYZ", needed) if not n and table.text(i, a) != ""]
         unused += [f"sigma_{a}" for a, g in zip("XYZ", given) if not g and table.text(i, f"sigma_{a}") != ""]
         if unused:

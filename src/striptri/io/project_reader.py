@@ -416,29 +416,15 @@ def _read_control(table: CsvTable) -> _Control:
     sigma_file = np.column_stack(
         [_sigma_column(table, f"sigma_{n}", zero_means_fixed=True) for n in "XYZ"]
     ).reshape(-1, 3)
-    needed = _axes_table(_needed_axes)[kind].reshape(-1, 3)
+    needed = model.needed_axes(kind).reshape(-1, 3)
     for i, j in zip(*np.nonzero(needed & np.isnan(xyz_file))):
         name = model.KIND_NAMES[kind[i]]
         raise table.error(i, f"kind {name} needs {'XYZ'[j]} but it is empty (kind {name} needs "
                              f"{', '.join(a for a, n in zip('XYZ', needed[i]) if n)})")
     xyz = np.where(needed, xyz_file, np.nan)
-    given = _axes_table(model.GIVEN_AXES.get)[kind].reshape(-1, 3)
+    given = model.given_axes(kind).reshape(-1, 3)
     sigma = np.where(given, sigma_file, np.nan)
     return _Control(ids, kind, xyz, sigma)
-
-
-def _axes_table(axes_of) -> np.ndarray:
-    """(max kind code + 1, 3) bool: axes_of(code) for every kind code of model.KIND_CODES."""
-    codes = sorted(model.KIND_CODES.values())
-    out = np.zeros((max(codes) + 1, 3), dtype=bool)
-    for code in codes:
-        out[code] = axes_of(code)
-    return out
-
-
-def _needed_axes(kind: int) -> tuple[bool, bool, bool]:
-    """Which of X, Y, Z a control row of this kind must give (check points: all three, as reference)."""
-    return (True, True, True) if kind == model.CHECK else model.GIVEN_AXES[kind]
 
 
 # ---------------------------------------------------------------------------------------------

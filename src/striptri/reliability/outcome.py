@@ -7,12 +7,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.observations import observations_of
+from ..adjusted_points import triangulate_adjusted  # re-exported: the ground points of an adjustment
 from ..core.result import SUCCESSFUL_TERMINATIONS, AdjustmentResult
 from ..groups import build_batches
-from ..model import GIVEN_AXES, Project
+from ..model import Project
 from ..parameters import with_state
-from ..triangulation import Triangulated, ray_terms, triangulate
+from ..triangulation import ray_terms
 from .measures import ALPHA0, BETA0, PlateReliability, critical_value, noncentrality, row_abs, row_statistic
 
 FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED = "", "suspect", "rejected", "dropped"
@@ -204,26 +204,6 @@ def participating_rows(project: Project) -> np.ndarray:
     for batch in build_batches(project):
         part[batch.image_rows.ravel()] = True
     return part
-
-
-def triangulate_adjusted(adjusted: Project, result: AdjustmentResult) -> Triangulated:
-    """Ground points of an adjustment, coordinates only (triangulation.triangulate; reduced frame,
-    add result.offset), leaving out the rows of points that cannot be determined: a tie point left
-    with one ray gives two coordinates for three unknowns, on which triangulate meets a singular
-    matrix (numpy LinAlgError) instead of leaving the point undetermined."""
-    s, lay = result.state, result.layout
-    obs = observations_of(adjusted, result.offset)
-    pts = adjusted.points
-    given = np.array([GIVEN_AXES[int(k)] for k in pts.kind], dtype=bool).reshape(-1, 3)
-    aip = adjusted.image_points
-    rays = np.bincount(aip.point_index, minlength=len(pts))
-    use = (2 * rays + given.sum(axis=1) >= 3)[aip.point_index]
-    return triangulate(
-        s.R, s.xyz0, s.interior[s.camera_of_photo], lay.rotation_maps(s), lay.photo_cols, lay.camera_cols,
-        s.camera_of_photo, aip.photo_index[use], aip.point_index[use], result.plate_adjusted[use], aip.sigma_xy[use],
-        len(pts), np.where(given, result.control_adjusted, 0.0), given, obs.q_control,
-        convention_photo=s.convention[s.camera_of_photo], xy_measured=aip.xy[use],
-    )
 
 
 def predicted_residuals(project: Project, adjusted: Project, result: AdjustmentResult, rows: np.ndarray) -> np.ndarray:

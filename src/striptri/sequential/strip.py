@@ -34,7 +34,7 @@ from ..conditions import closest_scales
 from ..core.options import DIRECTIONS, PROCEDURES, SequentialOptions  # noqa: F401  (re-exported)
 from ..errors import NumericalFailure
 from ..lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
-from ..model import CHECK, GIVEN_AXES, Project
+from ..model import CHECK, Project
 from ..parameters import reduction_offset
 from ..termination import table, trend
 from ..triangulation import intersect_rays
@@ -280,8 +280,7 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
         steps.append(step)
 
     # absolute orientation
-    given = np.array([GIVEN_AXES[int(k)] for k in pts.kind], dtype=bool).reshape(-1, 3)
-    given &= np.isfinite(pts.xyz_given) & have[:, None] & (pts.kind != CHECK)[:, None]
+    given = pts.given_axes & np.isfinite(pts.xyz_given) & have[:, None] & (pts.kind != CHECK)[:, None]
     xyz_given = pts.xyz_given - offset
     full = np.flatnonzero(given.all(1))
     start_m, start_g = Xm[full], xyz_given[full]

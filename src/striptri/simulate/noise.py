@@ -108,9 +108,9 @@ def _measured_plates(truth: Truth, noise: NoiseOptions, rng) -> model.ImagePoint
 
 
 def _given_points(truth: Truth, noise: NoiseOptions, rng) -> model.ObjectPoints:
-    """Given coordinates per kind (model.GIVEN_AXES); check points keep their true coordinates."""
+    """Given coordinates per kind (model.given_axes); check points keep their true coordinates."""
     n = len(truth.point_ids)
-    given = np.array([model.GIVEN_AXES[int(k)] for k in truth.kind], dtype=bool).reshape(n, 3)
+    given = model.given_axes(truth.kind).reshape(n, 3)
     sigma = np.array([noise.sigma_control_xy, noise.sigma_control_xy, noise.sigma_control_z])
     xyz_given = np.where(given, truth.xyz_ground + rng.normal(0.0, 1.0, (n, 3)) * sigma, np.nan)
     sigma_given = np.where(given & (sigma > 0), sigma, np.nan)

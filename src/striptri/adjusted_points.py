@@ -1,0 +1,38 @@
+"""Ground points of an adjusted result: the one entry to the triangulation for a finished adjustment.
+
+The pipeline (points.csv with Schmid's (90) precision split) and the gross-error tests (coordinates
+of points left with fewer rays) both call :func:`triangulate_adjusted`; it reads the rays, the
+control and the orientation from the project and the result and hands them to
+:func:`striptri.triangulation.triangulate`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .adjustment import observations_of
+from .model import Project
+from .triangulation import GivenCoordinates, RayObservations, Triangulated, triangulate
+
+if TYPE_CHECKING:
+    from .adjustment import AdjustmentResult
+
+
+def triangulate_adjusted(project: Project, result: AdjustmentResult, *, orientation_part: bool = False) -> Triangulated:
+    """The ground points (reduced frame: add ``result.offset``) from the adjusted plate coordinates
+    of ``result`` (every row of ``project.image_points``, with the measurements for the camera
+    model), the adjusted control coordinates (weighted ones as observations, held ones held) and
+    the adjusted orientation, which is held.
+
+    Returns triangulation.Triangulated: coordinates, which points are determined, and the
+    measurement part of their cofactors; with ``orientation_part`` also the orientation part
+    ``G Qxx G^T`` (Schmid 87-90), which reads ``result.covariance`` (a NumericalFailure where N is
+    singular). Without it ``cov_orientation`` is zero.
+    """
+    ip = project.image_points
+    rays = RayObservations(photo_index=ip.photo_index, point_index=ip.point_index, xy_plate=result.plate_adjusted,
+                           sigma_xy=ip.sigma_xy, xy_measured=ip.xy)
+    control = GivenCoordinates(xyz_ground=result.control_adjusted, given=project.points.given_axes,
+                               q_given=observations_of(project, result.offset).q_control)
+    return triangulate(rays, control, state=result.state, layout=result.layout,
+                       Qxx=result.covariance if orientation_part else None)
