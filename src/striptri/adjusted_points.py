@@ -8,14 +8,11 @@ control and the orientation from the project and the result and hands them to
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from .adjustment import observations_of
+from .core.observations import observations_of
+from .core.result import AdjustmentResult
 from .model import Project
 from .triangulation import GivenCoordinates, RayObservations, Triangulated, triangulate
 
-if TYPE_CHECKING:
-    from .adjustment import AdjustmentResult
 
 
 def triangulate_adjusted(project: Project, result: AdjustmentResult, *, orientation_part: bool = False) -> Triangulated:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import GIVEN_AXES, Project
+from ..model import Project
 
 
 @dataclass(frozen=True)
@@ -28,10 +28,9 @@ class Observations:
 def observations_of(project: Project, offset: np.ndarray) -> Observations:
     """The project's plate measurements and given control coordinates (minus ``offset``, the
     reduced frame) with their variances; a control coordinate counts only on the axes its kind
-    gives (model.GIVEN_AXES)."""
+    gives (model.given_axes)."""
     pts = project.points
-    given_axes = np.array([GIVEN_AXES[int(k)] for k in pts.kind], dtype=bool).reshape(-1, 3)
-    given = np.isfinite(pts.xyz_given) & given_axes
+    given = np.isfinite(pts.xyz_given) & pts.given_axes
     control = np.where(given, pts.xyz_given - offset, 0.0)
     q_control = np.where(given & np.isfinite(pts.sigma_given), np.nan_to_num(pts.sigma_given) ** 2, 0.0)
     ip = project.image_points
