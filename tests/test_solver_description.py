@@ -13,7 +13,7 @@ import pytest
 import scipy.sparse as sp
 
 from striptri import solvers
-from striptri.solvers import SOLVERS, SolverOptions, describe, make_solver
+from striptri.solvers import SOLVERS, SolverInfo, SolverOptions, describe, make_solver
 from striptri.solvers.cvxopt_cholesky import lower_triangle
 from striptri.solvers.describe import blas_path, on_reference_blas
 from striptri.solvers.synthetic import block_normal_matrix
@@ -47,9 +47,9 @@ def test_the_blas_found_is_a_library_loaded_in_this_process(name):
 
 
 def test_the_description_follows_the_solver_info():
-    assert describe("banded", {"bandwidth": 17, "border": 3})["factorisation"] == (
+    assert describe("banded", SolverInfo(bandwidth=17, border=3))["factorisation"] == (
         "LAPACK banded Cholesky (pbtrf), bandwidth 17, dense border of 3 camera columns")
-    assert describe("banded", {"bandwidth": 17, "border": 0})["factorisation"] == (
+    assert describe("banded", SolverInfo(bandwidth=17, border=0))["factorisation"] == (
         "LAPACK banded Cholesky (pbtrf), bandwidth 17")
 
 
@@ -60,8 +60,8 @@ def test_cholmod_names_its_version_mode_and_ordering():
     result = solver.solve(N, np.ones(N.shape[0]))
     text = describe(solver, result.info)["factorisation"]
     assert text.startswith("CHOLMOD ") and "SuiteSparse" in text
-    assert result.info["mode"] in text and "ordering" in text
-    assert describe("cholmod", {"mode": "simplicial", "ordering": "amd"})["factorisation"].count("simplicial") == 1
+    assert result.info.mode in text and "ordering" in text
+    assert describe("cholmod", SolverInfo(mode="simplicial", ordering="amd"))["factorisation"].count("simplicial") == 1
 
 
 def test_an_auto_solver_is_described_by_its_choice():
@@ -137,7 +137,7 @@ def test_summary_json_names_the_factorisation_and_blas_that_ran(tmp_path, solver
     run_adjust(project, out, solver=solver)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == solver
-    expected = describe(solver, {"mode": "supernodal"} if solver == "cholmod" else None)
+    expected = describe(solver, SolverInfo(mode="supernodal") if solver == "cholmod" else None)
     assert summary["blas"] == expected["blas"]
     assert summary["factorisation"].split(",")[0] == expected["factorisation"].split(",")[0]
     assert ("supernodal" in summary["factorisation"]) == (solver == "cholmod")
