@@ -12,6 +12,7 @@ import pytest
 
 from cli_support import run
 from striptri import progress
+from striptri.solvers import SolverInfo
 from striptri.pipeline import run_adjust
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
@@ -64,7 +65,7 @@ def test_the_silent_start_is_shown_once_the_run_is_long():
         progress.iteration("conditions", 1, 10.0, 5.0, 0.1)
         assert stream.getvalue() == ""
         time.sleep(0.35)
-        progress.iteration("conditions", 2, 9.0, 0.5, 0.1, {"inner_iterations": 17})
+        progress.iteration("conditions", 2, 9.0, 0.5, 0.1, SolverInfo(inner_iterations=17))
     lines = stream.getvalue().splitlines()
     assert [line.split(":")[1] for line in lines] == [" conditions iteration 1", " conditions iteration 2"]
     assert lines[1].endswith(", 17 inner sweeps")
@@ -88,7 +89,7 @@ def test_inner_sweeps_of_an_iterative_solver_are_shown_while_it_runs(tmp_path, m
     with progress.reporting(progress.StderrProgress(stream, after=0.0, tty=False)):
         result = adjust(read_project(DATA / "block_3x6"), AdjustmentOptions(solver="pcg"))
     lines = [line for line in stream.getvalue().splitlines() if "inner iteration" in line]
-    total = sum(h.solver_info["inner_iterations"] for h in result.history)
+    total = sum(h.solver_info.inner_iterations for h in result.history)
     assert total >= 25 and len(lines) >= 1
     for line in lines:
         name, rest = line.removeprefix("striptri: ").split(": ", 1)

@@ -13,7 +13,7 @@ import pytest
 import scipy.sparse as sp
 
 from striptri import solvers
-from striptri.solvers import SOLVERS, SolverOptions, describe, make_solver
+from striptri.solvers import SOLVERS, SolverInfo, SolverOptions, describe, make_solver
 from striptri.solvers.cvxopt_cholesky import lower_triangle
 from striptri.solvers.describe import blas_path, on_reference_blas
 from striptri.solvers.synthetic import block_normal_matrix
@@ -47,10 +47,51 @@ def test_the_blas_found_is_a_library_loaded_in_this_process(name):
 
 
 def test_the_description_follows_the_solver_info():
-    assert describe("banded", {"bandwidth": 17, "border": 3})["factorisation"] == (
+    assert describe("banded", SolverInfo(bandwidth=17, border=3))["factorisation"] == (
         "LAPACK banded Cholesky (pbtrf), bandwidth 17, dense border of 3 camera columns")
-    assert describe("banded", {"bandwidth": 17, "border": 0})["factorisation"] == (
+    assert describe("banded", SolverInfo(bandwidth=17, border=0))["factorisation"] == (
         "LAPACK banded Cholesky (pbtrf), bandwidth 17")
+
+
+# what describe() (and summary.json's history, for the iterative ones) reads of each solver's report
+_REPORTED = {
+    "banded": {"bandwidth", "border"},
+    "cholmod": {"analyses", "mode", "ordering"},
+    "pcg": {"inner_iterations", "relative_residual", "converged", "slow", "tolerance", "warm_start", "restarts"},
+    "strip-pcg": {"inner_iterations", "relative_residual", "converged", "slow", "preconditioner", "strips",
+                  "bandwidth", "dense_block"},
+}
+
+
+@pytest.mark.parametrize("name", sorted(_REPORTED))
+def test_a_solve_reports_a_solver_info_with_what_describe_reads(name):
+    """SolveResult.info is a SolverInfo (not a dict) holding the fields describe() words: a
+    solver that stopped reporting one would describe itself without it."""
+    if name == "cholmod":
+        pytest.importorskip("sksparse.cholmod")
+    # two strips (one strip for banded: a second would join the border) and two cameras (6 columns)
+    N, st = block_normal_matrix(1 if name == "banded" else 2, 8, np.random.default_rng(3), n_cameras=2)
+    result = make_solver(SolverOptions(name), st).solve(N, np.ones(N.shape[0]))
+    info = result.info
+    assert isinstance(info, SolverInfo)
+    assert _REPORTED[name] <= set(info.as_dict())
+    assert all(v is not None for v in info.as_dict().values())
+    text = describe(name, info)["factorisation"]
+    if name == "banded":
+        assert info.border == 6 and text.endswith(f"bandwidth {info.bandwidth}, dense border of 6 camera columns")
+    if name == "strip-pcg":
+        assert info.strips == 2 and text.endswith(f"2 strips of bandwidth {info.bandwidth}, a dense block of 6 camera "
+                                                  "columns")
+
+
+def test_solver_info_is_a_frozen_record_of_the_reported_fields():
+    info = SolverInfo(bandwidth=17, border=0)
+    assert info.as_dict() == {"bandwidth": 17, "border": 0}  # 0 is reported, None is not
+    assert SolverInfo().as_dict() == {}
+    damped = info.merged(damping=1e-3)
+    assert damped.as_dict() == {"bandwidth": 17, "border": 0, "damping": 1e-3} and info.damping is None
+    with pytest.raises(AttributeError):
+        info.bandwidth = 3
 
 
 def test_cholmod_names_its_version_mode_and_ordering():
@@ -60,8 +101,8 @@ def test_cholmod_names_its_version_mode_and_ordering():
     result = solver.solve(N, np.ones(N.shape[0]))
     text = describe(solver, result.info)["factorisation"]
     assert text.startswith("CHOLMOD ") and "SuiteSparse" in text
-    assert result.info["mode"] in text and "ordering" in text
-    assert describe("cholmod", {"mode": "simplicial", "ordering": "amd"})["factorisation"].count("simplicial") == 1
+    assert result.info.mode in text and "ordering" in text
+    assert describe("cholmod", SolverInfo(mode="simplicial", ordering="amd"))["factorisation"].count("simplicial") == 1
 
 
 def test_an_auto_solver_is_described_by_its_choice():
@@ -137,7 +178,7 @@ def test_summary_json_names_the_factorisation_and_blas_that_ran(tmp_path, solver
     run_adjust(project, out, solver=solver)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == solver
-    expected = describe(solver, {"mode": "supernodal"} if solver == "cholmod" else None)
+    expected = describe(solver, SolverInfo(mode="supernodal") if solver == "cholmod" else None)
     assert summary["blas"] == expected["blas"]
     assert summary["factorisation"].split(",")[0] == expected["factorisation"].split(",")[0]
     assert ("supernodal" in summary["factorisation"]) == (solver == "cholmod")

@@ -97,7 +97,7 @@ class SolverSuite:
         if self.iterative:
             tol = options.get("inner_tolerance", SolverOptions().inner_tolerance)
             bound = 2 * scaled_condition(N) * tol
-            assert result.info["converged"] and result.info["relative_residual"] < tol
+            assert result.info.converged and result.info.relative_residual < tol
             assert err < bound, (err, bound)
         else:
             assert err < DIRECT_RTOL, err
@@ -203,7 +203,7 @@ class SolverSuite:
                 result = self.make(st).solve(N, b)
             except SingularNormalMatrix:
                 return
-        assert not result.info["converged"]
+        assert not result.info.converged
         assert any(issubclass(w.category, SlowConvergenceWarning) for w in caught)
 
     # -- real normal matrices ------------------------------------------------------------------
@@ -223,7 +223,7 @@ class SolverSuite:
         assert np.abs(r.state.R - ref.state.R).max() < 1e-9
         assert r.vtpv == pytest.approx(ref.vtpv, rel=1e-9)
         if self.iterative:
-            assert all(h.solver_info["converged"] and h.solver_info["inner_iterations"] > 0 for h in r.history)
+            assert all(h.solver_info.converged and h.solver_info.inner_iterations > 0 for h in r.history)
 
 
 class IterativeSuite(SolverSuite):
@@ -239,22 +239,22 @@ class IterativeSuite(SolverSuite):
         N, st = strip_case(8, 1, seed=3)
         result = self.assert_agrees(N, st)
         info = result.info
-        assert info["inner_iterations"] >= 1
-        assert info["slow"] is (info["inner_iterations"] > self.slow_limit)
-        assert 0 < info["relative_residual"] < SolverOptions().inner_tolerance
+        assert info.inner_iterations >= 1
+        assert info.slow is (info.inner_iterations > self.slow_limit)
+        assert 0 < info.relative_residual < SolverOptions().inner_tolerance
 
     def test_a_looser_tolerance_needs_fewer_iterations(self):
         N, st = strip_case(8, 1, seed=3)
         tight = self.assert_agrees(N, st, inner_tolerance=1e-12)
         loose = self.assert_agrees(N, st, inner_tolerance=1e-6)
-        assert loose.info["inner_iterations"] < tight.info["inner_iterations"]
+        assert loose.info.inner_iterations < tight.info.inner_iterations
 
     def test_warns_when_it_converges_slowly(self):
         N, st = strip_case(30, 1, seed=6)
         with pytest.warns(SlowConvergenceWarning, match="did not reach"):
             result = self.make(st, max_inner_iterations=3).solve(N, np.ones(N.shape[0]))
-        assert result.info["slow"] is True and result.info["converged"] is False
-        assert result.info["inner_iterations"] == 3
+        assert result.info.slow is True and result.info.converged is False
+        assert result.info.inner_iterations == 3
 
     @pytest.mark.parametrize("warm_start", ["zero", "previous", "projected"])
     def test_warm_starts_give_the_same_solution(self, warm_start):
@@ -262,12 +262,12 @@ class IterativeSuite(SolverSuite):
         solver = self.make(st, warm_start=warm_start)
         for seed in range(3):
             result = self.assert_agrees(N, st, seed=seed, solver=solver, warm_start=warm_start)
-            assert result.info["warm_start"] == warm_start
+            assert result.info.warm_start == warm_start
 
     def test_zero_right_hand_side(self):
         N, st = strip_case(4, 0, seed=1)
         result = self.make(st).solve(N, np.zeros(N.shape[0]))
-        assert np.all(result.dx == 0) and result.info["converged"]
+        assert np.all(result.dx == 0) and result.info.converged
 
 
 class TestDense(SolverSuite):
@@ -286,12 +286,12 @@ class TestBanded(SolverSuite):
         """Schmid Fig. 10: blocks within two photos of the diagonal, band 17; cameras a border."""
         N, st = strip_case(20, n_cameras, seed=4)
         result = self.assert_agrees(N, st)
-        assert result.info == {"bandwidth": 17, "border": 3 * n_cameras}
+        assert result.info.as_dict() == {"bandwidth": 17, "border": 3 * n_cameras}
 
     def test_bandwidth_of_the_real_strip8(self, strip8_dense):
         project, _ = strip8_dense
         r = adjust(project, AdjustmentOptions(solver="banded"))
-        assert all(h.solver_info == {"bandwidth": 17, "border": 0} for h in r.history)
+        assert all(h.solver_info.as_dict() == {"bandwidth": 17, "border": 0} for h in r.history)
 
 
 class TestCholmod(SolverSuite):
@@ -306,12 +306,12 @@ class TestCholmod(SolverSuite):
         solver = self.make(st)
         for seed in range(3):
             result = self.assert_agrees(N * (1.0 + seed), st, seed=seed, solver=solver)
-        assert result.info["analyses"] == 1
+        assert result.info.analyses == 1
 
     def test_an_adjustment_analyses_once(self, strip8_dense):
         project, _ = strip8_dense
         r = adjust(project, AdjustmentOptions(solver="cholmod"))
-        assert r.iterations > 1 and [h.solver_info["analyses"] for h in r.history] == [1] * r.iterations
+        assert r.iterations > 1 and [h.solver_info.analyses for h in r.history] == [1] * r.iterations
 
 
 class TestCvxopt(SolverSuite):
@@ -326,12 +326,12 @@ class TestCvxopt(SolverSuite):
         solver = self.make(st)
         for seed in range(3):
             result = self.assert_agrees(N * (1.0 + seed), st, seed=seed, solver=solver)
-        assert result.info["analyses"] == 1
+        assert result.info.analyses == 1
 
     def test_an_adjustment_analyses_once(self, strip8_dense):
         project, _ = strip8_dense
         r = adjust(project, AdjustmentOptions(solver="cvxopt"))
-        assert r.iterations > 1 and [h.solver_info["analyses"] for h in r.history] == [1] * r.iterations
+        assert r.iterations > 1 and [h.solver_info.analyses for h in r.history] == [1] * r.iterations
 
 
 class TestGaussSeidel(IterativeSuite):
@@ -341,8 +341,8 @@ class TestGaussSeidel(IterativeSuite):
         N, st = strip_case(8, 1, seed=3)
         plain = self.assert_agrees(N, st)
         sor = self.assert_agrees(N, st, relaxation=1.3)
-        assert sor.info["relaxation"] == 1.3
-        assert sor.info["inner_iterations"] != plain.info["inner_iterations"]
+        assert sor.info.relaxation == 1.3
+        assert sor.info.inner_iterations != plain.info.inner_iterations
 
 
 class TestPcg(IterativeSuite):
@@ -361,14 +361,14 @@ class TestStripPcg(IterativeSuite):
         N, st = block_case(4, 10, 1, seed=3)
         tight = self.assert_agrees(N, st, inner_tolerance=1e-12)
         loose = self.assert_agrees(N, st, inner_tolerance=1e-6)
-        assert loose.info["inner_iterations"] < tight.info["inner_iterations"]
+        assert loose.info.inner_iterations < tight.info.inner_iterations
 
     def test_warns_when_it_converges_slowly(self):
         N, st = block_case(4, 10, 1, seed=6)
         with pytest.warns(SlowConvergenceWarning, match="did not reach"):
             result = self.make(st, max_inner_iterations=3).solve(N, np.ones(N.shape[0]))
-        assert result.info["slow"] is True and result.info["converged"] is False
-        assert result.info["inner_iterations"] == 3
+        assert result.info.slow is True and result.info.converged is False
+        assert result.info.inner_iterations == 3
 
     @pytest.mark.parametrize("preconditioner", strips.PRECONDITIONERS)
     def test_block_of_strips_with_cameras(self, preconditioner):
@@ -377,14 +377,14 @@ class TestStripPcg(IterativeSuite):
         N, st = block_case(5, 12, 2, seed=4)
         solver = strips.StripPcgSolver(SolverOptions("strip-pcg"), st, preconditioner)
         result = self.assert_agrees(N, st, solver=solver)
-        assert {k: result.info[k] for k in ("strips", "bandwidth", "dense_block", "preconditioner")} == {
+        assert {k: getattr(result.info, k) for k in ("strips", "bandwidth", "dense_block", "preconditioner")} == {
             "strips": 5, "bandwidth": 17, "dense_block": 6, "preconditioner": preconditioner}
-        assert result.info["inner_iterations"] > 1  # the couplings between strips are iterated
+        assert result.info.inner_iterations > 1  # the couplings between strips are iterated
 
     def test_one_strip_is_solved_by_its_banded_factor(self):
         N, st = strip_case(200, 0, seed=2)
         result = self.assert_agrees(N, st)
-        assert result.info["inner_iterations"] == 1 and result.info["strips"] == 1
+        assert result.info.inner_iterations == 1 and result.info.strips == 1
 
     def test_groups_without_structure(self):
         """No groups: columns of group -1 are one dense block up to DENSE_REST columns, runs of
@@ -408,7 +408,7 @@ class TestStripPcg(IterativeSuite):
         groups = np.tile([0, 1], 15)
         stp = Structure(st.n_unknowns, st.block_starts, groups)
         result = self.assert_agrees(Np, stp)
-        assert result.info["strips"] == 2 and result.info["bandwidth"] == 17
+        assert result.info.strips == 2 and result.info.bandwidth == 17
 
 
 def _simulated(n_photos, n_strips, layout, every_k=4, seed=5):
@@ -433,9 +433,9 @@ def test_strip_pcg_adjusts_like_the_direct_solver(n_photos, n_strips, layout):
     assert np.abs(r.state.xyz0 - ref.state.xyz0).max() < 1e-6 * FLYING_HEIGHT
     assert r.vtpv == pytest.approx(ref.vtpv, rel=1e-8)
     infos = [h.solver_info for h in r.history]
-    assert all(i["converged"] and i["strips"] == n_strips and i["bandwidth"] == 17 for i in infos)
+    assert all(i.converged and i.strips == n_strips and i.bandwidth == 17 for i in infos)
     if n_strips == 1:
-        assert all(i["inner_iterations"] == 1 for i in infos)
+        assert all(i.inner_iterations == 1 for i in infos)
 
 
 def test_block_groups_of_a_layout():
@@ -464,8 +464,8 @@ def test_warm_starts_in_an_adjustment(monkeypatch):
         monkeypatch.setitem(selection._SOLVER_CLASSES, "strip-pcg",
                             lambda o, s, start=start: strips.StripPcgSolver(replace(o, warm_start=start), s))
         r = adjust(project, AdjustmentOptions(solver="strip-pcg"))
-        assert r.converged and all(h.solver_info["warm_start"] == start for h in r.history)
-        counts[start] = np.array([h.solver_info["inner_iterations"] for h in r.history])
+        assert r.converged and all(h.solver_info.warm_start == start for h in r.history)
+        counts[start] = np.array([h.solver_info.inner_iterations for h in r.history])
     assert counts["zero"].shape == counts["projected"].shape == counts["previous"].shape
     assert np.all(counts["projected"] <= counts["zero"] + 1)
     assert counts["previous"][1:].sum() > counts["zero"][1:].sum()

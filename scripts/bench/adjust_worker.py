@@ -90,7 +90,7 @@ def run_striptri(project, true_xyz0, method: str, solver: str, repeats: int, out
     np.savez(out, xyz0=xyz0, R=result.state.R)
     inner = {}  # the solver's counters: inner iterations summed over the outer ones, others as last reported
     for h in result.history:
-        for key, value in (h.solver_info or {}).items():
+        for key, value in h.solver_info.as_dict().items():
             if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
                 inner[key] = inner.get(key, 0) + int(value) if key == "inner_iterations" else int(value)
     return {

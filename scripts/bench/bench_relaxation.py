@@ -47,15 +47,16 @@ def worker(project: str, solver: str, out: str) -> None:
         warnings.simplefilter("always")
         r = adjust(p, AdjustmentOptions(solver=solver))
     seconds = time.perf_counter() - t
-    inner = [h.solver_info.get("inner_iterations", 0) for h in r.history]
+    inner = [h.solver_info.inner_iterations or 0 for h in r.history]
     info = {
         "solver": r.solver, "converged": bool(r.converged), "iterations": int(r.iterations),
-        "inner": [int(i) for i in inner], "inner_converged": [bool(h.solver_info.get("converged", True))
+        "inner": [int(i) for i in inner], "inner_converged": [h.solver_info.converged is not False
                                                              for h in r.history],
         "solve_s": r.timings.solve, "final_checks_s": r.timings.final_checks or 0.0, "adjust_s": seconds,
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "vtpv": float(r.vtpv),
         "warnings": sorted({type(w.message).__name__ for w in caught}),
-        "last_info": {k: v for k, v in r.history[-1].solver_info.items() if isinstance(v, (int, float, str, bool))},
+        "last_info": {k: v for k, v in r.history[-1].solver_info.as_dict().items()
+                      if isinstance(v, (int, float, str, bool))},
     }
     np.savez(out, xyz0=r.state.xyz0 + r.offset, info=json.dumps(info))
 

@@ -120,8 +120,7 @@ def cell(name, first, later, info) -> str:
     if name in ("cholmod", "cvxopt", "sparse"):
         text += f" ({first * 1e3:.0f} first)"
     if name in ITERATIVE:
-        its = info["inner_iterations"]
-        text += f" [{its}{'' if info['converged'] else ' n.c.'}]"
+        text += f" [{info.inner_iterations}{'' if info.converged else ' n.c.'}]"
     return text
 
 

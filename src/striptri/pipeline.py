@@ -416,13 +416,15 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
     }
 
 
-def _solver_report(info: dict) -> dict:
-    """The inner iterations of an iterative solver in an outer iteration (empty for direct ones)."""
-    keys = ("inner_iterations", "relative_residual", "converged", "slow")
+def _solver_report(info: solvers.SolverInfo) -> dict:
+    """The inner iterations of an iterative solver in an outer iteration (empty for direct ones):
+    summary.json's ``solver_inner_iterations``, ``solver_relative_residual``, ``solver_converged``
+    and ``solver_slow``, those the solver reported."""
+    reported = {"inner_iterations": info.inner_iterations, "relative_residual": info.relative_residual,
+                "converged": info.converged, "slow": info.slow}
     out = {}
-    for k in keys:
-        if k in info:
-            v = info[k]
+    for k, v in reported.items():
+        if v is not None:
             out[f"solver_{k}"] = bool(v) if isinstance(v, (bool, np.bool_)) else (
                 int(v) if isinstance(v, (int, np.integer)) else _finite_or_none(float(v)))
     return out

@@ -22,6 +22,10 @@ import math
 import os
 import sys
 import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the solvers report their inner iterations here: no import at run time
+    from .solvers.info import SolverInfo
 
 PROGRESS_AFTER_S = 2.0  # a run shorter than this prints no progress (STRIPTRI_PROGRESS_AFTER overrides)
 INNER_EVERY_S = 0.5  # inner sweeps: the terminal's status line is rewritten at most this often
@@ -31,11 +35,11 @@ _current: contextvars.ContextVar = contextvars.ContextVar("striptri_progress", d
 
 
 def iteration(method: str, number: int, vtpv: float, max_correction: float, seconds: float,
-              solver_info: dict | None = None) -> None:
+              solver_info: SolverInfo | None = None) -> None:
     """An outer iteration has finished (no-op without an active reporter)."""
     reporter = _current.get()
     if reporter is not None:
-        reporter.iteration(method, number, vtpv, max_correction, seconds, solver_info or {})
+        reporter.iteration(method, number, vtpv, max_correction, seconds, solver_info)
 
 
 def inner(solver: str, iterations: int, relative_residual: float) -> None:
@@ -70,10 +74,10 @@ def _number(x: float, spec: str) -> str:
 
 
 def iteration_text(method: str, number: int, vtpv: float, max_correction: float, seconds: float,
-                   solver_info: dict) -> str:
+                   solver_info: SolverInfo | None) -> str:
     text = (f"{method} iteration {number}: vTPv {_number(vtpv, '.6g')}, correction "
             f"{_number(max_correction, '.3g')} sigma, {seconds:.2f} s")
-    inner = solver_info.get("inner_iterations")
+    inner = solver_info.inner_iterations if solver_info is not None else None
     if inner is not None:
         text += f", {inner} inner sweeps"
     return text

@@ -385,7 +385,7 @@ def _checks_section(summary: dict) -> list[str]:
 
 def _convergence_section(result: AdjustmentResult) -> list[str]:
     hist = result.history
-    inner = [h.solver_info.get("inner_iterations") for h in hist]
+    inner = [h.solver_info.inner_iterations for h in hist]
     has_inner = any(i is not None for i in inner)
     png = fig.convergence([h.vtpv for h in hist], [h.max_correction for h in hist],
                           [np.nan if i is None else i for i in inner] if has_inner else None)
@@ -396,7 +396,7 @@ def _convergence_section(result: AdjustmentResult) -> list[str]:
     for i, h in enumerate(hist):
         row = [str(i + 1), _fmt(h.vtpv, ".8g"), _fmt(h.max_correction, ".3e"), _fmt(h.seconds, ".3f")]
         if has_inner:
-            row += [_fmt(h.solver_info.get("inner_iterations")), _fmt(h.solver_info.get("relative_residual"), ".1e")]
+            row += [_fmt(h.solver_info.inner_iterations), _fmt(h.solver_info.relative_residual, ".1e")]
         rows.append(row)
     return [
         _section("convergence"),

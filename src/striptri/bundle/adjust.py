@@ -221,7 +221,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         timings.add("linearisation_and_reduction", t3 - t2)
         crit = step.correction
         history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
-                                 solver_info={**solved.info, **({"damping": lam} if lam else {})},
+                                 solver_info=solved.info.merged(damping=lam or None),
                                  element_correction=max(largest_correction(dx, d, round_off_floor(state, layout)),
                                                         step.max_point_correction)))
         progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, history[-1].solver_info)

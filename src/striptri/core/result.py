@@ -41,7 +41,7 @@ class Iteration:
     vtpv: float
     max_correction: float
     seconds: float
-    solver_info: dict = field(default_factory=dict)  # e.g. inner iterations of an iterative solver
+    solver_info: solvers.SolverInfo = field(default_factory=solvers.SolverInfo)  # the solve's report
     element_correction: float = float("nan")
 
 

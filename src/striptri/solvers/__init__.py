@@ -3,7 +3,7 @@
 A solver is made once per adjustment by :func:`make_solver` (so that a sparse Cholesky can analyse
 the pattern once and an iterative solver can start from its last solution) and called once per
 outer iteration with the numeric N of that iteration. Every solver returns a :class:`SolveResult`
-and raises :class:`SingularNormalMatrix` when N is not positive definite. All work on the
+(its report of the solve a :class:`SolverInfo`, :mod:`.info`) and raises :class:`SingularNormalMatrix` when N is not positive definite. All work on the
 Jacobi-scaled matrix ``D N D``, ``D = diag(N)^-1/2``. :func:`describe` says in words which
 factorisation and which BLAS library (found at run time) a solver used, for summary.json.
 
@@ -37,6 +37,7 @@ from .base import (
 from .cvxopt_cholesky import CvxoptSolver, cvxopt_available
 from .describe import blas, describe
 from .direct import DenseSolver, ScipySparseSolver, inverse
+from .info import SolverInfo
 from .iterative import SLOW_PCG, SLOW_SWEEPS, GaussSeidelSolver, PcgSolver, SlowConvergenceWarning
 from .selection import (
     BANDED_MAX_BANDWIDTH,
@@ -53,7 +54,7 @@ from .strips import SLOW_STRIP_PCG, StripPcgSolver, strip_partition
 __all__ = [
     "SOLVERS", "WARM_STARTS", "PIVOT_TOLERANCE", "DENSE_LIMIT", "BANDED_MAX_BANDWIDTH", "SLOW_SWEEPS", "SLOW_PCG",
     "SingularNormalMatrix", "SolverUnavailable", "SlowConvergenceWarning",
-    "SolverOptions", "Structure", "SolveResult", "NormalSolver",
+    "SolverOptions", "Structure", "SolveResult", "SolverInfo", "NormalSolver",
     "DenseSolver", "ScipySparseSolver", "BandedSolver", "CholmodSolver", "CvxoptSolver", "GaussSeidelSolver",
     "PcgSolver", "StripPcgSolver", "SLOW_STRIP_PCG", "strip_partition",
     "AutoSolver", "make_solver", "resolve_solver", "sparse_choice", "solve", "inverse", "jacobi_scaled", "bandwidth",

@@ -26,6 +26,7 @@ from scipy.linalg import lapack
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, Structure, check_pivots, jacobi_scaled
 from .direct import dense_cholesky
+from .info import SolverInfo
 
 MAX_BORDER = 600  # columns the dense border may have (memory k x m for Z)
 
@@ -96,7 +97,7 @@ class BandedSolver(NormalSolver):
         bs = b * s
         if m == 0:
             y, _ = lapack.dpbtrs(cb, bs[:, None], lower=1)
-            return SolveResult(y[:, 0] * s, self.name, {"bandwidth": w, "border": 0})
+            return SolveResult(y[:, 0] * s, self.name, SolverInfo(bandwidth=w, border=0))
         B = A[:k, k:].toarray()
         C = A[k:, k:].toarray()
         rhs = np.column_stack([bs[:k], B])
@@ -109,4 +110,4 @@ class BandedSolver(NormalSolver):
             raise SingularNormalMatrix(k + exc.column if exc.column is not None else None) from exc
         y2 = la.cho_solve((cS, True), bs[k:] - B.T @ y1, check_finite=False)
         y = np.concatenate([y1 - Z @ y2, y2])
-        return SolveResult(y * s, self.name, {"bandwidth": w, "border": m})
+        return SolveResult(y * s, self.name, SolverInfo(bandwidth=w, border=m))

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from .info import SolverInfo
+
 SOLVERS = ("auto", "dense", "sparse", "banded", "cholmod", "cvxopt", "gauss-seidel", "pcg", "strip-pcg")
 WARM_STARTS = ("zero", "previous", "projected")
 
@@ -80,12 +82,13 @@ class Structure:
 
 @dataclass
 class SolveResult:
-    """dx: the solution; solver: the concrete solver's name; info: what it reports (e.g. the inner
-    iterations, residual and convergence of an iterative solver, the bandwidth of ``banded``)."""
+    """dx: the solution; solver: the concrete solver's name; info: what it reports (SolverInfo:
+    e.g. the inner iterations, residual and convergence of an iterative solver, the bandwidth of
+    ``banded``)."""
 
     dx: np.ndarray
     solver: str
-    info: dict = field(default_factory=dict)
+    info: SolverInfo = field(default_factory=SolverInfo)
 
 
 class NormalSolver:

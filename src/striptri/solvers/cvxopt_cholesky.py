@@ -11,7 +11,7 @@ As ``cholmod``: the symbolic factorisation (``cholmod.symbolic``) once per solve
 per adjustment; every outer iteration only refactorises numerically (``cholmod.numeric``) after
 writing the new values into the cvxopt matrix kept from the analysis (the lower triangle in
 compressed columns, in the order of scipy's CSC with sorted indices). A pattern that differs from the
-analysed one is analysed again (``info["analyses"]``).
+analysed one is analysed again (``info.analyses``).
 
 A matrix that is not positive definite makes ``cholmod.numeric`` raise ``ArithmeticError`` with
 the pivot position; it is mapped to N's column through CHOLMOD's permutation (which cvxopt gives
@@ -27,6 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
+from .info import SolverInfo
 
 INSTALL_HINT = (
     "the 'cvxopt' solver needs cvxopt (binary wheels, no compiler needed): "
@@ -130,7 +131,7 @@ class CvxoptSolver(NormalSolver):
         check_pivots(np.asarray(self._cholmod.diag(self._factor)).reshape(-1), self._permutation(n))
         y = self._cvxopt.matrix(b * s)
         self._cholmod.solve(self._factor, y)
-        return SolveResult(np.asarray(y).reshape(-1) * s, self.name, {"analyses": self.analyses})
+        return SolveResult(np.asarray(y).reshape(-1) * s, self.name, SolverInfo(analyses=self.analyses))
 
 
 class _cholmod_options:

@@ -16,6 +16,7 @@ import os
 import re
 
 from .base import SOLVERS
+from .info import SolverInfo
 from .sparse_cholesky import MODE, ORDERING
 from .strips import PRECONDITIONER
 
@@ -174,23 +175,24 @@ _ORDERING_WORDS = {
 }
 
 
-def factorisation(solver: str, info: dict | None = None) -> str:
+def factorisation(solver: str, info: SolverInfo | None = None) -> str:
     """The factorisation of ``solver`` in words; ``info`` (a SolveResult's info, e.g. the last
     iteration's ``solver_info``) adds what the solver reported (bandwidth, mode, ordering)."""
-    info = info or {}
+    info = info if info is not None else SolverInfo()
     if solver == "dense":
         return "LAPACK dense Cholesky (potrf)"
     if solver == "banded":
         text = "LAPACK banded Cholesky (pbtrf)"
-        if "bandwidth" in info:
-            text += f", bandwidth {info['bandwidth']}"
-            if info.get("border"):
-                text += f", dense border of {info['border']} camera columns"
+        if info.bandwidth is not None:
+            text += f", bandwidth {info.bandwidth}"
+            if info.border:
+                text += f", dense border of {info.border} camera columns"
         return text
     if solver == "sparse":
         return "scipy SuperLU (L D U with diagonal pivots), minimum-degree ordering of the photo blocks"
     if solver == "cholmod":
-        mode, ordering = info.get("mode", MODE), info.get("ordering", ORDERING)
+        mode = info.mode if info.mode is not None else MODE
+        ordering = info.ordering if info.ordering is not None else ORDERING
         module_file = _module_file("cholmod")
         name = _cholmod_version(module_file) if module_file else "CHOLMOD"
         return f"{name} {mode}, {_ORDERING_WORDS.get(ordering, ordering)} ordering (scikit-sparse)"
@@ -204,17 +206,18 @@ def factorisation(solver: str, info: dict | None = None) -> str:
         return "block-Jacobi preconditioned conjugate gradients (no factorisation of N)"
     if solver == "strip-pcg":
         kind = {"ssor": "symmetric block Gauss-Seidel", "jacobi": "block Jacobi"}
-        text = (f"conjugate gradients preconditioned by {kind[info.get('preconditioner', PRECONDITIONER)]} "
+        preconditioner = info.preconditioner if info.preconditioner is not None else PRECONDITIONER
+        text = (f"conjugate gradients preconditioned by {kind[preconditioner]} "
                 "over the strips (LAPACK banded Cholesky pbtrf of each strip; no factorisation of N)")
-        if "strips" in info:
-            text += f", {info['strips']} strips of bandwidth {info['bandwidth']}"
-            if info.get("dense_block"):
-                text += f", a dense block of {info['dense_block']} camera columns"
+        if info.strips is not None:
+            text += f", {info.strips} strips of bandwidth {info.bandwidth}"
+            if info.dense_block:
+                text += f", a dense block of {info.dense_block} camera columns"
         return text
     raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(s for s in SOLVERS if s != 'auto')}")
 
 
-def describe(solver, info: dict | None = None) -> dict:
+def describe(solver, info: SolverInfo | None = None) -> dict:
     """``{"factorisation": ..., "blas": ...}`` for summary.json and the report.
 
     ``solver``: a concrete solver name (``AdjustmentResult.solver``) or a solver object (an

@@ -10,6 +10,7 @@ from scipy.linalg import lapack
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, check_pivots, jacobi_scaled
 from .blocks import Blocks, partition
+from .info import SolverInfo
 
 
 def dense_cholesky(A: np.ndarray) -> np.ndarray:
@@ -85,7 +86,7 @@ class ScipySparseSolver(NormalSolver):
         check_pivots(pivots, order[np.argsort(lu.perm_c)])
         y = np.empty(n)
         y[order] = lu.solve((b * s)[order])
-        return SolveResult(y * s, self.name, {"orderings": self.orderings})
+        return SolveResult(y * s, self.name, SolverInfo(orderings=self.orderings))
 
 
 def block_graph(A: sp.csr_matrix, blocks: Blocks) -> sp.csr_matrix:

@@ -21,8 +21,8 @@ with U = L'. Its residual needs no extra product:
 Convergence. SOR converges for every symmetric positive definite N and 0 < omega < 2
 (Ostrowski-Reich), at a rate that degrades with N's condition number: a long strip held by control
 only at its ends converges very slowly. A sweep count above SLOW_SWEEPS, or no convergence at all,
-is reported (``info["slow"]``) and warned about; so is a residual that has not fallen by 1 % in
-STAGNATION_SWEEPS sweeps (the rounding floor of an ill-conditioned N, ``info["stagnated"]``), where
+is reported (``info.slow``) and warned about; so is a residual that has not fallen by 1 % in
+STAGNATION_SWEEPS sweeps (the rounding floor of an ill-conditioned N, ``info.stagnated``), where
 the sweeps stop. A residual that grows beyond DIVERGED times the
 first proves that N is not positive definite (SingularNormalMatrix).
 
@@ -42,6 +42,7 @@ import scipy.sparse.linalg as spla
 from .. import progress
 from .base import PIVOT_TOLERANCE, NormalSolver, SingularNormalMatrix, SolveResult, jacobi_scaled
 from .blocks import block_cholesky, block_diagonal_matrix, partition, strictly_block_lower
+from .info import SolverInfo
 
 SLOW_SWEEPS = 500  # Gauss-Seidel sweeps (PCG iterations: SLOW_PCG) beyond which convergence is "slow"
 SLOW_PCG = 500
@@ -69,8 +70,8 @@ class _IterativeSolver(NormalSolver):
 
     def _empty(self) -> SolveResult:
         """The solution of a 0 x 0 system."""
-        return SolveResult(np.zeros(0), self.name, {"inner_iterations": 0, "relative_residual": 0.0,
-                                                     "converged": True, "slow": False})
+        return SolveResult(np.zeros(0), self.name, SolverInfo(inner_iterations=0, relative_residual=0.0,
+                                                              converged=True, slow=False))
 
     def _start(self, Ns, s, b) -> np.ndarray:
         """Initial y (scaled unknowns) per SolverOptions.warm_start."""
@@ -86,18 +87,19 @@ class _IterativeSolver(NormalSolver):
         curv = float(y @ Ny)
         return y * (float(y @ (b * s)) / curv) if curv > 0 else np.zeros(n)
 
-    def _report(self, dx, iterations, residual, converged, extra=None) -> SolveResult:
+    def _report(self, dx, iterations, residual, converged, extra: SolverInfo | None = None) -> SolveResult:
+        """The SolveResult of dx: ``extra`` (what this solver reports besides) with the figures every
+        iterative solver reports; warns when the convergence was slow."""
         tol = self.options.inner_tolerance
         slow = (not converged) or iterations > self.slow_limit
-        info = {
-            "inner_iterations": int(iterations),
-            "relative_residual": float(residual),
-            "converged": bool(converged),
-            "slow": bool(slow),
-            "tolerance": tol,
-            "warm_start": self.options.warm_start,
-        }
-        info.update(extra or {})
+        info = (extra or SolverInfo()).merged(
+            inner_iterations=int(iterations),
+            relative_residual=float(residual),
+            converged=bool(converged),
+            slow=bool(slow),
+            tolerance=tol,
+            warm_start=self.options.warm_start,
+        )
         if slow:
             what = "did not reach" if not converged else "needed many " + self.unit + " to reach"
             warnings.warn(
@@ -149,7 +151,7 @@ class GaussSeidelSolver(_IterativeSolver):
         bnorm = float(np.linalg.norm(bs))
         y0 = self._start(Ns, s, b)
         if bnorm == 0.0:
-            return self._report(np.zeros(n), 0, 0.0, True, {"relaxation": omega})
+            return self._report(np.zeros(n), 0, 0.0, True, SolverInfo(relaxation=omega))
         z = Cs.T @ y0
         Uz = U @ z
         # residual of the start, in the scaled system
@@ -176,7 +178,7 @@ class GaussSeidelSolver(_IterativeSolver):
             # rounding floor reached (or hopelessly slow): more sweeps would not help
             stagnated = sweeps - best_sweep >= STAGNATION_SWEEPS
         y = Ci.T @ z
-        return self._report(y * s, sweeps, residual, converged, {"relaxation": omega, "stagnated": stagnated})
+        return self._report(y * s, sweeps, residual, converged, SolverInfo(relaxation=omega, stagnated=stagnated))
 
 
 class PcgSolver(_IterativeSolver):
@@ -203,7 +205,7 @@ class PcgSolver(_IterativeSolver):
             return self._report(np.zeros(n), 0, 0.0, True)
         y, iterations, residual, converged, restarts = preconditioned_cg(
             Ns, bs, y, lambda r: Minv @ r, bnorm, opts.inner_tolerance, opts.max_inner_iterations, self.name)
-        return self._report(y * s, iterations, residual, converged, {"restarts": restarts})
+        return self._report(y * s, iterations, residual, converged, SolverInfo(restarts=restarts))
 
 
 INNER_REPORT_EVERY = 25  # inner iterations between two progress.inner calls (the reporter throttles by time)

@@ -5,7 +5,7 @@ solver object, i.e. once per adjustment, at the first solve; every outer iterati
 refactorises numerically (``Factor.cholesky``: a new numeric factor from the kept analysis, dropped
 after the solve, so that the factor does not occupy memory while the next iteration assembles). If N's pattern ever grows beyond the one
 analysed (an entry that was not there before), the solver analyses again and counts it in
-``info["analyses"]``; a pattern that only loses entries (exact zeros) is fine as it is.
+``info.analyses``; a pattern that only loses entries (exact zeros) is fine as it is.
 
 Mode and ordering (:data:`MODE`, :data:`ORDERING`) were chosen by measurement on the normal
 matrices of the benchmark blocks of 1,000, 5,000 and 20,000 photos (docs/solvers.md,
@@ -36,6 +36,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
+from .info import SolverInfo
 
 MODES = ("supernodal", "simplicial")
 ORDERINGS = ("nesdis", "metis", "amd", "colamd", "best", "default", "natural")
@@ -137,4 +138,4 @@ class CholmodSolver(NormalSolver):
         check_pivots(np.sqrt(np.maximum(factor.D(), 0.0)), perm)
         y = factor.solve_A(b * s)
         return SolveResult(np.asarray(y).reshape(-1) * s, self.name,
-                           {"analyses": self.analyses, "mode": self.mode, "ordering": self.ordering})
+                           SolverInfo(analyses=self.analyses, mode=self.mode, ordering=self.ordering))

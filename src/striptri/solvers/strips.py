@@ -29,7 +29,7 @@ matrix are positive definite); only the speed depends on it.
 Singular N: a strip block or the camera block that is not positive definite (a pivot below
 PIVOT_TOLERANCE) raises SingularNormalMatrix at its column; a direction N does not determine met by
 CG (curvature ``p' N~ p <= 1e-14 p'p``) raises it without a column; a datum defect across strips may
-instead end without convergence, which is reported and warned about (``info["converged"]``).
+instead end without convergence, which is reported and warned about (``info.converged``).
 
 ``strip-gauss-seidel`` (the pure relaxation, forward block Gauss-Seidel sweeps over the strips) is
 not offered: docs/solvers.md has the sweep counts that ruled it out.
@@ -47,6 +47,7 @@ from scipy.linalg import lapack
 from .base import SingularNormalMatrix, Structure, check_pivots, jacobi_scaled
 from .blocks import partition
 from .direct import dense_cholesky
+from .info import SolverInfo
 from .iterative import _IterativeSolver, preconditioned_cg
 
 PRECONDITIONERS = ("ssor", "jacobi")
@@ -229,8 +230,8 @@ class StripPcgSolver(_IterativeSolver):
         M = factor if self.preconditioner == "jacobi" else _SymmetricGaussSeidel(P, factor)
         bs = (b * s)[order]
         bnorm = float(np.linalg.norm(bs))
-        extra = {"preconditioner": self.preconditioner, "strips": part.n_groups, "bandwidth": factor.w,
-                 "dense_block": n - part.k}
+        extra = SolverInfo(preconditioner=self.preconditioner, strips=part.n_groups, bandwidth=factor.w,
+                           dense_block=n - part.k)
         if bnorm == 0.0:
             return self._report(np.zeros(n), 0, 0.0, True, extra)
         y = self._start(Ns, s, b)[order]
@@ -238,4 +239,4 @@ class StripPcgSolver(_IterativeSolver):
                                                                      opts.max_inner_iterations, self.name)
         dx = np.empty(n)
         dx[order] = y
-        return self._report(dx * s, iterations, residual, converged, {**extra, "restarts": restarts})
+        return self._report(dx * s, iterations, residual, converged, extra.merged(restarts=restarts))
