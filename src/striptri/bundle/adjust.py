@@ -34,7 +34,7 @@ import scipy.sparse as sp
 
 from .. import datum, diagnosis, progress, solvers, termination
 from ..core.convergence import energy_floor, has_converged, largest_correction, round_off_floor, stop_if_diverging
-from ..core.explain import datum_defect_failure, reduction_check, solve_or_explain
+from ..core.explain import datum_defect_failure, reduction_check, solve_or_explain, solver_for
 from ..core.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
@@ -128,141 +128,177 @@ class _Problem:
 
 
 def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> BundleSolution:
-    """The bundle adjustment (module doc), with the adjusted object points."""
+    """The bundle adjustment (module doc), with the adjusted object points.
+
+    Gauss-Newton, with Levenberg-Marquardt damping only when a step fails (docs/solvers.md): a step
+    that raises the sum of squares (or meets a point in a camera's plane, or a numerically singular
+    system) is taken again from where it started with lam * diag(N) added to the point blocks and
+    to the reduced camera system (_Damping)."""
     t_start = time.perf_counter()
     problem = _Problem(project, options)
-    layout, obs, pobs = problem.layout, problem.obs, problem.pobs
-    state = problem.initial_state
+    obs = problem.obs
     approx = project.points.xyz_approx
-    xyz = initial_points(problem.batches, state, obs, problem.unknowns, options.chunk_size,
-                         None if approx is None else approx - problem.offset)
+    now = _Estimate(problem.initial_state,
+                    initial_points(problem.batches, problem.initial_state, obs, problem.unknowns, options.chunk_size,
+                                   None if approx is None else approx - problem.offset),
+                    obs.plate.copy(), obs.control.copy(), np.zeros(len(problem.pobs)))
     timings = Timings(initial_points=time.perf_counter() - t_start, linearisation_and_reduction=0.0, solve=0.0,
                       back_substitution=0.0)
     if problem.redundancy < 0:
-        _explain_too_few(problem, state, xyz)
-    solver = solvers.make_solver(
-        solvers.SolverOptions(name=options.solver), solvers.Structure(layout.n_unknowns, layout.block_starts(),
-                                                          layout.block_groups(project.photos.strip_ids))
-    )
-
-    plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
-    v_par = np.zeros(len(pobs))
+        _explain_too_few(problem, now.state, now.xyz)
+    solver = solver_for(options, problem.layout, project)
     history: list[Iteration] = []
-    converged = cost_flat = False
-    vtpv = np.nan
-    # Gauss-Newton, with Levenberg-Marquardt damping only when a step fails (docs/solvers.md): a step
-    # that raises the sum of squares (or meets a point in a camera's plane, or a numerically
-    # singular system) is taken again from where it started with lam * diag(N) added to the point
-    # blocks and to the reduced camera system; lam follows Nielsen's rule on the ratio of the actual
-    # to the predicted reduction, and drops back to 0 (plain Gauss-Newton) below LM_FLOOR.
-    lam, nu = 0.0, 2.0
-    normals = _assemble_or_none(problem, state, xyz)
+    damping = _Damping()
+    normals = _assemble_or_none(problem, now.state, now.xyz)
     if normals is None:
         raise NumericalFailure(_not_formed_message(problem), reason="not_finite")
     causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
+    status = "iteration_limit"
     while len(history) < options.max_iterations:
-        t0 = time.perf_counter()
-        d = normals.N.diagonal()
-        damped = normals
-        if lam > 0.0:
-            damped = copy.copy(normals)
-            damped.N = (normals.N + lam * sp.diags(np.maximum(normals.d, d))).tocsr()
-        try:
-            solved = _solve_or_explain(damped, solver, state, problem)
-        except NumericalFailure:
-            if not history or lam * nu > LM_MAX:
-                raise
-            # numerically singular away from the start (a weak direction): damp it more
-            lam, nu = max(lam * nu, LM_START), 2.0 * nu
-            normals = problem.assemble(state, xyz, lam)
+        accepted, normals = _step(problem, solver, now, normals, damping, history, timings, causes)
+        if accepted is None:  # a failed step: taken again with more damping
             continue
-        dx = solved.dx
-        t1 = time.perf_counter()
-        step = _back_substitute(problem, state, xyz, dx, lam, kept=normals.kept)
-        # the kept chunks served their one back substitution (a failed step is assembled afresh):
-        # not alive beside the trial's
-        normals.kept = damped.kept = None
-        damped = None
-        trial_state = state.updated(layout, dx)
-        if lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
-            trial = _assemble_or_none(problem, trial_state, step.xyz)
-            trial_ee = trial.ee if trial is not None else np.inf
-        else:  # damped: only the sum of squares, the normals follow with the next damping
-            trial, trial_ee = None, problem.cost(trial_state, step.xyz)
-        t2 = time.perf_counter()
-        predicted = normals.ee - step.vtpv
-        actual = normals.ee - trial_ee
-        lam_step = lam
-        if actual < -ROUND_OFF * normals.ee or not np.isfinite(actual):
-            # a worse step: back to where it started, more damping
-            if lam * nu > LM_MAX:
-                raise NumericalFailure("\n".join([
-                    f"the bundle adjustment cannot reduce the sum of squares after iteration {len(history)}: "
-                    f"Levenberg-Marquardt damping grew past {LM_MAX:g} without a better step.",
-                    termination.table(history, problem.redundancy) if history else "",
-                    "It is stuck away from a solution (or points are crossing the plane of a camera).",
-                    termination.causes_text(causes())]).replace("\n\n", "\n"), reason="diverged")
-            lam, nu = max(lam * nu, LM_START), 2.0 * nu
-            normals = problem.assemble(state, xyz, lam)
-            timings.add("linearisation_and_reduction", t2 - t1)
-            continue
-        if lam > 0.0:
-            rho = actual / predicted if predicted > 0 else 1.0
-            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-            lam = lam if lam >= LM_FLOOR else 0.0
-        nu = 2.0
-        plate_hat, control_hat, v_par, vtpv = step.plate_hat, step.control_hat, step.v_par, step.vtpv
-        flat = options.bundle.cost_tolerance > 0 and 0 <= actual <= options.bundle.cost_tolerance * normals.ee
-        state, xyz = trial_state, step.xyz
-        normals = trial if trial is not None and lam == 0.0 else problem.assemble(state, xyz, lam)
-        t3 = time.perf_counter()
-        timings.add("solve", t1 - t0)
-        timings.add("back_substitution", t2 - t1)
-        timings.add("linearisation_and_reduction", t3 - t2)
-        crit = step.correction
-        history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0,
-                                 solver_info=solved.info.merged(damping=lam or None),
-                                 element_correction=max(largest_correction(dx, d, round_off_floor(state, layout)),
-                                                        step.max_point_correction)))
-        progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, history[-1].solver_info)
-        if lam == 0.0:
-            stop_if_diverging(history, METHOD, problem.redundancy, causes)
-        # a damped step is shortened: its small corrections alone do not show convergence, the
-        # undamped Gauss-Newton correction from where it ended must be small too
-        floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, round_off_floor(state, layout), d)
-        if has_converged(history, options.tolerance, floor) and (lam_step == 0.0 or has_converged(
-                history[:-1] + [replace(history[-1], max_correction=_undamped_correction(problem, solver, state, xyz))],
-                options.tolerance, floor)):
-            converged = True
+        now, status = accepted
+        if status != "iterating":
             break
-        if flat:
-            converged, cost_flat = True, True
-            break
+        status = "iteration_limit"
 
     t0 = time.perf_counter()
-    normals, checks, next_correction = _final_checks(problem, solver, state, xyz, plate_hat, control_hat, v_par,
-                                                     vtpv, normals if lam == 0.0 else None)
+    normals, checks, next_correction = _final_checks(problem, solver, now, normals if damping.lam == 0.0 else None)
     timings.final_checks = time.perf_counter() - t0
     timings.total = time.perf_counter() - t_start
-    status, message = "converged", ""
-    if cost_flat:
-        status = "cost_flat"
+    message = ""
+    if status == "cost_flat":
         message = termination.cost_flat(METHOD, history, problem.redundancy, options.bundle.cost_tolerance,
-                                         options.tolerance)
-    elif not converged:
-        status = "iteration_limit"
+                                        options.tolerance)
+    elif status == "iteration_limit":
         message = termination.iteration_limit(METHOD, history, problem.redundancy, options.max_iterations,
                                               options.tolerance, next_correction, causes)
-
     result = AdjustmentResult.of(
-        project, obs, plate_adjusted=plate_hat, control_adjusted=control_hat, vtpv=vtpv,
-        redundancy=problem.redundancy, history=history, layout=layout, method=METHOD, solver=solver.name,
-        state=state, offset=problem.offset, n_conditions=int(problem.n_conditions),
-        n_observations=observation_count(project, obs, len(pobs)), n_parameter_observations=len(pobs),
-        parameter_residuals=v_par, N=normals.N, checks=checks, timings=timings, termination=status,
-        termination_message=message,
+        project, obs, plate_adjusted=now.plate_hat, control_adjusted=now.control_hat, vtpv=now.vtpv,
+        redundancy=problem.redundancy, history=history, layout=problem.layout, method=METHOD, solver=solver.name,
+        state=now.state, offset=problem.offset, n_conditions=int(problem.n_conditions),
+        n_observations=observation_count(project, obs, len(problem.pobs)),
+        n_parameter_observations=len(problem.pobs), parameter_residuals=now.v_par, N=normals.N, checks=checks,
+        timings=timings, termination=status, termination_message=message,
     )
-    return BundleSolution(result=result, xyz_points=xyz, n_point_unknowns=problem.unknowns.n_unknowns)
+    return BundleSolution(result=result, xyz_points=now.xyz, n_point_unknowns=problem.unknowns.n_unknowns)
+
+
+@dataclass
+class _Estimate:
+    """Where the iteration stands: orientations and points, the adjusted observations l + v of the
+    last step, the residuals of the observed elements and v^T P v."""
+
+    state: State
+    xyz: np.ndarray
+    plate_hat: np.ndarray
+    control_hat: np.ndarray
+    v_par: np.ndarray
+    vtpv: float = float("nan")
+
+
+class _Damping:
+    """The Levenberg-Marquardt factor ``lam`` (0: plain Gauss-Newton) and its growth ``nu``:
+    ``more`` after a failed step (from LM_START, doubling the growth each time), Nielsen's rule on
+    the ratio of the actual to the predicted reduction after a good one, back to 0 below LM_FLOOR."""
+
+    def __init__(self):
+        self.lam, self.nu = 0.0, 2.0
+
+    def exhausted(self) -> bool:
+        return self.lam * self.nu > LM_MAX
+
+    def more(self) -> None:
+        self.lam, self.nu = max(self.lam * self.nu, LM_START), 2.0 * self.nu
+
+    def after_good_step(self, actual: float, predicted: float) -> None:
+        if self.lam > 0.0:
+            rho = actual / predicted if predicted > 0 else 1.0
+            self.lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            self.lam = self.lam if self.lam >= LM_FLOOR else 0.0
+        self.nu = 2.0
+
+    def applied(self, normals: ReducedNormals) -> ReducedNormals:
+        """The normals with lam * max(diag of J^T J, diag of N) added to the reduced camera system."""
+        if self.lam == 0.0:
+            return normals
+        damped = copy.copy(normals)
+        damped.N = (normals.N + self.lam * sp.diags(np.maximum(normals.d, normals.N.diagonal()))).tocsr()
+        return damped
+
+
+def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, damping: _Damping,
+          history: list[Iteration], timings: Timings, causes):
+    """One step from ``now`` with the normals formed there (under the present damping).
+
+    Returns ((the new estimate, "iterating" | "converged" | "cost_flat"), the normals at the new
+    estimate) for a step taken, appended to ``history``; or (None, the normals formed again with more
+    damping) for a failed one (a numerically singular system away from the start, or a step that
+    raised the sum of squares). Raises NumericalFailure when damping cannot help."""
+    options, layout, state, xyz = problem.options, problem.layout, now.state, now.xyz
+    t0 = time.perf_counter()
+    d = normals.N.diagonal()
+    damped = damping.applied(normals)
+    try:
+        solved = _solve_or_explain(damped, solver, state, problem)
+    except NumericalFailure:
+        if not history or damping.exhausted():
+            raise
+        damping.more()  # numerically singular away from the start (a weak direction): damp it more
+        return None, problem.assemble(state, xyz, damping.lam)
+    dx = solved.dx
+    t1 = time.perf_counter()
+    step = _back_substitute(problem, state, xyz, dx, damping.lam, kept=normals.kept)
+    # the kept chunks served their one back substitution (a failed step is assembled afresh): not
+    # alive beside the trial's
+    normals.kept = damped.kept = None
+    trial_state = state.updated(layout, dx)
+    if damping.lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
+        trial = _assemble_or_none(problem, trial_state, step.xyz)
+        trial_ee = trial.ee if trial is not None else np.inf
+    else:  # damped: only the sum of squares, the normals follow with the next damping
+        trial, trial_ee = None, problem.cost(trial_state, step.xyz)
+    t2 = time.perf_counter()
+    ee = normals.ee  # the sum of squares where the step started
+    predicted, actual = ee - step.vtpv, ee - trial_ee
+    lam_step = damping.lam
+    if actual < -ROUND_OFF * ee or not np.isfinite(actual):  # worse: back to the start, more damping
+        if damping.exhausted():
+            raise NumericalFailure("\n".join([
+                f"the bundle adjustment cannot reduce the sum of squares after iteration {len(history)}: "
+                f"Levenberg-Marquardt damping grew past {LM_MAX:g} without a better step.",
+                termination.table(history, problem.redundancy) if history else "",
+                "It is stuck away from a solution (or points are crossing the plane of a camera).",
+                termination.causes_text(causes())]).replace("\n\n", "\n"), reason="diverged")
+        damping.more()
+        timings.add("linearisation_and_reduction", t2 - t1)
+        return None, problem.assemble(state, xyz, damping.lam)
+    damping.after_good_step(actual, predicted)
+    new = _Estimate(trial_state, step.xyz, step.plate_hat, step.control_hat, step.v_par, step.vtpv)
+    normals = trial if trial is not None and damping.lam == 0.0 else problem.assemble(new.state, new.xyz, damping.lam)
+    t3 = time.perf_counter()
+    timings.add("solve", t1 - t0)
+    timings.add("back_substitution", t2 - t1)
+    timings.add("linearisation_and_reduction", t3 - t2)
+    history.append(Iteration(vtpv=new.vtpv, max_correction=step.correction, seconds=t3 - t0,
+                             solver_info=solved.info.merged(damping=damping.lam or None),
+                             element_correction=max(largest_correction(dx, d, round_off_floor(new.state, layout)),
+                                                    step.max_point_correction)))
+    progress.iteration(METHOD, len(history), new.vtpv, step.correction, t3 - t0, history[-1].solver_info)
+    if damping.lam == 0.0:
+        stop_if_diverging(history, METHOD, problem.redundancy, causes)
+    # a damped step is shortened: its small corrections alone do not show convergence, the undamped
+    # Gauss-Newton correction from where it ended must be small too
+    floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, round_off_floor(new.state, layout), d)
+    if has_converged(history, options.tolerance, floor) and (lam_step == 0.0 or has_converged(
+            history[:-1] + [replace(history[-1], max_correction=_undamped_correction(problem, solver, new.state,
+                                                                                     new.xyz))],
+            options.tolerance, floor)):
+        return (new, "converged"), normals
+    if options.bundle.cost_tolerance > 0 and 0 <= actual <= options.bundle.cost_tolerance * ee:
+        return (new, "cost_flat"), normals
+    return (new, "iterating"), normals
 
 
 LM_START = 1e-4  # first Levenberg-Marquardt factor after a failed step
@@ -379,8 +415,7 @@ def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
     )
 
 
-def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plate_hat, control_hat, v_par,
-                  vtpv: float, normals_at_solution: ReducedNormals | None = None):
+def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution: ReducedNormals | None = None):
     """The reduced camera system at the solution and the checks after convergence.
 
     * ``max_condition_misclosure_sigma``: every observation equation holds for the adjusted
@@ -392,13 +427,15 @@ def _final_checks(problem: _Problem, solver, state: State, xyz: np.ndarray, plat
     * ``vtpv_reduction_relative_difference``: v^T P v against the reduced sum
       ``e^T e - sum b_p^T N_pp^-1 b_p - b_rcs^T N_rcs^-1 b_rcs`` (Schmid 59).
 
-    normals_at_solution: the undamped reduced normals the iteration formed at (state, xyz), with
-    their kept chunks; formed here when not given.
+    now: the estimate (orientations, points, adjusted observations); normals_at_solution: the
+    undamped reduced normals the iteration formed there, with their kept chunks; formed here when
+    not given.
 
     Also returns the correction the next iteration would make (core.convergence.correction_in_sigma, as
     in the history; None when the system is singular), a by-product of (59).
     """
     obs = problem.obs
+    state, xyz, plate_hat, control_hat, v_par, vtpv = now.state, now.xyz, now.plate_hat, now.control_hat, now.v_par, now.vtpv
     reuse = normals_at_solution is not None
     normals = normals_at_solution if reuse else problem.normals()
     max_g, max_gp = 0.0, 0.0
