@@ -138,7 +138,7 @@ def _assert_same_adjustment(project, a, b):
         a.redundancy, a.n_conditions, a.n_observations, a.n_unknowns, a.n_parameter_observations)
     np.testing.assert_allclose(b.offset, a.offset)
     assert np.abs(b.state.xyz0 - a.state.xyz0).max() < 1e-6 * H
-    assert np.abs(b.state.R - a.state.R).max() < 1e-9
+    assert np.abs(b.state.R_ground_from_cam - a.state.R_ground_from_cam).max() < 1e-9
     np.testing.assert_allclose(b.state.interior, a.state.interior, rtol=0, atol=1e-9)
     assert b.vtpv == pytest.approx(a.vtpv, rel=1e-7, abs=1e-12)
     if a.redundancy > 0:

@@ -53,7 +53,7 @@ def test_free_network_equals_minimal_control_in_everything_datum_invariant(pair_
     np.testing.assert_allclose(b.plate_residuals, a.plate_residuals, atol=1e-9)
     # the shape: relative rotations and ratios of distances between projection centres
     for i, j in [(0, 3), (1, 4), (2, 3)]:
-        np.testing.assert_allclose(b.state.R[i].T @ b.state.R[j], a.state.R[i].T @ a.state.R[j], atol=1e-12)
+        np.testing.assert_allclose(b.state.R_ground_from_cam[i].T @ b.state.R_ground_from_cam[j], a.state.R_ground_from_cam[i].T @ a.state.R_ground_from_cam[j], atol=1e-12)
     da = np.linalg.norm(a.state.xyz0[1:] - a.state.xyz0[0], axis=1)
     db = np.linalg.norm(b.state.xyz0[1:] - b.state.xyz0[0], axis=1)
     np.testing.assert_allclose(db / db[-1], da / da[-1], atol=1e-12)

@@ -74,14 +74,14 @@ def _run(name):
         out["r"] = res.redundancy
         out["s02"].append(res.sigma0**2)
         err_xyz = res.state.xyz0 + res.offset - truth.xyz0
-        err_ang = np.angle(np.exp(1j * (angles_from_R(res.state.R, OPK) - true_angles)))
+        err_ang = np.angle(np.exp(1j * (angles_from_R(res.state.R_ground_from_cam, OPK) - true_angles)))
         sig_xyz, sig_ang = res.photo_mean_errors(OPK)
         out["err_xyz"].append(err_xyz)
         out["err_ang"].append(err_ang)
         out["var_xyz"].append((sig_xyz / res.sigma0) ** 2)  # a priori: sigma0 = 1
         out["var_ang"].append((sig_ang / res.sigma0) ** 2)
         # errors in the parametrisation of the unknowns: centre, rotation vector (R_est = R_true Exp(e))
-        e_rot = Rotation.from_matrix(np.swapaxes(truth.R_ground_from_cam, 1, 2) @ res.state.R).as_rotvec()
+        e_rot = Rotation.from_matrix(np.swapaxes(truth.R_ground_from_cam, 1, 2) @ res.state.R_ground_from_cam).as_rotvec()
         e = np.zeros(res.n_unknowns)
         cols = res.layout.photo_cols
         assert np.all(cols >= 0)

@@ -154,7 +154,7 @@ def test_a_bias_of_one_mdb_moves_w_to_delta0(method):
         e = np.zeros(res.n_unknowns)
         cols = res.layout.photo_cols
         e[cols[:, :3]] = res.state.xyz0 + res.offset - (clean.state.xyz0 + clean.offset)
-        e[cols[:, 3:]] = Rotation.from_matrix(np.swapaxes(clean.state.R, 1, 2) @ res.state.R).as_rotvec()
+        e[cols[:, 3:]] = Rotation.from_matrix(np.swapaxes(clean.state.R_ground_from_cam, 1, 2) @ res.state.R_ground_from_cam).as_rotvec()
         assert float(e @ clean.N @ e) <= rel.bnr[row, axis] ** 2 * (1 + 1e-3)
 
 

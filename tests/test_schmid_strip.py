@@ -92,7 +92,7 @@ def test_30_unknowns_and_the_noise_free_strip_recovers_the_truth():
     xyz0, R = true_photos(truth)
     assert np.abs(result.state.xyz0 + result.offset - xyz0).max() < 1e-9 * FLYING_HEIGHT
     # a rotation error of t rad moves the ground point below the camera by about t * flying height
-    assert np.abs(result.state.R - R).max() < 1e-9
+    assert np.abs(result.state.R_ground_from_cam - R).max() < 1e-9
 
 
 def test_noisy_strip_adjusts_with_a_finite_sigma0():

@@ -38,7 +38,7 @@ def _centre_rms(result, truth):
 
 
 def _angle_error(result, truth):
-    return float(np.abs(log_so3(np.swapaxes(truth.R_ground_from_cam, 1, 2) @ result.state.R)).max())
+    return float(np.abs(log_so3(np.swapaxes(truth.R_ground_from_cam, 1, 2) @ result.state.R_ground_from_cam)).max())
 
 
 @pytest.mark.parametrize("layout", ["ends", "every-k"])

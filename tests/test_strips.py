@@ -60,7 +60,7 @@ def test_result_does_not_depend_on_the_orientation_of_the_ground_frame():
     b = adjust(_rotated(project, np.pi / 2))
     Rz = R_from_opk(np.array([0.0, 0.0, np.pi / 2]))
     np.testing.assert_allclose((b.state.xyz0 + b.offset) @ Rz, a.state.xyz0 + a.offset, atol=1e-6)
-    np.testing.assert_allclose(Rz.T @ b.state.R, a.state.R, atol=1e-10)
+    np.testing.assert_allclose(Rz.T @ b.state.R_ground_from_cam, a.state.R_ground_from_cam, atol=1e-10)
     assert b.vtpv == pytest.approx(a.vtpv, rel=1e-8)
     assert b.redundancy == a.redundancy
 

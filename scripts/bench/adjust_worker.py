@@ -87,7 +87,7 @@ def run_striptri(project, true_xyz0, method: str, solver: str, repeats: int, out
     result = runs[median][1]
     timings = {k: statistics.median(r.timings.as_dict().get(k, 0.0) for _, r in runs) for k in result.timings.as_dict()}
     xyz0 = result.state.xyz0 + result.offset
-    np.savez(out, xyz0=xyz0, R=result.state.R)
+    np.savez(out, xyz0=xyz0, R=result.state.R_ground_from_cam)
     inner = {}  # the solver's counters: inner iterations summed over the outer ones, others as last reported
     for h in result.history:
         for key, value in h.solver_info.as_dict().items():

@@ -52,11 +52,11 @@ def similarity_changes(state: State, layout: UnknownLayout) -> np.ndarray:
         e = np.zeros(3)
         e[a] = 1.0
         H[:, :3, 3 + a] = np.cross(e, O)
-        H[:, 3:, 3 + a] = np.einsum("nji,j->ni", state.R, e)  # d = R^T omega
+        H[:, 3:, 3 + a] = np.einsum("nji,j->ni", state.R_ground_from_cam, e)  # d = R^T omega
     H[:, :3, 6] = O
     part = layout.partial_rotation
     if part.any():
-        J = angles_jacobian(state.R[part], layout.convention)
+        J = angles_jacobian(state.R_ground_from_cam[part], layout.convention)
         H[part, 3:, :] = np.einsum("nij,njk->nik", J, H[part, 3:, :])
     return H
 

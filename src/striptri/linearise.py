@@ -64,7 +64,7 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     convention corrects the measurement and adds the residual).
     """
     xy = plate_hat[batch.image_rows]
-    R_ground_from_cam = state.R[batch.photo_index]
+    R_ground_from_cam = state.R_ground_from_cam[batch.photo_index]
     xyz_centre = state.xyz0[batch.photo_index]
     params, conv = state.camera_terms(batch.photo_index)
     xyz_control = control_hat[batch.point_index]

@@ -56,7 +56,7 @@ class ParameterObservations:
         s = np.flatnonzero(self.what == ANGLE)
         if len(s):
             photos = self.index[s]
-            R = state.R[photos]
+            R = state.R_ground_from_cam[photos]
             angles = angles_from_R(R, layout.convention)
             f[s] = angles[np.arange(len(s)), self.element[s]]
             J = angles_jacobian(R, layout.convention) @ rotation_maps[photos]

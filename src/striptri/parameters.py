@@ -26,9 +26,11 @@ ELEMENT_NAMES = ("X0", "Y0", "Z0", "rot1", "rot2", "rot3")
 
 @dataclass(frozen=True)
 class State:
-    """Current estimates. xyz0 in the reduced ground frame (ground minus ``offset``)."""
+    """Current estimates: R_ground_from_cam (n, 3, 3) the rotation of each photo from its camera
+    frame to the ground frame; xyz0 (n, 3) its projection centre in the reduced ground frame (ground
+    minus ``offset``); interior (ncam, NCP) the camera elements."""
 
-    R: np.ndarray
+    R_ground_from_cam: np.ndarray
     xyz0: np.ndarray
     interior: np.ndarray  # (ncam, NCP) lens.CAMERA_ELEMENTS
     camera_of_photo: np.ndarray
@@ -50,10 +52,10 @@ class State:
         xyz0 = self.xyz0 + d_photo[:, :3]
         T = layout.rotation_maps(self)
         d_rot = np.einsum("nij,nj->ni", T, d_photo[:, 3:])
-        R = self.R @ exp_so3(d_rot)
+        R = self.R_ground_from_cam @ exp_so3(d_rot)
         R = layout.restore_fixed_angles(R)
         interior = self.interior + dxp[layout.camera_cols]
-        return State(R=R, xyz0=xyz0, interior=interior, camera_of_photo=self.camera_of_photo,
+        return State(R_ground_from_cam=R, xyz0=xyz0, interior=interior, camera_of_photo=self.camera_of_photo,
                      convention=self.convention)
 
 
@@ -94,7 +96,7 @@ class UnknownLayout:
         T = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         part = self.partial_rotation
         if part.any():
-            Jinv = np.linalg.inv(angles_jacobian(state.R[part], self.convention))
+            Jinv = np.linalg.inv(angles_jacobian(state.R_ground_from_cam[part], self.convention))
             Jinv[np.broadcast_to(self.angle_fixed[part][:, None, :], Jinv.shape)] = 0.0
             T[part] = Jinv
         return T
@@ -253,7 +255,7 @@ def reduction_offset(project: Project) -> np.ndarray:
 def initial_state(project: Project, offset: np.ndarray) -> State:
     xyz0 = apply_enforced_bases(project, project.photos.xyz0 - offset)
     return State(
-        R=project.photos.R_ground_from_cam.copy(),
+        R_ground_from_cam=project.photos.R_ground_from_cam.copy(),
         xyz0=xyz0,
         interior=project.cameras.interior.copy(),
         camera_of_photo=project.photos.camera_index.copy(),
@@ -270,5 +272,5 @@ def with_state(project: Project, state: State, offset: np.ndarray) -> Project:
     ph, cams = project.photos, project.cameras
     xyz0 = np.where(np.isnan(ph.sigma_xyz0), state.xyz0 + offset, ph.xyz0)
     interior = np.where(np.isinf(cams.sigma_interior), state.interior, cams.interior)
-    return replace(project, photos=replace(ph, xyz0=xyz0, R_ground_from_cam=state.R.copy()),
+    return replace(project, photos=replace(ph, xyz0=xyz0, R_ground_from_cam=state.R_ground_from_cam.copy()),
                    cameras=replace(cams, interior=interior))

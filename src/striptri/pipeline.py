@@ -286,7 +286,7 @@ def photo_table(project: Project, result: AdjustmentResult) -> dict:
     xyz = s.xyz0 + result.offset
     unit = _angle_scale(project)
     sig_xyz, sig_opk = result.photo_mean_errors("omega-phi-kappa")
-    opk = angles_from_R(s.R, "omega-phi-kappa") * unit
+    opk = angles_from_R(s.R_ground_from_cam, "omega-phi-kappa") * unit
     cols = {"photo_id": project.photos.ids}
     for a, name in enumerate(("X0", "Y0", "Z0")):
         cols[name] = xyz[:, a]
@@ -298,7 +298,7 @@ def photo_table(project: Project, result: AdjustmentResult) -> dict:
         cols[f"sigma_{name}"] = sig_opk[:, a] * unit
     if project.settings.rotation == "alpha-omega-chi":
         _, sig_aoc = result.photo_mean_errors("alpha-omega-chi")
-        aoc = angles_from_R(s.R, "alpha-omega-chi") * unit
+        aoc = angles_from_R(s.R_ground_from_cam, "alpha-omega-chi") * unit
         for a, name in enumerate(("alpha", "omega", "chi")):
             cols[f"schmid_{name}"] = aoc[:, a]
         for a, name in enumerate(("alpha", "omega", "chi")):

@@ -146,7 +146,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         Minv = _group_inverse(M, chunk, project)
         # the intersection's derivatives, rays in the group's chain order
         ph = chunk.photo_index
-        R, O = state.R[ph], state.xyz0[ph]
+        R, O = state.R_ground_from_cam[ph], state.xyz0[ph]
         params, conv = state.camera_terms(ph)
         X = tri.xyz[chunk.point_index]
         rows = chunk.image_rows

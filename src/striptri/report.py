@@ -703,7 +703,7 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
     per_rad = 1.0 / RADIANS_PER_UNIT[unit]
     digits = {"deg": 5, "gon": 5, "rad": 7}[unit]
     xyz = result.state.xyz0 + result.offset
-    opk = angles_from_R(result.state.R, "omega-phi-kappa") * per_rad
+    opk = angles_from_R(result.state.R_ground_from_cam, "omega-phi-kappa") * per_rad
     sig_xyz, sig_ang = result.photo_mean_errors("omega-phi-kappa")
     sig_ang = sig_ang * per_rad
     n = len(project.photos)

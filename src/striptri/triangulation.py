@@ -229,7 +229,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
             ok = np.ones(len(sel), dtype=bool)
             rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
             ph = photo_index[rows]
-            R_ground_from_cam, xyz_centre = state.R[ph], state.xyz0[ph]
+            R_ground_from_cam, xyz_centre = state.R_ground_from_cam[ph], state.xyz0[ph]
             interior, conv = interior_photo[ph], convention_photo[ph]
             xy_obs = rays.xy_plate[rows]
             meas = None if rays.xy_measured is None else rays.xy_measured[rows]

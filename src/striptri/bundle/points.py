@@ -109,7 +109,7 @@ def _rays(chunk: GroupBatch, state: State, obs: Observations):
     ph = chunk.photo_index
     params, conv = state.camera_terms(ph)
     xy = ideal_from_observed(obs.plate[chunk.image_rows], params, conv).xy
-    return state.xyz0[ph], ray_ground(state.R[ph], xy, params[..., :3])
+    return state.xyz0[ph], ray_ground(state.R_ground_from_cam[ph], xy, params[..., :3])
 
 
 def _height_on_ray(xyz_centre, r0, xy_given, z_fallback: float) -> np.ndarray:

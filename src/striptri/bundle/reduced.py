@@ -77,7 +77,7 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     params, conv = state.camera_terms(ph)
     xyz_ground = xyz[pt]
     # residual space and derivatives through the camera model (lens.py), as triangulation does
-    e, d_point, d_centre, d_rot, d_camera = ray_terms(state.R[ph], state.xyz0[ph], params, conv, xyz_ground,
+    e, d_point, d_centre, d_rot, d_camera = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv, xyz_ground,
                                                       obs.plate[rows], with_lens=layout.lens_in_play(state))
     d_rot = d_rot @ rotation_maps[ph]
     sigma = np.sqrt(obs.q_plate[rows])
@@ -111,7 +111,7 @@ def residual_sum_of_squares(batch: GroupBatch, state: State, layout: UnknownLayo
     params, conv = state.camera_terms(ph)
     xyz_ground = xyz[pt]
     with np.errstate(divide="ignore", invalid="ignore"):
-        pred = plate_from_ground(state.R[ph], state.xyz0[ph], params[..., :3], xyz_ground[:, None, :])
+        pred = plate_from_ground(state.R_ground_from_cam[ph], state.xyz0[ph], params[..., :3], xyz_ground[:, None, :])
         xy_obs = obs.plate[rows]
         if layout.lens_in_play(state):
             terms = projection_terms(pred, xy_obs, params, conv)

@@ -251,7 +251,7 @@ class AdjustmentResult:
         Qphoto = self.covariance.photo_blocks()  # (n, 6, 6), fixed elements zero
         sig_xyz = s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Qphoto[:, :3, :3]), 0))
         T = self.layout.rotation_maps(self.state)
-        J = angles_jacobian(self.state.R, convention) @ T
+        J = angles_jacobian(self.state.R_ground_from_cam, convention) @ T
         Qang = J @ Qphoto[:, 3:, 3:] @ np.swapaxes(J, 1, 2)
         sig_ang = s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Qang), 0))
         return sig_xyz, sig_ang

@@ -217,7 +217,7 @@ def predicted_residuals(project: Project, adjusted: Project, result: AdjustmentR
     X = np.where(tri.determined[pt, None], tri.xyz[pt], np.nan)
     params, conv = s.camera_terms(ph)
     with np.errstate(invalid="ignore", divide="ignore"):
-        res, *_ = ray_terms(s.R[ph][:, None], s.xyz0[ph][:, None], params[:, None], conv[:, None], X,
+        res, *_ = ray_terms(s.R_ground_from_cam[ph][:, None], s.xyz0[ph][:, None], params[:, None], conv[:, None], X,
                             ip.xy[rows][:, None], with_lens=result.layout.lens_in_play(s))
     return -res[:, 0]
 

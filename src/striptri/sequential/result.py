@@ -80,7 +80,7 @@ def sequential_approximations(project: Project, options: SequentialOptions | Non
     """The project with the approximate orientations replaced by the sequential result (free centres
     and all rotations; observed and fixed elements keep their values, parameters.with_state)."""
     sol = _triangulate_explained(project, options or SequentialOptions())
-    state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(), convention=project.cameras.convention.copy(),
+    state = State(R_ground_from_cam=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(), convention=project.cameras.convention.copy(),
                   camera_of_photo=project.photos.camera_index.copy())
     return with_state(project, state, sol.offset)
 
@@ -128,7 +128,7 @@ def _conditional_normal_matrix(project: Project, sol: SequentialSolution, layout
 
 def result_of(project: Project, sol: SequentialSolution, seconds: float = 0.0) -> AdjustmentResult:
     layout = build_layout(project)
-    state = State(R=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(), convention=project.cameras.convention.copy(),
+    state = State(R_ground_from_cam=sol.R_ground, xyz0=sol.xyz0_ground, interior=project.cameras.interior.copy(), convention=project.cameras.convention.copy(),
                   camera_of_photo=project.photos.camera_index.copy())
     obs = observations_of(project, sol.offset)
     n_pobs = len(build_parameter_observations(project, sol.offset))
