@@ -56,10 +56,10 @@ class ParameterObservations:
         s = np.flatnonzero(self.what == ANGLE)
         if len(s):
             photos = self.index[s]
-            R = state.R_ground_from_cam[photos]
-            angles = angles_from_R(R, layout.convention)
+            R_ground_from_cam = state.R_ground_from_cam[photos]
+            angles = angles_from_R(R_ground_from_cam, layout.convention)
             f[s] = angles[np.arange(len(s)), self.element[s]]
-            J = angles_jacobian(R, layout.convention) @ rotation_maps[photos]
+            J = angles_jacobian(R_ground_from_cam, layout.convention) @ rotation_maps[photos]
             grad[s] = J[np.arange(len(s)), self.element[s]]
             cols[s] = layout.photo_cols[photos][:, 3:]
         return f, grad, cols

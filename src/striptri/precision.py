@@ -146,11 +146,11 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         Minv = _group_inverse(M, chunk, project)
         # the intersection's derivatives, rays in the group's chain order
         ph = chunk.photo_index
-        R, O = state.R_ground_from_cam[ph], state.xyz0[ph]
         params, conv = state.camera_terms(ph)
-        X = tri.xyz[chunk.point_index]
+        xyz_ground = tri.xyz[chunk.point_index]
         rows = chunk.image_rows
-        _, dX, dO, drot, dcam = ray_terms(R, O, params, conv, X, result.plate_adjusted[rows], obs.plate[rows],
+        _, dX, dO, drot, dcam = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv, xyz_ground,
+                                          result.plate_adjusted[rows], obs.plate[rows],
                                           result.layout.lens_in_play(state))
         T = sweep.T[ph]
         J_parts = [dO, np.einsum("mkai,mkij->mkaj", drot, T)]

@@ -91,11 +91,11 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
         k = int(first[np.argmax(counts > 1)])
         raise InputError(path, None, f"camera {bal.camera_index[k]} observes point {bal.point_index[k]} more than once")
     R_cw = bal.R_cam_from_world()
-    R_gc = np.swapaxes(R_cw, -1, -2)
-    xyz0 = -np.einsum("nij,nj->ni", R_gc, bal.t_cam_from_world)
+    R_ground_from_cam = np.swapaxes(R_cw, -1, -2)
+    xyz0 = -np.einsum("nij,nj->ni", R_ground_from_cam, bal.t_cam_from_world)
     ncam, npts, nobs = bal.n_cameras, bal.n_points, bal.n_observations
     cams = [str(i) for i in range(ncam)]
-    photos = _photos(cams, np.arange(ncam), [""] * ncam, xyz0, R_gc)
+    photos = _photos(cams, np.arange(ncam), [""] * ncam, xyz0, R_ground_from_cam)
     if ncam >= 2:
         photos, note = photo_datum(photos, 0, "units")
         notes.append(note)
@@ -199,7 +199,7 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
                                 (half[:, 1] - colmap.principal[:, 1]) * s], 1)
     interior[:, lens.K1:lens.P2 + 1] = colmap_distortion_to_lens(colmap.distortion)
     R_cw = R_from_quaternion(colmap.q_cam_from_world)
-    R_gc = np.swapaxes(R_cw, -1, -2) @ D_STRIPTRI_FROM_COLMAP
+    R_ground_from_cam = np.swapaxes(R_cw, -1, -2) @ D_STRIPTRI_FROM_COLMAP
     xyz0 = -np.einsum("nji,nj->ni", R_cw, colmap.t_cam_from_world)
     keep = colmap.obs_point3d_id != -1
     point_row = {int(pid): j for j, pid in enumerate(colmap.point3d_ids)}
@@ -227,7 +227,7 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
             convention=np.full(len(colmap.camera_ids), lens.IMAGE),
         ),
         photos=_photos(list(colmap.image_names), colmap.image_camera.copy(),
-                       [names.strips.get(int(i), "") for i in colmap.image_ids], xyz0, R_gc),
+                       [names.strips.get(int(i), "") for i in colmap.image_ids], xyz0, R_ground_from_cam),
         image_points=model.ImagePoints(photo_index=obs_image, point_index=obs_point, xy=xy,
                                        sigma_xy=np.full((len(xy), 2), s)),
         points=_tie_points([names.points.get(int(p), str(int(p))) for p in colmap.point3d_ids]),
@@ -385,10 +385,10 @@ def _check_pixel_size(pixel_size: float) -> float:
     return s
 
 
-def _photos(ids, camera_index, strip_ids, xyz0, R_gc) -> model.Photos:
+def _photos(ids, camera_index, strip_ids, xyz0, R_ground_from_cam) -> model.Photos:
     """Photos with free (approximate) orientations; angles omega-phi-kappa of R_ground_from_cam."""
     n = len(ids)
-    angles = rotations.opk_from_R(R_gc)
+    angles = rotations.opk_from_R(R_ground_from_cam)
     return model.Photos(
         ids=list(ids), camera_index=np.asarray(camera_index, dtype=np.int64), strip_ids=list(strip_ids),
         xyz0=np.asarray(xyz0, dtype=float), R_ground_from_cam=rotations.R_from_opk(angles), angles=angles,
