@@ -18,17 +18,23 @@ from pathlib import Path
 
 import numpy as np
 
-from . import progress, report, solvers
+from . import diagnosis, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
-from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message
+from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
+from .figures import normal_matrix_structure
 from .groups import rays_per_point
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
-from .io.project_reader import RADIANS_PER_UNIT, read_project
+from .io.png import software_of, with_software
+from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, Project
+from .precision import joint_point_covariance
+from .reliability import BlunderOptions, detect_blunders
+from .reliability.outcome import without_tests
 from .rotations import angles_from_R
+from .solvers import SolverUnavailable
 from .triangulation import Triangulated
 
 
@@ -72,8 +78,6 @@ POINT_PRECISION = ("schmid90", "joint92")
 def input_paths(project_dir: Path) -> list[Path]:
     """Everything a project run reads: the folder and each of its input files (links included,
     so that an output folder can never swallow the target of a linked input file)."""
-    from .io.project_reader import FILE_NAMES
-
     return [project_dir, *(project_dir / name for name in FILE_NAMES)]
 
 
@@ -100,8 +104,6 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
         check_products_options(options, point_precision, blunders)
     except ValueError as exc:
         raise InputError("command line", None, str(exc)) from None
-    from .solvers import SolverUnavailable
-
     with OutputReservation(out_dir, inputs) as reservation:
         try:
             products = adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning,
@@ -119,9 +121,6 @@ def structure_figure(project_dir, out_png, on_warning: Callable[[str], None] | N
     """Write the normal matrix's structure (Schmid Fig. 10) of a project as a PNG. An existing
     file is replaced only when it is a figure this command wrote (its PNG Software text). The
     project's notes (input not used) go to ``on_warning``."""
-    from .adjustment import normal_matrix_at_approximations
-    from .figures import normal_matrix_structure
-    from .io.png import software_of, with_software
 
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
@@ -154,8 +153,6 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     seconds_reading: the time the caller took to read the project (summary.json timings_s "read")."""
     from dataclasses import replace as _replace
 
-    from .reliability import BlunderOptions, detect_blunders
-    from .reliability.outcome import without_tests
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)
@@ -191,8 +188,6 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
             t0 = time.perf_counter()
             points = triangulate_result(adjusted, result)
             if point_precision == "joint92":
-                from .precision import joint_point_covariance
-
                 joint = joint_point_covariance(adjusted, result, points, options)
                 points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
             phases["point_precision"] = time.perf_counter() - t0
@@ -213,7 +208,6 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
     summary["blunders"] = blunder_summary(det)
     summary["warnings"] = list(said)
-    from .figures import normal_matrix_structure
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
@@ -232,8 +226,6 @@ SIGMA0_IMPLAUSIBLE = 10.0  # sigma0 a posteriori beyond which a converged result
 def _warn_if_implausible(project: Project, result: AdjustmentResult, warn) -> None:
     """A converged adjustment with sigma0 far above 1 has usually settled in a false minimum (a photo
     turned by 180 degrees, c in another unit) or holds gross errors: say so, with the likely cause."""
-    from . import diagnosis, termination
-
     if result.redundancy <= 0 or not np.isfinite(result.sigma0) or result.sigma0 <= SIGMA0_IMPLAUSIBLE:
         return
     with np.errstate(all="ignore"):

@@ -23,8 +23,10 @@ from .core.options import AdjustmentOptions
 from .core.result import AdjustmentResult
 from .covariance import ray_slots
 from .errors import NumericalFailure
+from .groups import build_batches
 from .model import Project
 from .parameter_observations import build_parameter_observations
+from .triangulation import ray_terms, safe_inverse
 
 W_CRITICAL = 3.29  # two-sided, alpha0 = 0.001 (Baarda)
 
@@ -52,8 +54,6 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     ``B Qxx B^T`` by Covariance.group_forms (Qxx read by blocks of photo pairs), ``K = M^-1 (M - B Qxx
     B^T) M^-1`` and ``qvv_o = sum_c (K A Q)_co (A Q)_co``. Memory is that of one chunk of groups."""
     obs = observations_of(project, result.offset)
-    from .groups import build_batches
-
     sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
                   result.control_adjusted, options)
     cov = result.covariance
@@ -130,9 +130,6 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
     tri: triangulation.Triangulated (its coordinates; its (90) cofactors are kept for points that
     form no group). Returns (n_points, 3, 3) cofactors (times sigma0^2 for covariances).
     """
-    from .groups import build_batches
-    from .triangulation import ray_terms, safe_inverse
-
     obs = observations_of(project, result.offset)
     sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
                   result.control_adjusted, options)
