@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import plate_vector, ray_ground
-from .collinearity import collinearity_jacobians, plate_from_ground
+from .collinearity import collinearity_jacobians
 from .covariance import group_forms, ray_slots
 from .conditions import coplanarity, ray_chain, RayConditions
 from .lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
@@ -319,15 +319,6 @@ def _dense_forms(Qxx: np.ndarray):
     return lambda parts: group_forms(lambda r, c: Qext[r, c], parts)
 
 
-def qxx_entries(Qxx, rows, cols):
-    """Entries of Qxx (a dense array, or a covariance.Covariance) with index -1 reading zero."""
-    if not isinstance(Qxx, np.ndarray):
-        return Qxx.entries(rows, cols)
-    Qext = np.zeros((Qxx.shape[0] + 1, Qxx.shape[0] + 1))
-    Qext[:-1, :-1] = Qxx
-    return Qext[rows, cols]
-
-
 def _hold(Nx, gx, free):
     """Hold coordinates that are not free: their rows and columns become the identity."""
     keep = free[:, :, None] & free[:, None, :]
@@ -357,8 +348,3 @@ def _initial_points(R_ground_from_cam, xyz_centre, interior, xy, xyz_given, give
         t = np.where(t > 0, t, 1.0)
         xyz_ground = O0 + t[:, None] * r0
     return np.where(fixed, xyz_given, xyz_ground)
-
-
-def reproject(R_ground_from_cam, xyz_centre, interior, xyz_ground):
-    """Plate coordinates of ground points seen from photos (batched alike; collinearity.plate_from_ground)."""
-    return plate_from_ground(R_ground_from_cam, xyz_centre, interior, xyz_ground)

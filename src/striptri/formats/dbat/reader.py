@@ -82,9 +82,6 @@ class DbatCamera:
     def has_distortion(self) -> bool:
         return bool(np.any(self.K != 0) or np.any(self.P != 0))
 
-    def estimates_distortion(self) -> bool:
-        return any(self.estimated.get(n, False) for n in DISTORTION_NAMES)
-
 
 @dataclass(frozen=True)
 class DbatProject:
