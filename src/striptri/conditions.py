@@ -1,8 +1,8 @@
 """Condition equations per object point (DESIGN section 3), functional model only.
 
 Every function here is batched over m groups of the same shape and returns the misclosures and
-their analytic derivatives. Conditions know nothing of weights: ``stochastic.py`` and
-``adjustment.py`` turn them into whitened pseudo-observations.
+their analytic derivatives. Conditions know nothing of weights: ``normal_equations.whiten`` and
+``conditions_method`` turn them into whitened pseudo-observations.
 
 Two families:
 

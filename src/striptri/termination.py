@@ -1,10 +1,10 @@
 """Why an iteration stopped, and the message that says so (summary.json "termination").
 
-The reasons (adjustment.TERMINATIONS, docs/decisions.md "Termination"):
+The reasons (core.result.TERMINATIONS, docs/decisions.md "Termination"):
 
 * ``converged`` - the correction below the tolerance in units of its standard deviation, in every
-  element and every function of the elements (adjustment.correction_in_sigma; or the round-off
-  floor, adjustment.has_converged); no message;
+  element and every function of the elements (core.convergence.correction_in_sigma; or the round-off
+  floor, core.convergence.has_converged); no message;
 * ``cost_flat`` - bundle method: a step lowered the sum of squares by less than cost_tolerance of
   it while some correction was still above the tolerance; a result, with a message that says so;
 * ``iteration_limit`` - max_iterations reached first; a failure unless kept;

@@ -54,7 +54,7 @@ class PointUnknowns:
 
 
 def point_unknowns(project: Project, batches: list[GroupBatch], obs: Observations) -> PointUnknowns:
-    """Which coordinates are unknowns (module doc). obs: adjustment.observations_of(project, offset)."""
+    """Which coordinates are unknowns (module doc). obs: core.observations.observations_of(project, offset)."""
     pts = project.points
     given = pts.given_axes & np.isfinite(pts.xyz_given)
     weighted = given & (obs.q_control > 0)
