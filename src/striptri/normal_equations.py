@@ -149,12 +149,19 @@ class BlockPattern:
         pos_cc = np.searchsorted(self.cc, self._keys(cam, cam, self.n_cameras)).reshape(m, k, k)
         return pos_pp, pos_pc, pos_cc
 
-    def scatters(self, photo, cam):
+    def scatters(self, photo, cam, camera_summed: bool = False):
         """ChunkScatter of a chunk's photo-photo, photo-camera and camera-camera pairs (the last two
-        None when the cameras are held)."""
+        None when the cameras are held).
+
+        camera_summed: every group of the chunk has one camera (``cam == cam[:, :1]``), whose
+        columns the caller sums over the group's rays first: its photo-camera blocks then come
+        one per ray (pairs (a, 0), blocks (m, k, 1, 6, w)) and its camera-camera block one per
+        group (pair (0, 0), blocks (m, 1, 1, w, w))."""
         pos_pp, pos_pc, pos_cc = self.positions(photo, cam)
         if not self.with_cameras:
             return ChunkScatter(pos_pp), None, None
+        if camera_summed:
+            return ChunkScatter(pos_pp), ChunkScatter(pos_pc[:, :, :1]), ChunkScatter(pos_cc[:, :1, :1])
         return ChunkScatter(pos_pp), ChunkScatter(pos_pc), ChunkScatter(pos_cc)
 
     def _full_indices(self):
