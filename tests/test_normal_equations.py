@@ -90,3 +90,48 @@ def test_long_track_products_equal_the_ray_pair_products(monkeypatch, one_camera
     scale = abs(short.N).max()
     np.testing.assert_allclose(long.N.toarray(), short.N.toarray(), rtol=0, atol=1e-13 * scale)
     np.testing.assert_allclose(long.u, short.u, rtol=1e-13)
+
+
+@pytest.mark.parametrize("damping", [0.0, 1e-3])
+def test_bundle_one_camera_reduction_equals_the_general_reduction(monkeypatch, tmp_path, damping):
+    """Points whose rays all see one camera (close range, self-calibration) sum their camera
+    columns before the reduction (bundle.reduced.reduce_points_one_camera): the same reduced
+    camera system N_rcs, b_rcs, e^T e, sum b_p^T N_pp^-1 b_p and LM diagonal as the general
+    reduction over k (6 + w) columns per point, to round-off."""
+    import sys
+    from pathlib import Path
+
+    from striptri.bundle import reduced
+    from striptri.bundle.adjust import _Problem
+    from striptri.bundle.points import initial_points
+    from striptri.core.options import AdjustmentOptions
+    from striptri.io import read_project
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    net = close_range.make_close_range(24, 40, seed=3)  # 7 to 20 rays per target, c, xp, yp, k1, k2 free
+    project = read_project(close_range.write_close_range(tmp_path / "p", net))
+    options = AdjustmentOptions(method="bundle", chunk_size=5)
+
+    def normals(camera_sum_rays):
+        monkeypatch.setattr(reduced, "CAMERA_SUM_RAYS", camera_sum_rays)
+        problem = _Problem(project, options)  # the scatters follow the threshold
+        xyz = initial_points(problem.batches, problem.initial_state, problem.obs, problem.unknowns,
+                             options.chunk_size, None)
+        cam = problem.initial_state.camera_of_photo
+        summed = [reduced.sums_camera_columns(problem.pattern, cam[c.batch.photo_index])
+                  for c in problem.chunks(problem.initial_state, xyz)]
+        return problem.assemble(problem.initial_state, xyz, damping), summed
+
+    one_camera, summed = normals(reduced.CAMERA_SUM_RAYS)
+    general, summed_general = normals(10**9)
+    assert general.pattern.with_cameras and len(general.pattern.cc) > 0  # the camera is estimated
+    assert any(summed) and not all(summed) and not any(summed_general)  # both paths in play
+    scale = abs(general.N).max()
+    np.testing.assert_allclose(one_camera.N.toarray(), general.N.toarray(), rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(one_camera.b, general.b, rtol=0, atol=1e-12 * abs(general.b).max())
+    np.testing.assert_allclose(one_camera.d, general.d, rtol=1e-12)
+    assert one_camera.ee == pytest.approx(general.ee, rel=1e-12)
+    assert one_camera.reduced == pytest.approx(general.reduced, rel=1e-12)
+
