@@ -124,6 +124,8 @@ class BlockPattern:
         for photo, cam in chunks:
             pp.append(np.unique(self._keys(photo, photo, n_photos)))
             if with_cameras:
+                if np.all(cam == cam[:, :1]):  # one camera per group: its pairs are those of the first ray
+                    cam = cam[:, :1]
                 pc.append(np.unique(self._keys(photo, cam, n_cameras)))
                 cc.append(np.unique(self._keys(cam, cam, n_cameras)))
         # every photo and camera keeps its diagonal block (N stays square even for unmeasured photos)
@@ -134,6 +136,7 @@ class BlockPattern:
             if with_cameras else np.zeros(0, dtype=np.int64)
         self.n_full = 6 * n_photos + NCP * n_cameras
         self._reduction = None  # (S, ReducedPattern): the CSR structure of S^T N_full S, worked out once
+        self._dense_places = None  # the place of every block number in a dense N_full (reduced_matrix_of_dense)
 
     @staticmethod
     def _keys(a, b, nb):
@@ -202,6 +205,15 @@ class BlockPattern:
         number in it are worked out at the first call for this S (:class:`ReducedPattern`); every
         later iteration only gathers (and, for tied elements, sums) the numbers."""
         return self.reduction(S).matrix(self._block_data(pp, pc, cc, self.with_cameras))
+
+    def reduced_matrix_of_dense(self, S: sp.csr_matrix, N_full: np.ndarray) -> sp.csr_matrix:
+        """``S^T N_full S`` (as :meth:`reduced_matrix`) from a dense N_full (n_full, n_full) that is
+        zero outside the pattern: its block numbers gathered (the places worked out at the first
+        call)."""
+        if self._dense_places is None:
+            rows, cols = self._full_indices()
+            self._dense_places = rows * self.n_full + cols
+        return self.reduction(S).matrix(N_full.reshape(-1)[self._dense_places])
 
     def reduction(self, S: sp.csr_matrix) -> "ReducedPattern":
         """The ReducedPattern of S, worked out at the first call (the adjustments call this when

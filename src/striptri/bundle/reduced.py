@@ -15,6 +15,12 @@ Coordinates held fixed have zero columns in Jp and the identity in N_pp, so ever
 ``dX = N_pp^-1 (b_p - N_pc dx)`` from the point chunks the assembly keeps (``ReducedNormals.kept``),
 so an iteration linearises the observation equations once: about 22 numbers per plate
 measurement are held from the assembly to the back substitution.
+
+Three ways to sum the points' share, the same numbers to round-off (ReducedNormals.add_points):
+dense in the full space for small blocks with long tracks (bundle.dense: close range); with each
+point's camera columns summed over its rays first where all its rays are of one camera
+(reduce_points_one_camera: 6k + w columns per point instead of k (6 + w)); and in general
+(reduce_points), each scattered ray pair by ray pair into the block pattern of N.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from ..linearise import Observations
 from ..normal_equations import BlockPattern, ray_columns, selection_matrix
 from ..parameters import State, UnknownLayout
 from ..triangulation import ray_terms
+from .dense import DenseSchur, dense_pays
 from .points import PointUnknowns
 
 @dataclass
@@ -142,10 +149,12 @@ def reduce_points(chunk: PointChunk):
     return N_loc, b_loc, reduced
 
 
-# From this many rays per point on, a chunk whose points each see one camera (close range) sums
-# each point's camera columns over its rays before the reduction (reduce_points_one_camera); the
-# decision is the chunk's, made once per adjustment (block_pattern) with its scatters.
-CAMERA_SUM_RAYS = 12
+# From this many rays per point on, a chunk whose points each see one camera sums each point's
+# camera columns over its rays before the reduction (reduce_points_one_camera); the decision is the
+# chunk's, made once per adjustment (block_pattern) with its scatters. It pays from two rays on
+# (measured, one thread: a 1,000-photo block with 2 to 9 rays and c, xp, yp, k1, k2 free 0.064 s
+# an assembly against 0.126 s; the benchmark's close range 0.11 s against 0.22 s).
+CAMERA_SUM_RAYS = 2
 
 
 def sums_camera_columns(pattern: BlockPattern, cam: np.ndarray) -> bool:
@@ -235,8 +244,10 @@ class ReducedNormals:
     linearised problem (Schmid 59's [LL.u]).
     """
 
-    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
-        self.pattern, self.S = pattern, S
+    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix, dense: DenseSchur | None = None):
+        """dense: sum the points' share dense (bundle.dense; block_pattern decides), else into the
+        block pattern chunk by chunk."""
+        self.pattern, self.S, self.dense = pattern, S, dense
         self.n = S.shape[1]
         self.kept: list[PointChunk] = []  # the linearised chunks, for the back substitution
         self.pp = np.zeros(len(pattern.pp) * 36)
@@ -260,6 +271,10 @@ class ReducedNormals:
         photo = chunk.batch.photo_index
         cam = camera_of_photo[photo]
         pat = self.pattern
+        if self.dense is not None:
+            self._add_dense(chunk, photo, cam)
+            self.ee += chunk.sum_of_squares()
+            return
         camera_summed = sums_camera_columns(pat, cam)
         if scatters is None:
             scatters = pat.scatters(photo, cam, camera_summed)
@@ -268,6 +283,19 @@ class ReducedNormals:
         else:
             self._add_general(chunk, photo, cam, scatters)
         self.ee += chunk.sum_of_squares()
+
+    def _add_dense(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray) -> None:
+        """add_points summed dense (bundle.dense): the points' share into the DenseSchur, ``Jc^T e``
+        and the diagonal of N_cc into b_full and d_full."""
+        pat = self.pattern
+        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
+        Jc = chunk.Jc if pat.with_cameras else chunk.Jc[..., :6]
+        full_cols = full_cols if pat.with_cameras else full_cols[..., :6]
+        self.reduced += self.dense.add(Jc, chunk.Jp, chunk.N_pp, chunk.b_p, full_cols)
+        b_c = np.einsum("mkai,mka->mki", Jc, chunk.e)
+        d3 = np.einsum("mkai,mkai->mki", Jc, Jc)  # diagonal of N_cc before the reduction
+        self.b_full += np.bincount(full_cols.ravel(), weights=b_c.ravel(), minlength=pat.n_full)
+        self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
 
     def _add_one_camera(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatters) -> None:
         """add_points for points that each see one camera (reduce_points_one_camera): the
@@ -317,8 +345,14 @@ class ReducedNormals:
     def finish(self) -> "ReducedNormals":
         pat, S = self.pattern, self.S
         w = pat.camera_width
-        N = pat.reduced_matrix(S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w),
-                               self.cc.reshape(len(pat.cc), w, w))
+        if self.dense is not None:
+            N_full, b_points = self.dense.finish()
+            self.b_full += b_points
+            N = pat.reduced_matrix_of_dense(S, N_full)
+            self.dense = None  # the dense arrays are not needed beyond here
+        else:
+            N = pat.reduced_matrix(S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w),
+                                   self.cc.reshape(len(pat.cc), w, w))
         b = S.T @ self.b_full
         for J, cols, e in self.rows:
             valid = cols >= 0
@@ -340,12 +374,15 @@ class ReducedNormals:
 
 
 def block_pattern(batches, state: State, layout: UnknownLayout, chunk_size: int):
-    """The block pattern of the reduced camera system, the selection S and each chunk's scatter
-    (in the order of the chunks), computed once."""
+    """The block pattern of the reduced camera system, the selection S, whether the points' share
+    is summed dense (bundle.dense.dense_pays) and, when it is not, each chunk's scatter (in the
+    order of the chunks; None each when dense), computed once: (pattern, S, dense, scatters)."""
     chunks = [(c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size)]
     pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
                            layout.camera_elements)
-    scatters = [pattern.scatters(photo, cam, sums_camera_columns(pattern, cam)) for photo, cam in chunks]
+    dense = dense_pays(pattern, [photo for photo, _ in chunks])
+    scatters = [None if dense else pattern.scatters(photo, cam, sums_camera_columns(pattern, cam))
+                for photo, cam in chunks]
     S = selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
     pattern.reduction(S)
-    return pattern, S, scatters
+    return pattern, S, dense, scatters
