@@ -250,9 +250,10 @@ class ReducedNormals:
         self.pattern, self.S, self.dense = pattern, S, dense
         self.n = S.shape[1]
         self.kept: list[PointChunk] = []  # the linearised chunks, for the back substitution
-        self.pp = np.zeros(len(pattern.pp) * 36)
-        self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
-        self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
+        if dense is None:  # the block numbers of the pattern, summed chunk by chunk
+            self.pp = np.zeros(len(pattern.pp) * 36)
+            self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
+            self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
         self.b_full = np.zeros(pattern.n_full)
         self.d_full = np.zeros(pattern.n_full)  # diag of the camera normals before the points' reduction
         self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -273,15 +274,11 @@ class ReducedNormals:
         pat = self.pattern
         if self.dense is not None:
             self._add_dense(chunk, photo, cam)
-            self.ee += chunk.sum_of_squares()
-            return
-        camera_summed = sums_camera_columns(pat, cam)
-        if scatters is None:
-            scatters = pat.scatters(photo, cam, camera_summed)
-        if camera_summed:
+        elif sums_camera_columns(pat, cam):
+            scatters = scatters if scatters is not None else pat.scatters(photo, cam, camera_summed=True)
             self._add_one_camera(chunk, photo, cam, scatters)
         else:
-            self._add_general(chunk, photo, cam, scatters)
+            self._add_general(chunk, photo, cam, scatters if scatters is not None else pat.scatters(photo, cam))
         self.ee += chunk.sum_of_squares()
 
     def _add_dense(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray) -> None:
