@@ -209,9 +209,15 @@ class BlockPattern:
     def reduced_matrix_of_dense(self, S: sp.csr_matrix, N_full: np.ndarray) -> sp.csr_matrix:
         """``S^T N_full S`` (as :meth:`reduced_matrix`) from a dense N_full (n_full, n_full) that is
         zero outside the pattern: its block numbers gathered (the places worked out at the first
-        call)."""
+        call); the camera-photo blocks are the photo-camera blocks transposed, as in
+        :meth:`reduced_matrix`."""
         if self._dense_places is None:
             rows, cols = self._full_indices()
+            if self.with_cameras:  # the transposed copy of pc read where pc is (N_full[r_pc, c_pc])
+                start = len(self.pp) * 36
+                n_pc = len(self.pc) * 6 * self.camera_width
+                rows[start + n_pc : start + 2 * n_pc] = rows[start : start + n_pc]
+                cols[start + n_pc : start + 2 * n_pc] = cols[start : start + n_pc]
             self._dense_places = rows * self.n_full + cols
         return self.reduction(S).matrix(N_full.reshape(-1)[self._dense_places])
 
