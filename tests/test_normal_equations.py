@@ -90,3 +90,98 @@ def test_long_track_products_equal_the_ray_pair_products(monkeypatch, one_camera
     scale = abs(short.N).max()
     np.testing.assert_allclose(long.N.toarray(), short.N.toarray(), rtol=0, atol=1e-13 * scale)
     np.testing.assert_allclose(long.u, short.u, rtol=1e-13)
+
+
+def _two_cameras(path):
+    """The project at path with every other photo taken by a second camera (a copy of the first)."""
+    import csv
+
+    def second_camera(rows):
+        return [r if i % 2 else [r[0], "CAM2"] + r[2:] for i, r in enumerate(rows)]
+
+    for name, rows_of in (("cameras.csv", lambda rows: rows + [["CAM2"] + rows[-1][1:]]),
+                          ("photos.csv", second_camera)):
+        with open(path / name, newline="") as f:
+            header, *rows = list(csv.reader(f))
+        with open(path / name, "w", newline="") as f:
+            csv.writer(f).writerows([header] + rows_of(rows))
+    return path
+
+
+def _bundle_normals(monkeypatch, project, path, damping=0.0, chunk_size=5):
+    """The bundle's reduced normals at the approximations (points triangulated) by one path of
+    bundle.reduced: "general" (k (6 + w) columns per point, ray pair by ray pair), "one_camera"
+    (camera columns summed over the rays of a point, where all are of one camera) or "dense"
+    (bundle.dense); returns the normals, whether they were summed dense and, per chunk, whether it
+    summed its camera columns."""
+    from striptri.bundle import dense, reduced
+    from striptri.bundle.adjust import _Problem
+    from striptri.bundle.points import initial_points
+    from striptri.core.options import AdjustmentOptions
+
+    camera_sum_rays, dense_work_ratio = {"general": (10**9, 0), "one_camera": (2, 0), "dense": (10**9, 10**9)}[path]
+    monkeypatch.setattr(reduced, "CAMERA_SUM_RAYS", camera_sum_rays)
+    monkeypatch.setattr(dense, "DENSE_WORK_RATIO", dense_work_ratio)
+    options = AdjustmentOptions(method="bundle", chunk_size=chunk_size)
+    problem = _Problem(project, options)  # the scatters and the dense sum follow the thresholds
+    xyz = initial_points(problem.batches, problem.initial_state, problem.obs, problem.unknowns, chunk_size,
+                         None if project.points.xyz_approx is None else project.points.xyz_approx - problem.offset)
+    cam = problem.initial_state.camera_of_photo
+    summed = [reduced.sums_camera_columns(problem.pattern, cam[c.batch.photo_index])
+              for c in problem.chunks(problem.initial_state, xyz)]
+    return problem.assemble(problem.initial_state, xyz, damping), problem.dense, summed
+
+
+def _assert_same_normals(fast, general):
+    scale = abs(general.N).max()
+    np.testing.assert_allclose(fast.N.toarray(), general.N.toarray(), rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(fast.b, general.b, rtol=0, atol=1e-12 * abs(general.b).max())
+    np.testing.assert_allclose(fast.d, general.d, rtol=1e-12)
+    assert fast.ee == pytest.approx(general.ee, rel=1e-12)
+    assert fast.reduced == pytest.approx(general.reduced, rel=1e-12)
+
+
+@pytest.mark.parametrize("damping", [0.0, 1e-3])
+@pytest.mark.parametrize("path", ["one_camera", "dense", "dense_two_cameras"])
+def test_bundle_reductions_equal_the_general_reduction(monkeypatch, tmp_path, damping, path):
+    """The bundle's faster reductions on a close-range project (long tracks, self-calibration) give
+    the reduced camera system N_rcs, b_rcs, e^T e, sum b_p^T N_pp^-1 b_p and the LM diagonal of the
+    general reduction over k (6 + w) columns per point, to round-off: points whose rays all see one
+    camera summing their camera columns before the reduction
+    (bundle.reduced.reduce_points_one_camera), and all points summed dense (bundle.dense), with one
+    camera or two cameras among the rays of a point."""
+    import sys
+    from pathlib import Path
+
+    from striptri.io import read_project
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    net = close_range.make_close_range(24, 40, seed=3)  # 7 to 20 rays per target, c, xp, yp, k1, k2 free
+    written = close_range.write_close_range(tmp_path / "p", net)
+    project = read_project(_two_cameras(written) if path == "dense_two_cameras" else written)
+    assert len(project.cameras.ids) == (2 if path == "dense_two_cameras" else 1)
+    general, general_dense, general_summed = _bundle_normals(monkeypatch, project, "general", damping)
+    assert general.pattern.with_cameras and len(general.pattern.cc) > 0  # the cameras are estimated
+    assert not general_dense and not any(general_summed)
+    fast, is_dense, summed = _bundle_normals(monkeypatch, project, path.removesuffix("_two_cameras"), damping)
+    assert is_dense if path.startswith("dense") else (not is_dense and all(summed))
+    _assert_same_normals(fast, general)
+
+
+@pytest.mark.parametrize("name", ["pair, weighted control", "strip, single-photo weighted control",
+                                  "strip, plan points, check points", "strip, IMU, held angle, bases, interior",
+                                  "pair, one-photo points of every kind", "block_3x6"])
+@pytest.mark.parametrize("path", ["one_camera", "dense"])
+def test_bundle_reductions_on_the_bundle_cases(monkeypatch, name, path):
+    """The same on the bundle's test projects (test_bundle.CASES): weighted and held control,
+    one-photo points, plan points, observed elements and interior orientation (camera columns in N
+    where the cameras are estimated)."""
+    from test_bundle import CASES
+
+    project = CASES[name]()
+    general, _, _ = _bundle_normals(monkeypatch, project, "general")
+    fast, is_dense, _ = _bundle_normals(monkeypatch, project, path)
+    assert is_dense == (path == "dense")
+    _assert_same_normals(fast, general)

@@ -124,6 +124,8 @@ class BlockPattern:
         for photo, cam in chunks:
             pp.append(np.unique(self._keys(photo, photo, n_photos)))
             if with_cameras:
+                if np.all(cam == cam[:, :1]):  # one camera per group: its pairs are those of the first ray
+                    cam = cam[:, :1]
                 pc.append(np.unique(self._keys(photo, cam, n_cameras)))
                 cc.append(np.unique(self._keys(cam, cam, n_cameras)))
         # every photo and camera keeps its diagonal block (N stays square even for unmeasured photos)
@@ -134,6 +136,7 @@ class BlockPattern:
             if with_cameras else np.zeros(0, dtype=np.int64)
         self.n_full = 6 * n_photos + NCP * n_cameras
         self._reduction = None  # (S, ReducedPattern): the CSR structure of S^T N_full S, worked out once
+        self._dense_places = None  # the place of every block number in a dense N_full (reduced_matrix_of_dense)
 
     @staticmethod
     def _keys(a, b, nb):
@@ -149,12 +152,19 @@ class BlockPattern:
         pos_cc = np.searchsorted(self.cc, self._keys(cam, cam, self.n_cameras)).reshape(m, k, k)
         return pos_pp, pos_pc, pos_cc
 
-    def scatters(self, photo, cam):
+    def scatters(self, photo, cam, camera_summed: bool = False):
         """ChunkScatter of a chunk's photo-photo, photo-camera and camera-camera pairs (the last two
-        None when the cameras are held)."""
+        None when the cameras are held).
+
+        camera_summed: every group of the chunk has one camera (``cam == cam[:, :1]``), whose
+        columns the caller sums over the group's rays first: its photo-camera blocks then come
+        one per ray (pairs (a, 0), blocks (m, k, 1, 6, w)) and its camera-camera block one per
+        group (pair (0, 0), blocks (m, 1, 1, w, w))."""
         pos_pp, pos_pc, pos_cc = self.positions(photo, cam)
         if not self.with_cameras:
             return ChunkScatter(pos_pp), None, None
+        if camera_summed:
+            return ChunkScatter(pos_pp), ChunkScatter(pos_pc[:, :, :1]), ChunkScatter(pos_cc[:, :1, :1])
         return ChunkScatter(pos_pp), ChunkScatter(pos_pc), ChunkScatter(pos_cc)
 
     def _full_indices(self):
@@ -195,6 +205,21 @@ class BlockPattern:
         number in it are worked out at the first call for this S (:class:`ReducedPattern`); every
         later iteration only gathers (and, for tied elements, sums) the numbers."""
         return self.reduction(S).matrix(self._block_data(pp, pc, cc, self.with_cameras))
+
+    def reduced_matrix_of_dense(self, S: sp.csr_matrix, N_full: np.ndarray) -> sp.csr_matrix:
+        """``S^T N_full S`` (as :meth:`reduced_matrix`) from a dense N_full (n_full, n_full) that is
+        zero outside the pattern: its block numbers gathered (the places worked out at the first
+        call); the camera-photo blocks are the photo-camera blocks transposed, as in
+        :meth:`reduced_matrix`."""
+        if self._dense_places is None:
+            rows, cols = self._full_indices()
+            if self.with_cameras:  # the transposed copy of pc read where pc is (N_full[r_pc, c_pc])
+                start = len(self.pp) * 36
+                n_pc = len(self.pc) * 6 * self.camera_width
+                rows[start + n_pc : start + 2 * n_pc] = rows[start : start + n_pc]
+                cols[start + n_pc : start + 2 * n_pc] = cols[start : start + n_pc]
+            self._dense_places = rows * self.n_full + cols
+        return self.reduction(S).matrix(N_full.reshape(-1)[self._dense_places])
 
     def reduction(self, S: sp.csr_matrix) -> "ReducedPattern":
         """The ReducedPattern of S, worked out at the first call (the adjustments call this when

@@ -44,6 +44,7 @@ from ..model import Project
 from ..parameter_observations import ParameterObservations, build_parameter_observations
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
+from .dense import DenseSchur
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
 
 METHOD = "bundle"
@@ -87,8 +88,9 @@ class _Problem:
         self.n_conditions = n_plate + self.unknowns.n_control_observations - self.unknowns.n_unknowns
         self.redundancy = self.n_conditions + len(self.pobs) - self.layout.n_unknowns
         self.initial_state = initial_state(project, self.offset)
-        self.pattern, self.S, self.scatters = block_pattern(self.batches, self.initial_state, self.layout,
-                                                            options.chunk_size)
+        self.pattern, self.S, self.dense, self.scatters = block_pattern(self.batches, self.initial_state, self.layout,
+                                                                        options.chunk_size)
+        self.n_points = sum(len(b) for b in self.batches)
 
     def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0):
         """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp."""
@@ -114,7 +116,8 @@ class _Problem:
         return total
 
     def normals(self) -> ReducedNormals:
-        return ReducedNormals(self.pattern, self.S)
+        dense = DenseSchur(self.pattern.n_full, self.n_points) if self.dense else None
+        return ReducedNormals(self.pattern, self.S, dense)
 
     def assemble(self, state: State, xyz: np.ndarray, damping: float = 0.0) -> ReducedNormals:
         """The reduced normals at (state, xyz), with the linearised chunks kept (normals.kept) for

@@ -15,6 +15,12 @@ Coordinates held fixed have zero columns in Jp and the identity in N_pp, so ever
 ``dX = N_pp^-1 (b_p - N_pc dx)`` from the point chunks the assembly keeps (``ReducedNormals.kept``),
 so an iteration linearises the observation equations once: about 22 numbers per plate
 measurement are held from the assembly to the back substitution.
+
+Three ways to sum the points' share, the same numbers to round-off (ReducedNormals.add_points):
+dense in the full space for small blocks with long tracks (bundle.dense: close range); with each
+point's camera columns summed over its rays first where all its rays are of one camera
+(reduce_points_one_camera: 6k + w columns per point instead of k (6 + w)); and in general
+(reduce_points), each scattered ray pair by ray pair into the block pattern of N.
 """
 
 from __future__ import annotations
@@ -26,11 +32,12 @@ import scipy.sparse as sp
 
 from ..collinearity import plate_from_ground
 from ..groups import GroupBatch
-from ..lens import projection_terms
+from ..lens import NCP, projection_terms
 from ..linearise import Observations
 from ..normal_equations import BlockPattern, ray_columns, selection_matrix
 from ..parameters import State, UnknownLayout
 from ..triangulation import ray_terms
+from .dense import DenseSchur, dense_pays
 from .points import PointUnknowns
 
 @dataclass
@@ -142,6 +149,69 @@ def reduce_points(chunk: PointChunk):
     return N_loc, b_loc, reduced
 
 
+# From this many rays per point on, a chunk whose points each see one camera sums each point's
+# camera columns over its rays before the reduction (reduce_points_one_camera); the decision is the
+# chunk's, made once per adjustment (block_pattern) with its scatters. It pays from two rays on
+# (measured, one thread: a 1,000-photo block with 2 to 9 rays and c, xp, yp, k1, k2 free 0.064 s
+# an assembly against 0.126 s; the benchmark's close range 0.11 s against 0.22 s).
+CAMERA_SUM_RAYS = 2
+
+
+def sums_camera_columns(pattern: BlockPattern, cam: np.ndarray) -> bool:
+    """Whether a chunk with cameras cam (m, k) takes reduce_points_one_camera: the cameras are
+    estimated, its points have CAMERA_SUM_RAYS rays or more and all rays of each point are of one
+    camera."""
+    return bool(pattern.with_cameras and cam.shape[1] >= CAMERA_SUM_RAYS and np.all(cam == cam[:, :1]))
+
+
+@dataclass
+class OneCameraReduction:
+    """reduce_points for points whose rays are all of one camera, in the point's own columns: the
+    6 photo elements of each ray, then the w camera elements once (their sum over the rays: the
+    same unknowns), instead of k (6 + w).
+
+    pp: (m, k, k, 6, 6) ray-pair blocks in pattern order (block (a, b) is pp[:, a, b]);
+    pc: (m, k, 6, w) ray a's photo with the camera; cc: (m, w, w); b_photo: (m, k, 6);
+    b_camera: (m, w); reduced: (m,) b_p^T N_pp^-1 b_p.
+    """
+
+    pp: np.ndarray
+    pc: np.ndarray
+    cc: np.ndarray
+    b_photo: np.ndarray
+    b_camera: np.ndarray
+    reduced: np.ndarray
+
+
+def reduce_points_one_camera(chunk: PointChunk) -> OneCameraReduction:
+    """The reduction of reduce_points for a chunk whose points each see one camera
+    (sums_camera_columns): with ``Y = N_cp N_pp^-1``, ``N_cc - Y N_pc`` and ``b_c - Y b_p`` in the
+    summed columns (OneCameraReduction). N_cc is block diagonal over the rays (added to the
+    ray-diagonal blocks pp[:, a, a] only) but for the camera, which every ray shares; the ray
+    pairs come from broadcast 6x3 by 3x6 products straight in pattern order (no transposed copy
+    of a (m, 6k, 6k) product)."""
+    m, k = chunk.e.shape[:2]
+    Jc = chunk.Jc
+    N_pp_inv = np.linalg.inv(chunk.N_pp)
+    N_cp = np.einsum("mkai,mkaj->mkij", Jc, chunk.Jp)  # (m, k, 6 + w, 3), per ray
+    N_cp_photo = N_cp[:, :, :6]  # (m, k, 6, 3)
+    N_cp_camera = N_cp[:, :, 6:].sum(axis=1)  # (m, w, 3)
+    Y_photo = N_cp_photo @ N_pp_inv[:, None]  # (m, k, 6, 3)
+    Y_camera = N_cp_camera @ N_pp_inv  # (m, w, 3)
+    N_pc_camera = np.swapaxes(N_cp_camera, 1, 2)  # (m, 3, w)
+    pp = -np.matmul(Y_photo[:, :, None], np.swapaxes(N_cp_photo, 2, 3)[:, None])  # (m, k, k, 6, 6)
+    N_cc = np.einsum("mkai,mkaj->mkij", Jc, Jc)  # (m, k, 6 + w, 6 + w), per ray
+    ray = np.arange(k)
+    pp[:, ray, ray] += N_cc[:, :, :6, :6]
+    pc = N_cc[:, :, :6, 6:] - Y_photo @ N_pc_camera[:, None]
+    cc = N_cc[:, :, 6:, 6:].sum(axis=1) - Y_camera @ N_pc_camera
+    b_c = np.einsum("mkai,mka->mki", Jc, chunk.e)  # (m, k, 6 + w)
+    b_photo = b_c[..., :6] - np.einsum("mkir,mr->mki", Y_photo, chunk.b_p)
+    b_camera = b_c[..., 6:].sum(axis=1) - np.einsum("mir,mr->mi", Y_camera, chunk.b_p)
+    reduced = np.einsum("mi,mij,mj->m", chunk.b_p, N_pp_inv, chunk.b_p)
+    return OneCameraReduction(pp, pc, cc, b_photo, b_camera, reduced)
+
+
 def point_corrections(chunk: PointChunk, dx: np.ndarray):
     """Back-substitution ``dX = N_pp^-1 (b_p - N_pc dx)`` (m, 3) and the linearised whitened
     residuals after the step: plate (m, k, 2) ``Jc dx + Jp dX - e`` and control (m, 3)."""
@@ -174,13 +244,16 @@ class ReducedNormals:
     linearised problem (Schmid 59's [LL.u]).
     """
 
-    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
-        self.pattern, self.S = pattern, S
+    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix, dense: DenseSchur | None = None):
+        """dense: sum the points' share dense (bundle.dense; block_pattern decides), else into the
+        block pattern chunk by chunk."""
+        self.pattern, self.S, self.dense = pattern, S, dense
         self.n = S.shape[1]
         self.kept: list[PointChunk] = []  # the linearised chunks, for the back substitution
-        self.pp = np.zeros(len(pattern.pp) * 36)
-        self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
-        self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
+        if dense is None:  # the block numbers of the pattern, summed chunk by chunk
+            self.pp = np.zeros(len(pattern.pp) * 36)
+            self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
+            self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
         self.b_full = np.zeros(pattern.n_full)
         self.d_full = np.zeros(pattern.n_full)  # diag of the camera normals before the points' reduction
         self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -196,14 +269,57 @@ class ReducedNormals:
         keep: hold the chunk for the back substitution (``kept``)."""
         if keep:
             self.kept.append(chunk)
-        N_loc, b_loc, reduced = reduce_points(chunk)
         photo = chunk.batch.photo_index
         cam = camera_of_photo[photo]
+        pat = self.pattern
+        if self.dense is not None:
+            self._add_dense(chunk, photo, cam)
+        elif sums_camera_columns(pat, cam):
+            scatters = scatters if scatters is not None else pat.scatters(photo, cam, camera_summed=True)
+            self._add_one_camera(chunk, photo, cam, scatters)
+        else:
+            self._add_general(chunk, photo, cam, scatters if scatters is not None else pat.scatters(photo, cam))
+        self.ee += chunk.sum_of_squares()
+
+    def _add_dense(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray) -> None:
+        """add_points summed dense (bundle.dense): the points' share into the DenseSchur, ``Jc^T e``
+        and the diagonal of N_cc into b_full and d_full."""
+        pat = self.pattern
+        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
+        Jc = chunk.Jc if pat.with_cameras else chunk.Jc[..., :6]
+        full_cols = full_cols if pat.with_cameras else full_cols[..., :6]
+        self.reduced += self.dense.add(Jc, chunk.Jp, chunk.N_pp, chunk.b_p, full_cols)
+        b_c = np.einsum("mkai,mka->mki", Jc, chunk.e)
+        d3 = np.einsum("mkai,mkai->mki", Jc, Jc)  # diagonal of N_cc before the reduction
+        self.b_full += np.bincount(full_cols.ravel(), weights=b_c.ravel(), minlength=pat.n_full)
+        self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
+
+    def _add_one_camera(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatters) -> None:
+        """add_points for points that each see one camera (reduce_points_one_camera): the
+        photo-camera scatter gets one block per ray, the camera-camera scatter one per point
+        (BlockPattern.scatters with camera_summed)."""
+        red = reduce_points_one_camera(chunk)
+        pat = self.pattern
+        scatter_pp, scatter_pc, scatter_cc = scatters
+        scatter_pp.add(self.pp, red.pp)
+        scatter_pc.add(self.pc, red.pc[:, :, None])
+        scatter_cc.add(self.cc, red.cc[:, None, None])
+        photo_cols = 6 * photo[..., None] + np.arange(6)  # (m, k, 6) full-space columns
+        camera_cols = 6 * pat.n_photos + NCP * cam[:, :1] + pat.camera_elements  # (m, w)
+        self.b_full += np.bincount(photo_cols.ravel(), weights=red.b_photo.ravel(), minlength=pat.n_full)
+        self.b_full += np.bincount(camera_cols.ravel(), weights=red.b_camera.ravel(), minlength=pat.n_full)
+        d3 = np.einsum("mkai,mkai->mki", chunk.Jc, chunk.Jc)  # diagonal of N_cc before the reduction
+        self.d_full += np.bincount(ray_columns(pat, photo, cam).ravel(), weights=d3.ravel(), minlength=pat.n_full)
+        self.reduced += float(np.sum(red.reduced))
+
+    def _add_general(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatters) -> None:
+        """add_points for any chunk: the (k (6 + w))^2 blocks of reduce_points, ray pair by ray pair."""
+        N_loc, b_loc, reduced = reduce_points(chunk)
         m, k = photo.shape
         pat = self.pattern
         width = chunk.Jc.shape[-1]
         N5 = N_loc.reshape(m, k, width, k, width)
-        scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam)
+        scatter_pp, scatter_pc, scatter_cc = scatters
         scatter_pp.add_pairs_by_ray(self.pp, N5[:, :, :6, :, :6])
         full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
         b3 = b_loc.reshape(m, k, width)
@@ -215,7 +331,6 @@ class ReducedNormals:
         if pat.with_cameras:
             scatter_pc.add_pairs_by_ray(self.pc, N5[:, :, :6, :, 6:])
             scatter_cc.add_pairs_by_ray(self.cc, N5[:, :, 6:, :, 6:])
-        self.ee += chunk.sum_of_squares()
         self.reduced += float(np.sum(reduced))
 
     def add_rows(self, J: np.ndarray, cols: np.ndarray, e: np.ndarray) -> None:
@@ -227,8 +342,14 @@ class ReducedNormals:
     def finish(self) -> "ReducedNormals":
         pat, S = self.pattern, self.S
         w = pat.camera_width
-        N = pat.reduced_matrix(S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w),
-                               self.cc.reshape(len(pat.cc), w, w))
+        if self.dense is not None:
+            N_full, b_points = self.dense.finish()
+            self.b_full += b_points
+            N = pat.reduced_matrix_of_dense(S, N_full)
+            self.dense = None  # the dense arrays are not needed beyond here
+        else:
+            N = pat.reduced_matrix(S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w),
+                                   self.cc.reshape(len(pat.cc), w, w))
         b = S.T @ self.b_full
         for J, cols, e in self.rows:
             valid = cols >= 0
@@ -250,12 +371,15 @@ class ReducedNormals:
 
 
 def block_pattern(batches, state: State, layout: UnknownLayout, chunk_size: int):
-    """The block pattern of the reduced camera system, the selection S and each chunk's scatter
-    (in the order of the chunks), computed once."""
+    """The block pattern of the reduced camera system, the selection S, whether the points' share
+    is summed dense (bundle.dense.dense_pays) and, when it is not, each chunk's scatter (in the
+    order of the chunks; None each when dense), computed once: (pattern, S, dense, scatters)."""
     chunks = [(c.photo_index, state.camera_of_photo[c.photo_index]) for b in batches for c in b.chunks(chunk_size)]
     pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
                            layout.camera_elements)
-    scatters = [pattern.scatters(photo, cam) for photo, cam in chunks]
+    dense = dense_pays(pattern, [photo for photo, _ in chunks])
+    scatters = [None if dense else pattern.scatters(photo, cam, sums_camera_columns(pattern, cam))
+                for photo, cam in chunks]
     S = selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
     pattern.reduction(S)
-    return pattern, S, scatters
+    return pattern, S, dense, scatters
