@@ -185,3 +185,53 @@ def test_bundle_reductions_on_the_bundle_cases(monkeypatch, name, path):
     fast, is_dense, _ = _bundle_normals(monkeypatch, project, path)
     assert is_dense == (path == "dense")
     _assert_same_normals(fast, general)
+
+
+def _conditions_normals(monkeypatch, project, full_product_rays, chunk_size=5):
+    """The method of conditions' N, u, wPw, ug, gPg at the approximations, with groups of
+    full_product_rays rays or more taking the whole products (normal_equations.add_groups); returns
+    the accumulator and, per chunk, whether it summed its camera columns (and so has camera-summed
+    scatters: one photo-camera block per ray)."""
+    from striptri import normal_equations as ne
+    from striptri.conditions_method.adjust import _Problem
+    from striptri.core.options import AdjustmentOptions
+
+    monkeypatch.setattr(ne, "FULL_PRODUCT_RAYS", full_product_rays)
+    problem = _Problem(project, AdjustmentOptions(method="conditions", chunk_size=chunk_size))
+    cam = problem.initial_state.camera_of_photo
+    chunks = [c.photo_index for b in problem.batches for c in b.chunks(chunk_size)]
+    summed = [ne.sums_camera_columns(problem.assembly.pattern, cam[photo]) for photo in chunks]
+    per_ray = [scatter_pc.P.shape[1] == photo.size for photo, (_, scatter_pc, _) in zip(chunks, problem.assembly.scatters)]
+    assert summed == per_ray  # the scatters made once per adjustment follow the branch add_groups takes
+    sweep = problem.sweep(problem.initial_state, problem.obs.plate, problem.obs.control)
+    return problem.assemble(sweep, 1), summed
+
+
+@pytest.mark.parametrize("cameras", ["one", "two"])
+def test_conditions_long_one_camera_tracks_equal_the_ray_pair_products(monkeypatch, tmp_path, cameras):
+    """The method of conditions on a close-range project (long tracks, self-calibration): groups
+    whose rays all see one camera, their camera columns summed and scattered once per ray and once
+    per group (BlockPattern.scatters with camera_summed), and groups of two cameras (the whole
+    product, ray-pair scatters), give N, u, wPw, ug and gPg of the ray-pair products to round-off."""
+    import sys
+    from pathlib import Path
+
+    from striptri.io import read_project
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    net = close_range.make_close_range(24, 40, seed=3)  # 7 to 20 rays per target, c, xp, yp, k1, k2 free
+    written = close_range.write_close_range(tmp_path / "p", net)
+    project = read_project(_two_cameras(written) if cameras == "two" else written)
+    general, general_summed = _conditions_normals(monkeypatch, project, 10**9)
+    assert general.pattern.with_cameras and len(general.pattern.cc) > 0  # the cameras are estimated
+    assert not any(general_summed)
+    long, summed = _conditions_normals(monkeypatch, project, 2)  # every group takes the whole product
+    assert all(summed) if cameras == "one" else not any(summed)
+    scale = abs(general.N).max()
+    np.testing.assert_allclose(long.N.toarray(), general.N.toarray(), rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(long.u, general.u, rtol=0, atol=1e-12 * abs(general.u).max())
+    np.testing.assert_allclose(long.ug, general.ug, rtol=0, atol=1e-12 * abs(general.ug).max())
+    assert long.wPw == pytest.approx(general.wPw, rel=1e-12)
+    assert long.gPg == pytest.approx(general.gPg, rel=1e-12)

@@ -304,6 +304,14 @@ def selection_matrix(photo_cols: np.ndarray, camera_cols: np.ndarray, n_unknowns
 FULL_PRODUCT_RAYS = 12
 
 
+def sums_camera_columns(pattern: BlockPattern, cam: np.ndarray) -> bool:
+    """Whether PatternAccumulator.add_groups sums the camera columns of a chunk with cameras
+    cam (m, k) over each group's rays: the cameras are estimated, its groups have FULL_PRODUCT_RAYS
+    rays or more and all rays of each group are of one camera. Such a chunk's scatters are
+    BlockPattern.scatters with camera_summed."""
+    return bool(pattern.with_cameras and cam.shape[1] >= FULL_PRODUCT_RAYS and np.all(cam == cam[:, :1]))
+
+
 class PatternAccumulator:
     """Sums the whitened groups into the block pattern (module doc); the same outputs as
     NormalAccumulator (N, u, wPw, ug, gPg) once :meth:`finish` has been called."""
@@ -332,14 +340,17 @@ class PatternAccumulator:
             Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
             full_cols = full_cols[..., :6]
         width = full_cols.shape[-1]
-        scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam)
+        one_camera = sums_camera_columns(pat, cam)
+        scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam, one_camera)
         # the ray-pair blocks B~_a^T B~_b directly in pattern order (m, k, k, r, s): batched products
         # of the rays' column groups, no transposed copy of a (m, 6k, 6k) product
-        if k >= FULL_PRODUCT_RAYS and pat.with_cameras and np.all(cam == cam[:, :1]):
+        if one_camera:
             # long tracks of one camera each (close range): the camera columns of a group's rays
             # summed first (they are the same unknowns), then one (6k + w)^2 product per group;
-            # the ray-pair scatters get each sum once (photo a with the camera: pair (a, 0); the
-            # camera with itself: pair (0, 0); zeros elsewhere)
+            # the camera-summed scatters take photo a with the camera once per ray (m, k, 6, w)
+            # and the camera with itself once per group (m, w, w)
+            if scatter_pc.P.shape[1] != m * k:
+                raise ValueError("a chunk of long one-camera tracks needs BlockPattern.scatters with camera_summed")
             nc = Bw.shape[1]
             B4 = Bw.reshape(m, nc, k, width)
             Bc = B4[..., 6:].sum(axis=2)  # (m, nc, w)
@@ -348,12 +359,8 @@ class PatternAccumulator:
             pp = full[:, : 6 * k, : 6 * k].reshape(m, k, 6, k, 6).transpose(0, 1, 3, 2, 4)
             scatter_pp.add(self.pp, pp)
             w = width - 6
-            pc = np.zeros((m, k, k, 6, w))
-            pc[:, :, 0] = full[:, : 6 * k, 6 * k :].reshape(m, k, 6, w)
-            scatter_pc.add(self.pc, pc)
-            cc = np.zeros((m, k, k, w, w))
-            cc[:, 0, 0] = full[:, 6 * k :, 6 * k :]
-            scatter_cc.add(self.cc, cc)
+            scatter_pc.add(self.pc, full[:, : 6 * k, 6 * k :].reshape(m, k, 1, 6, w))
+            scatter_cc.add(self.cc, full[:, None, None, 6 * k :, 6 * k :])
         elif k >= FULL_PRODUCT_RAYS:
             # long tracks: one (k width)^2 product per group in BLAS, then viewed as ray-pair blocks
             full = np.matmul(np.swapaxes(Bw, 1, 2), Bw).reshape(m, k, width, k, width).transpose(0, 1, 3, 2, 4)

@@ -31,7 +31,8 @@ from ..errors import NumericalFailure
 from ..groups import build_batches
 from ..linearise import linearise
 from ..model import Project
-from ..normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, whiten
+from ..normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix,
+                                sums_camera_columns, whiten)
 from ..parameter_observations import ParameterObservations, build_parameter_observations
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 
@@ -127,7 +128,8 @@ def _non_finite_points(sweep: Sweep) -> np.ndarray:
 @dataclass(frozen=True)
 class Assembly:
     """What the assembly computes once per adjustment: the block pattern of N, the selection S,
-    and each chunk's scatter (normal_equations.ChunkScatter), in the order Sweep.systems yields
+    and each chunk's scatters (normal_equations.ChunkScatter; camera-summed for the chunks of long
+    one-camera tracks, normal_equations.sums_camera_columns), in the order Sweep.systems yields
     the chunks."""
 
     pattern: BlockPattern
@@ -141,7 +143,7 @@ class Assembly:
         ]
         pattern = BlockPattern(len(state.xyz0), len(state.interior), bool((layout.camera_cols >= 0).any()), chunks,
                                layout.camera_elements)
-        scatters = [pattern.scatters(photo, cam) for photo, cam in chunks]
+        scatters = [pattern.scatters(photo, cam, sums_camera_columns(pattern, cam)) for photo, cam in chunks]
         S = selection_matrix(layout.photo_cols, layout.camera_cols, layout.n_unknowns)
         pattern.reduction(S)
         return Assembly(pattern, S, scatters)
