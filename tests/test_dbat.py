@@ -375,3 +375,27 @@ def test_dbat_round_trip_through_a_project(tmp_path, which):
     np.testing.assert_allclose(q.points.xyz_given[order], p.points.xyz_given, rtol=0, atol=1e-12)
     if which == "camcal":
         assert f"{adjust(q).sigma0:.4f}" == "1.6148"
+
+
+@pytest.mark.parametrize("plate", ["mm", "px"])
+def test_dbat_writer_keeps_the_plate_unit(tmp_path, plate):
+    """A project whose plate coordinates are pixels ([units] plate = "px") is written to DBAT with
+    the camera's <unit> px (not mm), and read back as a px project; a mm project stays mm."""
+    import shutil
+
+    from click.testing import CliRunner
+
+    from striptri.cli import main
+    from striptri.io import read_project
+
+    src = tmp_path / "p"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "strip8", src)
+    (src / "project.toml").unlink(missing_ok=True)
+    (src / "project.toml").write_text(f'[units]\nplate = "{plate}"\n')
+    runner = CliRunner()
+    for args in (["convert", str(src), "--to", "dbat", "--out", str(tmp_path / "d")],
+                 ["convert", str(tmp_path / "d" / "project.xml"), "--to", "project", "--out", str(tmp_path / "q")]):
+        out = runner.invoke(main, args)
+        assert out.exit_code == 0, out.output
+    assert f"<unit>{plate}</unit>" in (tmp_path / "d" / "project.xml").read_text()
+    assert read_project(tmp_path / "q").settings.plate_unit == plate

@@ -70,6 +70,12 @@ def striptri_camera(camera: DbatCamera, reference: DbatCamera | None = None) -> 
     return prm
 
 
+def _plate_unit(dbat_unit: str) -> str:
+    """The project's plate unit (model.PLATE_UNITS) for a DBAT camera's <unit>: "px" for pixels (as
+    the DBAT writer labels a pixel project), else "mm", DBAT's usual unit."""
+    return "px" if dbat_unit.strip().lower() in ("px", "pixel", "pixels") else "mm"
+
+
 def dbat_to_project(dbat: DbatProject, drop_distortion: bool = False) -> Scene:
     """A striptri project of a DBAT project; Scene.project is the model.Project.
 
@@ -154,7 +160,7 @@ def dbat_to_project(dbat: DbatProject, drop_distortion: bool = False) -> Scene:
             sigma_xy=dbat.ip_sigma * ph,
         ),
         points=model.ObjectPoints(ids=point_ids, kind=kind, xyz_given=xyz_given, sigma_given=sigma_given),
-        settings=model.ProjectSettings(angle_unit="deg", sigma_image=float(np.median(dbat.ip_sigma) * ph)
+        settings=model.ProjectSettings(angle_unit="deg", plate_unit=_plate_unit(dbat.camera.unit), sigma_image=float(np.median(dbat.ip_sigma) * ph)
                                        if dbat.n_image_points else 0.005,
                                        datum=datum),
         source=dbat.path,

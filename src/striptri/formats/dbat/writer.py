@@ -69,7 +69,7 @@ def dbat_files(project: model.Project, pixel_size: float = 1.0) -> tuple[dict[st
         notes.append("observed camera elements are written as estimated (a DBAT script has no prior for them)")
     camera = (
         "<camera><id>1</id>"
-        f"<name>{xml_escape(cams.ids[0])}</name><unit>mm</unit>"
+        f"<name>{xml_escape(cams.ids[0])}</name><unit>{project.settings.plate_unit}</unit>"
         f"<sensor>{_r(W * s / aspect)},{_r(H * s)}</sensor><image>{W},{H}</image><aspect>{_r(aspect)}</aspect>"
         f"<cc>{_r(prm[lens.C])}</cc><focal>{_r(prm[lens.C])}</focal>"
         f"<pp>{_r(px0 + prm[lens.XP])},{_r(py0 - prm[lens.YP])}</pp>"
