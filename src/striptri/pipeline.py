@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import diagnosis, progress, report, solvers, termination
+from . import diagnosis, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
@@ -156,6 +156,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)
+    # [corrections]: Earth curvature and refraction of the plate coordinates, before everything else
+    project, corrections = plate_corrections.correct_project(project)
     said: list[str] = []
 
     def warn(text: str) -> None:
@@ -208,6 +210,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
     summary["blunders"] = blunder_summary(det)
     summary["warnings"] = list(said)
+    if corrections is not None:
+        summary["plate_corrections"] = corrections.summary
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
