@@ -24,8 +24,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from striptri import plate_corrections as pc
+from striptri.cli import main
 from striptri.errors import InputError
 from striptri.io.project_reader import parse_settings, read_project
 from striptri.io.project_writer import write_project
@@ -274,3 +276,36 @@ def test_no_heights_is_an_input_error(block):
     bad = replace(project, points=none, settings=replace(project.settings, earth_curvature=True))
     with pytest.raises(InputError, match="need the heights"):
         pc.correct_project(bad)
+
+
+def test_command_line_switches(block, tmp_path):
+    """`striptri adjust --earth-curvature --refraction` over a project.toml without [corrections]
+    applies both and says so; `--no-earth-curvature` turns project.toml's switch off."""
+    project, Z0, h, _ = block
+    folder = write_project(tmp_path / "in", _displaced(project, Z0, h, True, True))
+    assert "[corrections]" not in (folder / "project.toml").read_text()
+    result = CliRunner().invoke(main, ["adjust", str(folder), "--out", str(tmp_path / "out"), "--quiet",
+                                       "--earth-curvature", "--refraction"])
+    assert result.exit_code == 0, result.output
+    assert "plate coordinates corrected: earth curvature up to" in result.output
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert set(summary["plate_corrections"]) >= {"earth_curvature", "refraction"}
+    on = replace(project, settings=replace(project.settings, earth_curvature=True))
+    folder2 = write_project(tmp_path / "in2", on)
+    result = CliRunner().invoke(main, ["adjust", str(folder2), "--out", str(tmp_path / "out2"), "--quiet",
+                                       "--no-earth-curvature"])
+    assert result.exit_code == 0, result.output
+    assert "plate_corrections" not in json.loads((tmp_path / "out2" / "summary.json").read_text())
+
+
+def test_command_line_bad_heights_exit_2_and_write_nothing(block, tmp_path):
+    project, _, _, _ = block
+    photos = project.photos
+    low = replace(project, photos=replace(photos, xyz0=photos.xyz0 * np.array([1.0, 1.0, 0.0])))
+    folder = write_project(tmp_path / "in", low)
+    result = CliRunner().invoke(main, ["adjust", str(folder), "--out", str(tmp_path / "out"), "--quiet",
+                                       "--refraction"])
+    assert result.exit_code == 2
+    assert "project.toml" in result.output and "not above the height" in result.output
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "out").exists()

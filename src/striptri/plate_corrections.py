@@ -3,7 +3,7 @@
 For users who adjust in map coordinates (a national grid or UTM with heights above sea level,
 treated as Cartesian) or who check old results computed that way. Both are radial displacements
 about the principal point of a near-vertical photograph (the principal point stands for the nadir
-point; for tilts of a few degrees the difference is of second order). Both are off by default
+point, as in the classical programs; for a tilt t the nadir lies c tan t away from it). Both are off by default
 (project.toml ``[corrections]``, docs/file-formats.md; the choices are in docs/decisions.md,
 "Earth curvature and refraction of the plate coordinates").
 
@@ -194,6 +194,15 @@ class CorrectionSizes:
     """What was applied and how large it was (summary.json "plate_corrections", the report)."""
 
     summary: dict
+
+
+def with_switches(project: Project, earth_curvature: bool | None = None, refraction: bool | None = None) -> Project:
+    """project with [corrections] earth_curvature / refraction set where given (not None): the
+    command line's --earth-curvature, --refraction over project.toml."""
+    given = {k: v for k, v in (("earth_curvature", earth_curvature), ("refraction", refraction)) if v is not None}
+    if not given:
+        return project
+    return replace(project, settings=replace(project.settings, **given))
 
 
 def correct_project(project: Project) -> tuple[Project, CorrectionSizes | None]:
