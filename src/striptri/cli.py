@@ -293,6 +293,11 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
               help="Sequential method: polynomial strip correction after the similarity [none].")
 @click.option("--init", type=click.Choice(["given", "sequential"]), default=None,
               help="Approximate values: as given, or from the sequential method (rough values suffice).")
+@click.option("--earth-curvature/--no-earth-curvature", default=None,
+              help="Correct the plate coordinates for the Earth's curvature (map coordinates only) "
+                   "[project.toml [corrections] or off].")
+@click.option("--refraction/--no-refraction", default=None,
+              help="Correct the plate coordinates for atmospheric refraction [project.toml [corrections] or off].")
 @click.option("--keep-unconverged", is_flag=True, default=False,
               help="Write the output of an adjustment that stopped without converging (converged: false in "
                    "summary.json, exit status 0) instead of failing with exit status 1.")
@@ -301,7 +306,7 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
                    "vTPv, largest correction and seconds, then the phases after the adjustment).")
 @reports_errors
 def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders,
-           procedure, direction, polynomial_degree, init, keep_unconverged, quiet):
+           procedure, direction, polynomial_degree, init, earth_curvature, refraction, keep_unconverged, quiet):
     """Adjust the project in PROJECT_DIR and write the results to --out.
 
     The output folder is checked before anything is computed and written only when the adjustment
@@ -315,6 +320,7 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
     with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):
         products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
                               keep_unconverged=keep_unconverged, on_warning=_warn,
+                              corrections={"earth_curvature": earth_curvature, "refraction": refraction},
                               method=method, solver=solver, init=init, direction=direction,
                               procedure=None if procedure is None else int(procedure),
                               polynomial_degree=polynomial_degree,
@@ -327,6 +333,11 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
     state = {"converged": "converged", "cost_flat": "converged (cost_flat: the sum of squares no longer decreased)"}.get(
         s["termination"], f"NOT converged ({s['termination']}; kept)")
+    applied = s.get("plate_corrections")
+    if applied:
+        sizes = ", ".join(f"{name.replace('_', ' ')} up to {applied[name]['max']:.3g} {applied['plate_unit']} "
+                          f"({applied[name]['direction']})" for name in ("earth_curvature", "refraction") if name in applied)
+        click.echo(f"plate coordinates corrected: {sizes}")
     click.echo(f"{state} in {s['iterations']} iterations: sigma0 {sigma0}, redundancy {s['redundancy']}, "
                f"{s['n_photos']} photos, {s['n_points']} points -> {out_dir}")
 

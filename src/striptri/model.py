@@ -191,6 +191,10 @@ class ProjectSettings:
     datum: str = "control"
     cost_tolerance: float = 0.0  # bundle method: AdjustmentOptions.cost_tolerance (0 = off)
     plate_unit: str = "mm"  # PLATE_UNITS: mm of the plate (film, sensor) or px (pixels of the image)
+    # [corrections] (striptri.plate_corrections): classical corrections of the plate coordinates
+    earth_curvature: bool = False
+    refraction: bool = False
+    earth_radius: float = 6_371_000.0  # m, the sphere of the Earth curvature correction
 
 
 @dataclass(frozen=True)

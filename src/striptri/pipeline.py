@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import diagnosis, progress, report, solvers, termination
+from . import diagnosis, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
@@ -83,7 +83,7 @@ def input_paths(project_dir: Path) -> list[Path]:
 
 def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders: str = "off",
                keep_unconverged: bool = False, on_warning: Callable[[str], None] | None = None,
-               **overrides) -> AdjustmentProducts:
+               corrections: dict | None = None, **overrides) -> AdjustmentProducts:
     """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure.
 
     The output location is checked before the project is read and reserved before the adjustment
@@ -92,12 +92,14 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
 
     point_precision: "schmid90", the orientation part plus the measurement part (Schmid 87-90), or
     "joint92", the rigorous joint form (92) (docs/decisions.md: for points in the adjustment the
-    two agree to rounding)."""
+    two agree to rounding). corrections: {"earth_curvature": bool | None, "refraction": bool | None},
+    the command line's values over project.toml's [corrections] (None: project.toml's)."""
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
     t0 = time.perf_counter()
     project = read_project(project_dir)
+    project = plate_corrections.with_switches(project, **(corrections or {}))
     seconds_reading = time.perf_counter() - t0
     options = options_for(project, **overrides)
     try:
@@ -156,6 +158,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)
+    # [corrections]: Earth curvature and refraction of the plate coordinates, before everything else
+    project, corrections = plate_corrections.correct_project(project)
     said: list[str] = []
 
     def warn(text: str) -> None:
@@ -208,6 +212,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
     summary["blunders"] = blunder_summary(det)
     summary["warnings"] = list(said)
+    if corrections is not None:
+        summary["plate_corrections"] = corrections.summary
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))

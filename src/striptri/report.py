@@ -50,6 +50,7 @@ CHECKS_HOLD_BELOW = 1e-6
 SECTIONS = {  # id -> heading, in the order of the report
     "summary": "Summary",
     "warnings": "Warnings and input not used",
+    "corrections": "Earth curvature and refraction",  # only when [corrections] applied one
     "checks": "Checks after convergence",
     "convergence": "Convergence",
     "residuals": "Residuals on the photographs",
@@ -367,6 +368,28 @@ def _warnings_section(summary: dict) -> list[str]:
     else:
         parts.append("<p>None: every line of the input was used.</p>")
     return parts
+
+
+CORRECTION_NAMES = {"earth_curvature": "Earth curvature", "refraction": "Atmospheric refraction"}
+
+
+def _corrections_section(summary: dict) -> list[str]:
+    """The corrections of the plate coordinates that were applied (summary.json "plate_corrections",
+    striptri.plate_corrections): size, direction and the formula's source; nothing when none was."""
+    applied = summary.get("plate_corrections")
+    if not applied:
+        return []
+    unit = html.escape(applied["plate_unit"])
+    rows = [[CORRECTION_NAMES[k], _fmt(v["max"], ".3g"), _fmt(v["rms"], ".3g"), _fmt(v["at_r_max"], ".3g"),
+             html.escape(v["direction"]), html.escape(v["source"])]
+            for k, v in applied.items() if k in CORRECTION_NAMES]
+    return [_section("corrections"),
+            f"<p>Applied to the measured plate coordinates before the adjustment; residuals.csv and the residuals "
+            f"below refer to the corrected coordinates. Radial corrections about the principal point, in {unit}; the "
+            f"largest radius measured is {_fmt(applied['r_max'], '.4g')} {unit}. Heights used: "
+            f"{html.escape(applied['heights'])}.</p>",
+            _table(["correction", f"largest ({unit})", f"RMS ({unit})", f"at the largest radius ({unit})",
+                    "direction", "formula and source"], rows, left=1)]
 
 
 def _checks_section(summary: dict) -> list[str]:
@@ -806,6 +829,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
 
     body = [timed("summary", lambda: _summary_section(project, result, summary, flagged)),
             timed("warnings", lambda: _warnings_section(summary)),
+            _corrections_section(summary),
             timed("checks", lambda: _checks_section(summary)),
             timed("convergence", lambda: _convergence_section(result)),
             timed("residuals", lambda: _residuals_section(project, result, stats, flagged, flag_text, absw))]
@@ -831,7 +855,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
         structure.append("<p>Not drawn.</p>")
     body.append(structure)
 
-    nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items())
+    nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items()
+                   if k != "corrections" or "plate_corrections" in summary)
     total = time.perf_counter() - t0
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
     breakdown = ", ".join(f"{html.escape(SECTIONS.get(k, k).lower())} {v:.2f}" for v, k in slow)

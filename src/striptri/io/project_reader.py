@@ -48,6 +48,7 @@ from striptri.core.options import DATUMS, METHODS
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
 from striptri.io.project_notes import project_notes, unread_files_note
+from striptri.plate_corrections import EARTH_RADIUS_RANGE_M
 from striptri.solvers import SOLVERS
 
 try:  # Python >= 3.11
@@ -73,6 +74,7 @@ TOML_KEYS = {
     "defaults": ("sigma_image",),
     "adjustment": ("method", "solver", "max_iterations", "cost_tolerance"),
     "datum": ("mode",),
+    "corrections": ("earth_curvature", "refraction", "earth_radius"),
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
@@ -235,7 +237,19 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
         math.isfinite(cost_tolerance) and 0 <= cost_tolerance < 1
     ):
         raise fail("adjustment", "cost_tolerance", f"{cost_tolerance!r} is not a number in [0, 1)")
+    switches = {key: get("corrections", key, getattr(defaults, key)) for key in ("earth_curvature", "refraction")}
+    for key, value in switches.items():
+        if not isinstance(value, bool):
+            raise fail("corrections", key, f"{value!r} is not true or false")
+    earth_radius = get("corrections", "earth_radius", defaults.earth_radius)
+    low, high = EARTH_RADIUS_RANGE_M
+    if isinstance(earth_radius, bool) or not isinstance(earth_radius, (int, float)) or not low <= earth_radius <= high:
+        raise fail("corrections", "earth_radius", f"{earth_radius!r} is not a radius of the Earth in metres "
+                                                  f"(accepted: {low:.0f} to {high:.0f})")
     return model.ProjectSettings(
+        earth_curvature=switches["earth_curvature"],
+        refraction=switches["refraction"],
+        earth_radius=float(earth_radius),
         angle_unit=choice("units", "angles", model.ANGLE_UNITS, defaults.angle_unit),
         rotation=choice("units", "rotation", model.ROTATION_CONVENTIONS, defaults.rotation),
         sigma_image=float(sigma_image),

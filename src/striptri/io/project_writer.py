@@ -87,7 +87,19 @@ def settings_toml(settings: model.ProjectSettings) -> str:
         f"max_iterations = {int(settings.max_iterations)}\n"
         + (f"cost_tolerance = {float(settings.cost_tolerance)!r}\n" if settings.cost_tolerance else "")
         + datum
+        + _corrections_toml(settings, defaults)
     )
+
+
+def _corrections_toml(settings: model.ProjectSettings, defaults: model.ProjectSettings) -> str:
+    """[corrections] only when a correction is on or the radius is not the default."""
+    keys = ("earth_curvature", "refraction", "earth_radius")
+    if all(getattr(settings, k) == getattr(defaults, k) for k in keys):
+        return ""
+    return ("\n[corrections]\n"
+            f"earth_curvature = {'true' if settings.earth_curvature else 'false'}\n"
+            f"refraction = {'true' if settings.refraction else 'false'}\n"
+            f"earth_radius = {float(settings.earth_radius)!r}\n")
 
 
 def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
