@@ -131,3 +131,26 @@ def test_plain_project_has_no_gnss_outputs():
     products = adjust_products(replace(project, gnss=None), AdjustmentOptions())
     assert "strips.csv" not in products.files and "lever_x" not in products.files["cameras.csv"]
     assert "id='gnss'" not in products.files["report.html"]
+
+
+def test_cli_simulates_and_adjusts_a_gnss_block(tmp_path):
+    from cli_support import assert_clean_failure, run
+    proj, out = tmp_path / "p", tmp_path / "o"
+    proc = run("simulate", "block", "--out", proj, "--strips", "3", "--photos", "6", "--gnss-sigma", "0.05",
+               "--gnss-lever", "0.1,-0.2,1.5", "--seed", "4")
+    assert proc.returncode == 0, proc.stderr
+    assert {"strips.csv", "cameras_gnss.csv"} <= {p.name for p in (proj / "truth").iterdir()}
+    proc = run("adjust", proj, "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    est = list(csv.DictReader((out / "strips.csv").open()))
+    true = list(csv.DictReader((proj / "truth" / "strips.csv").open()))
+    for e, t in zip(est, true):
+        for name in ("shift_X", "shift_Y", "shift_Z", "drift_X", "drift_Y", "drift_Z"):
+            assert abs(float(e[name]) - float(t[name])) < 4 * float(e[f"sigma_{name}"])
+    # drift without times: exit 2 naming photos.csv, no output
+    photos = (proj / "photos.csv").read_text()
+    (proj / "photos.csv").write_text(_drop_column(photos, "time"))
+    proc = run("adjust", proj, "--out", tmp_path / "o2")
+    err = assert_clean_failure(proc, 2)
+    assert "photos.csv" in err and "time" in err
+    assert not (tmp_path / "o2").exists()
