@@ -210,3 +210,27 @@ def test_lever_arm_enters_as_R_e():
     expect = (state.xyz0 + state.R_ground_from_cam @ np.array([1.0, 2.0, 3.0]) + 0.5
               + 0.01 * g.dt[:, None])[i, a]
     np.testing.assert_allclose(f[s], expect, atol=1e-9)
+
+
+def test_free_shift_without_control_is_a_datum_defect_of_translation():
+    """A free shift per strip takes the GNSS datum (docs/decisions.md): without control the three
+    translations are free, and the adjustment says so; as a free network it is adjusted."""
+    from striptri.errors import NumericalFailure
+    project, _ = gnss_block(3, GnssOptions(lever_mode="held"), layout="none")
+    for method in ("conditions", "bundle"):
+        with pytest.raises(NumericalFailure) as info:
+            adjust(project, AdjustmentOptions.of(method=method))
+        assert info.value.reason == "datum_defect"
+        text = str(info.value)
+        assert all(f"translation in {a}" in text for a in "XYZ") and "rotation" not in text
+    inner = adjust(project, AdjustmentOptions.of(method="conditions", datum="inner"))
+    assert inner.converged
+    # with the shift held (none) the GNSS centres give the datum
+    assert adjust(replace(project, gnss=replace(project.gnss, shift="none"))).converged
+
+
+def test_sequential_method_refuses_the_gnss_model():
+    from striptri.errors import NumericalFailure
+    project, _ = gnss_block(3, GnssOptions())
+    with pytest.raises(NumericalFailure, match="sequential method does not carry the GNSS model"):
+        adjust(project, AdjustmentOptions.of(method="sequential"))
