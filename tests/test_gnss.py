@@ -234,3 +234,15 @@ def test_sequential_method_refuses_the_gnss_model():
     project, _ = gnss_block(3, GnssOptions())
     with pytest.raises(NumericalFailure, match="sequential method does not carry the GNSS model"):
         adjust(project, AdjustmentOptions.of(method="sequential"))
+
+
+def test_redundancy_numbers_add_up_with_gnss_unknowns():
+    """sum r_i = redundancy (trace of the projector I - A N^-1 A^T P): checks the 9-wide rows'
+    Qxx terms in the residual cofactors (precision.residual_cofactors)."""
+    from striptri.precision import residual_cofactors
+    project, _ = gnss_block(5, ALL_OBSERVED)
+    result = adjust(project, AdjustmentOptions())
+    r = residual_cofactors(project, result).redundancy_numbers(project, result)
+    total = r["plate"].sum() + r["control"].sum() + r["parameters"].sum()
+    assert total == pytest.approx(result.redundancy, rel=1e-8)
+    assert np.all((r["parameters"] > 0) & (r["parameters"] < 1))
