@@ -54,12 +54,10 @@ class GnssModel:
     @property
     def t0(self) -> np.ndarray:
         """(n_strips,) the earliest time of each strip's photos (0 where no time is given)."""
-        t0 = np.zeros(self.n_strips)
-        for s in range(self.n_strips):
-            t = self.time[self.strip == s]
-            t = t[np.isfinite(t)]
-            t0[s] = t.min() if len(t) else 0.0
-        return t0
+        t0 = np.full(self.n_strips, np.inf)
+        ok = (self.strip >= 0) & np.isfinite(self.time)
+        np.minimum.at(t0, self.strip[ok], self.time[ok])
+        return np.where(np.isfinite(t0), t0, 0.0)
 
     @property
     def dt(self) -> np.ndarray:
