@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -122,6 +123,9 @@ def test_outputs_and_report():
     col = result.layout.gnss_cols.drift[1, 1]
     assert float(strips[1]["sigma_drift_Y"]) == pytest.approx(
         result.sigma0_for_precision * np.sqrt(result.Qxx[col, col]), rel=1e-9)
+    summary = json.loads(products.files["summary.json"])["gnss"]
+    assert summary["drift_sigma"][1][1] == pytest.approx(float(strips[1]["sigma_drift_Y"]))
+    assert summary["shift"] == "free" and len(summary["lever_values"]) == 1
     html = products.files["report.html"]
     assert "id='gnss'" in html and "Lever arm" in html and "drift" in html and "Correlations among" in html
 
@@ -131,6 +135,7 @@ def test_plain_project_has_no_gnss_outputs():
     products = adjust_products(replace(project, gnss=None), AdjustmentOptions())
     assert "strips.csv" not in products.files and "lever_x" not in products.files["cameras.csv"]
     assert "id='gnss'" not in products.files["report.html"]
+    assert "gnss" not in json.loads(products.files["summary.json"])
 
 
 def test_cli_simulates_and_adjusts_a_gnss_block(tmp_path):
@@ -154,3 +159,13 @@ def test_cli_simulates_and_adjusts_a_gnss_block(tmp_path):
     err = assert_clean_failure(proc, 2)
     assert "photos.csv" in err and "time" in err
     assert not (tmp_path / "o2").exists()
+
+
+def test_boresight_needs_observed_angles_and_a_short_rotation_vector():
+    from test_gnss import GnssOptions
+    project, files = _files(GnssOptions(boresight_mode="free", sigma_imu=None))
+    e = _error(files)
+    assert "cameras.csv" in str(e) and e.line == 2 and "IMU" in str(e)
+    _, files = _files(ALL_FREE)
+    e = _error({**files, "cameras.csv": _edit(files["cameras.csv"], "boresight_x", 0, "200")})
+    assert "cameras.csv" in str(e) and e.line == 2 and "180" in str(e)

@@ -107,3 +107,22 @@ def report_tables(project, result, angle_scale: float, angle_unit: str):
                     "them, e.g. a lever arm and the shifts of strips flown with one heading).",
                     [""] + [html.escape(x) for x in labels], rows, 1))
     return out
+
+
+def summary_entry(project, result) -> dict:
+    """summary.json's "gnss" (only with a GNSS model): per group the estimates and mean errors
+    (lists of rows of 3; lever m, boresight radians, shift m, drift m/s; null where held or not in
+    the model) and the shift / drift modes."""
+    prec = precision_of(project, result)
+    if prec is None:
+        return {}
+    out = {"shift": project.gnss.shift, "drift": project.gnss.drift, "strip_ids": list(project.gnss.strip_ids),
+           "camera_ids": list(project.cameras.ids)}
+    for group in ("lever", "boresight", "shift", "drift"):
+        out[f"{group}_values"] = _json_rows(prec.values[group])
+        out[f"{group}_sigma"] = _json_rows(prec.sigma[group])
+    return {"gnss": out}
+
+
+def _json_rows(a: np.ndarray) -> list:
+    return [[float(x) if np.isfinite(x) else None for x in row] for row in np.asarray(a, dtype=float)]

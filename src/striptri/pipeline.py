@@ -209,6 +209,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
     summary["blunders"] = blunder_summary(det)
     summary["warnings"] = list(said)
+    summary.update(gnss_output.summary_entry(adjusted, result))
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
