@@ -53,6 +53,7 @@ from .core.result import (  # noqa: F401  (re-exported)
 )
 from .errors import NumericalFailure
 from .model import Project
+from .parameters import uses_gnss
 from .sequential import adjust_sequential, sequential_approximations
 
 ADJUST = {"conditions": adjust_conditions, "bundle": adjust_bundle, "sequential": adjust_sequential}
@@ -97,6 +98,10 @@ def _adjust_explained(project: Project, options: AdjustmentOptions) -> Adjustmen
     if weights:  # the normal equations cannot carry them: refuse before iterating into nonsense
         raise NumericalFailure("the adjustment cannot be carried out in double precision: " + " ".join(weights),
                                reason="singular")
+    if options.method == "sequential" and uses_gnss(project):
+        raise NumericalFailure("the sequential method does not carry the GNSS model (lever arm, boresight, shift, "
+                               "drift: docs/decisions.md): adjust with the method conditions or bundle",
+                               reason="failed")
     try:
         # the adjustment tests its numbers for finiteness itself and explains what overflows, so
         # numpy's floating-point warnings would only repeat it on stderr

@@ -216,11 +216,33 @@ class _Fraction(click.ParamType):
 @click.option("--approx-position-error", type=_Finite(min=0), default=10.0, show_default=True, help="Std of the approximate centres' errors (m).")
 @click.option("--approx-angle-error", type=_Finite(min=0), default=1.0, show_default=True, help="Std of the approximate angles' errors (deg).")
 @click.option("--gnss-sigma", type=_Finite(min=0, min_open=True), default=None, help="Observe the centres by GNSS with this sigma (m).")
+@click.option("--gnss-lever", type=str, default=None, metavar="X,Y,Z",
+              help="A GNSS block (docs/decisions.md): antenna lever arm in the camera frame (m); needs --gnss-sigma.")
+@click.option("--gnss-shift-std", type=_Finite(min=0), default=0.3, show_default=True,
+              help="GNSS block: std of the true per-strip shifts (m).")
+@click.option("--gnss-drift-std", type=_Finite(min=0), default=0.002, show_default=True,
+              help="GNSS block: std of the true per-strip drifts (m/s).")
+@click.option("--gnss-interval", type=_Finite(min=0, min_open=True), default=3.0, show_default=True,
+              help="GNSS block: seconds between exposures (photos.csv time).")
+@click.option("--boresight", type=str, default="0,0,0", show_default=True, metavar="X,Y,Z",
+              help="GNSS block: true boresight rotation vector (deg, camera frame).")
+@click.option("--imu-sigma", type=_Finite(min=0, min_open=True), default=None,
+              help="GNSS block: observe the angles by an IMU with this sigma (deg).")
+@click.option("--lever-arm", "lever_mode", type=click.Choice(["held", "free", "observed"]), default="free",
+              show_default=True, help="GNSS block: how the project states the lever arm.")
+@click.option("--boresight-mode", type=click.Choice(["held", "free", "observed"]), default="held",
+              show_default=True, help="GNSS block: how the project states the boresight.")
+@click.option("--shift", "shift_mode", type=click.Choice(["none", "free", "observed"]), default="free",
+              show_default=True, help="GNSS block: per-strip shift unknowns.")
+@click.option("--drift", "drift_mode", type=click.Choice(["none", "free", "observed"]), default="free",
+              show_default=True, help="GNSS block: per-strip drift unknowns.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
 def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_height, heading, relief, attitude_std,
              position_std, layout, every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image,
-             sigma_control, sigma_control_z, approx_position_error, approx_angle_error, gnss_sigma, seed):
+             sigma_control, sigma_control_z, approx_position_error, approx_angle_error, gnss_sigma, gnss_lever,
+             gnss_shift_std, gnss_drift_std, gnss_interval, boresight, imu_sigma, lever_mode, boresight_mode,
+             shift_mode, drift_mode, seed):
     """Write a synthetic KIND project (pair, strip or block) to --out, with its truth in OUT/truth/.
 
     --control schmid-fig8 is Schmid's worked strip (BRL 961, Fig. 8): 5 photos, 2/3 overlap and his
@@ -254,12 +276,33 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
             sigma_control_z=sigma_control if sigma_control_z is None else sigma_control_z,
             approx_position_error=approx_position_error, approx_angle_error=approx_angle_error, sigma_gnss=gnss_sigma,
         )
-        project, truth = sim.simulate_project(kind, sim.SimulateOptions(design, noise), seed)
+        gnss = None
+        if gnss_lever is not None:
+            if gnss_sigma is None:
+                raise ValueError("--gnss-lever makes a GNSS block: give --gnss-sigma too")
+            gnss = sim.GnssOptions(lever_arm=_triple(gnss_lever, "--gnss-lever"), shift_std=gnss_shift_std,
+                                   drift_std=gnss_drift_std, sigma_gnss=gnss_sigma, interval=gnss_interval,
+                                   boresight=_triple(boresight, "--boresight"), sigma_imu=imu_sigma,
+                                   lever_mode=lever_mode, boresight_mode=boresight_mode, shift_mode=shift_mode,
+                                   drift_mode=drift_mode)
+        project, truth = sim.simulate_project(kind, sim.SimulateOptions(design, noise, gnss), seed)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from exc
     folder = write_project(out_dir, project, truth_tables=truth)
     click.echo(f"wrote {folder}: {len(project.photos)} photos, {len(project.points)} points, "
                f"{len(project.image_points)} plate measurements")
+
+
+def _triple(text: str, option: str) -> tuple:
+    """"x,y,z" -> three finite floats (ValueError naming the option)."""
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{option}: expected three numbers x,y,z, got {text!r}")
+    return values
 
 
 # --------------------------------------------------------------------------- striptri adjust

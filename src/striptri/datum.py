@@ -197,6 +197,10 @@ def similarity_matrix(state: State, layout: UnknownLayout, extent: float):
     H = np.zeros((layout.n_unknowns, 7))
     for c, (i, e) in first_at_col.items():
         H[c] = H_el[i, e]
+    if layout.gnss_cols is not None:  # a translation moves the GNSS shifts back (A = O + ... + shift)
+        shift = layout.gnss_cols.shift
+        for a in range(3):
+            H[shift[:, a][shift[:, a] >= 0], a] = -_units(extent)[a]
     return H, np.concatenate(constraints, axis=0)
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .gnss_model import GnssModel
 from .lens import NCP, PLATE
 
 # Object point kinds (column `kind` of control.csv; TIE for points only measured on the plates).
@@ -209,3 +210,6 @@ class Project:
     # what the reader did not use or had to interpret (striptri.errors.Note): printed as warnings,
     # listed in report.html and summary.json "warnings"; nothing in the input is ignored silently
     notes: tuple = ()
+    # GNSS lever arm, boresight, shift and drift (striptri.gnss_model); None: plain observed
+    # centres and angles
+    gnss: GnssModel | None = None

@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .gnss_unknowns import GROUPS as GNSS_GROUPS, GnssColumns, GnssState, gnss_columns, initial_gnss_state
 from .lens import CAMERA_ELEMENTS, NCP, PLATE, has_distortion
 from .model import Project
 from .rotations import R_from_angles, angles_from_R, angles_jacobian, exp_so3
@@ -35,6 +36,7 @@ class State:
     interior: np.ndarray  # (ncam, NCP) lens.CAMERA_ELEMENTS
     camera_of_photo: np.ndarray
     convention: np.ndarray | None = None  # (ncam,) lens.PLATE / lens.IMAGE (None: all PLATE)
+    gnss: GnssState | None = None  # lever arms, boresights, shifts, drifts (None: not in the model)
 
     def __post_init__(self):
         if self.convention is None:
@@ -55,8 +57,9 @@ class State:
         R = self.R_ground_from_cam @ exp_so3(d_rot)
         R = layout.restore_fixed_angles(R)
         interior = self.interior + dxp[layout.camera_cols]
+        gnss = self.gnss.updated(layout.gnss_cols, dxp) if self.gnss is not None else None
         return State(R_ground_from_cam=R, xyz0=xyz0, interior=interior, camera_of_photo=self.camera_of_photo,
-                     convention=self.convention)
+                     convention=self.convention, gnss=gnss)
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,12 @@ class UnknownLayout:
     convention: str
     angle_fixed: np.ndarray  # (n, 3) bool
     fixed_angles: np.ndarray  # (n, 3) radians (used where angle_fixed)
+    gnss_cols: GnssColumns | None = None  # after the camera columns (striptri.gnss_unknowns)
+
+    def _column_sets(self) -> list:
+        """Rows of columns of every photo, camera and GNSS element set, in column order."""
+        extra = self.gnss_cols.blocks() if self.gnss_cols is not None else []
+        return list(self.photo_cols) + list(self.camera_cols) + extra
 
     @property
     def camera_elements(self) -> np.ndarray:
@@ -117,7 +126,7 @@ class UnknownLayout:
         numbered photo by photo, cameras last, so every block is a contiguous range)."""
         starts = []
         seen = -1
-        for cols in list(self.photo_cols) + list(self.camera_cols):
+        for cols in self._column_sets():
             new = cols[cols > seen]
             if len(new):
                 starts.append(int(new.min()))
@@ -132,7 +141,7 @@ class UnknownLayout:
         ids = np.asarray(list(strip_ids), dtype=object)
         photo_of_block = []
         seen = -1
-        for i, cols in enumerate(list(self.photo_cols) + list(self.camera_cols)):
+        for i, cols in enumerate(self._column_sets()):
             new = cols[cols > seen]
             if len(new):
                 photo_of_block.append(i)
@@ -161,6 +170,12 @@ class UnknownLayout:
             for e, col in enumerate(self.camera_cols[i]):
                 if col >= 0:
                     labels[col] = f"camera {cid} {CAMERA_ELEMENTS[e]}"
+        if self.gnss_cols is not None:
+            for name in GNSS_GROUPS:
+                for k, row in enumerate(self.gnss_cols.group(name)):
+                    for a, col in enumerate(row):
+                        if col >= 0:
+                            labels[col] = f"{name} {k} {'xyz'[a]}"
         return labels
 
 
@@ -229,6 +244,9 @@ def build_layout(project: Project) -> UnknownLayout:
             if free_or_observed[j, e]:
                 camera_cols[j, e] = col
                 col += 1
+    gnss_cols = None
+    if uses_gnss(project):
+        gnss_cols, col = gnss_columns(project.gnss, col)
     return UnknownLayout(
         photo_cols=photo_cols,
         camera_cols=camera_cols,
@@ -236,7 +254,13 @@ def build_layout(project: Project) -> UnknownLayout:
         convention=project.settings.rotation,
         angle_fixed=fixed_ang,
         fixed_angles=photos.angles.copy(),
+        gnss_cols=gnss_cols,
     )
+
+
+def uses_gnss(project: Project) -> bool:
+    """True when the project's GNSS model (lever arm, boresight, shift, drift) is in play."""
+    return project.gnss is not None and project.gnss.in_play
 
 
 def reduction_offset(project: Project) -> np.ndarray:
@@ -260,6 +284,7 @@ def initial_state(project: Project, offset: np.ndarray) -> State:
         interior=project.cameras.interior.copy(),
         camera_of_photo=project.photos.camera_index.copy(),
         convention=project.cameras.convention.copy(),
+        gnss=initial_gnss_state(project.gnss) if uses_gnss(project) else None,
     )
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import diagnosis, plate_corrections, progress, report, solvers, termination
+from . import diagnosis, gnss_output, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
@@ -206,6 +206,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         "points.csv": format_csv(point_table(adjusted, result, points)),
         "residuals.csv": format_csv(residual_table(project, det)),
     }
+    tables.update(gnss_tables(adjusted, result))
     phases["tables"] = time.perf_counter() - t0
     progress.phase("tables (CSV)", phases["tables"])
     summary = summary_of(adjusted, result, points)
@@ -214,6 +215,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary["warnings"] = list(said)
     if corrections is not None:
         summary["plate_corrections"] = corrections.summary
+    summary.update(gnss_output.summary_entry(adjusted, result))
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
@@ -319,6 +321,20 @@ def camera_table(project: Project, result: AdjustmentResult) -> dict:
         for e in range(first, last):
             cols[f"sigma_{CAMERA_ELEMENTS[e]}"] = np.where(estimated[:, e], sig[:, e], np.nan)
     return cols
+
+
+def gnss_tables(project: Project, result: AdjustmentResult) -> dict:
+    """With the GNSS model (gnss_output): cameras.csv with the lever-arm and boresight columns
+    after its others, and strips.csv when shift or drift are estimated."""
+    prec = gnss_output.precision_of(project, result)
+    if prec is None:
+        return {}
+    out = {"cameras.csv": format_csv({**camera_table(project, result),
+                                      **gnss_output.camera_columns(prec, _angle_scale(project))})}
+    strips = gnss_output.strip_table(project, prec)
+    if strips is not None:
+        out["strips.csv"] = format_csv(strips)
+    return out
 
 
 def point_table(project: Project, result: AdjustmentResult, tri: Triangulated) -> dict:

@@ -26,6 +26,7 @@ import numpy as np
 
 from . import figures as fig
 from .core.result import AdjustmentResult
+from .gnss_output import report_tables as gnss_report_tables
 from .io.project_reader import RADIANS_PER_UNIT
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, Project
@@ -60,6 +61,7 @@ SECTIONS = {  # id -> heading, in the order of the report
     "largest": "Largest normalised residuals",
     "photos": "Photographs",
     "camera": "Camera calibration",
+    "gnss": "GNSS and IMU (lever arm, boresight, shift, drift)",
     "structure": "Structure of the normal matrix",
 }
 
@@ -797,6 +799,19 @@ def _camera_section(project: Project, result: AdjustmentResult) -> list[str]:
     return out
 
 
+def _gnss_section(project: Project, result: AdjustmentResult) -> list[str]:
+    """The GNSS/IMU unknowns (gnss_output.report_tables)."""
+    out = [_section("gnss")]
+    unit = project.settings.angle_unit
+    tables = gnss_report_tables(project, result, 1.0 / RADIANS_PER_UNIT[unit], unit)
+    if not tables:
+        out.append("<p>No GNSS or IMU element was estimated (lever arms and boresights held, no shift or "
+                   "drift).</p>")
+    for text, header, rows, left in tables:
+        out += [f"<p>{text}</p>", _table(header, rows, left=left)]
+    return out
+
+
 # ---------------------------------------------------------------------------------------------------------------
 
 
@@ -845,6 +860,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
              timed("largest", lambda: _largest_section(project, result, w, absw)),
              timed("photos", lambda: _photos_section(project, result, stats)),
              timed("camera", lambda: _camera_section(project, result))]
+    if result.layout.gnss_cols is not None:
+        body.append(timed("gnss", lambda: _gnss_section(project, result)))
     structure = [_section("structure")]
     if "structure" in figures:
         structure.append(_img(figures["structure"], "normal matrix structure",
@@ -856,7 +873,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     body.append(structure)
 
     nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items()
-                   if k != "corrections" or "plate_corrections" in summary)
+                   if (k != "corrections" or "plate_corrections" in summary)
+                   and (k != "gnss" or result.layout.gnss_cols is not None))
     total = time.perf_counter() - t0
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
     breakdown = ", ".join(f"{html.escape(SECTIONS.get(k, k).lower())} {v:.2f}" for v, k in slow)

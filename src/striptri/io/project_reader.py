@@ -47,6 +47,7 @@ from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
 from striptri.core.options import DATUMS, METHODS
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
+from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION, read_gnss
 from striptri.io.project_notes import project_notes, unread_files_note
 from striptri.plate_corrections import EARTH_RADIUS_RANGE_M
 from striptri.solvers import SOLVERS
@@ -75,6 +76,7 @@ TOML_KEYS = {
     "adjustment": ("method", "solver", "max_iterations", "cost_tolerance"),
     "datum": ("mode",),
     "corrections": ("earth_curvature", "refraction", "earth_radius"),
+    GNSS_SECTION: GNSS_TOML_KEYS,  # GNSS shift and drift (io.gnss_reader)
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
@@ -165,6 +167,7 @@ def _read(files) -> model.Project:
     bases = _read_bases(table("bases.csv"), photos) if files.present("bases.csv") else model.BaseComponents.empty()
     if files.present("approx_points.csv"):
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
+    gnss = _read_gnss(files, tables, cameras, photos, settings)
     notes = project_notes(tables, cameras, photos, image_points, points, len(control.ids)) + files.unread_notes()
     return model.Project(
         cameras=cameras,
@@ -175,7 +178,21 @@ def _read(files) -> model.Project:
         settings=settings,
         source=files.source(),
         notes=tuple(notes),
+        gnss=gnss,
     )
+
+
+def _read_gnss(files, tables: dict, cameras: model.Cameras, photos: model.Photos, settings: model.ProjectSettings):
+    """The GNSS/IMU model (io.gnss_reader), with project.toml's [gnss] section."""
+    toml = "project.toml"
+    path, text, data = None, "", {}
+    if files.present(toml):
+        path = files.path(toml)
+        text = decode_text(path, files.content(toml))
+        data = _parse_toml(path, text)
+    return read_gnss(tables["cameras.csv"], tables["photos.csv"], cameras, photos,
+                     RADIANS_PER_UNIT[settings.angle_unit], path, text, data,
+                     lambda section, key: _toml_line(text, section, key))
 
 
 def _require_rows(table: CsvTable, what: str) -> None:

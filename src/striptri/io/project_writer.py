@@ -20,6 +20,7 @@ import numpy as np
 from striptri import model
 from striptri.lens import CAMERA_ELEMENTS, CONVENTION_NAMES, has_distortion
 from striptri.io.csvtable import format_csv
+from striptri.io.gnss_writer import gnss_camera_columns, gnss_photo_columns, gnss_toml
 from striptri.io.output import write_output_folder
 from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES, RADIANS_PER_UNIT
 
@@ -54,6 +55,13 @@ def project_files(project: model.Project) -> dict[str, str]:
     }
     if len(project.bases):
         files["bases.csv"] = format_csv(_base_columns(project.bases, project.photos))
+    if project.gnss is not None:  # io.gnss_writer: columns added at the end, a [gnss] section
+        per_unit = RADIANS_PER_UNIT[project.settings.angle_unit]
+        files["cameras.csv"] = format_csv({**_camera_columns(project.cameras),
+                                           **gnss_camera_columns(project.gnss, per_unit)})
+        files["photos.csv"] = format_csv({**_photo_columns(project.photos, project.cameras, project.settings),
+                                          **gnss_photo_columns(project.gnss)})
+        files["project.toml"] += gnss_toml(project.gnss)
     return files
 
 

@@ -23,12 +23,15 @@ from striptri.simulate.design import (
     SyntheticDesign,
     TerrainDesign,
 )
+from striptri.simulate.gnss import GnssOptions, add_gnss
 from striptri.simulate.noise import NoiseOptions, perturb
 from striptri.simulate.pipeline import KINDS, SimulateOptions, simulate_project, truth_tables
 from striptri.simulate.terrain import Terrain
 from striptri.simulate.truth import Truth, make_truth
 
 __all__ = [
+    "GnssOptions",
+    "add_gnss",
     "BLOCK_LAYOUTS",
     "KINDS",
     "LAYOUTS",

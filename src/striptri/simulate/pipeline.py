@@ -10,6 +10,7 @@ import numpy as np
 from striptri import model
 from striptri.rotations import opk_from_R
 from striptri.simulate.design import PAIR_LAYOUTS, SCHMID_FIG8, SyntheticDesign
+from striptri.simulate.gnss import GnssOptions, add_gnss, gnss_truth_tables
 from striptri.simulate.noise import NoiseOptions, perturb
 from striptri.simulate.truth import Truth, make_truth
 
@@ -20,6 +21,7 @@ KINDS = ("pair", "strip", "block")
 class SimulateOptions:
     design: SyntheticDesign = field(default_factory=SyntheticDesign)
     noise: NoiseOptions = field(default_factory=NoiseOptions)
+    gnss: GnssOptions | None = None  # a GNSS-supported block (simulate.gnss); None: plain
 
 
 def simulate_project(
@@ -33,10 +35,15 @@ def simulate_project(
     truth tables: file name -> columns, for io.project_writer.write_project (see truth_tables).
     """
     _check_kind(kind, options.design)
-    truth_seed, noise_seed = np.random.SeedSequence(seed).spawn(2)
-    truth = make_truth(options.design, np.random.default_rng(truth_seed))
-    project = perturb(truth, options.noise, np.random.default_rng(noise_seed))
-    return project, truth_tables(truth)
+    # a third stream for the GNSS block (spawn(3)[:2] are spawn(2)'s streams: the same flight and noise)
+    streams = np.random.SeedSequence(seed).spawn(2 if options.gnss is None else 3)
+    truth = make_truth(options.design, np.random.default_rng(streams[0]))
+    project = perturb(truth, options.noise, np.random.default_rng(streams[1]))
+    tables = truth_tables(truth)
+    if options.gnss is not None:
+        project, gnss_truth = add_gnss(project, truth, options.gnss, np.random.default_rng(streams[2]))
+        tables.update(gnss_truth_tables(gnss_truth, project.cameras.ids))
+    return project, tables
 
 
 def truth_tables(truth: Truth) -> dict[str, dict[str, Sequence]]:
