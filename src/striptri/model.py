@@ -178,6 +178,23 @@ class BaseComponents:
         return BaseComponents(e.astype(int), e.astype(int), e.astype(int), e, e)
 
 
+HEIGHT_KINDS = ("ellipsoidal", "orthometric")
+
+
+@dataclass(frozen=True)
+class CoordinateSettings:
+    """project.toml [coordinates] (docs/file-formats.md): the CRS of the ground coordinates (an EPSG
+    code or WKT, as given; a projected CRS in metres), the kind of the heights (HEIGHT_KINDS) and,
+    for orthometric heights, the geoid undulation N (h = H + N): a constant in metres or a PROJ grid
+    file (absolute path). line: of the section header in project.toml, for messages."""
+
+    crs: str
+    heights: str
+    geoid_undulation: float | None = None
+    geoid_grid: Path | None = None
+    line: int | None = None
+
+
 @dataclass(frozen=True)
 class ProjectSettings:
     """What project.toml says (all optional)."""
@@ -191,6 +208,7 @@ class ProjectSettings:
     datum: str = "control"
     cost_tolerance: float = 0.0  # bundle method: AdjustmentOptions.cost_tolerance (0 = off)
     plate_unit: str = "mm"  # PLATE_UNITS: mm of the plate (film, sensor) or px (pixels of the image)
+    coordinates: CoordinateSettings | None = None  # [coordinates]: None = a local Cartesian frame (striptri.crs)
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,7 @@ from striptri import model, rotations
 from striptri.errors import InputError
 from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
 from striptri.core.options import DATUMS, METHODS
+from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
 from striptri.io.project_notes import project_notes, unread_files_note
@@ -73,6 +74,7 @@ TOML_KEYS = {
     "defaults": ("sigma_image",),
     "adjustment": ("method", "solver", "max_iterations", "cost_tolerance"),
     "datum": ("mode",),
+    "coordinates": KEYS,  # striptri.crs.settings
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
@@ -235,7 +237,12 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
         math.isfinite(cost_tolerance) and 0 <= cost_tolerance < 1
     ):
         raise fail("adjustment", "cost_tolerance", f"{cost_tolerance!r} is not a number in [0, 1)")
+    coordinates = None
+    if "coordinates" in data:
+        coordinates = parse_coordinates(data["coordinates"], path.parent, lambda key, reason: fail("coordinates", key, reason),
+                                        _toml_section_line(text, "coordinates"))
     return model.ProjectSettings(
+        coordinates=coordinates,
         angle_unit=choice("units", "angles", model.ANGLE_UNITS, defaults.angle_unit),
         rotation=choice("units", "rotation", model.ROTATION_CONVENTIONS, defaults.rotation),
         sigma_image=float(sigma_image),

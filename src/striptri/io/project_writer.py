@@ -87,7 +87,21 @@ def settings_toml(settings: model.ProjectSettings) -> str:
         f"max_iterations = {int(settings.max_iterations)}\n"
         + (f"cost_tolerance = {float(settings.cost_tolerance)!r}\n" if settings.cost_tolerance else "")
         + datum
+        + _coordinates_toml(settings.coordinates)
     )
+
+
+def _coordinates_toml(c: model.CoordinateSettings | None) -> str:
+    """[coordinates] (striptri.crs.settings), or nothing for a project in a local frame."""
+    if c is None:
+        return ""
+    crs = c.crs.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+    text = f'\n[coordinates]\ncrs = "{crs}"\nheights = "{c.heights}"\n'
+    if c.geoid_undulation is not None:
+        text += f"geoid_undulation = {float(c.geoid_undulation)!r}\n"
+    if c.geoid_grid is not None:
+        text += f'geoid_grid = "{c.geoid_grid.as_posix()}"\n'
+    return text
 
 
 def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
