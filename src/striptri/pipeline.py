@@ -126,9 +126,17 @@ MAX_REFINEMENTS = 4
 def _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unconverged, on_warning, seconds_reading):
     """adjust_products for a project in map coordinates (striptri.crs.project): adjusted in its local
     frame, the tables written back in its CRS; partial control (XY, Z) converted again at its adjusted
-    position and the block re-adjusted until that changes it by less than REFINE_TOLERANCE_M."""
+    position and the block re-adjusted until that changes it by less than REFINE_TOLERANCE_M (each
+    warning said once)."""
+    said: set[str] = set()
+
+    def warn_once(text: str) -> None:
+        if text not in said and on_warning is not None:
+            said.add(text)
+            on_warning(text)
+
     for _ in range(MAX_REFINEMENTS):
-        products = adjust_products(framed.local, options, point_precision, blunders, keep_unconverged, on_warning,
+        products = adjust_products(framed.local, options, point_precision, blunders, keep_unconverged, warn_once,
                                    seconds_reading=seconds_reading, frame=framed.frame)
         if not map_coordinates.has_partial_control(framed.grid):
             break

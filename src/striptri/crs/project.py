@@ -105,22 +105,22 @@ def _approximate_positions(project: model.Project) -> np.ndarray:
     if len(need) == 0:
         return out
     rows = np.flatnonzero(np.isin(ip.point_index, need))
-    order = rows[np.argsort(ip.point_index[rows], kind="stable")]
-    point, counts = np.unique(ip.point_index[order], return_counts=True)
-    point, counts = point[counts >= 2], counts[counts >= 2]
-    if len(point) == 0:
+    rows = rows[np.argsort(ip.point_index[rows], kind="stable")]
+    point, start, counts = np.unique(ip.point_index[rows], return_index=True, return_counts=True)
+    two = counts >= 2
+    if not two.any():
         return out
-    k = int(counts.max())
-    centre = np.zeros((len(point), k, 3))
-    r = np.tile(np.array([0.0, 0.0, -1.0]), (len(point), k, 1))
-    mask = np.zeros((len(point), k))
-    for slot, p in enumerate(point):
-        these = order[ip.point_index[order] == p]
-        ph = ip.photo_index[these]
-        cam = photos.camera_index[ph]
-        centre[slot, : len(these)] = photos.xyz0[ph]
-        r[slot, : len(these)] = ray_ground(photos.R_ground_from_cam[ph], ip.xy[these], project.cameras.interior[cam, :3])
-        mask[slot, : len(these)] = 1.0
+    slot = np.arange(len(rows)) - np.repeat(start, counts)  # the ray's place among its point's rays
+    group = np.repeat(np.arange(len(point)), counts)
+    centre = np.zeros((len(point), int(counts.max()), 3))
+    r = np.tile(np.array([0.0, 0.0, -1.0]), (len(point), int(counts.max()), 1))
+    mask = np.zeros(centre.shape[:2])
+    ph = ip.photo_index[rows]
+    centre[group, slot] = photos.xyz0[ph]
+    r[group, slot] = ray_ground(photos.R_ground_from_cam[ph], ip.xy[rows],
+                                project.cameras.interior[photos.camera_index[ph], :3])
+    mask[group, slot] = 1.0
+    point, centre, r, mask = point[two], centre[two], r[two], mask[two]
     out[point] = np.where(np.isnan(out[point]), intersect_rays(centre, r, mask, safe=True), out[point])
     return out
 
