@@ -280,3 +280,39 @@ def test_bases_csv_with_coordinates_is_an_input_error(tmp_path):
     res = runner.invoke(main, ["adjust", str(tmp_path / "p"), "--out", str(tmp_path / "o"), "--quiet"])
     assert res.exit_code == 2 and "bases.csv" in res.output and "project.toml, line" in res.output
     assert not (tmp_path / "o").exists()
+
+
+def test_simulate_naive_writes_the_same_numbers_without_coordinates(tmp_path):
+    runner = CliRunner()
+    base = ["simulate", "block", "--photos", "4", "--strips", "2", "--crs", UTM33, "--seed", "3"]
+    assert runner.invoke(main, base + ["--out", str(tmp_path / "crs")]).exit_code == 0
+    assert runner.invoke(main, base + ["--out", str(tmp_path / "naive"), "--naive"]).exit_code == 0
+    for name in ("control.csv", "photos.csv", "image_points.csv", "truth/points.csv"):
+        assert (tmp_path / "crs" / name).read_text() == (tmp_path / "naive" / name).read_text()
+    assert "[coordinates]" in (tmp_path / "crs" / "project.toml").read_text()
+    assert "[coordinates]" not in (tmp_path / "naive" / "project.toml").read_text()
+    res = runner.invoke(main, ["simulate", "block", "--out", str(tmp_path / "x"), "--naive"])
+    assert res.exit_code == 2 and "need --crs" in res.output
+
+
+def test_gnss_and_imu_observations_agree_with_the_local_frame(tmp_path):
+    """Centres observed by GNSS (0.05 m) and angles by an IMU (0.005 deg), given in the grid's axes:
+    the CRS adjustment has the local frame's vTPv (the same observations and weights, converted) to
+    0.1 % and its check points to a millimetre; wrong angles (the grid's taken as local, i.e. the
+    convergence and the tilt of the vertical ignored) would make the IMU observations disagree by
+    up to 2 deg and multiply vTPv."""
+    design = block_design(12.0, 3000.0)
+    noise = sim.NoiseOptions(sigma_image=0.003, sigma_gnss=0.05, approx_angle_error=0.005)
+    local, truth_local = sim.simulate_project("block", sim.SimulateOptions(design, noise), 5)
+    n = len(local.photos)
+    local = replace(local, photos=replace(local.photos, sigma_angles=np.full((n, 3), np.radians(0.005))))
+    coordinates = CoordinateSettings(crs=UTM33, heights="orthometric", geoid_undulation=44.0)
+    grid, truth_grid = to_map_coordinates(local, truth_local, coordinates, 48.0, central_meridian(UTM33) + 3.0)
+    results = {}
+    for name, project, truth in (("local", local, truth_local), ("crs", grid, truth_grid)):
+        write_project(tmp_path / name, project, truth_tables=truth)
+        products = run_adjust(tmp_path / name, tmp_path / f"out-{name}", method="bundle")
+        results[name] = (products.result.vtpv, check_errors(tmp_path / f"out-{name}", truth))
+    (v_local, e_local), (v_crs, e_crs) = results["local"], results["crs"]
+    assert abs(v_crs / v_local - 1.0) < 1e-3
+    assert np.abs(e_crs - e_local).max() < 1e-3

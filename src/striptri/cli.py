@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import replace
 import os
 import signal
 import sys
@@ -227,12 +228,15 @@ class _Fraction(click.ParamType):
               help="With --crs: latitude of the block's centre (deg).")
 @click.option("--centre-lon", type=_Finite(min=-180, max=180), default=None,
               help="With --crs: longitude of the block's centre (deg) [3 deg east of the CRS's central meridian].")
+@click.option("--naive", is_flag=True, default=False,
+              help="With --crs: write the same map coordinates without project.toml [coordinates], so that "
+                   "striptri adjusts them as Cartesian grid coordinates (the flat-Earth comparison).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
 def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_height, heading, relief, attitude_std,
              position_std, layout, every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image,
              sigma_control, sigma_control_z, approx_position_error, approx_angle_error, gnss_sigma, crs, heights,
-             geoid_undulation, centre_lat, centre_lon, seed):
+             geoid_undulation, centre_lat, centre_lon, naive, seed):
     """Write a synthetic KIND project (pair, strip or block) to --out, with its truth in OUT/truth/.
 
     --control schmid-fig8 is Schmid's worked strip (BRL 961, Fig. 8): 5 photos, 2/3 overlap and his
@@ -271,8 +275,10 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
         raise click.UsageError(str(exc)) from exc
     if crs is not None:
         project, truth = _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_lat, centre_lon)
-    elif heights != "ellipsoidal" or geoid_undulation is not None or centre_lon is not None:
-        raise click.UsageError("--heights, --geoid-undulation and --centre-lon need --crs")
+        if naive:
+            project = replace(project, settings=replace(project.settings, coordinates=None))
+    elif heights != "ellipsoidal" or geoid_undulation is not None or centre_lon is not None or naive:
+        raise click.UsageError("--heights, --geoid-undulation, --centre-lon and --naive need --crs")
     folder = write_project(out_dir, project, truth_tables=truth)
     click.echo(f"wrote {folder}: {len(project.photos)} photos, {len(project.points)} points, "
                f"{len(project.image_points)} plate measurements")
