@@ -316,3 +316,30 @@ def test_gnss_and_imu_observations_agree_with_the_local_frame(tmp_path):
     (v_local, e_local), (v_crs, e_crs) = results["local"], results["crs"]
     assert abs(v_crs / v_local - 1.0) < 1e-3
     assert np.abs(e_crs - e_local).max() < 1e-3
+
+
+def test_wkt_crs_is_read(tmp_path):
+    import pyproj
+
+    wkt = pyproj.CRS("EPSG:32633").to_wkt()
+    s = parse_settings(tmp_path / "project.toml", f"[coordinates]\ncrs = '''{wkt}'''\nheights = \"ellipsoidal\"\n")
+    frame = LocalFrame(s.coordinates, CENTRE)
+    g = _grid_points(np.random.default_rng(8), 5)
+    assert np.abs(frame.to_local(g) - LocalFrame(CoordinateSettings(UTM33, "ellipsoidal"), CENTRE).to_local(g)).max() < 1e-9
+
+
+def test_coordinates_outside_the_projection_are_an_input_error(tmp_path):
+    runner = CliRunner()
+    assert runner.invoke(main, ["simulate", "block", "--out", str(tmp_path / "p"), "--photos", "4", "--strips", "2",
+                                "--crs", UTM33]).exit_code == 0
+    rows = (tmp_path / "p" / "photos.csv").read_text().splitlines()
+    cells = rows[1].split(",")
+    cells[3] = "1e8"  # X0 of the first photo: 100,000 km east
+    (tmp_path / "p" / "photos.csv").write_text("\n".join([rows[0], ",".join(cells), *rows[2:]]) + "\n")
+    res = runner.invoke(main, ["adjust", str(tmp_path / "p"), "--out", str(tmp_path / "o"), "--quiet"])
+    assert res.exit_code == 2 and "cannot be converted" in res.output and "photos.csv" in res.output
+
+
+def test_simulate_refuses_a_geographic_crs(tmp_path):
+    res = CliRunner().invoke(main, ["simulate", "block", "--out", str(tmp_path / "p"), "--crs", "EPSG:4326"])
+    assert res.exit_code == 2 and "geographic" in res.output and not (tmp_path / "p").exists()

@@ -154,14 +154,16 @@ class LocalFrame:
     # ---------------------------------------------------------------------------- points
 
     def to_local(self, xyz_grid) -> np.ndarray:
-        """Grid E, N, H (n, 3) m -> local (n, 3) m. Rows with a nan stay nan."""
+        """Grid E, N, H (n, 3) m -> local (n, 3) m. Rows with a nan stay nan; rows outside the
+        projection's domain come out not finite."""
         g = np.asarray(xyz_grid, dtype=float).reshape(-1, 3)
         out = np.full(g.shape, np.nan)
         ok = np.all(np.isfinite(g), axis=1)
         if ok.any():
             lon, lat = self._to_geo.transform(g[ok, 0], g[ok, 1])
             h = g[ok, 2] + self.geoid_undulation(lon, lat)
-            out[ok] = (self._ecef(lon, lat, h) - self._xyz_ecef0) @ self.R_local_from_ecef.T
+            with np.errstate(invalid="ignore"):  # outside the projection's domain: inf from PROJ -> nan
+                out[ok] = (self._ecef(lon, lat, h) - self._xyz_ecef0) @ self.R_local_from_ecef.T
         return out
 
     def from_local(self, xyz_local) -> np.ndarray:

@@ -60,7 +60,22 @@ def in_local_frame(project: model.Project) -> FramedProject:
     frame = LocalFrame(project.settings.coordinates, block_centre(project), toml)
     photos = _photos_to_local(project.photos, project.settings.rotation, frame)
     points = _points_to_local(project, frame, _approximate_positions(project))
+    _require_converted(project, photos, points, toml)
     return FramedProject(project, replace(project, photos=photos, points=points), frame)
+
+
+def _require_converted(project: model.Project, photos: model.Photos, points: model.ObjectPoints, toml) -> None:
+    """InputError for a photo centre or given point PROJ could not convert (outside the projection's
+    domain: coordinates that are not in this CRS)."""
+    crs = project.settings.coordinates.crs
+    for name, ids, given, local in (("photos.csv", project.photos.ids, project.photos.xyz0, photos.xyz0),
+                                    ("control.csv", project.points.ids, project.points.xyz_given, points.xyz_given)):
+        bad = np.flatnonzero(np.any(np.isfinite(given) & ~np.isfinite(local), axis=1))
+        if len(bad):
+            k = int(bad[0])
+            raise InputError(toml, project.settings.coordinates.line,
+                             f"[coordinates] crs = {crs!r}: '{ids[k]}' of {name} at {given[k].tolist()} cannot be "
+                             f"converted (outside the domain of the projection); are the coordinates in this CRS?")
 
 
 def _photos_to_local(photos: model.Photos, convention: str, frame: LocalFrame) -> model.Photos:
