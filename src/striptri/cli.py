@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import replace
 import os
 import signal
 import sys
@@ -236,13 +237,27 @@ class _Fraction(click.ParamType):
               show_default=True, help="GNSS block: per-strip shift unknowns.")
 @click.option("--drift", "drift_mode", type=click.Choice(["none", "free", "observed"]), default="free",
               show_default=True, help="GNSS block: per-strip drift unknowns.")
+@click.option("--crs", default=None,
+              help="Make the block on the ellipsoid and write it in this projected CRS (EPSG:326zz or WKT) with "
+                   "project.toml [coordinates]; without it the block is in a local Cartesian frame.")
+@click.option("--heights", type=click.Choice(["ellipsoidal", "orthometric"]), default="ellipsoidal", show_default=True,
+              help="With --crs: the kind of the heights written.")
+@click.option("--geoid-undulation", type=_Finite(min=-200, max=200), default=None,
+              help="With --crs and --heights orthometric: the constant geoid undulation N (m), h = H + N.")
+@click.option("--centre-lat", type=_Finite(min=-80, max=84), default=48.0, show_default=True,
+              help="With --crs: latitude of the block's centre (deg).")
+@click.option("--centre-lon", type=_Finite(min=-180, max=180), default=None,
+              help="With --crs: longitude of the block's centre (deg) [3 deg east of the CRS's central meridian].")
+@click.option("--naive", is_flag=True, default=False,
+              help="With --crs: write the same map coordinates without project.toml [coordinates], so that "
+                   "striptri adjusts them as Cartesian grid coordinates (the flat-Earth comparison).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
 def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_height, heading, relief, attitude_std,
              position_std, layout, every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image,
              sigma_control, sigma_control_z, approx_position_error, approx_angle_error, gnss_sigma, gnss_lever,
              gnss_shift_std, gnss_drift_std, gnss_interval, boresight, imu_sigma, lever_mode, boresight_mode,
-             shift_mode, drift_mode, seed):
+             shift_mode, drift_mode, crs, heights, geoid_undulation, centre_lat, centre_lon, naive, seed):
     """Write a synthetic KIND project (pair, strip or block) to --out, with its truth in OUT/truth/.
 
     --control schmid-fig8 is Schmid's worked strip (BRL 961, Fig. 8): 5 photos, 2/3 overlap and his
@@ -288,6 +303,12 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
         project, truth = sim.simulate_project(kind, sim.SimulateOptions(design, noise, gnss), seed)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from exc
+    if crs is not None:
+        project, truth = _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_lat, centre_lon)
+        if naive:
+            project = replace(project, settings=replace(project.settings, coordinates=None))
+    elif heights != "ellipsoidal" or geoid_undulation is not None or centre_lon is not None or naive:
+        raise click.UsageError("--heights, --geoid-undulation, --centre-lon and --naive need --crs")
     folder = write_project(out_dir, project, truth_tables=truth)
     click.echo(f"wrote {folder}: {len(project.photos)} photos, {len(project.points)} points, "
                f"{len(project.image_points)} plate measurements")
@@ -303,6 +324,26 @@ def _triple(text: str, option: str) -> tuple:
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise ValueError(f"{option}: expected three numbers x,y,z, got {text!r}")
     return values
+
+
+def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_lat, centre_lon):
+    """simulate --crs: the project and truth on the ellipsoid, in the CRS (simulate.map_coordinates)."""
+    from striptri.model import CoordinateSettings
+    from striptri.simulate.map_coordinates import central_meridian, to_map_coordinates
+
+    if (heights == "orthometric") != (geoid_undulation is not None):
+        raise click.UsageError("--heights orthometric needs --geoid-undulation, and --geoid-undulation needs "
+                               "--heights orthometric")
+    try:
+        if centre_lon is None:
+            meridian = central_meridian(crs)
+            if meridian is None:
+                raise ValueError(f"{crs!r} has no central meridian: give --centre-lon")
+            centre_lon = meridian + 3.0
+        coordinates = CoordinateSettings(crs=crs, heights=heights, geoid_undulation=geoid_undulation)
+        return to_map_coordinates(project, truth, coordinates, centre_lat, centre_lon)
+    except ValueError as exc:
+        raise click.UsageError(f"--crs: {exc}") from exc
 
 
 # --------------------------------------------------------------------------- striptri adjust

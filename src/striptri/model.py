@@ -179,6 +179,23 @@ class BaseComponents:
         return BaseComponents(e.astype(int), e.astype(int), e.astype(int), e, e)
 
 
+HEIGHT_KINDS = ("ellipsoidal", "orthometric")
+
+
+@dataclass(frozen=True)
+class CoordinateSettings:
+    """project.toml [coordinates] (docs/file-formats.md): the CRS of the ground coordinates (an EPSG
+    code or WKT, as given; a projected CRS in metres), the kind of the heights (HEIGHT_KINDS) and,
+    for orthometric heights, the geoid undulation N (h = H + N): a constant in metres or a PROJ grid
+    file (absolute path). line: of the section header in project.toml, for messages."""
+
+    crs: str
+    heights: str
+    geoid_undulation: float | None = None
+    geoid_grid: Path | None = None
+    line: int | None = None
+
+
 @dataclass(frozen=True)
 class ProjectSettings:
     """What project.toml says (all optional)."""
@@ -196,6 +213,7 @@ class ProjectSettings:
     earth_curvature: bool = False
     refraction: bool = False
     earth_radius: float = 6_371_000.0  # m, the sphere of the Earth curvature correction
+    coordinates: CoordinateSettings | None = None  # [coordinates]: None = a local Cartesian frame (striptri.crs)
 
 
 @dataclass(frozen=True)

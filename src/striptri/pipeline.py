@@ -20,6 +20,7 @@ import numpy as np
 
 from . import diagnosis, gnss_output, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
+from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
 from .figures import normal_matrix_structure
@@ -100,6 +101,12 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
     t0 = time.perf_counter()
     project = read_project(project_dir)
     project = plate_corrections.with_switches(project, **(corrections or {}))
+    if project.settings.coordinates is not None and project.settings.earth_curvature:
+        raise InputError(project_dir / "project.toml", None,
+                         "[corrections] earth_curvature with [coordinates] crs: the project is adjusted in a local "
+                         "Cartesian frame, where the Earth's curvature is in the coordinates themselves; the "
+                         "correction would count it twice (docs/decisions.md)")
+    framed = map_coordinates.in_local_frame(project) if project.settings.coordinates is not None else None
     seconds_reading = time.perf_counter() - t0
     options = options_for(project, **overrides)
     try:
@@ -108,11 +115,41 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
         raise InputError("command line", None, str(exc)) from None
     with OutputReservation(out_dir, inputs) as reservation:
         try:
-            products = adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning,
-                                       seconds_reading=seconds_reading)
+            if framed is None:
+                products = adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning,
+                                           seconds_reading=seconds_reading)
+            else:
+                products = _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unconverged,
+                                                  on_warning, seconds_reading)
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
         reservation.commit(products.files)
+    return products
+
+
+MAX_REFINEMENTS = 4
+
+
+def _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unconverged, on_warning, seconds_reading):
+    """adjust_products for a project in map coordinates (striptri.crs.project): adjusted in its local
+    frame, the tables written back in its CRS; partial control (XY, Z) converted again at its adjusted
+    position and the block re-adjusted until that changes it by less than REFINE_TOLERANCE_M (each
+    warning said once)."""
+    said: set[str] = set()
+
+    def warn_once(text: str) -> None:
+        if text not in said and on_warning is not None:
+            said.add(text)
+            on_warning(text)
+
+    for _ in range(MAX_REFINEMENTS):
+        products = adjust_products(framed.local, options, point_precision, blunders, keep_unconverged, warn_once,
+                                   seconds_reading=seconds_reading, frame=framed.frame)
+        if not map_coordinates.has_partial_control(framed.grid):
+            break
+        framed, change = map_coordinates.refine_partial_control(framed, products.points.xyz + products.result.offset)
+        if change < map_coordinates.REFINE_TOLERANCE_M:
+            break
     return products
 
 
@@ -144,7 +181,7 @@ def structure_figure(project_dir, out_png, on_warning: Callable[[str], None] | N
 def adjust_products(project: Project, options: AdjustmentOptions, point_precision: str = "schmid90",
                     blunders: str = "off", keep_unconverged: bool = False,
                     on_warning: Callable[[str], None] | None = None,
-                    seconds_reading: float | None = None) -> AdjustmentProducts:
+                    seconds_reading: float | None = None, frame=None) -> AdjustmentProducts:
     """Adjust (with gross-error detection by ``blunders``: "off", "snoop" or "robust") and build
     the output files. Photos, points and the summary describe the adjustment of the measurements
     kept; residuals.csv lists every original measurement with its flag.
@@ -152,7 +189,10 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     Warnings (the project's notes, then what the computation warns of) go to ``on_warning`` as they
     arise, even when the run then fails, and into summary.json "warnings" and the report. An
     adjustment that does not converge raises NumericalFailure unless ``keep_unconverged``.
-    seconds_reading: the time the caller took to read the project (summary.json timings_s "read")."""
+    seconds_reading: the time the caller took to read the project (summary.json timings_s "read").
+    frame: the crs.frame.LocalFrame of a project in map coordinates (``project`` is then in that
+    frame): photos.csv and points.csv are written back in the project's CRS, summary.json and the
+    report name the frame; check-point differences stay those of the local frame (metres)."""
     from dataclasses import replace as _replace
 
 
@@ -200,10 +240,14 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
             for w in caught:
                 warn(str(w.message))
     t0 = time.perf_counter()
+    photo_cols, point_cols = photo_table(adjusted, result), point_table(adjusted, result, points)
+    if frame is not None:
+        photo_cols = map_coordinates.photo_columns_to_grid(photo_cols, adjusted, frame)
+        point_cols = map_coordinates.point_columns_to_grid(point_cols, frame)
     tables = {
-        "photos.csv": format_csv(photo_table(adjusted, result)),
+        "photos.csv": format_csv(photo_cols),
         "cameras.csv": format_csv(camera_table(adjusted, result)),
-        "points.csv": format_csv(point_table(adjusted, result, points)),
+        "points.csv": format_csv(point_cols),
         "residuals.csv": format_csv(residual_table(project, det)),
     }
     tables.update(gnss_tables(adjusted, result))
@@ -216,6 +260,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     if corrections is not None:
         summary["plate_corrections"] = corrections.summary
     summary.update(gnss_output.summary_entry(adjusted, result))
+    if frame is not None:
+        summary["frame"] = frame.summary()
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))

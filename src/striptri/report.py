@@ -311,6 +311,12 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         ("converged", f"<span class='{'ok' if conv else 'no'}'>{_fmt(conv)}</span>"),
         ("termination (why the iteration stopped)", _termination_text(summary)),
     ]
+    if "frame" in summary:  # a project in map coordinates (striptri.crs)
+        f = summary["frame"]
+        rows.append(("coordinate frame", html.escape(
+            f"files in {f['crs_name']} ({f['crs']}), {f['heights']} heights"
+            + (f" (geoid: {f['geoid']})" if "geoid" in f else "")
+            + f"; adjusted, and shown in this report (points, check points), in the local frame: {f['local']}")))
     if r > 0 and s0 is not None:
         lo, hi = np.sqrt(chi2_quantile(np.array([0.025, 0.975]), r) / r)
         inside = lo <= s0 <= hi

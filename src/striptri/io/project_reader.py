@@ -45,6 +45,7 @@ from striptri import model, rotations
 from striptri.errors import InputError
 from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
 from striptri.core.options import DATUMS, METHODS
+from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
 from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION, read_gnss
@@ -77,6 +78,7 @@ TOML_KEYS = {
     "datum": ("mode",),
     "corrections": ("earth_curvature", "refraction", "earth_radius"),
     GNSS_SECTION: GNSS_TOML_KEYS,  # GNSS shift and drift (io.gnss_reader)
+    "coordinates": KEYS,  # striptri.crs.settings
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
@@ -263,10 +265,19 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
     if isinstance(earth_radius, bool) or not isinstance(earth_radius, (int, float)) or not low <= earth_radius <= high:
         raise fail("corrections", "earth_radius", f"{earth_radius!r} is not a radius of the Earth in metres "
                                                   f"(accepted: {low:.0f} to {high:.0f})")
+    coordinates = None
+    if "coordinates" in data:
+        coordinates = parse_coordinates(data["coordinates"], path.parent, lambda key, reason: fail("coordinates", key, reason),
+                                        _toml_section_line(text, "coordinates"))
+    if coordinates is not None and switches["earth_curvature"]:
+        raise fail("corrections", "earth_curvature", "true with [coordinates] crs: the project is adjusted in a local "
+                   "Cartesian frame, where the Earth's curvature is in the coordinates themselves; the correction "
+                   "would count it twice (docs/decisions.md)")
     return model.ProjectSettings(
         earth_curvature=switches["earth_curvature"],
         refraction=switches["refraction"],
         earth_radius=float(earth_radius),
+        coordinates=coordinates,
         angle_unit=choice("units", "angles", model.ANGLE_UNITS, defaults.angle_unit),
         rotation=choice("units", "rotation", model.ROTATION_CONVENTIONS, defaults.rotation),
         sigma_image=float(sigma_image),

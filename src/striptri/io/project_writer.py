@@ -96,6 +96,7 @@ def settings_toml(settings: model.ProjectSettings) -> str:
         + (f"cost_tolerance = {float(settings.cost_tolerance)!r}\n" if settings.cost_tolerance else "")
         + datum
         + _corrections_toml(settings, defaults)
+        + _coordinates_toml(settings.coordinates)
     )
 
 
@@ -108,6 +109,19 @@ def _corrections_toml(settings: model.ProjectSettings, defaults: model.ProjectSe
             f"earth_curvature = {'true' if settings.earth_curvature else 'false'}\n"
             f"refraction = {'true' if settings.refraction else 'false'}\n"
             f"earth_radius = {float(settings.earth_radius)!r}\n")
+
+
+def _coordinates_toml(c: model.CoordinateSettings | None) -> str:
+    """[coordinates] (striptri.crs.settings), or nothing for a project in a local frame."""
+    if c is None:
+        return ""
+    crs = c.crs.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+    text = f'\n[coordinates]\ncrs = "{crs}"\nheights = "{c.heights}"\n'
+    if c.geoid_undulation is not None:
+        text += f"geoid_undulation = {float(c.geoid_undulation)!r}\n"
+    if c.geoid_grid is not None:
+        text += f'geoid_grid = "{c.geoid_grid.as_posix()}"\n'
+    return text
 
 
 def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
