@@ -332,6 +332,40 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
 
 
+# --------------------------------------------------------------------------- striptri plan
+# (DESIGN section 10, issue 15: pre-analysis of a planned block; docs/plan.md)
+
+
+@main.command()
+@click.argument("project_dir", type=click.Path(file_okay=False))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder to write.")
+@click.option("--method", type=click.Choice(["conditions", "bundle"]), default=None,
+              help="Adjustment method whose precision is predicted [project.toml or conditions].")
+@click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
+              help="Solver of the normal equations [project.toml or auto].")
+@click.option("--drop-control", multiple=True, metavar="ID|KIND[,...]",
+              help="What-if: these control points (ids, or a kind XYZ, XY, Z) become check points. Repeatable.")
+@click.option("--add-control", multiple=True, metavar="ID=KIND",
+              help="What-if: the tie or check point ID becomes control of KIND (XYZ, XY, Z), held fixed. Repeatable.")
+@click.option("--sigma-image", multiple=True, type=float, metavar="SIGMA",
+              help="What-if: every plate coordinate with this sigma (plate units). Repeatable.")
+@click.option("--rank-control/--no-rank-control", default=True, show_default=True,
+              help="Rank the control points by the loss of precision when each is dropped.")
+@reports_errors
+def plan(project_dir, out_dir, method, solver, drop_control, add_control, sigma_image, rank_control):
+    """Pre-analysis of the planned block in PROJECT_DIR: a-priori precision (sigma0 = 1), internal and
+    external reliability, what-ifs and the control ranking, from the design alone (docs/plan.md)."""
+    from striptri.plan.pipeline import run_plan
+
+    products = run_plan(project_dir, out_dir, drop_control=drop_control, add_control=add_control,
+                        sigma_image=sigma_image, rank_control=rank_control, on_warning=_warn,
+                        method=method, solver=solver)
+    p = products.summary["plan"]["precision"]
+    click.echo(f"plan: {products.summary['n_photos']} photos, {products.summary['n_points']} points; "
+               f"worst sigma_XY {p['worst_sigma_XY']:.4g} m, worst sigma_Z {p['worst_sigma_Z']:.4g} m "
+               f"(a priori); {len(products.whatifs) - 1} what-ifs -> {out_dir}")
+
+
 @main.command()
 @click.argument("project_dir", type=click.Path(file_okay=False))
 @click.option("--out", "out_png", required=True, type=click.Path(dir_okay=False),
