@@ -50,9 +50,10 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
     project = read_project(project_dir)
-    for note in project.notes:
+    said = [str(note) for note in project.notes]
+    for text in said:
         if on_warning is not None:
-            on_warning(str(note))
+            on_warning(text)
     options = options_for(project, **overrides)
     if options.method == "sequential":
         raise InputError("command line", None, "a plan is analysed for a simultaneous adjustment (conditions or "
@@ -63,15 +64,17 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
              + [whatif.sigma_image(project, float(s)) for s in sigma_image])
     with OutputReservation(out_dir, inputs) as reservation:
         try:
-            products = plan_products(project, options, xyz, cases, rank_control)
+            products = plan_products(project, options, xyz, cases, rank_control, said)
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
         reservation.commit(products.files)
     return products
 
 
-def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_control: bool) -> PlanProducts:
-    """Analyse, evaluate the what-ifs and the ranking, and build the files (module doc)."""
+def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_control: bool,
+                  said: list[str] = ()) -> PlanProducts:
+    """Analyse, evaluate the what-ifs and the ranking, and build the files (module doc). said: the
+    warnings so far (the project's notes), summary.json "warnings"."""
     t0 = time.perf_counter()
     a = analyse(project, options, xyz)
     seconds_analysis = time.perf_counter() - t0
@@ -82,6 +85,7 @@ def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_
     ranking = whatif.rank_control(project, options, xyz, base) if rank_control else None
     seconds_ranking = time.perf_counter() - t1
     summary = plan_summary(a, rows, ranking, seconds_analysis, seconds_ranking)
+    summary["warnings"] = list(said)
     plate_unit = project.settings.plate_unit
     files = {
         "photos.csv": format_csv(photo_table(a.project, a.result)),
@@ -130,7 +134,8 @@ def reliability_table(a: PlanAnalysis) -> dict:
 
 
 def plan_summary(a: PlanAnalysis, rows: list, ranking, seconds_analysis: float, seconds_ranking: float) -> dict:
-    """summary.json: adjust's keys (pipeline.summary_of) with sigma0 = 1 and vtpv 0; check_points
+    """summary.json: adjust's keys (pipeline.summary_of; not "blunders": nothing is measured, nothing
+    tested) with sigma0 = 1 and vtpv 0; check_points
     with the predicted RMS (the root mean square of the check points' a-priori mean errors per axis,
     what the RMS of their differences will be on average); "plan" with the precision figures, the
     reliability figures, the what-ifs and the ranking."""
