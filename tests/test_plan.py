@@ -26,7 +26,7 @@ from cli_support import assert_clean_failure, run, snapshot
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.adjusted_points import triangulate_adjusted
 from striptri.io.project_writer import write_project
-from striptri.model import CHECK, FULL, HEIGHT, PLAN, TIE
+from striptri.model import CHECK, TIE
 from striptri.pipeline import run_adjust
 from striptri.plan.analysis import analyse
 from striptri.plan.design import planned_points, predicted_plates
@@ -117,3 +117,155 @@ def test_plan_mdb_equal_reliability_module(flight):
         ok = np.isfinite(a)
         assert ok.sum() > 50
         np.testing.assert_allclose(p[ok], a[ok], rtol=REL, atol=0)
+
+
+TRIALS = 300
+ALPHA = 1e-3  # probability that the whole test fails although the prediction is right
+
+
+def test_plan_mean_errors_equal_monte_carlo_scatter():
+    """The mean square error of T adjustments of noisy flights about the truth, per quantity, is
+    sigma^2 chi2(T) / T (the estimates are unbiased to first order); every predicted sigma^2 must
+    lie within the two-sided chi-square interval, Bonferroni over all K quantities tested."""
+    design = small_design(5, 2)
+    truth = make_truth(design, np.random.default_rng(11))
+    exact = NoiseOptions(sigma_image=0.0, approx_position_error=0.0, approx_angle_error=0.0)
+    plan = perturb(truth, exact, np.random.default_rng(0))
+    a = analyse(plan)
+    sig_centres, _ = a.result.photo_mean_errors("omega-phi-kappa")
+    new = (plan.points.kind == TIE) | (plan.points.kind == CHECK)
+    predicted = np.concatenate([sig_centres.ravel(), a.sigma_points[new].ravel()])
+    assert np.all(predicted > 0)
+    noise = NoiseOptions(sigma_image=0.005)
+    rng = np.random.default_rng(2024)
+    err = np.empty((TRIALS, predicted.size))
+    options = AdjustmentOptions()
+    for t in range(TRIALS):
+        project = perturb(truth, noise, rng)
+        result = adjust(project, options)
+        pts = triangulate_adjusted(project, result)
+        d_centres = result.state.xyz0 + result.offset - truth.xyz0
+        d_points = pts.xyz[new] + result.offset - truth.xyz_ground[new]
+        err[t] = np.concatenate([d_centres.ravel(), d_points.ravel()])
+    ratio = np.mean(err**2, axis=0) / predicted**2
+    K = predicted.size
+    lo = stats.chi2.ppf(ALPHA / (2 * K), TRIALS) / TRIALS
+    hi = stats.chi2.isf(ALPHA / (2 * K), TRIALS) / TRIALS
+    assert lo > 0.6 and hi < 1.5  # the test has teeth: a 40 % error in sigma^2 fails it
+    assert np.all((ratio > lo) & (ratio < hi)), (ratio.min(), ratio.max(), lo, hi)
+
+
+def test_control_ranking_equals_brute_force(flight, tmp_path):
+    """Each control point turned into a check point in control.csv, the flight adjusted by
+    ``adjust``: the worst 3D mean error of the tie and check points (divided by sigma0) is the
+    ranking's, to 1e-9 relative, and the ranking orders by its increase."""
+    ranking = read_rows(flight["root"] / "planned" / "control_ranking.csv")
+    control = read_rows(flight["sim"] / "control.csv")
+    truth = by_id(read_rows(flight["sim"] / "truth" / "points.csv"), "point_id")
+    ids = [r["point_id"] for r in control if r["kind"] in ("XYZ", "XY", "Z")]
+    assert sorted(r["point_id"] for r in ranking) == sorted(ids) and len(ids) >= 4
+    base = flight["planned"].whatifs[0]["worst_sigma_P"]
+    brute = {}
+    for pid in ids:
+        folder = tmp_path / f"drop_{pid}"
+        shutil.copytree(flight["sim"], folder, ignore=shutil.ignore_patterns("truth"))
+        rows = [dict(r) for r in control]
+        for r in rows:
+            if r["point_id"] == pid:
+                r.update(kind="check", **{c: truth[pid][c] for c in "XYZ"})
+        with open(folder / "control.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        out = run_adjust(folder, tmp_path / f"out_{pid}")
+        pts = read_rows(tmp_path / f"out_{pid}" / "points.csv")
+        sig = np.array([[float(r[f"sigma_{c}"]) for c in "XYZ"] for r in pts if r["kind"] in ("tie", "check")])
+        brute[pid] = float(np.sqrt(np.sum(sig**2, axis=1)).max()) / out.summary["sigma0"]
+    for r in ranking:
+        assert r["status"] == "ok"
+        assert float(r["worst_sigma_P"]) == pytest.approx(brute[r["point_id"]], rel=REL)
+        assert float(r["loss_sigma_P"]) == pytest.approx(brute[r["point_id"]] - base, rel=1e-6, abs=1e-12)
+    losses = [brute[r["point_id"]] for r in ranking]
+    assert losses == sorted(losses, reverse=True)
+    assert losses[0] > losses[-1]
+
+
+def test_whatifs(flight, tmp_path):
+    """A what-if row is the plan with that change: half the plate sigma halves every mean error
+    (fixed control: all weights scale alike); dropping one control point is its ranking row;
+    turning a dropped point back into control restores the plan."""
+    ranking = flight["planned"].ranking
+    first = ranking[0]["point_id"]
+    out = run_plan(flight["plan"], tmp_path / "w", drop_control=[first], sigma_image=["0.0025"],
+                   rank_control=False)
+    plan, dropped, half = out.whatifs
+    assert plan["case"] == "plan" and dropped["case"] == f"drop control {first}"
+    assert dropped["worst_sigma_P"] == pytest.approx(ranking[0]["worst_sigma_P"], rel=REL)
+    for k in ("worst_sigma_XY", "rms_sigma_XY", "worst_sigma_Z", "rms_sigma_Z", "worst_sigma_P"):
+        assert half[k] == pytest.approx(plan[k] / 2, rel=REL)
+    assert not (tmp_path / "w" / "control_ranking.csv").exists()
+    rows = read_rows(tmp_path / "w" / "whatifs.csv")
+    assert [r["case"] for r in rows] == ["plan", f"drop control {first}", "sigma image 0.0025"]
+
+
+def test_plan_command_contract(flight, tmp_path):
+    """The command: exit 0 and the files; bad input exit 2 naming file and line; a plan whose control
+    leaves a datum defect exit 1; an output inside the input exit 2; nothing written on failure and
+    the input never touched."""
+    plan = flight["plan"]
+    before = snapshot(plan)
+    pts = flight["planned"].analysis.project.points
+    tie = pts.ids[int(np.flatnonzero(pts.kind == TIE)[0])]
+    ok = run("plan", plan, "--out", tmp_path / "ok", "--drop-control", "XYZ", "--add-control", f"{tie}=XYZ")
+    assert ok.returncode == 0, ok.stderr
+    names = {"photos.csv", "cameras.csv", "points.csv", "reliability.csv", "whatifs.csv", "control_ranking.csv",
+             "summary.json", "report.html"}
+    assert names <= {p.name for p in (tmp_path / "ok").iterdir()}
+    rows = read_rows(tmp_path / "ok" / "whatifs.csv")
+    assert rows[1]["status"] == "datum defect"  # every full control point dropped: a what-if, not a failure
+    assert rows[2]["status"] == "ok" and float(rows[2]["worst_sigma_P"]) <= float(rows[0]["worst_sigma_P"])
+    html = (tmp_path / "ok" / "report.html").read_text()
+    assert html.count("<img") == 3 and "What-ifs" in html
+    # the points.csv of adjust's columns first
+    header = next(csv.reader(open(tmp_path / "ok" / "points.csv")))
+    assert header[:9] == ["point_id", "kind", "X", "Y", "Z", "sigma_X", "sigma_Y", "sigma_Z", "rays"]
+    assert snapshot(plan) == before
+    err = assert_clean_failure(run("plan", plan, "--out", plan / "out"), 2)
+    assert "input" in err
+    bad = tmp_path / "bad"
+    shutil.copytree(plan, bad)
+    lines = (bad / "photos.csv").read_text().splitlines()
+    lines[2] = lines[2].replace(lines[2].split(",")[3], "abc", 1)
+    (bad / "photos.csv").write_text("\n".join(lines) + "\n")
+    err = assert_clean_failure(run("plan", bad, "--out", tmp_path / "bad_out"), 2)
+    assert "photos.csv, line 3" in err
+    assert not (tmp_path / "bad_out").exists()
+    err = assert_clean_failure(run("plan", plan, "--out", tmp_path / "x", "--drop-control", "nope"), 2)
+    assert "nope" in err and not (tmp_path / "x").exists()
+    free = tmp_path / "free"
+    shutil.copytree(plan, free)
+    (free / "control.csv").write_text((free / "control.csv").read_text().splitlines()[0] + "\n")
+    err = assert_clean_failure(run("plan", free, "--out", tmp_path / "free_out"), 1)
+    assert "datum" in err and not (tmp_path / "free_out").exists()
+
+
+def test_planned_points_from_approx_points_or_rays():
+    """approx_points.csv gives the planned points: image_points.csv's x, y then only say which photo
+    sees which point (noisy x, y give the same mean errors); without it the rays are intersected
+    (noisy x, y move the points and, a little, the mean errors); the predicted plates of the
+    planned points are image_points' x, y for exact measurements."""
+    truth = make_truth(small_design(4, 2), np.random.default_rng(3))
+    exact = perturb(truth, NoiseOptions(sigma_image=0.0, approx_position_error=0.0, approx_angle_error=0.0),
+                    np.random.default_rng(0))
+    np.testing.assert_allclose(planned_points(exact)[exact.points.kind == TIE],
+                               truth.xyz_ground[exact.points.kind == TIE], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(predicted_plates(exact, truth.xyz_ground), exact.image_points.xy, rtol=0, atol=1e-10)
+    noisy = perturb(truth, NoiseOptions(sigma_image=0.05, stated_sigma_image=0.005, approx_position_error=0.0,
+                                        approx_angle_error=0.0),
+                    np.random.default_rng(1))
+    with_approx = replace(noisy, points=replace(noisy.points, xyz_approx=truth.xyz_ground.copy()))
+    base = analyse(exact).sigma_points
+    np.testing.assert_allclose(analyse(with_approx).sigma_points, base, rtol=REL, atol=1e-15)
+    moved = analyse(noisy).sigma_points
+    tie = exact.points.kind == TIE
+    assert np.max(np.abs(moved[tie] / base[tie] - 1)) > 1e-6
