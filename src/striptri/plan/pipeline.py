@@ -41,9 +41,14 @@ class PlanProducts:
     files: dict
 
 
-def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=(), rank_control: bool = True,
+AUTO_RANK_LIMIT = 40  # control points up to which the ranking is computed unless asked (one analysis each)
+
+
+def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=(), rank_control: bool | None = None,
              on_warning=None, **overrides) -> PlanProducts:
     """Read the plan in ``project_dir``, analyse it with its what-ifs, write ``out_dir`` (module doc).
+    rank_control: True, False, or None: rank when the plan has at most AUTO_RANK_LIMIT control
+    points (the ranking re-analyses the plan once per control point; otherwise a warning says so).
     The output location is checked before anything is read; InputError for bad input or bad
     what-ifs, NumericalFailure when the plan itself cannot be adjusted (e.g. a datum defect)."""
     project_dir = Path(project_dir)
@@ -58,6 +63,14 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
     if options.method == "sequential":
         raise InputError("command line", None, "a plan is analysed for a simultaneous adjustment (conditions or "
                          "bundle); the sequential method has no normal matrix of the whole block")
+    n_control = int(np.isin(project.points.kind, list(whatif.CONTROL_KINDS.values())).sum())
+    if rank_control is None:
+        rank_control = n_control <= AUTO_RANK_LIMIT
+        if not rank_control:
+            said.append(f"the control ranking was not computed: it analyses the plan once more for each of the "
+                        f"{n_control} control points (more than {AUTO_RANK_LIMIT}); ask for it with --rank-control")
+            if on_warning is not None:
+                on_warning(said[-1])
     xyz = planned_points(project)
     cases = ([whatif.drop_control(project, s) for s in drop_control]
              + [whatif.add_control(project, s, xyz) for s in add_control]
