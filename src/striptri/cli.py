@@ -448,13 +448,33 @@ class _ManyValues(click.Option):
               help="Layout every-k: full control at every k-th nadir.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Local worker processes [all cores].")
 @click.option("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786): run the trials there.")
+@click.option("--project", "project_dir", default=None, type=click.Path(file_okay=False),
+              help="Run the study on this project's own block and control, read as a plan (docs/plan.md), "
+                   "instead of invented strips (--photos, --layouts, --every-k do not apply; --sigma-image "
+                   "replaces the plan's plate sigmas) [invented strips].")
 @reports_errors
-def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every_k, workers, scheduler):
+def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every_k, workers, scheduler, project_dir):
     """Method-comparison study (DESIGN section 9; docs/study.md) written to --out."""
     from striptri.study import StudyOptions, run_compare
     from striptri.study.progress import StderrProgress
 
     given = {"methods": methods, "photos": photos, "layouts": layouts, "sigma_images": sigma_images}
+    if project_dir is not None:
+        from striptri.study.project_pipeline import run_compare_project
+
+        if photos or layouts or every_k != 2:
+            raise InputError("command line", None, "--photos, --layouts and --every-k describe invented strips; "
+                             "with --project the strips and control are the project's")
+        progress = StderrProgress()
+        try:
+            result = run_compare_project(out_dir, project_dir, methods=tuple(methods) or None, trials=trials,
+                                         sigma_images=tuple(sigma_images), seed=seed, workers=workers,
+                                         scheduler=scheduler, progress=progress)
+        finally:
+            progress.close()
+        failed = f", {result.n_failed} failed" if result.n_failed else ""
+        click.echo(f"{len(result.rows)} adjustments{failed} -> {result.out_dir}")
+        return
     options = StudyOptions(trials=trials, seed=seed, every_k=every_k,
                            **{k: tuple(v) for k, v in given.items() if v})
     progress = StderrProgress()
