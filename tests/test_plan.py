@@ -26,9 +26,10 @@ from cli_support import assert_clean_failure, run, snapshot
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.adjusted_points import triangulate_adjusted
 from striptri.io.project_writer import write_project
-from striptri.model import CHECK, TIE
+from striptri.model import CHECK, FULL, HEIGHT, PLAN, TIE
 from striptri.pipeline import run_adjust
-from striptri.plan.analysis import analyse
+from striptri.plan import ranking, whatif
+from striptri.plan.analysis import analyse, precision_only
 from striptri.plan.design import planned_points, predicted_plates
 from striptri.plan.pipeline import run_plan
 from striptri.simulate.design import SyntheticDesign
@@ -269,3 +270,57 @@ def test_planned_points_from_approx_points_or_rays():
     moved = analyse(noisy).sigma_points
     tie = exact.points.kind == TIE
     assert np.max(np.abs(moved[tie] / base[tie] - 1)) > 1e-6
+
+
+def _fast_and_brute(project):
+    options = AdjustmentOptions()
+    xyz = planned_points(project)
+    plan, result, _, sigma = precision_only(project, options, xyz)
+    assert ranking.applicable(result, options)
+    base = {"worst_sigma_P": whatif.worst_sigma_p(plan, sigma)}
+    return (whatif.ranked(project, ranking.rank_control_fast(plan, result, sigma), base),
+            whatif.rank_control(project, options, xyz, base))
+
+
+def test_rank3_update_equals_brute_force_with_weighted_partial_control_and_defects():
+    """The rank-3 update (plan.ranking) against brute force (whatif.rank_control, one adjustment per
+    control point) on a block with held and weighted full control, plan and height control, and on
+    one whose every full control point is indispensable (a drop leaves a datum defect)."""
+    truth = make_truth(small_design(5, 2), np.random.default_rng(5))
+    exact = NoiseOptions(sigma_image=0.0, approx_position_error=0.0, approx_angle_error=0.0)
+    project = perturb(truth, exact, np.random.default_rng(0))
+    pts = project.points
+    control = np.flatnonzero(np.isin(pts.kind, (FULL, PLAN, HEIGHT)))
+    assert len(control) >= 8
+    kind, sigma, given = pts.kind.copy(), pts.sigma_given.copy(), pts.xyz_given.copy()
+    kind[control[1]], kind[control[2]] = PLAN, HEIGHT
+    given[control[1], 2] = np.nan
+    given[control[2], :2] = np.nan
+    sigma[control[3]] = (0.05, 0.05, 0.08)  # weighted full control
+    sigma[control[4], 2] = 0.1  # held in X, Y, weighted in Z
+    varied = replace(project, points=replace(pts, kind=kind, sigma_given=sigma, xyz_given=given))
+    fast, brute = _fast_and_brute(varied)
+    assert [r["point_id"] for r in fast] == [r["point_id"] for r in brute]
+    for f, b in zip(fast, brute):
+        assert f["status"] == b["status"] == "ok"
+        assert f["worst_sigma_P"] == pytest.approx(b["worst_sigma_P"], rel=REL)
+    # three control points only (two full, one height): dropping a full one leaves a datum defect
+    xy = truth.xyz_ground[control, :2]
+    a = 0
+    b = int(np.argmax(np.linalg.norm(xy - xy[a], axis=1)))
+    u = (xy[b] - xy[a]) / np.linalg.norm(xy[b] - xy[a])
+    c = int(np.argmax(np.abs(np.cross(u, xy - xy[a]))))  # farthest from the line a-b
+    keep = [int(control[a]), int(control[b]), int(control[c])]
+    kind = np.where(np.isin(np.arange(len(pts)), control) & ~np.isin(np.arange(len(pts)), keep), TIE, pts.kind)
+    kind[keep[2]] = HEIGHT
+    given = np.where((kind == TIE)[:, None], np.nan, pts.xyz_given)
+    given[keep[2], :2] = np.nan
+    minimal = replace(project, points=replace(pts, kind=kind, xyz_given=given))
+    fast, brute = _fast_and_brute(minimal)
+    by_id = {r["point_id"]: r for r in brute}
+    statuses = {r["point_id"]: r["status"] for r in fast}
+    assert statuses == {pid: by_id[pid]["status"] for pid in statuses}
+    assert "datum defect" in statuses.values()
+    for f in fast:
+        if f["status"] == "ok":
+            assert f["worst_sigma_P"] == pytest.approx(by_id[f["point_id"]]["worst_sigma_P"], rel=REL)

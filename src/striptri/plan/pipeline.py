@@ -23,6 +23,7 @@ from ..io.project_reader import read_project
 from ..model import CHECK, Project
 from ..pipeline import camera_table, input_paths, options_for, photo_table, point_table, summary_of
 from ..solvers import SolverUnavailable
+from . import ranking as fast_ranking
 from . import report, whatif
 from .analysis import PlanAnalysis, analyse
 from .design import planned_points
@@ -47,8 +48,9 @@ AUTO_RANK_LIMIT = 40  # control points up to which the ranking is computed unles
 def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=(), rank_control: bool | None = None,
              on_warning=None, **overrides) -> PlanProducts:
     """Read the plan in ``project_dir``, analyse it with its what-ifs, write ``out_dir`` (module doc).
-    rank_control: True, False, or None: rank when the plan has at most AUTO_RANK_LIMIT control
-    points (the ranking re-analyses the plan once per control point; otherwise a warning says so).
+    rank_control: True, False, or None: rank when the rank-3 update applies (plan.ranking) or the
+    plan has at most AUTO_RANK_LIMIT control points (the brute force re-analyses the plan once per
+    control point; otherwise a warning says so).
     The output location is checked before anything is read; InputError for bad input or bad
     what-ifs, NumericalFailure when the plan itself cannot be adjusted (e.g. a datum defect)."""
     project_dir = Path(project_dir)
@@ -63,31 +65,24 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
     if options.method == "sequential":
         raise InputError("command line", None, "a plan is analysed for a simultaneous adjustment (conditions or "
                          "bundle); the sequential method has no normal matrix of the whole block")
-    n_control = int(np.isin(project.points.kind, list(whatif.CONTROL_KINDS.values())).sum())
-    if rank_control is None:
-        rank_control = n_control <= AUTO_RANK_LIMIT
-        if not rank_control:
-            said.append(f"the control ranking was not computed: it analyses the plan once more for each of the "
-                        f"{n_control} control points (more than {AUTO_RANK_LIMIT}); ask for it with --rank-control")
-            if on_warning is not None:
-                on_warning(said[-1])
     xyz = planned_points(project)
     cases = ([whatif.drop_control(project, s) for s in drop_control]
              + [whatif.add_control(project, s, xyz) for s in add_control]
              + [whatif.sigma_image(project, float(s)) for s in sigma_image])
     with OutputReservation(out_dir, inputs) as reservation:
         try:
-            products = plan_products(project, options, xyz, cases, rank_control, said)
+            products = plan_products(project, options, xyz, cases, rank_control, said, on_warning)
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
         reservation.commit(products.files)
     return products
 
 
-def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_control: bool,
-                  said: list[str] = ()) -> PlanProducts:
+def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_control: bool | None,
+                  said: list[str] = (), on_warning=None) -> PlanProducts:
     """Analyse, evaluate the what-ifs and the ranking, and build the files (module doc). said: the
-    warnings so far (the project's notes), summary.json "warnings"."""
+    warnings so far (the project's notes), summary.json "warnings"; rank_control as run_plan's."""
+    said = list(said)
     t0 = time.perf_counter()
     a = analyse(project, options, xyz)
     seconds_analysis = time.perf_counter() - t0
@@ -95,9 +90,25 @@ def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_
             **a.precision_figures()}
     rows = [base] + [{"case": c.name, **whatif.evaluate(c.project, options, xyz)} for c in cases]
     t1 = time.perf_counter()
-    ranking = whatif.rank_control(project, options, xyz, base) if rank_control else None
+    ranking, how = None, None
+    fast = fast_ranking.applicable(a.result, options)
+    n_control = len(whatif.control_indices(project))
+    if rank_control is None:
+        rank_control = fast or n_control <= AUTO_RANK_LIMIT
+        if not rank_control:
+            said.append(f"the control ranking was not computed: without the rank-3 update (self-calibration, "
+                        f"distortion or a free network) it analyses the plan once more for each of the {n_control} "
+                        f"control points (more than {AUTO_RANK_LIMIT}); ask for it with --rank-control")
+            if on_warning is not None:
+                on_warning(said[-1])
+    if rank_control and fast:
+        ranking, how = whatif.ranked(project, fast_ranking.rank_control_fast(a.project, a.result, a.sigma_points),
+                                     base), "rank-3 update"
+    elif rank_control:
+        ranking, how = whatif.rank_control(project, options, xyz, base), "brute force"
     seconds_ranking = time.perf_counter() - t1
     summary = plan_summary(a, rows, ranking, seconds_analysis, seconds_ranking)
+    summary["plan"]["ranking_method"] = how
     summary["warnings"] = list(said)
     plate_unit = project.settings.plate_unit
     files = {

@@ -14,7 +14,8 @@ those of the original plan (a what-if changes what is observed, not where the po
 The control ranking (rank_control) drops each control point in turn and re-analyses: the loss of
 precision ``worst_sigma_P(dropped) - worst_sigma_P(plan)`` (worst 3D mean error of the new points,
 tie and check points) orders them, the one that matters most first. A drop that leaves a datum
-defect is ranked first with status "datum defect".
+defect is ranked first with status "datum defect". This is the brute force; plan.ranking computes the
+same by rank-3 updates of N where it applies.
 """
 
 from __future__ import annotations
@@ -116,15 +117,29 @@ def evaluate(project: Project, options: AdjustmentOptions, xyz_plan: np.ndarray)
 
 
 def rank_control(project: Project, options: AdjustmentOptions, xyz_plan: np.ndarray, base: dict) -> list[dict]:
-    """Each control point dropped in turn (module doc): rows point_id, kind, worst_sigma_P,
-    loss_sigma_P (m; None with a datum defect), status, most important first."""
+    """Each control point dropped in turn and the plan re-analysed (module doc; brute force, one
+    adjustment each): ranked rows as ``ranked`` makes them."""
+    figures = []
+    for i in control_indices(project):
+        fig = evaluate(drop_control(project, project.points.ids[i]).project, options, xyz_plan)
+        figures.append({"worst_sigma_P": fig["worst_sigma_P"], "status": fig["status"]})
+    return ranked(project, figures, base)
+
+
+def control_indices(project: Project) -> np.ndarray:
+    """The control points (kinds XYZ, XY, Z), in the order of the points: the ranking's order."""
+    return np.flatnonzero(np.isin(project.points.kind, list(CONTROL_KINDS.values())))
+
+
+def ranked(project: Project, figures: list[dict], base: dict) -> list[dict]:
+    """Rows point_id, kind, worst_sigma_P, loss_sigma_P (m; None with a datum defect), status, rank
+    of the control points (control_indices) from their ``figures`` (worst_sigma_P, status) when
+    dropped, the one that matters most first."""
     rows = []
-    for i in np.flatnonzero(np.isin(project.points.kind, list(CONTROL_KINDS.values()))):
-        pid = project.points.ids[i]
-        fig = evaluate(drop_control(project, pid).project, options, xyz_plan)
+    for i, fig in zip(control_indices(project), figures):
         loss = None if fig["worst_sigma_P"] is None or base["worst_sigma_P"] is None else \
             fig["worst_sigma_P"] - base["worst_sigma_P"]
-        rows.append({"point_id": pid, "kind": KIND_NAMES[int(project.points.kind[i])],
+        rows.append({"point_id": project.points.ids[i], "kind": KIND_NAMES[int(project.points.kind[i])],
                      "worst_sigma_P": fig["worst_sigma_P"], "loss_sigma_P": loss, "status": fig["status"]})
     rows.sort(key=lambda r: (r["loss_sigma_P"] is not None, -(r["loss_sigma_P"] or 0.0)))
     for rank, row in enumerate(rows, 1):
