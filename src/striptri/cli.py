@@ -350,8 +350,9 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 @click.option("--sigma-image", multiple=True, type=float, metavar="SIGMA",
               help="What-if: every plate coordinate with this sigma (plate units). Repeatable.")
 @click.option("--rank-control/--no-rank-control", default=None,
-              help="Rank the control points by the loss of precision when each is dropped (one more analysis "
-                   "per control point) [on up to 40 control points].")
+              help="Rank the control points by the loss of precision when each is dropped [on; where the "
+                   "rank-3 update does not apply (self-calibration, distortion, free network) only up to 40 "
+                   "control points].")
 @reports_errors
 def plan(project_dir, out_dir, method, solver, drop_control, add_control, sigma_image, rank_control):
     """Pre-analysis of the planned block in PROJECT_DIR: a-priori precision (sigma0 = 1), internal and

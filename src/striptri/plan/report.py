@@ -34,17 +34,20 @@ def _table(header: list[str], rows: list[list], left: int = 1) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def _map(xy_centres, xy_points, values, unchecked, title: str, label: str) -> bytes:
+def _map(xy_centres, xy_points, values, unchecked, title: str, label: str, log: bool = False) -> bytes:
     """The block seen from above: photo centres (grey), points coloured by ``values`` (nan: not
-    drawn), points in ``unchecked`` marked with a red cross."""
+    drawn; a logarithmic scale when ``log``: a few nearly unchecked coordinates have MDBs hundreds
+    of times the others), points in ``unchecked`` marked with a red cross."""
+    from matplotlib.colors import LogNorm
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7.5, 5.5))
     ax = fig.add_subplot()
     ax.plot(xy_centres[:, 0], xy_centres[:, 1], ".", color="0.6", ms=3, label="photo centres")
-    ok = np.isfinite(values)
+    ok = np.isfinite(values) & ((values > 0) if log else True)
     if ok.any():
-        sc = ax.scatter(xy_points[ok, 0], xy_points[ok, 1], c=values[ok], s=14, cmap="viridis")
+        norm = LogNorm(vmin=values[ok].min(), vmax=max(values[ok].max(), values[ok].min() * 1.01)) if log else None
+        sc = ax.scatter(xy_points[ok, 0], xy_points[ok, 1], c=values[ok], s=14, cmap="viridis", norm=norm)
         fig.colorbar(sc, ax=ax, label=label)
     if unchecked.any():
         ax.plot(xy_points[unchecked, 0], xy_points[unchecked, 1], "x", color="red", ms=6,
@@ -53,7 +56,7 @@ def _map(xy_centres, xy_points, values, unchecked, title: str, label: str) -> by
     ax.set_xlabel("X (m)")
     ax.set_ylabel("Y (m)")
     ax.set_title(title)
-    ax.legend(loc="upper right", fontsize="small")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, fontsize="small")
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
     return buf.getvalue()
@@ -108,11 +111,11 @@ def html_report(analysis, summary: dict, whatifs: list[dict], ranking: list[dict
               _img(_map(centres, xyz, sxy, np.zeros(n, bool), "A-priori planimetric precision of the points",
                         "sigma_XY (m)"), "precision map"),
               _img(_map(centres, xyz, np.where(np.isfinite(max_mdb) & (max_mdb > 0), max_mdb, np.nan), unchecked,
-                        "Internal reliability: largest MDB of each point's plate coordinates",
-                        f"MDB ({plate_unit})"), "internal reliability map"),
+                        "Internal reliability: largest MDB of a point's measurements",
+                        f"MDB ({plate_unit})", log=True), "internal reliability map"),
               _img(_map(centres, xyz, np.where(np.isfinite(ext), ext, np.nan), unchecked,
-                        "External reliability: largest shift of a point by an undetected blunder in its measurements",
-                        "bound on |dX|, |dY|, |dZ| (m)"), "external reliability map"),
+                        "External reliability: bound on a point's shift by an undetected blunder",
+                        "bound on |dX|, |dY|, |dZ| (m)", log=True), "external reliability map"),
               "<h2>Points</h2>",
               _table(["point", "kind", "sigma_X (m)", "sigma_Y (m)", "sigma_Z (m)", f"max MDB ({plate_unit})",
                       "external (m)"],
