@@ -324,3 +324,31 @@ def test_rank3_update_equals_brute_force_with_weighted_partial_control_and_defec
     for f in fast:
         if f["status"] == "ok":
             assert f["worst_sigma_P"] == pytest.approx(by_id[f["point_id"]]["worst_sigma_P"], rel=REL)
+
+
+def test_overlap_whatif_equals_a_thinned_plan(flight, tmp_path):
+    """--keep-every 2 is the plan with every other photo of each strip removed from photos.csv and
+    image_points.csv."""
+    out = run_plan(flight["plan"], tmp_path / "w", keep_every=[2], rank_control=False)
+    thinned = tmp_path / "thinned"
+    shutil.copytree(flight["plan"], thinned)
+    photos = read_rows(thinned / "photos.csv")
+    position: dict[str, int] = {}
+    kept = set()
+    for r in photos:
+        i = position.get(r["strip_id"], 0)
+        position[r["strip_id"]] = i + 1
+        if i % 2 == 0:
+            kept.add(r["photo_id"])
+    for name, key in (("photos.csv", "photo_id"), ("image_points.csv", "photo_id")):
+        rows = [r for r in read_rows(thinned / name) if r[key] in kept]
+        with open(thinned / name, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    assert 0 < len(kept) < len(photos)
+    alone = run_plan(thinned, tmp_path / "t", rank_control=False)
+    row, ref = out.whatifs[1], alone.whatifs[0]
+    assert row["case"] == "every 2-th photo" and row["status"] == "ok"
+    for k in ("n_points", "worst_sigma_XY", "rms_sigma_XY", "worst_sigma_Z", "rms_sigma_Z", "worst_sigma_P"):
+        assert row[k] == pytest.approx(ref[k], rel=REL)

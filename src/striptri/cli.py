@@ -349,18 +349,21 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
               help="What-if: the tie or check point ID becomes control of KIND (XYZ, XY, Z), held fixed. Repeatable.")
 @click.option("--sigma-image", multiple=True, type=float, metavar="SIGMA",
               help="What-if: every plate coordinate with this sigma (plate units). Repeatable.")
+@click.option("--keep-every", multiple=True, type=click.IntRange(min=2), metavar="K",
+              help="What-if (overlap): only every K-th photo of each strip; forward overlap p becomes 1 - K(1 - p). "
+                   "Repeatable.")
 @click.option("--rank-control/--no-rank-control", default=None,
               help="Rank the control points by the loss of precision when each is dropped [on; where the "
                    "rank-3 update does not apply (self-calibration, distortion, free network) only up to 40 "
                    "control points].")
 @reports_errors
-def plan(project_dir, out_dir, method, solver, drop_control, add_control, sigma_image, rank_control):
+def plan(project_dir, out_dir, method, solver, drop_control, add_control, sigma_image, keep_every, rank_control):
     """Pre-analysis of the planned block in PROJECT_DIR: a-priori precision (sigma0 = 1), internal and
     external reliability, what-ifs and the control ranking, from the design alone (docs/plan.md)."""
     from striptri.plan.pipeline import run_plan
 
     products = run_plan(project_dir, out_dir, drop_control=drop_control, add_control=add_control,
-                        sigma_image=sigma_image, rank_control=rank_control, on_warning=_warn,
+                        sigma_image=sigma_image, keep_every=keep_every, rank_control=rank_control, on_warning=_warn,
                         method=method, solver=solver)
     p = products.summary["plan"]["precision"]
     click.echo(f"plan: {products.summary['n_photos']} photos, {products.summary['n_points']} points; "

@@ -45,8 +45,8 @@ class PlanProducts:
 AUTO_RANK_LIMIT = 40  # control points up to which the ranking is computed unless asked (one analysis each)
 
 
-def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=(), rank_control: bool | None = None,
-             on_warning=None, **overrides) -> PlanProducts:
+def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=(), keep_every=(),
+             rank_control: bool | None = None, on_warning=None, **overrides) -> PlanProducts:
     """Read the plan in ``project_dir``, analyse it with its what-ifs, write ``out_dir`` (module doc).
     rank_control: True, False, or None: rank when the rank-3 update applies (plan.ranking) or the
     plan has at most AUTO_RANK_LIMIT control points (the brute force re-analyses the plan once per
@@ -68,7 +68,8 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
     xyz = planned_points(project)
     cases = ([whatif.drop_control(project, s) for s in drop_control]
              + [whatif.add_control(project, s, xyz) for s in add_control]
-             + [whatif.sigma_image(project, float(s)) for s in sigma_image])
+             + [whatif.sigma_image(project, float(s)) for s in sigma_image]
+             + [whatif.every_kth_photo(project, k) for k in keep_every])
     with OutputReservation(out_dir, inputs) as reservation:
         try:
             products = plan_products(project, options, xyz, cases, rank_control, said, on_warning)

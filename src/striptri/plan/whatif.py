@@ -9,7 +9,10 @@ those of the original plan (a what-if changes what is observed, not where the po
   photos, no longer given, their precision reported;
 * ``add_control(project, spec)``: ``ID=KIND`` (KIND XYZ, XY or Z), a tie or check point becomes a
   control point of that kind at its planned coordinates, held fixed;
-* ``sigma_image(project, s)``: every plate coordinate with the sigma s (plate units).
+* ``sigma_image(project, s)``: every plate coordinate with the sigma s (plate units);
+* ``every_kth_photo(project, k)``: the overlap what-if: only every k-th photo of each strip is
+  flown (the first, the (k+1)-th, ...; photos.csv's order within a strip), so that a forward
+  overlap p becomes ``1 - k (1 - p)``; the measurements of the other photos are dropped.
 
 The control ranking (rank_control) drops each control point in turn and re-analyses: the loss of
 precision ``worst_sigma_P(dropped) - worst_sigma_P(plan)`` (worst 3D mean error of the new points,
@@ -97,6 +100,31 @@ def sigma_image(project: Project, s: float) -> WhatIf:
         ip, sigma_xy=np.full_like(ip.sigma_xy, s))))
 
 
+def every_kth_photo(project: Project, k: int) -> WhatIf:
+    """Every k-th photo of each strip (module doc)."""
+    if not (int(k) == k and k >= 2):
+        raise InputError("command line", None, f"--keep-every {k}: a whole number of 2 or more")
+    if len(project.bases):
+        raise InputError("command line", None, f"--keep-every {k}: the project has observed base components "
+                         "(bases.csv) between photos; thin the photos by hand instead")
+    ph, ip = project.photos, project.image_points
+    strips = np.asarray(ph.strip_ids, dtype=object)
+    position = np.zeros(len(ph), dtype=int)
+    for sid in dict.fromkeys(ph.strip_ids):  # a loop over strips, not photos
+        members = np.flatnonzero(strips == sid)
+        position[members] = np.arange(len(members))
+    keep = position % int(k) == 0
+    new_index = np.cumsum(keep) - 1
+    rows = keep[ip.photo_index]
+    photos = replace(ph, ids=[i for i, kept in zip(ph.ids, keep) if kept], camera_index=ph.camera_index[keep],
+                     strip_ids=[s for s, kept in zip(ph.strip_ids, keep) if kept], xyz0=ph.xyz0[keep],
+                     R_ground_from_cam=ph.R_ground_from_cam[keep], angles=ph.angles[keep],
+                     sigma_xyz0=ph.sigma_xyz0[keep], sigma_angles=ph.sigma_angles[keep])
+    image_points = replace(ip, photo_index=new_index[ip.photo_index[rows]], point_index=ip.point_index[rows],
+                           xy=ip.xy[rows], sigma_xy=ip.sigma_xy[rows])
+    return WhatIf(f"every {int(k)}-th photo", replace(project, photos=photos, image_points=image_points))
+
+
 def worst_sigma_p(project: Project, sigma_points: np.ndarray) -> float | None:
     """Worst 3D a-priori mean error sqrt(sX^2 + sY^2 + sZ^2) of the new points (tie, check), m."""
     kind = project.points.kind
@@ -113,7 +141,12 @@ def evaluate(project: Project, options: AdjustmentOptions, xyz_plan: np.ndarray)
         status = "datum defect" if exc.reason == "datum_defect" else exc.reason
         return {"status": status, "message": str(exc).splitlines()[0], "worst_sigma_P": None,
                 **precision_figures(project, np.full((len(project.points), 3), np.nan))}
-    return {"status": "ok", "message": "", "worst_sigma_P": worst_sigma_p(plan, sigma), **precision_figures(plan, sigma)}
+    kind = plan.points.kind
+    rays = np.bincount(plan.image_points.point_index, minlength=len(kind))
+    lost = int(np.sum(((kind == TIE) | (kind == CHECK)) & (rays > 0) & ~np.isfinite(sigma).all(axis=1)))
+    message = f"{lost} new points not determined (on one photo), not counted" if lost else ""
+    return {"status": "ok", "message": message, "worst_sigma_P": worst_sigma_p(plan, sigma),
+            **precision_figures(plan, sigma)}
 
 
 def rank_control(project: Project, options: AdjustmentOptions, xyz_plan: np.ndarray, base: dict) -> list[dict]:
