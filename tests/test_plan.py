@@ -29,7 +29,8 @@ from striptri.io.project_writer import write_project
 from striptri.model import CHECK, FULL, HEIGHT, PLAN, TIE
 from striptri.pipeline import run_adjust
 from striptri.plan import ranking, whatif
-from striptri.plan.analysis import analyse, precision_only
+from striptri.plan.analysis import analyse, external_bound, precision_only
+from striptri.plan.external import own_point_shifts
 from striptri.plan.design import planned_points, predicted_plates
 from striptri.plan.pipeline import run_plan
 from striptri.simulate.design import SyntheticDesign
@@ -352,3 +353,37 @@ def test_overlap_whatif_equals_a_thinned_plan(flight, tmp_path):
     assert row["case"] == "every 2-th photo" and row["status"] == "ok"
     for k in ("n_points", "worst_sigma_XY", "rms_sigma_XY", "worst_sigma_Z", "rms_sigma_Z", "worst_sigma_P"):
         assert row[k] == pytest.approx(ref[k], rel=REL)
+
+
+def test_external_reliability_is_the_shift_of_a_blunder():
+    """The exact external reliability (plan.external): a blunder of MDB/100 put into one plate
+    coordinate of the noise-free plan and the plan adjusted moves that coordinate's point by
+    1/100 of the predicted shift (the adjustment is linear to a relative 1e-3 at that size), for
+    tie points and for held control (its free axes only); the shift never exceeds the bound
+    bnr sigma."""
+    truth = make_truth(small_design(5, 2), np.random.default_rng(8))
+    exact = NoiseOptions(sigma_image=0.0, approx_position_error=0.0, approx_angle_error=0.0)
+    project = perturb(truth, exact, np.random.default_rng(0))
+    options = AdjustmentOptions()
+    a = analyse(project, options)
+    assert a.external_method == "exact"
+    shifts = own_point_shifts(a.project, a.result, a.reliability)
+    base = triangulate_adjusted(a.project, adjust(a.project, options)).xyz
+    rel = a.reliability
+    finite = np.flatnonzero(np.isfinite(rel.mdb).all(axis=1) & (rel.redundancy.min(axis=1) > 0.05))
+    rows = np.random.default_rng(1).choice(finite, 6, replace=False)
+    moved = 0
+    for row in rows:
+        for axis in range(2):
+            xy = a.project.image_points.xy.copy()
+            xy[row, axis] += rel.mdb[row, axis] / 100
+            blundered = replace(a.project, image_points=replace(a.project.image_points, xy=xy))
+            xyz = triangulate_adjusted(blundered, adjust(blundered, options)).xyz
+            j = a.project.image_points.point_index[row]
+            np.testing.assert_allclose((xyz[j] - base[j]) * 100, shifts[row, axis], rtol=2e-3,
+                                       atol=2e-3 * np.abs(shifts[row, axis]).max())
+            moved += np.abs(shifts[row, axis]).max() > 0
+    assert moved >= 6
+    bound = external_bound(a.project, rel, a.sigma_points)
+    ok = np.isfinite(bound)
+    assert np.all(a.external[ok] <= bound[ok] * (1 + 1e-9))

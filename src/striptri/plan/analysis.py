@@ -12,9 +12,10 @@ that every mean error it reports is the a-priori one ``sqrt(Qxx_ii)``:
 * internal reliability: redundancy numbers r_i and minimal detectable biases MDB_i of every plate
   coordinate (reliability.measures.plate_reliability, Baarda's alpha0 = 0.001, beta0 = 0.80);
 * external reliability: Baarda's bias-to-noise ratio ``bnr_i = delta0 sqrt((1 - r_i) / r_i)`` and,
-  per ground point, the bound ``|dX| <= bnr_i sigma_X`` on the shift of each coordinate that an
-  undetected blunder of MDB_i size in one of the point's own measurements can cause (Cauchy-Schwarz
-  in the metric of Qxx: every function f of the unknowns moves by at most bnr_i sqrt(f^T Qxx f)).
+  per ground point, the largest shift of each coordinate that an undetected blunder of MDB_i size in
+  one of the point's own measurements causes: exactly (plan.external) where the cameras are held and
+  no distortion is in play, otherwise the bound ``|dX| <= bnr_i sigma_X`` (Cauchy-Schwarz in the
+  metric of Qxx: every function f of the unknowns moves by at most bnr_i sqrt(f^T Qxx f)).
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from ..model import CHECK, TIE, Project
 from ..reliability import PlateReliability, plate_reliability
 from ..triangulation import Triangulated
 from .design import noise_free_project, planned_points
+from .external import external_exact
+from .ranking import applicable
 
 
 @dataclass
@@ -36,9 +39,9 @@ class PlanAnalysis:
     """What the design gives. project: the noise-free plan; result: its adjustment with sigma0 = 1;
     points: the ground points with their cofactors (Schmid 90); sigma_points (np, 3) their a-priori
     mean errors (m, nan where undetermined); reliability: per plate coordinate (m, 2);
-    external (np, 3): the bound on a point's shift by an undetected MDB-sized blunder in one of its
-    own measurements (m; 0 for a point whose measurements are all checked perfectly, inf where one
-    of them is not checked at all)."""
+    external (np, 3): the largest shift of a point by an undetected MDB-sized blunder in one of its
+    own measurements (m; inf where one of them is not checked at all), exact (external.external_exact)
+    or, where that does not apply, the bound (external_bound): external_method "exact" or "bound"."""
 
     project: Project
     result: AdjustmentResult
@@ -46,6 +49,7 @@ class PlanAnalysis:
     sigma_points: np.ndarray
     reliability: PlateReliability
     external: np.ndarray
+    external_method: str = "bound"
 
     def precision_figures(self) -> dict:
         """Worst and RMS a-priori mean errors of the new points (tie and check points: those the
@@ -89,7 +93,9 @@ def analyse(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     """Precision and reliability of the plan ``project`` (module doc)."""
     plan, result, points, sigma = precision_only(project, options, xyz_ground)
     rel = plate_reliability(plan, result, options)
-    return PlanAnalysis(plan, result, points, sigma, rel, external_bound(plan, rel, sigma))
+    if applicable(result, options):
+        return PlanAnalysis(plan, result, points, sigma, rel, external_exact(plan, result, rel), "exact")
+    return PlanAnalysis(plan, result, points, sigma, rel, external_bound(plan, rel, sigma), "bound")
 
 
 def external_bound(project: Project, rel: PlateReliability, sigma_points: np.ndarray) -> np.ndarray:

@@ -27,8 +27,9 @@ import numpy as np
 from ..camera import ray_ground
 from ..collinearity import plate_from_ground
 from ..lens import observed_from_ideal, ideal_from_observed
-from ..model import CHECK, Project
+from ..model import CHECK, FULL, HEIGHT, PLAN, Project
 
+CONTROL_KINDS = {"XYZ": FULL, "XY": PLAN, "Z": HEIGHT}  # the kinds a control point has (what-ifs, ranking)
 _STEEP = 1e-3  # a ray with a horizontal part below this (relative) is taken as vertical
 
 

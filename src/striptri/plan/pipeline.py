@@ -110,6 +110,7 @@ def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_
     seconds_ranking = time.perf_counter() - t1
     summary = plan_summary(a, rows, ranking, seconds_analysis, seconds_ranking)
     summary["plan"]["ranking_method"] = how
+    summary["plan"]["external_method"] = a.external_method
     summary["warnings"] = list(said)
     plate_unit = project.settings.plate_unit
     files = {

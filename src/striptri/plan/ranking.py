@@ -30,7 +30,7 @@ from scipy.sparse.linalg import splu
 from ..adjustment import AdjustmentOptions, AdjustmentResult
 from ..collinearity import collinearity_jacobians
 from ..model import CHECK, TIE, Project
-from .whatif import CONTROL_KINDS
+from .design import CONTROL_KINDS
 
 DEFECT_TOL = 1e-10  # K's smallest eigenvalue below this (relative to 1): the drop leaves a datum defect
 
@@ -41,9 +41,9 @@ def applicable(result: AdjustmentResult, options: AdjustmentOptions) -> bool:
     return layout.camera_width == 0 and not layout.lens_in_play(result.state) and options.datum == "control"
 
 
-def _ray_terms(plan: Project, result: AdjustmentResult):
-    """Per ray: A_p^T P A_p (m, 3, 3), A_p^T P A_o (m, 3, 6) with the photo's columns (m, 6) (-1:
-    fixed, zeroed)."""
+def ray_jacobians(plan: Project, result: AdjustmentResult):
+    """Per ray at the plan: A_p (m, 2, 3) d(x, y)/d point, A_o (m, 2, 6) d(x, y)/d the photo's
+    unknowns (zero where fixed), the photo's columns (m, 6) (-1: fixed) and the weights p (m, 2)."""
     ip, s, layout = plan.image_points, result.state, result.layout
     ph, pt = ip.photo_index, ip.point_index
     xyz = plan.points.xyz_approx - result.offset
@@ -53,8 +53,13 @@ def _ray_terms(plan: Project, result: AdjustmentResult):
     A_o = np.concatenate([jac.d_centre, jac.d_rotation @ T], axis=2)  # (m, 2, 6)
     cols = layout.photo_cols[ph]
     A_o = np.where((cols >= 0)[:, None, :], A_o, 0.0)
-    p = 1.0 / ip.sigma_xy**2  # (m, 2)
-    A_p = jac.d_ground
+    return jac.d_ground, A_o, cols, 1.0 / ip.sigma_xy**2
+
+
+def ray_terms(plan: Project, result: AdjustmentResult):
+    """Per ray: A_p^T P A_p (m, 3, 3), A_p^T P A_o (m, 3, 6) with the photo's columns (m, 6) (-1:
+    fixed, zeroed)."""
+    A_p, A_o, cols, p = ray_jacobians(plan, result)
     ApP = np.swapaxes(A_p, 1, 2) * p[:, None, :]  # (m, 3, 2)
     return ApP @ A_p, ApP @ A_o, cols
 
@@ -65,7 +70,7 @@ def rank_control_fast(plan: Project, result: AdjustmentResult, sigma_points: np.
     sigma_points: the plan's point mean errors (np, 3), sigma0 = 1."""
     pts, ip = plan.points, plan.image_points
     n_pt = len(pts)
-    MM_ray, U_ray, cols = _ray_terms(plan, result)
+    MM_ray, U_ray, cols = ray_terms(plan, result)
     M = np.zeros((n_pt, 3, 3))
     np.add.at(M, ip.point_index, MM_ray)
     rays = np.bincount(ip.point_index, minlength=n_pt)

@@ -29,10 +29,9 @@ import numpy as np
 
 from ..adjustment import AdjustmentOptions
 from ..errors import InputError, NumericalFailure
-from ..model import CHECK, FULL, HEIGHT, KIND_CODES, KIND_NAMES, PLAN, TIE, Project
+from ..model import CHECK, KIND_CODES, KIND_NAMES, TIE, Project
 from .analysis import precision_figures, precision_only
-
-CONTROL_KINDS = {"XYZ": FULL, "XY": PLAN, "Z": HEIGHT}
+from .design import CONTROL_KINDS
 
 
 @dataclass(frozen=True)
