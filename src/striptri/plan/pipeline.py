@@ -134,7 +134,7 @@ def _finite(x):
 def plan_point_table(a: PlanAnalysis) -> dict:
     """points.csv: adjust's columns (the planned coordinates, their a-priori mean errors, rays), then
     min_redundancy (smallest r of the point's plate coordinates), max_mdb (their largest MDB, plate
-    units; inf: one is not checked) and ext_X, ext_Y, ext_Z (analysis.external_bound, m)."""
+    units; inf: one is not checked) and ext_X, ext_Y, ext_Z (PlanAnalysis.external, m)."""
     cols = point_table(a.project, a.result, a.points)
     ip, n = a.project.image_points, len(a.project.points)
     rmin = np.full(n, np.inf)
