@@ -387,3 +387,19 @@ def test_external_reliability_is_the_shift_of_a_blunder():
     bound = external_bound(a.project, rel, a.sigma_points)
     ok = np.isfinite(bound)
     assert np.all(a.external[ok] <= bound[ok] * (1 + 1e-9))
+
+
+def test_conditions_and_bundle_predict_alike():
+    """The method of conditions and the bundle are the same least squares: the same a-priori mean
+    errors, MDBs and external reliability of the plan (1e-9 relative)."""
+    truth = make_truth(small_design(5, 2), np.random.default_rng(4))
+    exact = NoiseOptions(sigma_image=0.0, approx_position_error=0.0, approx_angle_error=0.0)
+    project = perturb(truth, exact, np.random.default_rng(0))
+    c = analyse(project, AdjustmentOptions(method="conditions"))
+    b = analyse(project, AdjustmentOptions(method="bundle"))
+    np.testing.assert_allclose(b.sigma_points, c.sigma_points, rtol=REL, atol=1e-15)
+    ok = np.isfinite(c.reliability.mdb)
+    assert np.array_equal(ok, np.isfinite(b.reliability.mdb)) and ok.sum() > 50
+    np.testing.assert_allclose(b.reliability.mdb[ok], c.reliability.mdb[ok], rtol=REL)
+    fin = np.isfinite(c.external)
+    np.testing.assert_allclose(b.external[fin], c.external[fin], rtol=REL, atol=1e-15)
