@@ -427,6 +427,45 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
 
 
+# --------------------------------------------------------------------------- striptri plan
+# (DESIGN section 10, issue 15: pre-analysis of a planned block; docs/plan.md)
+
+
+@main.command()
+@click.argument("project_dir", type=click.Path(file_okay=False))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder to write.")
+@click.option("--method", type=click.Choice(["conditions", "bundle"]), default=None,
+              help="Adjustment method whose precision is predicted [project.toml or conditions].")
+@click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
+              help="Solver of the normal equations [project.toml or auto].")
+@click.option("--drop-control", multiple=True, metavar="ID|KIND[,...]",
+              help="What-if: these control points (ids, or a kind XYZ, XY, Z) become check points. Repeatable.")
+@click.option("--add-control", multiple=True, metavar="ID=KIND",
+              help="What-if: the tie or check point ID becomes control of KIND (XYZ, XY, Z), held fixed. Repeatable.")
+@click.option("--sigma-image", multiple=True, type=float, metavar="SIGMA",
+              help="What-if: every plate coordinate with this sigma (plate units). Repeatable.")
+@click.option("--keep-every", multiple=True, type=click.IntRange(min=2), metavar="K",
+              help="What-if (overlap): only every K-th photo of each strip; forward overlap p becomes 1 - K(1 - p). "
+                   "Repeatable.")
+@click.option("--rank-control/--no-rank-control", default=None,
+              help="Rank the control points by the loss of precision when each is dropped [on; where the "
+                   "rank-3 update does not apply (self-calibration, distortion, free network) only up to 40 "
+                   "control points].")
+@reports_errors
+def plan(project_dir, out_dir, method, solver, drop_control, add_control, sigma_image, keep_every, rank_control):
+    """Pre-analysis of the planned block in PROJECT_DIR: a-priori precision (sigma0 = 1), internal and
+    external reliability, what-ifs and the control ranking, from the design alone (docs/plan.md)."""
+    from striptri.plan.pipeline import run_plan
+
+    products = run_plan(project_dir, out_dir, drop_control=drop_control, add_control=add_control,
+                        sigma_image=sigma_image, keep_every=keep_every, rank_control=rank_control, on_warning=_warn,
+                        method=method, solver=solver)
+    p = products.summary["plan"]["precision"]
+    click.echo(f"plan: {products.summary['n_photos']} photos, {products.summary['n_points']} points; "
+               f"worst sigma_XY {p['worst_sigma_XY']:.4g} m, worst sigma_Z {p['worst_sigma_Z']:.4g} m "
+               f"(a priori); {len(products.whatifs) - 1} what-ifs -> {out_dir}")
+
+
 @main.command()
 @click.argument("project_dir", type=click.Path(file_okay=False))
 @click.option("--out", "out_png", required=True, type=click.Path(dir_okay=False),
@@ -508,13 +547,33 @@ class _ManyValues(click.Option):
               help="Layout every-k: full control at every k-th nadir.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Local worker processes [all cores].")
 @click.option("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786): run the trials there.")
+@click.option("--project", "project_dir", default=None, type=click.Path(file_okay=False),
+              help="Run the study on this project's own block and control, read as a plan (docs/plan.md), "
+                   "instead of invented strips (--photos, --layouts, --every-k do not apply; --sigma-image "
+                   "replaces the plan's plate sigmas) [invented strips].")
 @reports_errors
-def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every_k, workers, scheduler):
+def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every_k, workers, scheduler, project_dir):
     """Method-comparison study (DESIGN section 9; docs/study.md) written to --out."""
     from striptri.study import StudyOptions, run_compare
     from striptri.study.progress import StderrProgress
 
     given = {"methods": methods, "photos": photos, "layouts": layouts, "sigma_images": sigma_images}
+    if project_dir is not None:
+        from striptri.study.project_pipeline import run_compare_project
+
+        if photos or layouts or every_k != 2:
+            raise InputError("command line", None, "--photos, --layouts and --every-k describe invented strips; "
+                             "with --project the strips and control are the project's")
+        progress = StderrProgress()
+        try:
+            result = run_compare_project(out_dir, project_dir, methods=tuple(methods) or None, trials=trials,
+                                         sigma_images=tuple(sigma_images), seed=seed, workers=workers,
+                                         scheduler=scheduler, progress=progress)
+        finally:
+            progress.close()
+        failed = f", {result.n_failed} failed" if result.n_failed else ""
+        click.echo(f"{len(result.rows)} adjustments{failed} -> {result.out_dir}")
+        return
     options = StudyOptions(trials=trials, seed=seed, every_k=every_k,
                            **{k: tuple(v) for k, v in given.items() if v})
     progress = StderrProgress()

@@ -63,12 +63,19 @@ def run_task(task: Task) -> tuple[list[dict], dict[str, np.ndarray]]:
     """Adjust the task's strip by every method. -> (rows of study.csv, method -> (n,) centre errors (m)).
     A numerical failure of one method gives a row with status "failed: ..." and no errors."""
     truth, project = simulate_task(task)
+    base = {"n_photos": task.n_photos, "layout": task.layout, "sigma_image": task.sigma_image, "trial": task.trial,
+            "seed": task.seed}
+    return adjust_by_methods(project, truth, task.methods, base)
+
+
+def adjust_by_methods(project: model.Project, truth, methods, base: dict) -> tuple[list[dict], dict[str, np.ndarray]]:
+    """Adjust ``project`` by every method label of ``methods``: rows (``base`` with the method and
+    its errors against ``truth``, which needs ``xyz0`` (n, 3) ground m) and label -> centre errors."""
     rows, along = [], {}
-    for label in task.methods:
+    for label in methods:
         method, procedure, direction = METHOD_SPECS[label]
         options = AdjustmentOptions.of(method=method, procedure=procedure or 1, direction=direction or "forward")
-        row = {"method": method, "procedure": procedure, "direction": direction, "n_photos": task.n_photos,
-               "layout": task.layout, "sigma_image": task.sigma_image, "trial": task.trial, "seed": task.seed}
+        row = {"method": method, "procedure": procedure, "direction": direction, **base}
         start = time.perf_counter()
         try:
             result = adjust(project, options)

@@ -1,0 +1,60 @@
+"""``striptri compare --project DIR``: the method-comparison study on a project's own block
+(study.project), written as ``striptri compare`` writes a study: study.csv, growth.csv,
+precision.csv, along.csv and report.html, whole or not at all (docs/study.md, docs/plan.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+from striptri.errors import InputError
+from striptri.io.csvtable import format_csv
+from striptri.io.output import OutputReservation, check_output_location
+from striptri.io.project_reader import read_project
+from striptri.pipeline import input_paths
+from striptri.plan.design import noise_free_project
+from striptri.study.growth import along_strip, growth_table, precision_table
+from striptri.study.options import METHOD_LABELS, StudyOptions
+from striptri.study.pipeline import StudyResult, along_table, columns_of
+from striptri.study.project import PROJECT_LAYOUT, project_tasks, run_project_task
+from striptri.study.report import report_html
+from striptri.study.runner import Progress, run_tasks
+from striptri.study.trial import ROW_COLUMNS
+
+
+def run_compare_project(out_dir, project_dir, methods=None, sigma_images=(), trials: int = 10,
+                        seed: int = 0, workers: int | None = None, scheduler=None,
+                        progress: Progress | None = None) -> StudyResult:
+    """Run the study on the plan in ``project_dir`` and write ``out_dir``. sigma_images: plate
+    sigmas of the configurations (empty: one configuration with the plan's own sigmas); methods:
+    labels of study.options.METHOD_SPECS (None: all six). The output
+    location is checked before the project is read; InputError for bad input or options."""
+    methods = METHOD_LABELS if methods is None else tuple(methods)
+    project_dir = Path(project_dir)
+    inputs = input_paths(project_dir)
+    check_output_location(out_dir, inputs)
+    try:  # the study's own checks of methods, noise levels, trials and seed
+        StudyOptions(methods=tuple(methods), sigma_images=tuple(sigma_images) or (0.005,), trials=trials, seed=seed)
+    except ValueError as exc:
+        raise InputError("command line", None, str(exc)) from None
+    if any(s <= 0 for s in sigma_images):
+        raise InputError("command line", None, "--sigma-image with --project: a positive plate sigma (the "
+                         "weights of the adjustment are its inverse squares)")
+    plan = noise_free_project(read_project(project_dir))
+    tasks = project_tasks(plan, methods, sigma_images, trials, seed)
+    with OutputReservation(out_dir, inputs) as reservation:
+        results = run_tasks(tasks, workers=workers, scheduler=scheduler, progress=progress, run=run_project_task)
+        rows = [row for _, task_rows, _ in results for row in task_rows]
+        along = along_strip([(task, a) for task, _, a in results])
+        growth, precision = growth_table(rows), precision_table(rows)
+        described = SimpleNamespace(methods=tuple(methods), photos=(len(plan.photos),), layouts=(PROJECT_LAYOUT,),
+                                    sigma_images=tuple(sorted({t.sigma_image for t in tasks})), trials=trials, seed=seed)
+        files = {
+            "study.csv": format_csv(columns_of(rows, ROW_COLUMNS)),
+            "growth.csv": format_csv(growth),
+            "precision.csv": format_csv(precision),
+            "along.csv": format_csv(along_table(along)),
+            "report.html": report_html(described, rows, growth, precision, along),
+        }
+        path = reservation.commit(files)
+    return StudyResult(path, rows, growth, precision, sum(r["status"] != "ok" for r in rows))
