@@ -56,13 +56,20 @@ def run_compare(out_dir, options: StudyOptions, workers: int | None = None, sche
 
 def _run_and_write(reservation: OutputReservation, options: StudyOptions, workers, scheduler, progress) -> StudyResult:
     rows, along = run_study(options, workers=workers, scheduler=scheduler, progress=progress)
+    return commit_study(reservation, options, rows, along)
+
+
+def commit_study(reservation: OutputReservation, described, rows: list[dict], along) -> StudyResult:
+    """The study's five files (study.csv, growth.csv, precision.csv, along.csv, report.html) from its
+    rows and along-strip errors, committed to the reserved output folder. described: what
+    report_html reads of a study (StudyOptions, or its stand-in for a study on a project)."""
     growth, precision = growth_table(rows), precision_table(rows)
     files = {
         "study.csv": format_csv(columns_of(rows, ROW_COLUMNS)),
         "growth.csv": format_csv(growth),
         "precision.csv": format_csv(precision),
         "along.csv": format_csv(along_table(along)),
-        "report.html": report_html(options, rows, growth, precision, along),
+        "report.html": report_html(described, rows, growth, precision, along),
     }
     path = reservation.commit(files)
     return StudyResult(path, rows, growth, precision, sum(r["status"] != "ok" for r in rows))

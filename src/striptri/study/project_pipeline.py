@@ -8,18 +8,15 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from striptri.errors import InputError
-from striptri.io.csvtable import format_csv
 from striptri.io.output import OutputReservation, check_output_location
 from striptri.io.project_reader import read_project
 from striptri.pipeline import input_paths
 from striptri.plan.design import noise_free_project
-from striptri.study.growth import along_strip, growth_table, precision_table
+from striptri.study.growth import along_strip
 from striptri.study.options import METHOD_LABELS, StudyOptions
-from striptri.study.pipeline import StudyResult, along_table, columns_of
+from striptri.study.pipeline import StudyResult, commit_study
 from striptri.study.project import PROJECT_LAYOUT, project_tasks, run_project_task
-from striptri.study.report import report_html
 from striptri.study.runner import Progress, run_tasks
-from striptri.study.trial import ROW_COLUMNS
 
 
 def run_compare_project(out_dir, project_dir, methods=None, sigma_images=(), trials: int = 10,
@@ -46,15 +43,6 @@ def run_compare_project(out_dir, project_dir, methods=None, sigma_images=(), tri
         results = run_tasks(tasks, workers=workers, scheduler=scheduler, progress=progress, run=run_project_task)
         rows = [row for _, task_rows, _ in results for row in task_rows]
         along = along_strip([(task, a) for task, _, a in results])
-        growth, precision = growth_table(rows), precision_table(rows)
         described = SimpleNamespace(methods=tuple(methods), photos=(len(plan.photos),), layouts=(PROJECT_LAYOUT,),
                                     sigma_images=tuple(sorted({t.sigma_image for t in tasks})), trials=trials, seed=seed)
-        files = {
-            "study.csv": format_csv(columns_of(rows, ROW_COLUMNS)),
-            "growth.csv": format_csv(growth),
-            "precision.csv": format_csv(precision),
-            "along.csv": format_csv(along_table(along)),
-            "report.html": report_html(described, rows, growth, precision, along),
-        }
-        path = reservation.commit(files)
-    return StudyResult(path, rows, growth, precision, sum(r["status"] != "ok" for r in rows))
+        return commit_study(reservation, described, rows, along)
