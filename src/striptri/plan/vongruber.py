@@ -189,7 +189,7 @@ def sightings(project: Project, xyz: np.ndarray, fmt: np.ndarray) -> tuple[np.nd
     ph, cams = project.photos, project.cameras
     n_ph, n_pt = len(ph), len(xyz)
     out_ph, out_pt, out_xy = [], [], []
-    chunk = max(1, 2_000_000 // max(n_ph, 1))
+    chunk = max(1, 250_000 // max(n_ph, 1))  # about 250,000 projections at a time
     for start in range(0, n_pt, chunk):  # chunks of points against all photos (memory), not a loop over points
         pts = xyz[start:start + chunk]
         R = ph.R_ground_from_cam[:, None]
