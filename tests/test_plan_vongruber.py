@@ -16,10 +16,18 @@ import numpy as np
 import pytest
 
 from cli_support import assert_clean_failure, run
+from dataclasses import replace
+
+from striptri.adjusted_points import triangulate_adjusted
+from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.io.project_reader import read_project
 from striptri.model import TIE
+from striptri.plan.analysis import analyse
 from striptri.plan.pipeline import run_plan
 from striptri.plan.vongruber import von_gruber_project
+from striptri.simulate.noise import NoiseOptions, perturb
+from striptri.simulate.truth import make_truth
+from test_plan import small_design
 
 REL = 1e-9
 C, H, FOOT = 152.0, 1520.0, 2300.0
@@ -171,3 +179,35 @@ def test_von_gruber_needs_the_format_and_positions(tmp_path):
         f.write("Z1,Z,,,0,,,\n")
     err = assert_clean_failure(run("plan", folder, "--out", tmp_path / "z", "--format", "230"), 2)
     assert "control.csv" in err and "Z1" in err
+
+
+def test_external_reliability_on_the_points_of_the_photos_involved():
+    """ext_photos (external.photos_bound) bounds the shift of every point by an undetected MDB-sized
+    blunder in any measurement of the photos that see it: a blunder of MDB/100 put into one plate
+    coordinate a and the plan adjusted moves each point k of that photo by at most 1/100 of
+    bnr_a sigma_k (the adjustment linear to 1e-3 at that size), which ext_photos covers; the bound
+    covers the exact own-point shift; bnr_a sigma_k is reached to within a factor 10 somewhere."""
+    truth = make_truth(small_design(5, 2), np.random.default_rng(8))
+    exact = NoiseOptions(sigma_image=0.0, approx_position_error=0.0, approx_angle_error=0.0)
+    project = perturb(truth, exact, np.random.default_rng(0))
+    options = AdjustmentOptions()
+    a = analyse(project, options)
+    ip, rel, bound = a.project.image_points, a.reliability, a.external_photos
+    assert np.all(a.external[np.isfinite(bound)] <= bound[np.isfinite(bound)] * (1 + 1e-9))
+    base = triangulate_adjusted(a.project, adjust(a.project, options)).xyz
+    finite = np.flatnonzero(np.isfinite(rel.mdb).all(axis=1) & (rel.redundancy.min(axis=1) > 0.05))
+    ratio = []
+    for row in np.random.default_rng(2).choice(finite, 5, replace=False):
+        for axis in range(2):
+            xy = ip.xy.copy()
+            xy[row, axis] += rel.mdb[row, axis] / 100
+            blundered = replace(a.project, image_points=replace(ip, xy=xy))
+            xyz = triangulate_adjusted(blundered, adjust(blundered, options)).xyz
+            on_photo = np.unique(ip.point_index[ip.photo_index == ip.photo_index[row]])
+            on_photo = on_photo[np.isfinite(bound[on_photo]).all(axis=1) & (bound[on_photo] > 0).all(axis=1)]
+            shift = np.abs(xyz[on_photo] - base[on_photo]) * 100
+            own = rel.bnr[row, axis] * a.sigma_points[on_photo]  # Baarda's bound for this coordinate
+            assert np.all(shift <= own * (1 + 2e-3) + 1e-12)
+            assert np.all(own <= bound[on_photo] * (1 + 1e-12))
+            ratio.append(np.max(shift / own))
+    assert max(ratio) > 0.1  # the bound of the blunder's own coordinate is not slack everywhere

@@ -151,7 +151,8 @@ def _finite(x):
 def plan_point_table(a: PlanAnalysis) -> dict:
     """points.csv: adjust's columns (the planned coordinates, their a-priori mean errors, rays), then
     min_redundancy (smallest r of the point's plate coordinates), max_mdb (their largest MDB, plate
-    units; inf: one is not checked) and ext_X, ext_Y, ext_Z (PlanAnalysis.external, m)."""
+    units; inf: one is not checked), ext_X, ext_Y, ext_Z (PlanAnalysis.external, m) and
+    ext_photos_X, ext_photos_Y, ext_photos_Z (PlanAnalysis.external_photos, m)."""
     cols = point_table(a.project, a.result, a.points)
     ip, n = a.project.image_points, len(a.project.points)
     rmin = np.full(n, np.inf)
@@ -162,6 +163,8 @@ def plan_point_table(a: PlanAnalysis) -> dict:
     cols["max_mdb"] = mdb
     for k, name in enumerate("XYZ"):
         cols[f"ext_{name}"] = a.external[:, k]
+    for k, name in enumerate("XYZ"):
+        cols[f"ext_photos_{name}"] = a.external_photos[:, k]
     return cols
 
 
