@@ -83,7 +83,8 @@ def photos_bound(plan: Project, rel: PlateReliability, sigma_points: np.ndarray)
     MDB-sized blunder in any plate coordinate of the photos that see k (the measurements of the other
     points of those photos included): ``max_a bnr_a * sigma_Xk`` over those coordinates a (Baarda's
     bound |df| <= bnr_a sigma_f holds for every function f of the unknowns, Cauchy-Schwarz in the
-    metric of Qxx). inf where one of them is not checked; nan where k is not determined.
+    metric of Qxx). inf where one of them is not checked; 0 on a held axis; nan where k is not
+    determined.
     The exact shift of the other points is not computed: it needs the blocks of Q = N^-1 between
     photos that share no point, which the selected inverse does not hold (docs/plan.md)."""
     ip = plan.image_points
@@ -92,4 +93,5 @@ def photos_bound(plan: Project, rel: PlateReliability, sigma_points: np.ndarray)
     np.maximum.at(worst_photo, ip.photo_index, np.max(rel.bnr, axis=1))  # bnr inf where r = 0
     worst = np.zeros(len(plan.points))
     np.maximum.at(worst, ip.point_index, worst_photo[ip.photo_index])
-    return worst[:, None] * sigma_points
+    held = sigma_points == 0  # a held axis does not move (0, not inf x 0)
+    return np.where(held, 0.0, worst[:, None] * np.where(held, 1.0, sigma_points))
