@@ -97,6 +97,9 @@ def test_plan_from_von_gruber_points_equals_the_plan_with_their_image_points(tmp
     folder = write_plan(tmp_path / "p")
     out = run_plan(folder, tmp_path / "o", rank_control=False)
     assert out.summary["plan"]["tie_points"].startswith("von Gruber points: 30 tie points")
+    assert "von Gruber points: 30 tie points" in (tmp_path / "o" / "report.html").read_text()
+    header = next(csv.reader(open(tmp_path / "o" / "points.csv")))
+    assert header[-3:] == ["ext_photos_X", "ext_photos_Y", "ext_photos_Z"]
     write_image_points(folder, out.analysis.project)
     ref = run_plan(folder, tmp_path / "r", rank_control=False)
     assert ref.summary["plan"]["tie_points"] == "image_points.csv"
