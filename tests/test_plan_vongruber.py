@@ -214,3 +214,18 @@ def test_external_reliability_on_the_points_of_the_photos_involved():
             assert np.all(own <= bound[on_photo] * (1 + 1e-12))
             ratio.append(np.max(shift / own))
     assert max(ratio) > 0.1  # the bound of the blunder's own coordinate is not slack everywhere
+
+
+def test_single_strip_lateral_points_at_the_classical_position(tmp_path):
+    """A strip without neighbours: its lateral points at 0.4 of the footprint (920 m, y = +-92 mm on
+    the plate); a format 230 x 180 (1800 m across track) puts them at 0.4 x 1800 = 720 m."""
+    folder = write_plan(tmp_path / "p", n_strips=1)
+    project = read_project(folder, plate_measurements_optional=True)
+    plan = von_gruber_project(project, np.array([230.0, 230.0]), 0.0)[0]
+    tie = plan.points.kind == TIE
+    assert sorted(set(np.round(plan.points.xyz_approx[tie, 1], 6))) == [-920.0, 0.0, 920.0]
+    ip = plan.image_points
+    lateral = np.flatnonzero(tie & (plan.points.xyz_approx[:, 1] == 920.0))
+    np.testing.assert_allclose(np.abs(ip.xy[np.isin(ip.point_index, lateral), 1]), 92.0, rtol=0, atol=1e-9)
+    narrow = von_gruber_project(project, np.array([230.0, 180.0]), 0.0)[0]  # 1800 m across: |y| 920 > 900
+    assert sorted(set(np.round(narrow.points.xyz_approx[narrow.points.kind == TIE, 1], 6))) == [-720.0, 0.0, 720.0]
