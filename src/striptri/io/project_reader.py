@@ -79,6 +79,7 @@ TOML_KEYS = {
     "corrections": ("earth_curvature", "refraction", "earth_radius"),
     GNSS_SECTION: GNSS_TOML_KEYS,  # GNSS shift and drift (io.gnss_reader)
     "coordinates": KEYS,  # striptri.crs.settings
+    "plan": ("format", "terrain_height"),  # striptri plan only (striptri.plan.vongruber)
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
@@ -87,12 +88,14 @@ FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "b
 REQUIRED_TABLES = {"cameras.csv": "cameras", "photos.csv": "photos", "image_points.csv": "plate measurements"}
 
 
-def read_project(folder: str | Path) -> model.Project:
-    """Read and validate the project folder ``folder``. Raises InputError; writes nothing."""
+def read_project(folder: str | Path, plate_measurements_optional: bool = False) -> model.Project:
+    """Read and validate the project folder ``folder``. Raises InputError; writes nothing.
+    plate_measurements_optional: a folder without image_points.csv reads as a project with no plate
+    measurements and the control points as its points (a plan, striptri.plan.vongruber)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, None, "project folder not found" if not folder.exists() else "is not a folder")
-    return _read(_FolderFiles(folder))
+    return _read(_FolderFiles(folder), plate_measurements_optional)
 
 
 def parse_project(files: Mapping[str, str | bytes], folder: str | Path | None = None) -> model.Project:
@@ -149,8 +152,9 @@ class _MemoryFiles:
         return []
 
 
-def _read(files) -> model.Project:
-    """The project of ``files`` (_FolderFiles or _MemoryFiles): every rule of the module doc."""
+def _read(files, plate_measurements_optional: bool = False) -> model.Project:
+    """The project of ``files`` (_FolderFiles or _MemoryFiles): every rule of the module doc;
+    plate_measurements_optional as read_project's."""
     toml = "project.toml"
     settings = parse_settings(files.path(toml), files.content(toml)) if files.present(toml) else model.ProjectSettings()
     tables: dict[str, CsvTable] = {}
@@ -164,13 +168,19 @@ def _read(files) -> model.Project:
     cameras = _read_cameras(table("cameras.csv"))
     photos = _read_photos(table("photos.csv"), cameras, settings)
     control = _read_control(table("control.csv")) if files.present("control.csv") else _Control.empty()
-    image_points, points = _read_image_points(table("image_points.csv"), photos, control, settings)
-    _check_plate_geometry(tables["image_points.csv"], tables["cameras.csv"], image_points, photos, cameras)
+    if plate_measurements_optional and not files.present("image_points.csv"):
+        image_points = model.ImagePoints(photo_index=np.zeros(0, dtype=np.int64), point_index=np.zeros(0, dtype=np.int64),
+                                         xy=np.zeros((0, 2)), sigma_xy=np.zeros((0, 2)))
+        points = _object_points(list(control.ids), control)
+    else:
+        image_points, points = _read_image_points(table("image_points.csv"), photos, control, settings)
+        _check_plate_geometry(tables["image_points.csv"], tables["cameras.csv"], image_points, photos, cameras)
     bases = _read_bases(table("bases.csv"), photos) if files.present("bases.csv") else model.BaseComponents.empty()
     if files.present("approx_points.csv"):
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
     gnss = _read_gnss(files, tables, cameras, photos, settings)
-    notes = project_notes(tables, cameras, photos, image_points, points, len(control.ids)) + files.unread_notes()
+    notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids))
+             if "image_points.csv" in tables else []) + files.unread_notes()
     return model.Project(
         cameras=cameras,
         photos=photos,

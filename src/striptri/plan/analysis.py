@@ -30,7 +30,7 @@ from ..model import CHECK, TIE, Project
 from ..reliability import PlateReliability, plate_reliability
 from ..triangulation import Triangulated
 from .design import noise_free_project, planned_points
-from .external import external_exact
+from .external import external_exact, photos_bound
 from .ranking import applicable
 
 
@@ -41,7 +41,9 @@ class PlanAnalysis:
     mean errors (m, nan where undetermined); reliability: per plate coordinate (m, 2);
     external (np, 3): the largest shift of a point by an undetected MDB-sized blunder in one of its
     own measurements (m; inf where one of them is not checked at all), exact (external.external_exact)
-    or, where that does not apply, the bound (external_bound): external_method "exact" or "bound"."""
+    or, where that does not apply, the bound (external_bound): external_method "exact" or "bound";
+    external_photos (np, 3): the bound on its shift by such a blunder in any measurement of the
+    photos that see it (external.photos_bound, m)."""
 
     project: Project
     result: AdjustmentResult
@@ -50,6 +52,7 @@ class PlanAnalysis:
     reliability: PlateReliability
     external: np.ndarray
     external_method: str = "bound"
+    external_photos: np.ndarray | None = None
 
     def precision_figures(self) -> dict:
         """Worst and RMS a-priori mean errors of the new points (tie and check points: those the
@@ -93,9 +96,10 @@ def analyse(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     """Precision and reliability of the plan ``project`` (module doc)."""
     plan, result, points, sigma = precision_only(project, options, xyz_ground)
     rel = plate_reliability(plan, result, options)
+    around = photos_bound(plan, rel, sigma)
     if applicable(result, options):
-        return PlanAnalysis(plan, result, points, sigma, rel, external_exact(plan, result, rel), "exact")
-    return PlanAnalysis(plan, result, points, sigma, rel, external_bound(plan, rel, sigma), "bound")
+        return PlanAnalysis(plan, result, points, sigma, rel, external_exact(plan, result, rel), "exact", around)
+    return PlanAnalysis(plan, result, points, sigma, rel, external_bound(plan, rel, sigma), "bound", around)
 
 
 def external_bound(project: Project, rel: PlateReliability, sigma_points: np.ndarray) -> np.ndarray:

@@ -76,3 +76,22 @@ def external_exact(plan: Project, result: AdjustmentResult, rel: PlateReliabilit
     unchecked = np.zeros(len(plan.points), dtype=bool)
     np.logical_or.at(unchecked, ip.point_index, ~np.isfinite(rel.mdb).all(axis=1))
     return np.where(unchecked[:, None], np.inf, worst)
+
+
+def photos_bound(plan: Project, rel: PlateReliability, sigma_points: np.ndarray) -> np.ndarray:
+    """Per point k (np, 3), m: the bound on the shift of each coordinate of k by an undetected
+    MDB-sized blunder in any plate coordinate of the photos that see k (the measurements of the other
+    points of those photos included): ``max_a bnr_a * sigma_Xk`` over those coordinates a (Baarda's
+    bound |df| <= bnr_a sigma_f holds for every function f of the unknowns, Cauchy-Schwarz in the
+    metric of Qxx). inf where one of them is not checked; 0 on a held axis; nan where k is not
+    determined.
+    The exact shift of the other points is not computed: it needs the blocks of Q = N^-1 between
+    photos that share no point, which the selected inverse does not hold (docs/plan.md)."""
+    ip = plan.image_points
+    n_photos = len(plan.photos)
+    worst_photo = np.zeros(n_photos)
+    np.maximum.at(worst_photo, ip.photo_index, np.max(rel.bnr, axis=1))  # bnr inf where r = 0
+    worst = np.zeros(len(plan.points))
+    np.maximum.at(worst, ip.point_index, worst_photo[ip.photo_index])
+    held = sigma_points == 0  # a held axis does not move (0, not inf x 0)
+    return np.where(held, 0.0, worst[:, None] * np.where(held, 1.0, sigma_points))

@@ -24,7 +24,7 @@ from ..model import CHECK, Project
 from ..pipeline import camera_table, input_paths, options_for, photo_table, point_table, summary_of
 from ..solvers import SolverUnavailable
 from . import ranking as fast_ranking
-from . import report, whatif
+from . import report, vongruber, whatif
 from .analysis import PlanAnalysis, analyse
 from .design import planned_points
 
@@ -46,18 +46,31 @@ AUTO_RANK_LIMIT = 40  # control points up to which the ranking is computed unles
 
 
 def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=(), keep_every=(),
-             rank_control: bool | None = None, on_warning=None, **overrides) -> PlanProducts:
+             rank_control: bool | None = None, on_warning=None, von_gruber: bool = False, plate_format=None,
+             terrain_height: float | None = None, overlap=(), **overrides) -> PlanProducts:
     """Read the plan in ``project_dir``, analyse it with its what-ifs, write ``out_dir`` (module doc).
     rank_control: True, False, or None: rank when the rank-3 update applies (plan.ranking) or the
     plan has at most AUTO_RANK_LIMIT control points (the brute force re-analyses the plan once per
     control point; otherwise a warning says so).
     The output location is checked before anything is read; InputError for bad input or bad
-    what-ifs, NumericalFailure when the plan itself cannot be adjusted (e.g. a datum defect)."""
+    what-ifs, NumericalFailure when the plan itself cannot be adjusted (e.g. a datum defect).
+    von_gruber (or no image_points.csv): the tie points are the plan's von Gruber points
+    (plan.vongruber), with plate_format ("W" or "WxH", plate units) and terrain_height (m) or their
+    project.toml [plan] keys; overlap: forward overlaps of the re-spaced what-ifs (whatif.respaced)."""
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
-    project = read_project(project_dir)
+    project = read_project(project_dir, plate_measurements_optional=True)
     said = [str(note) for note in project.notes]
+    generate = von_gruber or not len(project.image_points)
+    geometry = None
+    if generate or overlap:
+        toml = vongruber.plan_settings(project_dir)
+        geometry = (vongruber.format_of(plate_format, toml, project_dir),
+                    vongruber.terrain_height(terrain_height, toml, project, project_dir))
+    tie_points = "image_points.csv"
+    if generate:
+        project, tie_points = vongruber.von_gruber_project(project, *geometry)
     for text in said:
         if on_warning is not None:
             on_warning(text)
@@ -69,10 +82,11 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
     cases = ([whatif.drop_control(project, s) for s in drop_control]
              + [whatif.add_control(project, s, xyz) for s in add_control]
              + [whatif.sigma_image(project, float(s)) for s in sigma_image]
-             + [whatif.every_kth_photo(project, k) for k in keep_every])
+             + [whatif.every_kth_photo(project, k) for k in keep_every]
+             + [whatif.respaced(project, float(p), *geometry) for p in overlap])
     with OutputReservation(out_dir, inputs) as reservation:
         try:
-            products = plan_products(project, options, xyz, cases, rank_control, said, on_warning)
+            products = plan_products(project, options, xyz, cases, rank_control, said, on_warning, tie_points)
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
         reservation.commit(products.files)
@@ -80,16 +94,18 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
 
 
 def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_control: bool | None,
-                  said: list[str] = (), on_warning=None) -> PlanProducts:
+                  said: list[str] = (), on_warning=None, tie_points: str = "image_points.csv") -> PlanProducts:
     """Analyse, evaluate the what-ifs and the ranking, and build the files (module doc). said: the
-    warnings so far (the project's notes), summary.json "warnings"; rank_control as run_plan's."""
+    warnings so far (the project's notes), summary.json "warnings"; rank_control as run_plan's;
+    tie_points: where the sightings come from (summary.json plan.tie_points)."""
     said = list(said)
     t0 = time.perf_counter()
     a = analyse(project, options, xyz)
     seconds_analysis = time.perf_counter() - t0
     base = {"case": "plan", "status": "ok", "message": "", "worst_sigma_P": whatif.worst_sigma_p(a.project, a.sigma_points),
             **a.precision_figures()}
-    rows = [base] + [{"case": c.name, **whatif.evaluate(c.project, options, xyz)} for c in cases]
+    rows = [base] + [{"case": c.name, **whatif.evaluate(c.project, options, xyz if c.xyz is None else c.xyz)}
+                     for c in cases]
     t1 = time.perf_counter()
     ranking, how = None, None
     fast = fast_ranking.applicable(a.result, options)
@@ -111,6 +127,7 @@ def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_
     summary = plan_summary(a, rows, ranking, seconds_analysis, seconds_ranking)
     summary["plan"]["ranking_method"] = how
     summary["plan"]["external_method"] = a.external_method
+    summary["plan"]["tie_points"] = tie_points
     summary["warnings"] = list(said)
     plate_unit = project.settings.plate_unit
     files = {
@@ -134,7 +151,8 @@ def _finite(x):
 def plan_point_table(a: PlanAnalysis) -> dict:
     """points.csv: adjust's columns (the planned coordinates, their a-priori mean errors, rays), then
     min_redundancy (smallest r of the point's plate coordinates), max_mdb (their largest MDB, plate
-    units; inf: one is not checked) and ext_X, ext_Y, ext_Z (PlanAnalysis.external, m)."""
+    units; inf: one is not checked), ext_X, ext_Y, ext_Z (PlanAnalysis.external, m) and
+    ext_photos_X, ext_photos_Y, ext_photos_Z (PlanAnalysis.external_photos, m)."""
     cols = point_table(a.project, a.result, a.points)
     ip, n = a.project.image_points, len(a.project.points)
     rmin = np.full(n, np.inf)
@@ -145,6 +163,8 @@ def plan_point_table(a: PlanAnalysis) -> dict:
     cols["max_mdb"] = mdb
     for k, name in enumerate("XYZ"):
         cols[f"ext_{name}"] = a.external[:, k]
+    for k, name in enumerate("XYZ"):
+        cols[f"ext_photos_{name}"] = a.external_photos[:, k]
     return cols
 
 

@@ -87,7 +87,8 @@ def html_report(analysis, summary: dict, whatifs: list[dict], ranking: list[dict
              "will give when the measurements have the planned sigmas. No measurement was used.</p>",
              _table(["", "value"], [
                  ["method", summary["method"]], ["photos", summary["n_photos"]], ["points", summary["n_points"]],
-                 ["plate measurements", len(ip)], ["redundancy", summary["redundancy"]],
+                 ["plate measurements", len(ip)], ["tie points from", plan.get("tie_points", "image_points.csv")],
+                 ["redundancy", summary["redundancy"]],
                  ["worst sigma_XY of the new points (m)", plan["precision"]["worst_sigma_XY"]],
                  ["RMS sigma_XY (m)", plan["precision"]["rms_sigma_XY"]],
                  ["worst sigma_Z (m)", plan["precision"]["worst_sigma_Z"]],

@@ -7,12 +7,15 @@ those of the original plan (a what-if changes what is observed, not where the po
 * ``drop_control(project, spec)``: the control points named by ``spec`` (a point id, a kind XYZ,
   XY or Z, or several of them separated by commas) become check points: still measured on the
   photos, no longer given, their precision reported;
-* ``add_control(project, spec)``: ``ID=KIND`` (KIND XYZ, XY or Z), a tie or check point becomes a
-  control point of that kind at its planned coordinates, held fixed;
+* ``add_control(project, spec)``: ``ID=KIND[:SIGMA]`` (KIND XYZ, XY or Z), a tie or check point
+  becomes a control point of that kind at its planned coordinates, held fixed or with the mean
+  error SIGMA (m) on each given axis;
 * ``sigma_image(project, s)``: every plate coordinate with the sigma s (plate units);
 * ``every_kth_photo(project, k)``: the overlap what-if: only every k-th photo of each strip is
   flown (the first, the (k+1)-th, ...; photos.csv's order within a strip), so that a forward
-  overlap p becomes ``1 - k (1 - p)``; the measurements of the other photos are dropped.
+  overlap p becomes ``1 - k (1 - p)``; the measurements of the other photos are dropped;
+* ``respaced(project, p, format, Z_t)``: the overlap what-if for any overlap p: every strip
+  re-spaced along its flight line, the von Gruber points regenerated (plan.vongruber).
 
 The control ranking (rank_control) drops each control point in turn and re-analyses: the loss of
 precision ``worst_sigma_P(dropped) - worst_sigma_P(plan)`` (worst 3D mean error of the new points,
@@ -31,15 +34,21 @@ from ..adjustment import AdjustmentOptions
 from ..errors import InputError, NumericalFailure
 from ..model import CHECK, KIND_CODES, KIND_NAMES, TIE, Project
 from .analysis import precision_figures, precision_only
-from .design import CONTROL_KINDS
+from .design import CONTROL_KINDS, planned_points
+from .vongruber import flight_direction, footprint, strips_of, von_gruber_project
+
+CONTROL_AXES = {"XYZ": np.array([True, True, True]), "XY": np.array([True, True, False]),
+                "Z": np.array([False, False, True])}
 
 
 @dataclass(frozen=True)
 class WhatIf:
-    """One changed plan: a name (the option as given), the changed project."""
+    """One changed plan: a name (the option as given), the changed project, and its planned ground
+    points (np, 3) where they are not the plan's (None: the plan's)."""
 
     name: str
     project: Project
+    xyz: np.ndarray | None = None
 
 
 def _ids_of(project: Project, spec: str, option: str) -> np.ndarray:
@@ -71,13 +80,22 @@ def drop_control(project: Project, spec: str) -> WhatIf:
 
 
 def add_control(project: Project, spec: str, xyz_plan: np.ndarray) -> WhatIf:
-    """``ID=KIND``: a tie or check point becomes control of KIND, held fixed at its planned point."""
-    pid, _, kind_name = spec.partition("=")
+    """``ID=KIND[:SIGMA]``: a tie or check point becomes control of KIND at its planned point, held
+    fixed, or with SIGMA (ground metres, > 0) on each of its given axes."""
+    pid, _, rest = spec.partition("=")
+    kind_name, colon, sigma_text = rest.partition(":")
     pts = project.points
     index = {p: i for i, p in enumerate(pts.ids)}
     if kind_name.upper() not in CONTROL_KINDS or pid not in index:
-        raise InputError("command line", None, f"--add-control {spec}: give ID=KIND with the id of a point "
-                         "the photos see and KIND one of XYZ, XY, Z")
+        raise InputError("command line", None, f"--add-control {spec}: give ID=KIND[:SIGMA] with the id of a point "
+                         "the photos see, KIND one of XYZ, XY, Z and SIGMA its mean error in metres")
+    try:
+        weight = float(sigma_text) if colon else np.nan
+    except ValueError:
+        weight = -1.0
+    if colon and not (np.isfinite(weight) and weight > 0):
+        raise InputError("command line", None, f"--add-control {spec}: SIGMA must be a positive number "
+                         "(ground metres; leave out ':SIGMA' for a point held fixed)")
     i = index[pid]
     if pts.kind[i] not in (TIE, CHECK):
         raise InputError("command line", None, f"--add-control {spec}: {pid} is already a control point")
@@ -85,7 +103,7 @@ def add_control(project: Project, spec: str, xyz_plan: np.ndarray) -> WhatIf:
     kind, given, sigma = pts.kind.copy(), pts.xyz_given.copy(), pts.sigma_given.copy()
     kind[i] = code
     given[i] = xyz_plan[i]
-    sigma[i] = np.nan
+    sigma[i] = np.where(CONTROL_AXES[kind_name.upper()], weight, np.nan)
     return WhatIf(f"add control {spec}", replace(project, points=replace(pts, kind=kind, xyz_given=given,
                                                                           sigma_given=sigma)))
 
@@ -122,6 +140,40 @@ def every_kth_photo(project: Project, k: int) -> WhatIf:
     image_points = replace(ip, photo_index=new_index[ip.photo_index[rows]], point_index=ip.point_index[rows],
                            xy=ip.xy[rows], sigma_xy=ip.sigma_xy[rows])
     return WhatIf(f"every {int(k)}-th photo", replace(project, photos=photos, image_points=image_points))
+
+
+def respaced(project: Project, overlap: float, fmt: np.ndarray, z_t: float) -> WhatIf:
+    """The overlap what-if for any overlap (module doc): each strip re-spaced along its flight line
+    with base (1 - overlap) x its first photo's ground footprint along the line, from the same first
+    photo over at least the same length; each new photo takes the attitude, camera and sigmas of the
+    original photo nearest along the line; the von Gruber points are regenerated (plan.vongruber)."""
+    if not (np.isfinite(overlap) and 0 < overlap < 1):
+        raise InputError("command line", None, f"--overlap {overlap}: a forward overlap between 0 and 1 (0.6 for 60 %)")
+    if len(project.bases) or project.gnss is not None:
+        raise InputError("command line", None, f"--overlap {overlap:g}: the project has observed base components "
+                         "(bases.csv) or a GNSS model tied to its photos; re-space the photos by hand instead")
+    ph = project.photos
+    take, xyz0, sids, ids = [], [], [], []
+    for members in strips_of(project):  # a loop over strips, not photos
+        u = flight_direction(project, members)
+        first, last = ph.xyz0[members[0]], ph.xyz0[members[-1]]
+        along = (ph.xyz0[members] - first) @ u
+        length = float(along[-1])
+        base = (1.0 - overlap) * float(footprint(project, members[:1], u, fmt, z_t)[0])
+        n = max(2, int(np.ceil(length / base - 1e-9)) + 1)
+        s = np.arange(n) * base
+        slope = (last - first) / length if length > 0 else u
+        xyz0.append(first + s[:, None] * slope)
+        take.append(members[np.argmin(np.abs(along[None, :] - s[:, None]), axis=1)])
+        sid = ph.strip_ids[members[0]]
+        sids += [sid] * n
+        ids += [f"{sid}_{k + 1:03d}" for k in range(n)]
+    take = np.concatenate(take)
+    photos = replace(ph, ids=ids, camera_index=ph.camera_index[take], strip_ids=sids, xyz0=np.concatenate(xyz0),
+                     R_ground_from_cam=ph.R_ground_from_cam[take], angles=ph.angles[take],
+                     sigma_xyz0=ph.sigma_xyz0[take], sigma_angles=ph.sigma_angles[take])
+    new, _ = von_gruber_project(replace(project, photos=photos), fmt, z_t)
+    return WhatIf(f"overlap {overlap:g} ({len(photos)} photos)", new, planned_points(new))
 
 
 def worst_sigma_p(project: Project, sigma_points: np.ndarray) -> float | None:
