@@ -91,3 +91,46 @@ def test_compare_project_command(strip, tmp_path):
     assert "--project" in err and not (tmp_path / "x").exists()
     err = assert_clean_failure(run("compare", "--project", strip, "--out", strip / "inside"), 2)
     assert "input" in err
+
+
+def test_compare_project_on_a_block_runs_the_sequential_method_strip_by_strip(tmp_path):
+    """On a block of two strips the sequential method adjusts each strip on its own (it extends
+    one strip) and its row pools them: the centre RMS over all photos, the last centre and the
+    check points equal those of adjusting each strip's photos, measurements and control by hand
+    (photos.csv rows of the strip); the simultaneous methods adjust the whole block."""
+    from striptri.adjustment import AdjustmentOptions, adjust
+    from striptri.pipeline import check_point_statistics, triangulate_result
+    from striptri.study.project import run_project_task, strip_project, strip_rows
+
+    d = SyntheticDesign()
+    design = SyntheticDesign(flight=replace(d.flight, n_photos=6, n_strips=2),
+                             control=replace(d.control, layout="perimeter", n_check=4))
+    project, truth = simulate_project("block", SimulateOptions(design), seed=2)
+    folder = write_project(tmp_path / "block", project, truth_tables=truth)
+    plan = noise_free_project(read_project(folder))
+    task = project_tasks(plan, METHODS, (), 1, seed=7)[0]
+    rows, along = run_project_task(task)
+    assert [r["method"] for r in rows] == ["sequential", "conditions", "bundle"]
+    assert all(r["status"] == "ok" for r in rows), [r["status"] for r in rows]
+    noisy = noisy_project(task)
+    strips = strip_rows(noisy.photos.strip_ids)
+    assert len(strips) == 2 and sorted(np.concatenate(strips).tolist()) == list(range(len(noisy.photos)))
+    errors, checks = np.zeros((len(noisy.photos), 3)), []
+    for photos in strips:
+        part = strip_project(noisy, photos)
+        assert part.photos.ids == [noisy.photos.ids[i] for i in photos]
+        assert np.all(np.isin(noisy.image_points.photo_index[np.isin(noisy.image_points.photo_index, photos)],
+                              photos))
+        result = adjust(part, AdjustmentOptions.of(method="sequential", procedure=1, direction="forward"))
+        errors[photos] = result.state.xyz0 + result.offset - plan.photos.xyz0[photos]
+        checks.append(check_point_statistics(part, result, triangulate_result(part, result)))
+    seq = rows[0]
+    norms = np.linalg.norm(errors, axis=1)
+    assert seq["centre_rms"] == pytest.approx(float(np.sqrt(np.mean(norms**2))), rel=1e-9)
+    assert seq["centre_last"] == pytest.approx(float(norms[-1]), rel=1e-9)
+    np.testing.assert_allclose(along["seq1-forward"], norms, rtol=1e-9)
+    n = sum(c["n"] for c in checks)
+    assert seq["check_n"] == n > 0
+    rms_z = np.sqrt(sum(c["n"] * c["rms_Z"] ** 2 for c in checks if c["n"]) / n)
+    assert seq["check_rms_Z"] == pytest.approx(float(rms_z), rel=1e-9)
+    assert seq["predicted_last"] is None and rows[1]["predicted_last"] is not None
