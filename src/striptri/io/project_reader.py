@@ -48,7 +48,7 @@ from striptri.core.options import DATUMS, METHODS
 from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
-from striptri.film.reading import FILE_NAMES as FILM_FILES, TOML_KEYS as FILM_TOML_KEYS, read_film
+from striptri.io.film_reader import FILE_NAMES as FILM_FILES, TOML_KEYS as FILM_TOML_KEYS, read_film
 from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION, read_gnss
 from striptri.io.project_notes import project_notes, unread_files_note
 from striptri.plate_corrections import EARTH_RADIUS_RANGE_M

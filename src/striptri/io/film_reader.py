@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from striptri.errors import InputError, Note
 from striptri.film import calibration as calib
 from striptri.film import fiducials as fid
 from striptri.film import transform
+from striptri.film.data import CameraCalibration, FilmData
 from striptri.io.csvtable import CsvTable, decode_text, parse_csv
 from striptri.lens import PLATE
 
@@ -39,41 +40,6 @@ FIDUCIALS, MEASUREMENTS, CALIBRATION = "fiducials.csv", "fiducial_measurements.c
 FILE_NAMES = (FIDUCIALS, MEASUREMENTS, CALIBRATION)
 CALIBRATION_KEYS = ("focal_length_mm", "pbs_mm", "ppa_mm", "radius_mm", "field_angle_deg", "radial_distortion_um",
                     "radial_terms", "linear_term", "decentering_p1", "decentering_p2")
-
-
-@dataclass(frozen=True)
-class CameraCalibration:
-    """One camera of calibration.toml: the report's values and the fit (striptri.film.calibration).
-
-    camera_id; focal_length_mm; pbs_mm, ppa_mm (2,) (ppa nan when not given); field_angle_deg (m,)
-    (nan when the table is by radius); fit: RadialFit; elements: (NCP,) the camera model's elements.
-    """
-
-    camera_id: str
-    focal_length_mm: float
-    pbs_mm: np.ndarray
-    ppa_mm: np.ndarray
-    field_angle_deg: np.ndarray
-    fit: calib.RadialFit
-    elements: np.ndarray
-
-
-@dataclass(frozen=True)
-class FilmData:
-    """What the film inputs gave, for the report and the output tables.
-
-    transformation: kind; sigma_px: default sigma of scan measurements; photo_ids: (P,) the photos
-    with measured fiducials, in photos.csv order; fiducial_ids: (P, F) names ('' where a photo's
-    camera has fewer); fit: FiducialFit or None (image points in plate units); calibrations: tuple of
-    CameraCalibration.
-    """
-
-    transformation: str
-    sigma_px: float
-    photo_ids: list
-    fiducial_ids: list
-    fit: fid.FiducialFit | None
-    calibrations: tuple = ()
 
 
 def read_film(files, toml_path, toml_text: str, toml_data: dict, line_of, image_table: CsvTable,
