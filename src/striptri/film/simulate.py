@@ -62,7 +62,9 @@ class FilmLens:
 @dataclass(frozen=True)
 class FilmOptions:
     """n_photos; pixel_mm: scan pixel size (mm); sigma_point_px, sigma_fiducial_px: measurement noise
-    (px); transformation: the kind written into project.toml; n_check: check points along the strip."""
+    (px); transformation: the kind written into project.toml; n_check: check points along the strip.
+    [film] sigma_px is sigma_point_px; a different sigma_fiducial_px is written in a sigma column of
+    fiducial_measurements.csv (1e-4 px for noise-free fiducials)."""
 
     n_photos: int = 30
     pixel_mm: float = 0.020
@@ -113,14 +115,18 @@ def film_truth(options: FilmOptions, lens: FilmLens, seed: int):
     return project, truth_tables(truth), scan_params(options.n_photos, options.pixel_mm, rng), streams[1]
 
 
-def film_project_files(options: FilmOptions = FilmOptions(), lens: FilmLens = FilmLens(), seed: int = 16):
+def film_project_files(options: FilmOptions = FilmOptions(), lens: FilmLens = FilmLens(), seed: int = 16,
+                       noise_seed: int | None = None):
     """The files of a film project (name -> text) and its truth tables (name -> columns).
+
+    seed: the truth and, unless noise_seed is given, the noise; noise_seed: another noise
+    realisation of the same truth (Monte Carlo).
 
     Scans: image points and fiducials through the lens (distort) and each photo's scan
     transformation, plus Gaussian noise (sigma_point_px, sigma_fiducial_px) from the noise stream.
     """
     project, truth, params, noise_stream = film_truth(options, lens, seed)
-    rng = np.random.default_rng(noise_stream)
+    rng = np.random.default_rng(noise_stream if noise_seed is None else noise_seed)
     el = lens.elements()
     ip = project.image_points
     xy_measured = distort(ip.xy, el)
@@ -134,7 +140,7 @@ def film_project_files(options: FilmOptions = FilmOptions(), lens: FilmLens = Fi
     files["image_points.csv"] = format_csv({
         "photo_id": [project.photos.ids[p] for p in ip.photo_index],
         "point_id": [point_ids[p] for p in ip.point_index],
-        "x": np.round(colrow[:, 0], 2), "y": np.round(colrow[:, 1], 2)})
+        "x": np.round(colrow[:, 0], 4), "y": np.round(colrow[:, 1], 4)})
     files["cameras.csv"] = format_csv({"camera_id": ["RC"], "c": [lens.focal_length_mm], "xp": [0.0], "yp": [0.0]})
     files["photos.csv"] = files["photos.csv"].replace(",C1,", ",RC,")
     files["fiducials.csv"] = format_csv({"camera_id": ["RC"] * len(FIDUCIAL_IDS), "fiducial_id": list(FIDUCIAL_IDS),
@@ -142,11 +148,13 @@ def film_project_files(options: FilmOptions = FilmOptions(), lens: FilmLens = Fi
     files["fiducial_measurements.csv"] = format_csv({
         "photo_id": [pid for pid in project.photos.ids for _ in FIDUCIAL_IDS],
         "fiducial_id": list(FIDUCIAL_IDS) * n,
-        "col": np.round(fid_colrow[..., 0].ravel(), 2), "row": np.round(fid_colrow[..., 1].ravel(), 2)})
+        "col": np.round(fid_colrow[..., 0].ravel(), 4), "row": np.round(fid_colrow[..., 1].ravel(), 4),
+        **({} if options.sigma_fiducial_px == options.sigma_point_px else
+           {"sigma": np.full(n * len(FIDUCIAL_IDS), max(options.sigma_fiducial_px, 1e-4))})})
     files["calibration.toml"] = calibration_toml(lens)
     files["project.toml"] = files["project.toml"].replace("sigma_image = 0.005\n", "sigma_image = 0.005\n") + (
         f"\n[film]\nimage_points = \"scan_px\"\ntransformation = \"{options.transformation}\"\n"
-        f"sigma_px = {max(options.sigma_point_px, options.sigma_fiducial_px)}\n")
+        f"sigma_px = {options.sigma_point_px:g}\n")
     truth = dict(truth)
     truth["scans.csv"] = {"photo_id": list(project.photos.ids),
                           **{f"a{j}": params[:, j] for j in range(3)}, **{f"b{j}": params[:, 3 + j] for j in range(3)}}
