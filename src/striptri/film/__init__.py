@@ -1,4 +1,4 @@
-"""Scanned film photographs (issue 16, docs/film.md): interior orientation from fiducial marks
+"""Scanned film photographs (issue 16; docs/decisions.md "Scanned film"): interior orientation from fiducial marks
 (`transform`: the 2D transformations; `fiducials`: their fit per photo and the image points carried
 to the plate), the camera calibration report (`calibration`: the radial distortion table fitted to
 the camera model), what they gave (`data`), their report section (`report`) and a

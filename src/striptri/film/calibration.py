@@ -1,4 +1,4 @@
-"""A camera calibration report turned into the camera model (issue 16, docs/film.md).
+"""A camera calibration report turned into the camera model (issue 16; docs/decisions.md "Scanned film", docs/file-formats.md).
 
 USGS-style reports print the calibrated principal distance, the principal point of
 autocollimation (PPA) and the calibrated principal point, or point of best symmetry (PBS), both in
