@@ -121,3 +121,23 @@ def test_missing_fiducial_file_and_cli_exit_2(tmp_path):
     err = assert_clean_failure(proc, 2)
     assert "fiducials.csv" in err and "scan_px" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_collinear_fiducials_and_unused_columns():
+    """Photo 1002 keeps only fiducials 5 and 7, enough for a similarity, but 7 is moved onto 5 in
+    fiducials.csv: an InputError naming the photo, not a singular matrix. An extra column is a Note."""
+    files = example_files()
+    lines = files["fiducial_measurements.csv"].splitlines()
+    keep = [l for l in lines if not l.startswith("1002,") or l.split(",")[1] in ("5", "7")]
+    files["fiducial_measurements.csv"] = "\n".join(keep) + "\n"
+    files["project.toml"] = files["project.toml"].replace('"affine"', '"similarity"')
+    files["fiducials.csv"] = files["fiducials.csv"].replace("RC,7,-0.002,113.003", "RC,7,0.001,-112.998")
+    with pytest.raises(InputError) as info:
+        parse_project(files, "film")
+    assert "photo '1002'" in str(info.value) and "lie on a line or coincide" in str(info.value)
+    files = example_files()
+    files["fiducials.csv"] = files["fiducials.csv"].replace("camera_id,fiducial_id,x,y", "camera_id,fiducial_id,x,y,z")
+    files["fiducials.csv"] = "\n".join(l + ",0" if l.startswith("RC,") else l
+                                       for l in files["fiducials.csv"].splitlines()) + "\n"
+    project = parse_project(files, "film")
+    assert any("fiducials.csv" in n.path and "'z'" in n.text for n in project.notes)

@@ -131,6 +131,22 @@ def _fit(kind, xy_plate, q, sigma_px, measured, used):
     return p, Ninv, v.reshape(P, F, 2), w.reshape(P, F, 2), redundancy
 
 
+def undetermined(kind: str, xy_plate: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """(P,) True where a photo's measured fiducials cannot determine the transformation (collinear or
+    coincident marks): the design matrix at the identity, its rows scaled by the fiducials' spread,
+    has a singular value below 1e-9 of its largest. xy_plate (P, F, 2) mm; measured (P, F) bool."""
+    xy_plate = np.asarray(xy_plate, dtype=float)
+    P = len(xy_plate)
+    scale = np.maximum(np.abs(np.where(measured[..., None], xy_plate, 0.0)).max((1, 2)), 1e-300)
+    xy = xy_plate / scale[:, None, None]
+    identity = {"similarity": [1.0, 0.0, 0.0, 0.0], "affine": [0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                "projective": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]}[kind]
+    _, _, A = transform.scan_from_plate(kind, np.tile(identity, (P, 1)), xy)
+    A = np.where(measured[..., None, None], A, 0.0).reshape(P, -1, transform.N_PARAMS[kind])
+    sv = np.linalg.svd(A, compute_uv=False)
+    return sv[:, -1] < 1e-9 * sv[:, 0]
+
+
 def plate_points(fit: FiducialFit, photo_index: np.ndarray, q_scan: np.ndarray, sigma_q: np.ndarray):
     """Image points of scans to the plate, with their propagated sigmas.
 

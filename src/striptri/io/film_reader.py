@@ -78,11 +78,23 @@ def read_film(files, toml_path, toml_text: str, toml_data: dict, line_of, image_
         for name in (FIDUCIALS, MEASUREMENTS):
             if not files.present(name):
                 raise InputError(files.path(name), None, f"not found: [film] image_points = 'scan_px' needs {name}")
-        fiducial_xy = _read_fiducials(parse_csv(files.path(FIDUCIALS), files.content(FIDUCIALS)), cameras)
-        photo_rows, names, xy_plate, q, sigma, measured = _read_measurements(
-            parse_csv(files.path(MEASUREMENTS), files.content(MEASUREMENTS)), photos, fiducial_xy, sigma_px)
+        fid_table = parse_csv(files.path(FIDUCIALS), files.content(FIDUCIALS))
+        fiducial_xy = _read_fiducials(fid_table, cameras)
+        meas_table = parse_csv(files.path(MEASUREMENTS), files.content(MEASUREMENTS))
+        photo_rows, names, xy_plate, q, sigma, measured = _read_measurements(meas_table, photos, fiducial_xy, sigma_px)
         _check_enough(files.path(MEASUREMENTS), kind, photos, photo_rows, measured, image_points)
-        fit = fid.fit_fiducials(kind, xy_plate, q, sigma, measured)
+        for k in np.flatnonzero(fid.undetermined(kind, xy_plate, measured))[:1]:
+            raise InputError(files.path(MEASUREMENTS), None,
+                             f"the measured fiducials of photo '{photos.ids[photo_rows[k]]}' "
+                             f"({', '.join(n for n, m in zip(names[k], measured[k]) if m)}) lie on a line or "
+                             f"coincide: they cannot determine a {kind} transformation")
+        try:
+            fit = fid.fit_fiducials(kind, xy_plate, q, sigma, measured)
+        except np.linalg.LinAlgError as exc:
+            raise InputError(files.path(MEASUREMENTS), None,
+                             f"the {kind} fiducial transformation could not be fitted ({exc}); check the "
+                             "measured fiducials against fiducials.csv") from None
+        notes += [_unused_note(t) for t in (fid_table, meas_table) if t.unused_columns()]
         photo_ids = [photos.ids[p] for p in photo_rows]
         row_of = np.full(len(photos.ids), -1)
         row_of[photo_rows] = np.arange(len(photo_rows))
@@ -92,6 +104,12 @@ def read_film(files, toml_path, toml_text: str, toml_data: dict, line_of, image_
         image_points = replace(image_points, xy=xy, sigma_xy=sigma_xy)
     film = FilmData(kind, float(sigma_px), photo_ids, names, fit, calibrations)
     return film, cameras, image_points, notes
+
+
+def _unused_note(table: CsvTable) -> Note:
+    """Columns of a film table that nothing reads (never ignored silently)."""
+    return Note(str(table.path), table.header_line, "columns not used (ignored): "
+                + ", ".join(f"'{c}'" for c in table.unused_columns()))
 
 
 def _px_sigma(table: CsvTable, name: str, default: float) -> np.ndarray:
