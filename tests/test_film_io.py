@@ -141,3 +141,21 @@ def test_collinear_fiducials_and_unused_columns():
                                        for l in files["fiducials.csv"].splitlines()) + "\n"
     project = parse_project(files, "film")
     assert any("fiducials.csv" in n.path and "'z'" in n.text for n in project.notes)
+
+
+def test_a_calibration_report_alone_sets_the_camera():
+    """calibration.toml in a project with plate coordinates (no [film]): the camera's c, xp, yp, k1,
+    k2 come from the fitted report (K0 folded into c), a Note says so; the image points are untouched."""
+    strip8 = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "strip8"
+    files = {p.name: p.read_text(encoding="utf-8") for p in strip8.iterdir() if p.is_file()}
+    before = parse_project(files, "strip8")
+    files["calibration.toml"] = ("[camera.C1]\nfocal_length_mm = 153.247\npbs_mm = [0.006, -0.001]\n"
+                                 "field_angle_deg = [7.5, 15, 22.7, 30, 35, 40]\n"
+                                 "radial_distortion_um = [-1, -1, -1, 0, 1, 1]\n")
+    project = parse_project(files, "strip8")
+    cal = project.film.calibrations[0]
+    c, xp, yp, k1, k2 = project.cameras.interior[0, :5]
+    assert abs(c - 153.247 / (1 + cal.fit.k0)) < 1e-12 and (xp, yp) == (0.006, -0.001)
+    assert (k1, k2) == tuple(cal.fit.k[:2] / (1 + cal.fit.k0))
+    assert project.film.fit is None and np.array_equal(project.image_points.xy, before.image_points.xy)
+    assert any("calibration.toml" in n.path for n in project.notes)

@@ -30,7 +30,7 @@ def report_parts(film: FilmData) -> list:
         n_flag = int(fit.flagged.sum())
         parts.append(
             f"<p>Image points measured in scan pixels (col, row) were carried to the plate (mm; x right, y up) "
-            f"by a <b>{html.escape(film.transformation)}</b> transformation per photograph, fitted by least "
+            f"by {'an' if film.transformation[0] in 'aeiou' else 'a'} <b>{html.escape(film.transformation)}</b> transformation per photograph, fitted by least "
             f"squares to the measured fiducial marks (a priori sigma {film.sigma_px:g} px unless "
             f"fiducial_measurements.csv gives one). Residuals v = fitted &minus; measured in pixels (col, "
             f"&minus;row); w = v / &sigma;<sub>v</sub>; a fiducial is flagged when |w| &gt; {W_LIMIT} and left out "
