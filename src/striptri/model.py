@@ -231,3 +231,6 @@ class Project:
     # GNSS lever arm, boresight, shift and drift (striptri.gnss_model); None: plain observed
     # centres and angles
     gnss: GnssModel | None = None
+    # scanned film (striptri.film.reading.FilmData): the fiducial fit and the calibration report,
+    # for the report and output tables; None: plate coordinates given in plate units
+    film: object | None = None

@@ -24,6 +24,7 @@ from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
 from .figures import normal_matrix_structure
+from .film import report as film_report
 from .groups import rays_per_point
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
@@ -251,6 +252,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         "residuals.csv": format_csv(residual_table(project, det)),
     }
     tables.update(gnss_tables(adjusted, result))
+    if adjusted.film is not None and adjusted.film.fit is not None:  # scanned film (striptri.film)
+        tables["fiducial_residuals.csv"] = format_csv(film_report.residual_columns(adjusted.film))
     phases["tables"] = time.perf_counter() - t0
     progress.phase("tables (CSV)", phases["tables"])
     summary = summary_of(adjusted, result, points)
@@ -260,6 +263,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     if corrections is not None:
         summary["plate_corrections"] = corrections.summary
     summary.update(gnss_output.summary_entry(adjusted, result))
+    if adjusted.film is not None:
+        summary["film"] = film_report.summary_entry(adjusted.film)
     if frame is not None:
         summary["frame"] = frame.summary()
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from . import figures as fig
 from .core.result import AdjustmentResult
+from .film import report as film_report
 from .gnss_output import report_tables as gnss_report_tables
 from .io.project_reader import RADIANS_PER_UNIT
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
@@ -61,6 +62,7 @@ SECTIONS = {  # id -> heading, in the order of the report
     "largest": "Largest normalised residuals",
     "photos": "Photographs",
     "camera": "Camera calibration",
+    "film": "Fiducial marks and calibration report",  # only with scanned film (striptri.film)
     "gnss": "GNSS and IMU (lever arm, boresight, shift, drift)",
     "structure": "Structure of the normal matrix",
 }
@@ -866,6 +868,9 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
              timed("largest", lambda: _largest_section(project, result, w, absw)),
              timed("photos", lambda: _photos_section(project, result, stats)),
              timed("camera", lambda: _camera_section(project, result))]
+    if project.film is not None:
+        body.append(timed("film", lambda: [_section("film")] + [
+            p if isinstance(p, str) else _table(*p) for p in film_report.report_parts(project.film)]))
     if result.layout.gnss_cols is not None:
         body.append(timed("gnss", lambda: _gnss_section(project, result)))
     structure = [_section("structure")]
@@ -880,7 +885,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
 
     nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items()
                    if (k != "corrections" or "plate_corrections" in summary)
-                   and (k != "gnss" or result.layout.gnss_cols is not None))
+                   and (k != "gnss" or result.layout.gnss_cols is not None)
+                   and (k != "film" or project.film is not None))
     total = time.perf_counter() - t0
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
     breakdown = ", ".join(f"{html.escape(SECTIONS.get(k, k).lower())} {v:.2f}" for v, k in slow)

@@ -48,6 +48,7 @@ from striptri.core.options import DATUMS, METHODS
 from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
+from striptri.io.film_reader import FILE_NAMES as FILM_FILES, TOML_KEYS as FILM_TOML_KEYS, read_film
 from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION, read_gnss
 from striptri.io.project_notes import project_notes, unread_files_note
 from striptri.plate_corrections import EARTH_RADIUS_RANGE_M
@@ -80,10 +81,11 @@ TOML_KEYS = {
     GNSS_SECTION: GNSS_TOML_KEYS,  # GNSS shift and drift (io.gnss_reader)
     "coordinates": KEYS,  # striptri.crs.settings
     "plan": ("format", "terrain_height"),  # striptri plan only (striptri.plan.vongruber)
+    "film": FILM_TOML_KEYS,  # scanned film (striptri.film.reading)
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
-              "project.toml")
+              "project.toml") + FILM_FILES
 # the required tables and what their rows are (for "no cameras ..." messages)
 REQUIRED_TABLES = {"cameras.csv": "cameras", "photos.csv": "photos", "image_points.csv": "plate measurements"}
 
@@ -168,19 +170,21 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
     cameras = _read_cameras(table("cameras.csv"))
     photos = _read_photos(table("photos.csv"), cameras, settings)
     control = _read_control(table("control.csv")) if files.present("control.csv") else _Control.empty()
+    film, film_notes = None, []
     if plate_measurements_optional and not files.present("image_points.csv"):
         image_points = model.ImagePoints(photo_index=np.zeros(0, dtype=np.int64), point_index=np.zeros(0, dtype=np.int64),
                                          xy=np.zeros((0, 2)), sigma_xy=np.zeros((0, 2)))
         points = _object_points(list(control.ids), control)
     else:
         image_points, points = _read_image_points(table("image_points.csv"), photos, control, settings)
+        film, cameras, image_points, film_notes = _read_film(files, tables, cameras, photos, image_points)
         _check_plate_geometry(tables["image_points.csv"], tables["cameras.csv"], image_points, photos, cameras)
     bases = _read_bases(table("bases.csv"), photos) if files.present("bases.csv") else model.BaseComponents.empty()
     if files.present("approx_points.csv"):
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
     gnss = _read_gnss(files, tables, cameras, photos, settings)
     notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids))
-             if "image_points.csv" in tables else []) + files.unread_notes()
+             if "image_points.csv" in tables else []) + film_notes + files.unread_notes()
     return model.Project(
         cameras=cameras,
         photos=photos,
@@ -191,6 +195,7 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
         source=files.source(),
         notes=tuple(notes),
         gnss=gnss,
+        film=film,
     )
 
 
@@ -205,6 +210,17 @@ def _read_gnss(files, tables: dict, cameras: model.Cameras, photos: model.Photos
     return read_gnss(tables["cameras.csv"], tables["photos.csv"], cameras, photos,
                      RADIANS_PER_UNIT[settings.angle_unit], path, text, data,
                      lambda section, key: _toml_line(text, section, key))
+
+
+def _read_film(files, tables: dict, cameras, photos, image_points):
+    """Scanned film (striptri.film.reading): fiducials to the plate, calibration.toml's cameras."""
+    toml = "project.toml"
+    path, text, data = files.path(toml), "", {}
+    if files.present(toml):
+        text = decode_text(path, files.content(toml))
+        data = _parse_toml(path, text)
+    return read_film(files, path, text, data, lambda section, key: _toml_line(text, section, key),
+                     tables["image_points.csv"], cameras, photos, image_points)
 
 
 def _require_rows(table: CsvTable, what: str) -> None:
