@@ -41,11 +41,13 @@ from .measures import (
 from .outcome import (
     BLUNDER_METHODS,
     FLAG_DROPPED,
+    FLAG_INSEPARABLE,
     FLAG_OK,
     FLAG_REJECTED,
     FLAG_SUSPECT,
     FLAGS,
     PER_ROUND,
+    PROCEDURES,
     BlunderOptions,
     BlunderResult,
     Rejection,
@@ -73,8 +75,8 @@ def detect_blunders(project: Project, options: AdjustmentOptions = AdjustmentOpt
 
 
 __all__ = [
-    "ALPHA0", "BETA0", "BLUNDER_METHODS", "FLAGS", "FLAG_DROPPED", "FLAG_OK", "FLAG_REJECTED", "FLAG_SUSPECT",
-    "PER_ROUND", "R_ZERO", "BlunderOptions", "BlunderResult", "PlateReliability", "Rejection", "Round",
+    "ALPHA0", "BETA0", "BLUNDER_METHODS", "FLAGS", "FLAG_DROPPED", "FLAG_INSEPARABLE", "FLAG_OK", "FLAG_REJECTED", "FLAG_SUSPECT",
+    "PER_ROUND", "PROCEDURES", "R_ZERO", "BlunderOptions", "BlunderResult", "PlateReliability", "Rejection", "Round",
     "critical_value", "detect_blunders", "minimal_detectable_bias", "noncentrality", "plate_reliability",
     "predicted_residuals", "robust", "robust_weight", "row_statistic", "select_rejections", "snoop",
     "studentised_gross_errors", "subset", "triangulate_adjusted", "warm_start",
