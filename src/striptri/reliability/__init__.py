@@ -52,6 +52,7 @@ from .outcome import (
     BlunderResult,
     Rejection,
     Round,
+    blunder_options,
     predicted_residuals,
     subset,
     triangulate_adjusted,
@@ -76,7 +77,7 @@ def detect_blunders(project: Project, options: AdjustmentOptions = AdjustmentOpt
 
 __all__ = [
     "ALPHA0", "BETA0", "BLUNDER_METHODS", "FLAGS", "FLAG_DROPPED", "FLAG_INSEPARABLE", "FLAG_OK", "FLAG_REJECTED", "FLAG_SUSPECT",
-    "PER_ROUND", "PROCEDURES", "R_ZERO", "BlunderOptions", "BlunderResult", "PlateReliability", "Rejection", "Round",
+    "PER_ROUND", "PROCEDURES", "R_ZERO", "BlunderOptions", "BlunderResult", "PlateReliability", "Rejection", "Round", "blunder_options",
     "critical_value", "detect_blunders", "minimal_detectable_bias", "noncentrality", "plate_reliability",
     "predicted_residuals", "robust", "robust_weight", "row_statistic", "select_rejections", "snoop",
     "studentised_gross_errors", "subset", "triangulate_adjusted", "warm_start",

@@ -73,6 +73,14 @@ class BlunderOptions:
         return self.max_rejections if self.max_rejections is not None else max(1, int(np.ceil(0.1 * m)))
 
 
+def blunder_options(name: str) -> BlunderOptions:
+    """The options of a ``--blunders`` choice: "off", "snoop", "robust", or "snoop-classic" (data
+    snooping with procedure "classic")."""
+    if name == "snoop-classic":
+        return BlunderOptions(method="snoop", procedure="classic")
+    return BlunderOptions(method=name)
+
+
 @dataclass
 class Rejection:
     """One rejected image point: its row in the original ImagePoints, its photo and point index,

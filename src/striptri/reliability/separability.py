@@ -9,15 +9,19 @@ two w-tests see the same thing and the largest |w| may sit in either -- the gros
 *detected but not localisable*. (The three x coordinates of a point seen by three photos of one
 strip are checked by one scale transfer: |rho| ~ 1.)
 
-Criterion (docs/reliability.md, "Separability"): under a gross error of the minimal detectable size
-on i, E[w_i] = delta0 and E[w_j] = rho delta0; the difference ``w_i - sign(rho) w_j`` has
-expectation ``delta0 (1 - |rho|)`` and variance ``2 (1 - |rho|)``. The pair is separable when that
-difference is itself detectable at the test's size: ``delta0 (1 - |rho|) >= k sqrt(2 (1 - |rho|))``
-with k the critical value, i.e. ``|rho| <= 1 - 2 (k / delta0)^2 / ... `` -- solved,
-``|rho| <= RHO_SEPARABLE(delta) = 1 - 2 k^2 / delta^2``. For an error of the MDB (delta0 = 4.13,
-k = 3.29) that is negative (nothing that just reaches the MDB is localised with certainty); the
-test applies it with delta the candidate's own |w| (the error's size as observed): a 20-sigma error
-seen at |w| = 20 is separable from coordinates with |rho| below 1 - 2 (3.29/20)^2 = 0.946.
+Criterion (docs/reliability.md, "Separability"): under a gross error that moves w_i to delta,
+E[w_j] = rho delta; the difference ``|w_i| - |w_j|`` has expectation ``delta (1 - |rho|)`` and
+variance ``2 (1 - |rho|)``. The largest |w| picks the right coordinate reliably when that
+expectation is k standard deviations of the difference (k = the critical value, 3.29):
+``delta (1 - |rho|) >= k sqrt(2 (1 - |rho|))``, i.e. ``|rho| <= 1 - 2 k^2 / delta^2``. The test
+uses delta = the candidate's own |w| (the error as observed): a 20-sigma error seen at |w| = 20 is
+told from coordinates with |rho| below 1 - 2 (3.29/20)^2 = 0.946. The threshold is kept within
+[RHO_MIN, RHO_MAX] = [0.9, 0.99]: just above the critical value the formula would put every ray
+of a point in one group (an error of the MDB is never localised with certainty), which would throw
+away well-checked points for a marginal w; pairs above 0.99 are never told apart. Within a point of
+the blocks studied the correlations are either above 0.999 (the x of the rays of a three-ray
+strip point; the four coordinates of a two-ray point) or below 0.7, so the groups do not depend on
+where in [0.9, 0.99] the threshold falls.
 Coupling beyond the point (through the orientations) is weaker by an order of magnitude in the
 blocks studied and is not used.
 """
@@ -57,12 +61,13 @@ def plate_cofactor_blocks(project: Project, result: AdjustmentResult,
 
 def separability_threshold(abs_w: float | np.ndarray, critical: float) -> np.ndarray:
     """|rho| above which a coordinate cannot be told from one whose |w| is abs_w (module doc):
-    ``1 - 2 (critical / abs_w)^2``, at most 0.99 (module doc)."""
+    ``1 - 2 (critical / abs_w)^2`` within [RHO_MIN, RHO_MAX]."""
     a = np.maximum(np.asarray(abs_w, dtype=float), 1e-300)
-    return np.minimum(1.0 - 2.0 * (critical / a) ** 2, RHO_MAX)
+    return np.clip(1.0 - 2.0 * (critical / a) ** 2, RHO_MIN, RHO_MAX)
 
 
 RHO_MAX = 0.99  # pairs correlated above this are never told apart, whatever the size of the error
+RHO_MIN = 0.9  # pairs correlated below this are always told apart
 
 
 class Correlations:
