@@ -19,7 +19,7 @@ told from coordinates with |rho| below 1 - 2 (3.29/20)^2 = 0.946. The threshold 
 [RHO_MIN, RHO_MAX] = [0.9, 0.99]: just above the critical value the formula would put every ray
 of a point in one group (an error of the MDB is never localised with certainty), which would throw
 away well-checked points for a marginal w; pairs above 0.99 are never told apart. Within a point of
-the blocks studied the correlations are either above 0.999 (the x of the rays of a three-ray
+the blocks studied the correlations are either above 0.998 (the x of the rays of a three-ray
 strip point; the four coordinates of a two-ray point) or below 0.7, so the groups do not depend on
 where in [0.9, 0.99] the threshold falls.
 Coupling beyond the point (through the orientations) is weaker by an order of magnitude in the
