@@ -2,7 +2,10 @@
 
 * :mod:`.measures` -- of one adjustment: redundancy numbers, Baarda's w-test, minimal detectable
   bias (MDB) and bias-to-noise ratio of every plate coordinate (:func:`plate_reliability`);
-* :mod:`.snooping` -- data snooping with iterative rejection (:func:`snoop`);
+* :mod:`.snooping` -- data snooping with iterative rejection (:func:`snoop`): inseparable groups
+  rejected together, rejected groups re-tested and re-admitted (procedure "separable");
+* :mod:`.separability` -- the point groups' blocks of Qvv and the correlations of the w-tests;
+* :mod:`.rejections` -- per rejected group its w, MDB, bias-to-noise ratio and ground effect;
 * :mod:`.robust` -- iteratively reweighted least squares with a Danish-type weight function,
   then the survivors adjusted at full weight (:func:`robust`);
 * :mod:`.outcome` -- :class:`BlunderOptions`, :class:`BlunderResult` and what both share.

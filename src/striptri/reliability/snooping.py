@@ -16,9 +16,12 @@ a row only if
 * no row already taken shares its point or its photo (a gross error also shifts the orientation
   of its photo, and through it the residuals of the photo's other points).
 
-Rows of the taken row's point whose |w| equals its own to ``TWIN_TOLERANCE`` cannot be told from it
-(the two rays of a tie point in two photos share a single condition, so their four w are equal in
-magnitude): the gross error is detected but not located, and they are rejected together.
+Procedure "separable" (the default): the rows of the taken row's point whose w-tests correlate
+with its own beyond separability (separability.inseparable_rows) are rejected with it as one group
+(flag "inseparable": detected, not located); once the rest is clean the rejected groups are
+re-tested against it and those that pass are re-admitted (:func:`retest`). Procedure "classic":
+rows of the taken row's point whose |w| equals its own to ``TWIN_TOLERANCE`` (the two rays of a
+tie point in two photos share a single condition) are rejected with it, and nothing is re-tested.
 docs/reliability.md shows that this meets the same detection and false-alarm figures as one row
 per round, in about half the rounds.
 """
