@@ -7,6 +7,9 @@ three or more photos (not check points) get 10-30 sigma in x or in y.
 
 from __future__ import annotations
 
+import csv
+import io
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -16,6 +19,7 @@ import pytest
 
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.model import TIE
+from striptri.pipeline import adjust_products
 from striptri.precision import residual_cofactors
 from striptri.reliability import FLAG_INSEPARABLE, FLAG_REJECTED, BlunderOptions, detect_blunders
 from striptri.reliability.rejections import rejection_groups
@@ -129,3 +133,29 @@ def test_separable_snooping_is_better_than_the_classic_and_robust(study):
     new, classic, rob = study["snoop"], study["snoop-classic"], study["robust"]
     assert new["found"] > classic["found"] and new["found"] > rob["found"]
     assert new["false"] < classic["false"] and new["false"] < rob["false"]
+
+
+def test_the_outputs_report_an_inseparable_group(clean_block):
+    """End to end (pipeline): residuals.csv flags the three rows "inseparable" (its design columns
+    unchanged), summary.json lists the group with its w, MDB and no ground effect, the report says
+    "detected, not localisable"; --blunders snoop-classic is the old procedure."""
+    project, _ = clean_block
+    ip = project.image_points
+    pt = three_ray_strip_points(project)[5]
+    rows = np.flatnonzero(ip.point_index == pt)
+    xy = ip.xy.copy()
+    xy[rows[0], 0] -= 25 * SIGMA
+    spoiled = replace(project, image_points=replace(ip, xy=xy))
+    products = adjust_products(spoiled, OPTIONS, blunders="snoop")
+    table = list(csv.DictReader(io.StringIO(products.files["residuals.csv"])))
+    assert list(table[0])[:6] == ["photo_id", "point_id", "vx", "vy", "w", "flag"]
+    assert [table[i]["flag"] for i in rows] == ["inseparable"] * 3
+    summary = json.loads(products.files["summary.json"])
+    groups = [g for g in summary["blunders"]["groups"] if g["point_id"] == str(project.points.ids[pt])]
+    assert len(groups) == 1 and sorted(groups[0]["rows"]) == sorted(int(i) for i in rows)
+    assert groups[0]["localised"] is False and groups[0]["mdb"] > 0 and groups[0]["ground_effect"] is None
+    assert summary["blunders"]["inseparable"] >= 3
+    assert "detected, not localisable" in products.files["report.html"]
+    classic = adjust_products(spoiled, OPTIONS, blunders="snoop-classic")
+    table = list(csv.DictReader(io.StringIO(classic.files["residuals.csv"])))
+    assert sorted(table[i]["flag"] for i in rows) in (["", "", "rejected"], ["", "dropped", "rejected"])

@@ -183,7 +183,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
                     blunders: str = "off", keep_unconverged: bool = False,
                     on_warning: Callable[[str], None] | None = None,
                     seconds_reading: float | None = None, frame=None) -> AdjustmentProducts:
-    """Adjust (with gross-error detection by ``blunders``: "off", "snoop" or "robust") and build
+    """Adjust (with gross-error detection by ``blunders``: "off", "snoop", "snoop-classic" or "robust") and build
     the output files. Photos, points and the summary describe the adjustment of the measurements
     kept; residuals.csv lists every original measurement with its flag.
 
