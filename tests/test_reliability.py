@@ -31,6 +31,7 @@ from striptri.model import CHECK, HEIGHT, TIE
 from striptri.precision import W_CRITICAL, residual_cofactors
 from striptri.reliability import (
     FLAG_DROPPED,
+    FLAG_INSEPARABLE,
     FLAG_OK,
     FLAG_REJECTED,
     FLAG_SUSPECT,
@@ -202,7 +203,7 @@ def _run_block(method, blunder_method, seeds=SEEDS, **blunder_options):
         out = detect_blunders(spoiled, options, BlunderOptions(method=blunder_method, **blunder_options))
         is_blunder = np.zeros(len(project.image_points), dtype=bool)
         is_blunder[rows] = True
-        rejected = out.flag == FLAG_REJECTED
+        rejected = (out.flag == FLAG_REJECTED) | (out.flag == FLAG_INSEPARABLE)  # alone or in its group
         found += int(np.sum(rejected & is_blunder))
         n_blunders += len(rows)
         false_alarms += int(np.sum(rejected & ~is_blunder))
@@ -237,9 +238,11 @@ def test_data_snooping_restores_the_check_point_accuracy(snooped):
     assert abs(snooped["rms_ratio"] - 1.0) <= 0.10
 
 
-def test_several_rejections_per_round_need_fewer_rounds(snooped):
-    """Measured 3-5 adjustments per seed ("separated") against 9-11 (one row per round)."""
-    assert max(snooped["rounds"]) <= 6
+def test_several_rejections_per_round_need_fewer_rounds():
+    """Measured 3-5 adjustments per seed ("separated") against 9-11 (one row per round); the
+    classic procedure, whose rounds are only testing rounds (the separable one adds the rounds after
+    a re-admission)."""
+    assert max(_run_block("conditions", "snoop", procedure="classic")["rounds"]) <= 6
 
 
 def test_separated_rounds_reject_what_single_rounds_reject():
@@ -248,8 +251,9 @@ def test_separated_rounds_reject_what_single_rounds_reject():
     project, _ = simulated("block", BLOCK, 1)
     spoiled, _ = random_blunders(project, np.random.default_rng(1001))
     options = AdjustmentOptions(method="bundle")
-    many = detect_blunders(spoiled, options, BlunderOptions(per_round="separated"))
-    one = detect_blunders(spoiled, options, BlunderOptions(per_round="single"))
+    # the classic procedure: the separable one rejects inseparable groups (several rows) per round
+    many = detect_blunders(spoiled, options, BlunderOptions(per_round="separated", procedure="classic"))
+    one = detect_blunders(spoiled, options, BlunderOptions(per_round="single", procedure="classic"))
     assert set(many.rejected_rows) == set(one.rejected_rows)
     assert len(many.rounds) < len(one.rounds)
     assert all(r.rejected <= 1 for r in one.rounds)
@@ -289,7 +293,7 @@ def test_the_warm_start_changes_only_where_the_adjustment_starts():
     spoiled = with_blunders(spoiled, rows[:1], np.array([[0.0, 30.0 * SIGMA]]))  # at least one 2-D error
     out = detect_blunders(spoiled)
     assert len(out.rejected) >= 1
-    keep = out.flag != FLAG_REJECTED
+    keep = (out.flag != FLAG_REJECTED) & (out.flag != FLAG_INSEPARABLE)
     scratch = adjust(drop_rows(spoiled, np.flatnonzero(~keep)))
     assert out.result.vtpv == pytest.approx(scratch.vtpv, rel=1e-8)
     np.testing.assert_allclose(out.result.state.xyz0 + out.result.offset, scratch.state.xyz0 + scratch.offset,
@@ -371,14 +375,19 @@ def test_a_point_left_without_conditions_drops_out():
     """Height point 1003L is in three photos; with one ray removed beforehand it has two rays and
     two conditions (coplanarity, height). A gross error of 25 sigma in y of one ray is found; the
     two rays' w differ only slightly (each condition involves both rays alike), so which row goes
-    is not asserted. The point keeps one ray and no condition: the other row is flagged
-    "dropped", with w nan and MDB inf."""
+    is not asserted by the classic procedure. The point keeps one ray and no condition: the other row
+    is flagged "dropped", with w nan and MDB inf. The separable procedure (the default) finds the two
+    rays' w-tests correlated beyond separability and rejects both as one group, "inseparable"."""
     project, truth = simulated("strip", STRIP, 3)
     rows = row_of(project, truth, "1003L")
     assert project.points.kind[project.image_points.point_index[rows[0]]] == HEIGHT and len(rows) == 3
     project = drop_rows(project, [rows[2]])
     rows = row_of(project, truth, "1003L")
-    out = detect_blunders(with_blunders(project, [rows[0]], np.array([[0.0, 25.0 * SIGMA]])))
+    spoiled = with_blunders(project, [rows[0]], np.array([[0.0, 25.0 * SIGMA]]))
+    grouped = detect_blunders(spoiled)
+    assert list(grouped.flag[rows]) == [FLAG_INSEPARABLE] * 2
+    assert len(grouped.groups) == 1 and sorted(grouped.groups[0]) == sorted(rows)
+    out = detect_blunders(spoiled, blunders=BlunderOptions(procedure="classic"))
     assert sorted(out.flag[rows]) == sorted([FLAG_REJECTED, FLAG_DROPPED])
     gone = rows[out.flag[rows] == FLAG_DROPPED][0]
     assert np.all(np.isnan(out.w[gone])) and np.all(np.isinf(out.mdb[gone]))

@@ -365,8 +365,10 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
 @click.option("--point-precision", type=click.Choice(["schmid90", "joint92"]), default="schmid90", show_default=True,
               help="Mean errors of the ground points: orientation part + measurement part (Schmid 90) "
                    "or the rigorous joint form (92).")
-@click.option("--blunders", type=click.Choice(["off", "snoop", "robust"]), default="off", show_default=True,
-              help="Gross errors: off (flag |w| > 3.29 only), snoop (Baarda data snooping: reject, re-adjust) "
+@click.option("--blunders", type=click.Choice(["off", "snoop", "snoop-classic", "robust"]), default="off",
+              show_default=True,
+              help="Gross errors: off (flag |w| > 3.29 only), snoop (Baarda data snooping: inseparable groups rejected "
+                   "together, rejections re-tested), snoop-classic (the snooping before issue 18) "
                    "or robust (re-weighting, then least squares of the survivors).")
 @click.option("--procedure", type=click.Choice(["1", "2"]), default=None,
               help="Sequential method: Schut's procedure 1 (relative orientation, scale transfer) or 2 "
@@ -412,7 +414,8 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
     s = products.summary
     b = s["blunders"]
     if b["method"] != "off" or b["suspect"]:
-        click.echo(f"gross errors ({b['method']}): {b['rejected']} measurements rejected, {b['suspect']} suspect, "
+        click.echo(f"gross errors ({b['method']}): {b['rejected']} measurements rejected, "
+                   f"{b.get('inseparable', 0)} in inseparable groups, {b['suspect']} suspect, "
                    f"{b['dropped']} dropped, in {b['adjustments']} adjustments")
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
     state = {"converged": "converged", "cost_flat": "converged (cost_flat: the sum of squares no longer decreased)"}.get(

@@ -33,7 +33,8 @@ from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, Project
 from .precision import joint_point_covariance
-from .reliability import BlunderOptions, detect_blunders
+from .reliability import blunder_options, detect_blunders
+from .reliability.rejections import rejection_groups
 from .reliability.outcome import without_tests
 from .rotations import angles_from_R
 from .solvers import SolverUnavailable
@@ -183,7 +184,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
                     blunders: str = "off", keep_unconverged: bool = False,
                     on_warning: Callable[[str], None] | None = None,
                     seconds_reading: float | None = None, frame=None) -> AdjustmentProducts:
-    """Adjust (with gross-error detection by ``blunders``: "off", "snoop" or "robust") and build
+    """Adjust (with gross-error detection by ``blunders``: "off", "snoop", "snoop-classic" or "robust") and build
     the output files. Photos, points and the summary describe the adjustment of the measurements
     kept; residuals.csv lists every original measurement with its flag.
 
@@ -220,7 +221,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
             if options.method == "sequential":
                 det = without_tests(project, adjust(project, options), "not tested (sequential method)")
             else:
-                det = detect_blunders(project, options, BlunderOptions(method=blunders))
+                det = detect_blunders(project, options, blunder_options(blunders))
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total, 0.0)
             progress.phase("reliability measures (gross errors)", phases["gross_errors"])
@@ -259,6 +260,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary = summary_of(adjusted, result, points)
     summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
     summary["blunders"] = blunder_summary(det)
+    summary["blunders"]["groups"] = rejection_groups(project, det)
     summary["warnings"] = list(said)
     if corrections is not None:
         summary["plate_corrections"] = corrections.summary
@@ -315,6 +317,7 @@ def blunder_summary(det) -> dict:
         "rejected": int(np.sum(flags == "rejected")),
         "suspect": int(np.sum(flags == "suspect")),
         "dropped": int(np.sum(flags == "dropped")),
+        "inseparable": int(np.sum(flags == "inseparable")),
         "adjustments": max(len(det.rounds), 1),
         "stopped": det.stopped,
     }

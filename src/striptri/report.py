@@ -59,6 +59,7 @@ SECTIONS = {  # id -> heading, in the order of the report
     "points": "Precision of the ground points",
     "check-points": "Check points",
     "flagged": "Flagged measurements",
+    "rejected": "Rejected measurements (gross errors)",
     "largest": "Largest normalised residuals",
     "photos": "Photographs",
     "camera": "Camera calibration",
@@ -723,6 +724,40 @@ def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
     ]
 
 
+def _rejected_section(summary: dict) -> list[str]:
+    """summary["blunders"]["groups"] (reliability.rejections): per rejected group its members, w, MDB
+    and effect on the ground."""
+    groups = (summary.get("blunders") or {}).get("groups") or []
+    parts = [_section("rejected")]
+    if not groups:
+        return parts + ["<p>No measurement was rejected.</p>"]
+
+    def num(v, fmt):
+        return "&ndash;" if v is None else format(v, fmt)
+
+    rows = []
+    for g in groups[:MAX_TABLE_ROWS]:
+        effect = g["ground_effect"]
+        rows.append([
+            html.escape(g["point_id"]), html.escape(", ".join(g["photo_ids"])),
+            "found" if g["localised"] else "<span class='flag'>detected, not localisable</span>",
+            g["coordinate"], f"{g['w']:.1f}", num(g["mdb"], ".4g"), num(g["bias_to_noise"], ".1f"),
+            "point drops out" if effect is None else " ".join(f"{v:+.3f}" for v in effect),
+        ])
+    note = (f"<p class='note'>The first {MAX_TABLE_ROWS} of {len(groups)}; summary.json lists all.</p>"
+            if len(groups) > MAX_TABLE_ROWS else "")
+    return parts + [
+        f"<p>{len(groups)} group{'s' if len(groups) != 1 else ''} rejected, in the order of rejection. A group of "
+        "several photographs: their w-tests cannot be told apart (correlated beyond separability), the gross error "
+        "is detected but not localised and all were rejected. w, MDB (plate units) and the bias-to-noise ratio "
+        "(external reliability) of the tested coordinate when it was rejected; effect on the ground: what the "
+        "group's measurements would have moved their point (X Y Z, m) had they been kept.</p>",
+        _table(["point", "photos", "outcome", "coordinate", "w", "MDB", "bias / noise", "effect on the ground (m)"],
+               rows, left=3),
+        note,
+    ]
+
+
 def _largest_section(project, result, w, absw, n: int = 15) -> list[str]:
     worst = np.argsort(-absw, kind="stable")[:n]
     return [_section("largest"),
@@ -865,6 +900,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
         body += [[_section("points"), "<p>Not available (no triangulated points given).</p>"],
                  [_section("check-points"), "<p>Not available (no triangulated points given).</p>"]]
     body += [timed("flagged", lambda: _flagged_section(project, result, w, absw, flagged, flag_text)),
+             timed("rejected", lambda: _rejected_section(summary)),
              timed("largest", lambda: _largest_section(project, result, w, absw)),
              timed("photos", lambda: _photos_section(project, result, stats)),
              timed("camera", lambda: _camera_section(project, result))]

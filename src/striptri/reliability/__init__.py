@@ -2,7 +2,10 @@
 
 * :mod:`.measures` -- of one adjustment: redundancy numbers, Baarda's w-test, minimal detectable
   bias (MDB) and bias-to-noise ratio of every plate coordinate (:func:`plate_reliability`);
-* :mod:`.snooping` -- data snooping with iterative rejection (:func:`snoop`);
+* :mod:`.snooping` -- data snooping with iterative rejection (:func:`snoop`): inseparable groups
+  rejected together, rejected groups re-tested and re-admitted (procedure "separable");
+* :mod:`.separability` -- the point groups' blocks of Qvv and the correlations of the w-tests;
+* :mod:`.rejections` -- per rejected group its w, MDB, bias-to-noise ratio and ground effect;
 * :mod:`.robust` -- iteratively reweighted least squares with a Danish-type weight function,
   then the survivors adjusted at full weight (:func:`robust`);
 * :mod:`.outcome` -- :class:`BlunderOptions`, :class:`BlunderResult` and what both share.
@@ -41,15 +44,18 @@ from .measures import (
 from .outcome import (
     BLUNDER_METHODS,
     FLAG_DROPPED,
+    FLAG_INSEPARABLE,
     FLAG_OK,
     FLAG_REJECTED,
     FLAG_SUSPECT,
     FLAGS,
     PER_ROUND,
+    PROCEDURES,
     BlunderOptions,
     BlunderResult,
     Rejection,
     Round,
+    blunder_options,
     predicted_residuals,
     subset,
     triangulate_adjusted,
@@ -73,8 +79,8 @@ def detect_blunders(project: Project, options: AdjustmentOptions = AdjustmentOpt
 
 
 __all__ = [
-    "ALPHA0", "BETA0", "BLUNDER_METHODS", "FLAGS", "FLAG_DROPPED", "FLAG_OK", "FLAG_REJECTED", "FLAG_SUSPECT",
-    "PER_ROUND", "R_ZERO", "BlunderOptions", "BlunderResult", "PlateReliability", "Rejection", "Round",
+    "ALPHA0", "BETA0", "BLUNDER_METHODS", "FLAGS", "FLAG_DROPPED", "FLAG_INSEPARABLE", "FLAG_OK", "FLAG_REJECTED", "FLAG_SUSPECT",
+    "PER_ROUND", "PROCEDURES", "R_ZERO", "BlunderOptions", "BlunderResult", "PlateReliability", "Rejection", "Round", "blunder_options",
     "critical_value", "detect_blunders", "minimal_detectable_bias", "noncentrality", "plate_reliability",
     "predicted_residuals", "robust", "robust_weight", "row_statistic", "select_rejections", "snoop",
     "studentised_gross_errors", "subset", "triangulate_adjusted", "warm_start",

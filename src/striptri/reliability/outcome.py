@@ -16,8 +16,10 @@ from ..triangulation import ray_terms
 from .measures import ALPHA0, BETA0, PlateReliability, critical_value, noncentrality, row_abs, row_statistic
 
 FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED = "", "suspect", "rejected", "dropped"
-FLAGS = (FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED)
+FLAG_INSEPARABLE = "inseparable"  # rejected with others as one group: detected, not localisable
+FLAGS = (FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED, FLAG_INSEPARABLE)
 BLUNDER_METHODS = ("snoop", "robust", "off")
+PROCEDURES = ("separable", "classic")
 PER_ROUND = ("separated", "single")
 
 
@@ -29,6 +31,8 @@ class BlunderOptions:
     alpha0, beta0: size and power of the w-test (critical value, MDB).
     per_round (snoop): "separated" rejects several well separated rows per round
     (snooping.select_rejections); "single" one row per round (textbook data snooping).
+    procedure (snoop): "separable" (inseparable groups rejected together, rejected groups re-tested
+    and re-admitted, snooping.snoop) or "classic" (the procedure before issue 18).
     max_rejections: at most this many rows are rejected (None: 10 % of the rows, at least 1); rows
     still above the critical value are then flagged "suspect".
     max_rounds: adjustments at most (snoop: testing rounds; robust: reweighting iterations).
@@ -41,6 +45,7 @@ class BlunderOptions:
     alpha0: float = ALPHA0
     beta0: float = BETA0
     per_round: str = "separated"
+    procedure: str = "separable"
     max_rejections: int | None = None
     max_rounds: int = 100
     robust_c: float = 3.0
@@ -50,6 +55,8 @@ class BlunderOptions:
     def __post_init__(self):
         if self.method not in BLUNDER_METHODS:
             raise ValueError(f"unknown blunder method {self.method!r}; choose one of {', '.join(BLUNDER_METHODS)}")
+        if self.procedure not in PROCEDURES:
+            raise ValueError(f"procedure must be one of {', '.join(PROCEDURES)}")
         if self.per_round not in PER_ROUND:
             raise ValueError(f"per_round must be one of {', '.join(PER_ROUND)}")
         if not (0 < self.alpha0 < 1 and 0 < self.beta0 < 1):
@@ -66,6 +73,14 @@ class BlunderOptions:
         return self.max_rejections if self.max_rejections is not None else max(1, int(np.ceil(0.1 * m)))
 
 
+def blunder_options(name: str) -> BlunderOptions:
+    """The options of a ``--blunders`` choice: "off", "snoop", "robust", or "snoop-classic" (data
+    snooping with procedure "classic")."""
+    if name == "snoop-classic":
+        return BlunderOptions(method="snoop", procedure="classic")
+    return BlunderOptions(method=name)
+
+
 @dataclass
 class Rejection:
     """One rejected image point: its row in the original ImagePoints, its photo and point index,
@@ -79,6 +94,7 @@ class Rejection:
     round: int
     w: np.ndarray
     mdb: np.ndarray
+    group: int = -1  # rows rejected together as one inseparable group share this number
 
 
 @dataclass
@@ -143,6 +159,15 @@ class BlunderResult:
     def row_w(self) -> np.ndarray:
         """(m,) the signed w of the larger magnitude of x and y (residuals.csv's w column)."""
         return row_statistic(self.w)
+
+    @property
+    def groups(self) -> list[np.ndarray]:
+        """The original rows of every rejected group (rows rejected together because their
+        w-tests cannot be told apart share one), in the order of rejection."""
+        out: dict[int, list[int]] = {}
+        for k, rej in enumerate(self.rejected):
+            out.setdefault(rej.group if rej.group >= 0 else -1 - k, []).append(rej.row)
+        return [np.array(rows, dtype=int) for rows in out.values()]
 
     @property
     def rejected_rows(self) -> np.ndarray:
@@ -247,6 +272,10 @@ def blunder_result(method: str, project: Project, adjusted: Project, result: Adj
     flag[keep & participating_rows(project) & ~now_part] = FLAG_DROPPED
     flag[keep & (row_abs(w) > rel.critical)] = FLAG_SUSPECT
     flag[~keep] = FLAG_REJECTED
+    sizes: dict[int, int] = {}
+    for rej in rejected:
+        sizes[rej.group] = sizes.get(rej.group, 0) + 1
+    flag[[rej.row for rej in rejected if rej.group >= 0 and sizes[rej.group] > 1]] = FLAG_INSEPARABLE
     return BlunderResult(
         method=method, result=result, project=adjusted, rows=rows, w=w, redundancy=spread(rel.redundancy),
         mdb=spread(rel.mdb), bnr=spread(rel.bnr), v=v, flag=flag, rejected=rejected, rounds=rounds,

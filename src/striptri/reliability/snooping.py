@@ -16,9 +16,12 @@ a row only if
 * no row already taken shares its point or its photo (a gross error also shifts the orientation
   of its photo, and through it the residuals of the photo's other points).
 
-Rows of the taken row's point whose |w| equals its own to ``TWIN_TOLERANCE`` cannot be told from it
-(the two rays of a tie point in two photos share a single condition, so their four w are equal in
-magnitude): the gross error is detected but not located, and they are rejected together.
+Procedure "separable" (the default): the rows of the taken row's point whose w-tests correlate
+with its own beyond separability (separability.inseparable_rows) are rejected with it as one group
+(flag "inseparable": detected, not located); once the rest is clean the rejected groups are
+re-tested against it and those that pass are re-admitted (:func:`retest`). Procedure "classic":
+rows of the taken row's point whose |w| equals its own to ``TWIN_TOLERANCE`` (the two rays of a
+tie point in two photos share a single condition) are rejected with it, and nothing is re-tested.
 docs/reliability.md shows that this meets the same detection and false-alarm figures as one row
 per round, in about half the rounds.
 """
@@ -26,13 +29,17 @@ per round, in about half the rounds.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..adjustment import AdjustmentOptions, adjust
 from ..errors import NumericalFailure
 from ..model import Project
+from ..precision import residual_cofactors
 from .measures import critical_value, plate_reliability, row_abs
+from .robust import studentised_gross_errors
+from .separability import Correlations, inseparable_rows, plate_cofactor_blocks
 from .outcome import (
     BlunderOptions,
     BlunderResult,
@@ -50,11 +57,13 @@ TWIN_TOLERANCE = 1e-6  # rows of one point whose |w| agree to this (relative) ar
 
 
 def select_rejections(point_index: np.ndarray, photo_index: np.ndarray, row_abs_w: np.ndarray, critical: float,
-                      per_round: str = "separated") -> np.ndarray:
+                      per_round: str = "separated", expand=None) -> np.ndarray:
     """Rows to reject after one adjustment (module doc), largest |w| first.
 
     point_index, photo_index, row_abs_w: (m,) per row (row_abs_w = max(|w_x|, |w_y|), -inf when
-    untestable). per_round: "separated" or "single". -> (k,) row indices.
+    untestable). per_round: "separated" or "single". expand: None (the rows of the taken row's
+    point whose |w| equals its own, ``TWIN_TOLERANCE``) or a function row -> the rows that cannot
+    be told from it (separability.inseparable_rows, the taken row first). -> (k,) row indices.
     """
     cand = np.flatnonzero(row_abs_w > critical)
     if not len(cand):
@@ -73,7 +82,10 @@ def select_rejections(point_index: np.ndarray, photo_index: np.ndarray, row_abs_
         pt, ph = int(point_index[i]), int(photo_index[i])
         if row_abs_w[i] < group_max[pt] or pt in points or ph in photos:
             continue
-        twins = np.flatnonzero((point_index == pt) & (row_abs_w >= (1.0 - TWIN_TOLERANCE) * row_abs_w[i]))
+        if expand is None:
+            twins = np.flatnonzero((point_index == pt) & (row_abs_w >= (1.0 - TWIN_TOLERANCE) * row_abs_w[i]))
+        else:
+            twins = np.asarray(expand(int(i)), dtype=int)
         taken.extend(int(j) for j in twins)
         points.add(pt)
         photos.update(int(p) for p in photo_index[twins])
@@ -85,29 +97,98 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     """Data snooping (module doc) until no row |w| exceeds the critical value, ``max_rejections``
     rows are rejected or ``max_rounds`` adjustments are made.
 
+    procedure "separable" (the default): each taken row brings the rows whose w-tests cannot be told
+    from it (separability.inseparable_rows), rejected together as one group; once the rest is
+    clean, the rejected groups are re-tested (:func:`retest`) and those that pass are re-admitted,
+    and snooping goes on (each group is re-admitted at most once). "classic": the twins rule and no
+    re-test (the procedure before issue 18).
+
     If a re-adjustment fails (a photo or the datum lost too much) or does not converge, the rows
     rejected in that round are taken back (flagged "suspect") and the previous adjustment is the
     result. Raises NumericalFailure when the first adjustment, of all rows, fails; when it does not
     converge, nothing is tested (outcome.untested).
     """
     t_start = time.perf_counter()
-    ip = project.image_points
-    m = len(ip)
+    m = len(project.image_points)
     keep = np.ones(m, dtype=bool)
-    limit = blunders.rejection_limit(m)
-    crit = critical_value(blunders.alpha0)
-    current = project
     rejected: list[Rejection] = []
     rounds: list[Round] = []
+    separable = blunders.procedure == "separable"
+    out = _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, None)
+    if isinstance(out, BlunderResult):
+        return out
+    stopped, last = out
+    readmitted: set[int] = set()
+    while separable and stopped == "clean" and rejected:
+        back = retest(project, options, blunders, keep, rejected, last[1], readmitted)
+        if not len(back):
+            break
+        readmitted.update(rejected[i].group for i in back)
+        gone = {rejected[i].row for i in back}
+        keep[list(gone)] = True
+        rejected[:] = [rej for rej in rejected if rej.row not in gone]
+        start = warm_start(subset(project, keep), last[1].state, last[1].offset)
+        stopped, last = _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, start)
+    current, result, rel, rows = last
+    return blunder_result("snoop", project, current, result, rel, rows, rejected, rounds, stopped,
+                          time.perf_counter() - t_start)
+
+
+RETEST_SIGMA_FACTOR = 1e3  # the rejected rows are re-tested at this many times their sigma
+
+
+def retest(project: Project, options: AdjustmentOptions, blunders: BlunderOptions, keep: np.ndarray,
+           rejected: list[Rejection], result, readmitted: set[int]) -> np.ndarray:
+    """Indices into ``rejected`` of the rows of the groups that pass a re-test against the clean rest.
+
+    One adjustment of all rows with the rejected ones at ``RETEST_SIGMA_FACTOR`` times their
+    sigma (so they hardly pull the solution) gives every rejected coordinate its studentised gross
+    error u (robust.studentised_gross_errors): the |w| it would have at full weight among the clean
+    rows. A group passes when every coordinate of every member has a finite u below the critical
+    value; groups already re-admitted once are not re-tested. Members of one inseparable group are
+    re-tested with the others still out, so a group that took its point's conditions with it
+    (u nan) stays rejected."""
+    ip = project.image_points
+    gone = np.flatnonzero(~keep)
+    factor = np.ones(len(ip))
+    factor[gone] = RETEST_SIGMA_FACTOR
+    weighted = replace(project, image_points=replace(ip, sigma_xy=ip.sigma_xy * factor[:, None]))
+    try:
+        res = adjust(warm_start(weighted, result.state, result.offset), options)
+        if not succeeded(res):
+            return np.zeros(0, dtype=int)
+        cof = residual_cofactors(weighted, res, options)
+    except NumericalFailure:
+        return np.zeros(0, dtype=int)
+    u = studentised_gross_errors(res.plate_residuals, cof.plate, weighted.image_points.sigma_xy**2, ip.sigma_xy**2)
+    crit = critical_value(blunders.alpha0)
+    ok_row = np.all(np.isfinite(u) & (u <= crit), axis=1)
+    groups: dict[int, list[int]] = {}
+    for k, rej in enumerate(rejected):
+        groups.setdefault(rej.group, []).append(k)
+    back = [k for g, ks in groups.items() if g not in readmitted and all(ok_row[rejected[k].row] for k in ks)
+            for k in ks]
+    return np.array(back, dtype=int)
+
+
+def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, current):
+    """Snooping rounds from the rows ``keep`` (updated in place, as ``rejected`` and ``rounds``).
+    -> (stopped, last) with last = (project, result, reliability, rows) of the last adjustment that
+    succeeded, or a BlunderResult when the first adjustment of all rows did not converge."""
+    t_start = time.perf_counter()
+    ip = project.image_points
+    limit = blunders.rejection_limit(len(ip))
+    crit = critical_value(blunders.alpha0)
+    current = subset(project, keep) if current is None else current
     stopped = "clean"
-    last = None  # (project, result, reliability, rows) of the last adjustment that succeeded
+    last = None
     taken_rows = np.zeros(0, dtype=int)
     while True:
         t0 = time.perf_counter()
         try:
             result = adjust(current, options)
             if not succeeded(result):
-                if last is None:
+                if last is None and not rejected:
                     return untested("snoop", project, result, blunders, time.perf_counter() - t_start)
                 raise NumericalFailure(result.termination_message.splitlines()[0])
         except NumericalFailure as exc:
@@ -123,7 +204,14 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         last = (current, result, rel, rows)
         abs_w = row_abs(rel.w)
         sub = current.image_points
-        picks = select_rejections(sub.point_index, sub.photo_index, abs_w, crit, blunders.per_round)
+        expand, members = None, {}
+        if separable and np.any(abs_w > crit):
+            corr = Correlations(plate_cofactor_blocks(current, result, options), len(sub))
+
+            def expand(i):
+                members[i] = inseparable_rows(corr, i, rel.w, crit)
+                return members[i]
+        picks = select_rejections(sub.point_index, sub.photo_index, abs_w, crit, blunders.per_round, expand)
         room = limit - len(rejected)
         if len(picks) and room <= 0:
             stopped, picks = "limit", picks[:0]
@@ -135,11 +223,18 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         if not len(picks):
             break
         taken_rows = rows[picks]
+        group_of = {}
+        next_group = max((rej.group for rej in rejected), default=-1) + 1
+        for lead, mem in members.items():
+            for j in mem:
+                group_of[int(j)] = next_group
+            next_group += 1
         for i, row in zip(picks, taken_rows):
+            g = group_of.get(int(i))
+            if g is None:
+                g, next_group = next_group, next_group + 1
             rejected.append(Rejection(int(row), int(ip.photo_index[row]), int(ip.point_index[row]), len(rounds),
-                                      rel.w[i].copy(), rel.mdb[i].copy()))
+                                      rel.w[i].copy(), rel.mdb[i].copy(), group=g))
         keep[taken_rows] = False
         current = warm_start(subset(project, keep), result.state, result.offset)
-    current, result, rel, rows = last
-    return blunder_result("snoop", project, current, result, rel, rows, rejected, rounds, stopped,
-                          time.perf_counter() - t_start)
+    return stopped, last
