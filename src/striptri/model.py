@@ -59,7 +59,13 @@ def _kind_codes(kind) -> np.ndarray:
         raise ValueError(f"unknown point kind code(s) {sorted(set(codes[(codes < 0) | (codes > CHECK)].tolist()))}")
     return codes
 
-ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi")
+ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi", "phi-omega-kappa")
+# Output photos.csv always has omega, phi, kappa; a project in another convention also gets that
+# convention's angles, with these column prefixes (docs/file-formats.md, output folder).
+ROTATION_OUTPUT_NAMES = {
+    "alpha-omega-chi": ("schmid_alpha", "schmid_omega", "schmid_chi"),
+    "phi-omega-kappa": ("pok_phi", "pok_omega", "pok_kappa"),
+}
 ANGLE_UNITS = ("deg", "gon", "rad")
 # Values of [units] plate: the unit of the plate quantities (c, xp, yp, x, y and their sigmas).
 PLATE_UNITS = ("mm", "px")

@@ -30,7 +30,7 @@ from .io.output import OutputReservation, check_output_location
 from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
-from .model import CHECK, KIND_NAMES, Project
+from .model import CHECK, KIND_NAMES, ROTATION_OUTPUT_NAMES, Project
 from .precision import joint_point_covariance
 from .reliability import BlunderOptions, detect_blunders
 from .reliability.outcome import without_tests
@@ -327,7 +327,7 @@ def _angle_scale(project: Project) -> float:
 
 def photo_table(project: Project, result: AdjustmentResult) -> dict:
     """photos.csv: centres (ground frame) and omega, phi, kappa in the project's angle unit, with
-    mean errors; for projects in Schmid's convention also alpha, omega, chi (prefixed schmid_)."""
+    mean errors; for projects in another convention also its angles (ROTATION_OUTPUT_NAMES)."""
     s = result.state
     xyz = s.xyz0 + result.offset
     unit = _angle_scale(project)
@@ -342,13 +342,15 @@ def photo_table(project: Project, result: AdjustmentResult) -> dict:
         cols[f"sigma_{name}"] = sig_xyz[:, a]
     for a, name in enumerate(("omega", "phi", "kappa")):
         cols[f"sigma_{name}"] = sig_opk[:, a] * unit
-    if project.settings.rotation == "alpha-omega-chi":
-        _, sig_aoc = result.photo_mean_errors("alpha-omega-chi")
-        aoc = angles_from_R(s.R_ground_from_cam, "alpha-omega-chi") * unit
-        for a, name in enumerate(("alpha", "omega", "chi")):
-            cols[f"schmid_{name}"] = aoc[:, a]
-        for a, name in enumerate(("alpha", "omega", "chi")):
-            cols[f"sigma_schmid_{name}"] = sig_aoc[:, a] * unit
+    convention = project.settings.rotation
+    if convention in ROTATION_OUTPUT_NAMES:
+        names = ROTATION_OUTPUT_NAMES[convention]
+        _, sig_other = result.photo_mean_errors(convention)
+        other = angles_from_R(s.R_ground_from_cam, convention) * unit
+        for a, name in enumerate(names):
+            cols[name] = other[:, a]
+        for a, name in enumerate(names):
+            cols[f"sigma_{name}"] = sig_other[:, a] * unit
     return cols
 
 

@@ -67,6 +67,7 @@ RADIANS_PER_UNIT = {"deg": math.pi / 180.0, "gon": math.pi / 200.0, "rad": 1.0}
 ANGLE_COLUMNS = {
     "omega-phi-kappa": ("omega", "phi", "kappa"),
     "alpha-omega-chi": ("alpha", "omega", "chi"),
+    "phi-omega-kappa": ("phi", "omega", "kappa"),
 }
 # Base components of bases.csv (Schmid 17, 24): component -> ground axis.
 BASE_AXES = {"bx": 0, "by": 1, "bz": 2}
