@@ -237,3 +237,7 @@ class Project:
     # GNSS lever arm, boresight, shift and drift (striptri.gnss_model); None: plain observed
     # centres and angles
     gnss: GnssModel | None = None
+    # image_points.csv rows with active = 0 (striptri.inactive): kept, written back, given residuals
+    # against the adjusted result and reported, but never adjusted; None: every row is active.
+    # Their point_index refers to ``points`` like image_points' (a point may have inactive rows only).
+    inactive_image_points: ImagePoints | None = None

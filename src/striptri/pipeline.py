@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import diagnosis, gnss_output, plate_corrections, progress, report, solvers, termination
+from . import diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
@@ -198,6 +198,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)
+    given = project  # as read: inactive.inactive_residuals corrects its inactive rows itself
     # [corrections]: Earth curvature and refraction of the plate coordinates, before everything else
     project, corrections = plate_corrections.correct_project(project)
     said: list[str] = []
@@ -250,6 +251,11 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         "points.csv": format_csv(point_cols),
         "residuals.csv": format_csv(residual_table(project, det)),
     }
+    off = None if inactive.none(given) else inactive.inactive_residuals(given, adjusted, result)
+    if off is not None:  # the inactive rows after the active ones (docs/file-formats.md)
+        table = residual_table(project, det)
+        more = inactive.residual_columns(adjusted, off)
+        tables["residuals.csv"] = format_csv({k: list(table[k]) + list(more[k]) for k in table})
     tables.update(gnss_tables(adjusted, result))
     phases["tables"] = time.perf_counter() - t0
     progress.phase("tables (CSV)", phases["tables"])
@@ -259,6 +265,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary["warnings"] = list(said)
     if corrections is not None:
         summary["plate_corrections"] = corrections.summary
+    if off is not None:
+        summary["inactive"] = inactive.summary_entry(adjusted, off)
     summary.update(gnss_output.summary_entry(adjusted, result))
     if frame is not None:
         summary["frame"] = frame.summary()

@@ -167,15 +167,18 @@ def _read(files) -> model.Project:
     control = _read_control(table("control.csv")) if files.present("control.csv") else _Control.empty()
     image_points, points = _read_image_points(table("image_points.csv"), photos, control, settings)
     _check_plate_geometry(tables["image_points.csv"], tables["cameras.csv"], image_points, photos, cameras)
+    active = _active_column(tables["image_points.csv"])
     bases = _read_bases(table("bases.csv"), photos) if files.present("bases.csv") else model.BaseComponents.empty()
     if files.present("approx_points.csv"):
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
     gnss = _read_gnss(files, tables, cameras, photos, settings)
     notes = project_notes(tables, cameras, photos, image_points, points, len(control.ids)) + files.unread_notes()
+    inactive = None if active.all() else _rows(image_points, ~active)
     return model.Project(
         cameras=cameras,
         photos=photos,
-        image_points=image_points,
+        image_points=image_points if inactive is None else _rows(image_points, active),
+        inactive_image_points=inactive,
         points=points,
         bases=bases,
         settings=settings,
@@ -514,6 +517,24 @@ def _read_image_points(
     ).reshape(-1, 2)
     image_points = model.ImagePoints(photo_index=photo_index, point_index=point_index, xy=xy, sigma_xy=sigma_xy)
     return image_points, _object_points(point_ids, control)
+
+
+ACTIVE_WORDS = {"1": True, "true": True, "0": False, "false": False}  # image_points.csv's active, any case
+
+
+def _active_column(table: CsvTable) -> np.ndarray:
+    """image_points.csv's optional ``active`` column -> (m,) bool: 1/true (or empty) = adjusted,
+    0/false = kept and reported but not adjusted (striptri.inactive). Anything else: InputError."""
+    words = [w.lower() or "1" for w in table.optional_strings("active", "1")]
+    for i, w in enumerate(words):
+        if w not in ACTIVE_WORDS:
+            raise table.error(i, f"column 'active': '{table.text(i, 'active')}' is not 1, 0, true or false")
+    return np.array([ACTIVE_WORDS[w] for w in words], dtype=bool).reshape(len(words))
+
+
+def _rows(ip: model.ImagePoints, keep: np.ndarray) -> model.ImagePoints:
+    return model.ImagePoints(photo_index=ip.photo_index[keep], point_index=ip.point_index[keep], xy=ip.xy[keep],
+                             sigma_xy=ip.sigma_xy[keep])
 
 
 def _image_sigma(table: CsvTable, name: str, default: float) -> np.ndarray:

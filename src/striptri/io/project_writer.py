@@ -69,8 +69,11 @@ def reader_point_order(project: model.Project) -> np.ndarray:
     """Indices of the object points in the order read_project gives them after write_project:
     control points (kind != TIE) in their order, then tie points by first measurement."""
     control = np.flatnonzero(project.points.kind != model.TIE)
-    _, first = np.unique(project.image_points.point_index, return_index=True)
-    measured = project.image_points.point_index[np.sort(first)]
+    off = project.inactive_image_points
+    point_index = project.image_points.point_index if off is None else np.concatenate(
+        [project.image_points.point_index, off.point_index])  # the file's rows: active, then inactive
+    _, first = np.unique(point_index, return_index=True)
+    measured = point_index[np.sort(first)]
     ties = measured[project.points.kind[measured] == model.TIE]
     return np.concatenate([control, ties]).astype(np.int64)
 
@@ -164,16 +167,21 @@ def _photo_columns(photos: model.Photos, cameras: model.Cameras, settings: model
 
 
 def _image_point_columns(project: model.Project) -> dict[str, Sequence]:
-    """image_points.csv with explicit sigmas, rows in the project's order."""
-    ip = project.image_points
-    return {
-        "photo_id": [project.photos.ids[k] for k in ip.photo_index],
-        "point_id": [project.points.ids[k] for k in ip.point_index],
-        "x": ip.xy[:, 0],
-        "y": ip.xy[:, 1],
-        "sigma_x": ip.sigma_xy[:, 0],
-        "sigma_y": ip.sigma_xy[:, 1],
+    """image_points.csv with explicit sigmas, rows in the project's order; inactive rows last, with
+    the column active (1/0) when there are any."""
+    ip, off = project.image_points, project.inactive_image_points
+    rows = [(ip, 1)] + ([(off, 0)] if off is not None and len(off) else [])
+    columns = {
+        "photo_id": [project.photos.ids[k] for t, _ in rows for k in t.photo_index],
+        "point_id": [project.points.ids[k] for t, _ in rows for k in t.point_index],
+        "x": np.concatenate([t.xy[:, 0] for t, _ in rows]),
+        "y": np.concatenate([t.xy[:, 1] for t, _ in rows]),
+        "sigma_x": np.concatenate([t.sigma_xy[:, 0] for t, _ in rows]),
+        "sigma_y": np.concatenate([t.sigma_xy[:, 1] for t, _ in rows]),
     }
+    if len(rows) > 1:  # the active rows, then the inactive ones (image_points.csv's active column)
+        columns["active"] = np.concatenate([np.full(len(t), a, dtype=int) for t, a in rows])
+    return columns
 
 
 def _control_columns(points: model.ObjectPoints) -> dict[str, Sequence]:
