@@ -79,6 +79,9 @@ class Cameras:
     interior: (ncam, NCP) columns lens.CAMERA_ELEMENTS (c, xp, yp, k1, k2, k3, p1, p2, b1, b2);
     sigma_interior: (ncam, NCP), nan = held fixed, > 0 = observed, inf = free;
     convention: (ncam,) lens.PLATE or lens.IMAGE, where the distortion acts.
+    r0: (ncam,) the zero-crossing radius of cameras given with balanced radial distortion
+    (striptri.balanced; nan = none, None = no camera): ``interior`` always holds the Gaussian form,
+    r0 only says how to write the camera back.
     Tables with only the first columns (c, xp, yp) are padded: distortion 0 and held fixed.
     """
 
@@ -86,6 +89,7 @@ class Cameras:
     interior: np.ndarray
     sigma_interior: np.ndarray
     convention: np.ndarray | None = None
+    r0: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.ids)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
+from . import balanced, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
@@ -376,6 +376,11 @@ def camera_table(project: Project, result: AdjustmentResult) -> dict:
             cols["distortion"] = [CONVENTION_NAMES[int(c)] for c in result.state.convention]
         for e in range(first, last):
             cols[f"sigma_{CAMERA_ELEMENTS[e]}"] = np.where(estimated[:, e], sig[:, e], np.nan)
+    if cams.r0 is not None and np.isfinite(cams.r0).any():  # cameras given balanced (striptri.balanced)
+        idx = result.layout.camera_cols[:, list(balanced.CHANGED)]
+        Q = result.covariance.entries(idx[:, :, None], idx[:, None, :])
+        cols.update(balanced.output_columns(cams.r0, result.state.interior, result.state.convention, Q,
+                                            result.sigma0_for_precision))
     return cols
 
 

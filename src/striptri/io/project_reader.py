@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from striptri import model, rotations
+from striptri import balanced, model, rotations
 from striptri.errors import InputError
 from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
 from striptri.core.options import DATUMS, METHODS
@@ -377,7 +377,29 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
     for i in np.flatnonzero((convention == IMAGE) & affine.any(axis=1)):
         raise table.error(i, "b1, b2 (affinity, shear) belong to the plate convention; with distortion = image "
                              "they must be empty or 0 and held")
-    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma, convention=convention)
+    r0 = _balanced_radius(table, sigma) if table.has("r0") else None
+    if r0 is not None:
+        interior = balanced.gaussian_from_balanced(interior, r0, convention)
+        for i in np.flatnonzero(np.isfinite(r0) & ~(interior[:, 0] > 0)):
+            raise table.error(i, f"with r0 = {table.text(i, 'r0')} the balanced radial distortion gives a principal "
+                                 f"distance {interior[i, 0]:.6g} <= 0: check k1, k2, k3 and r0")
+    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma, convention=convention, r0=r0)
+
+
+def _balanced_radius(table: CsvTable, sigma: np.ndarray) -> np.ndarray:
+    """cameras.csv's optional r0 (striptri.balanced): empty = Gaussian; otherwise > 0 (plate units,
+    or normalised for distortion = image), and c, k1-k3, p1, p2 held or free, not observed (their
+    weights would not carry over exactly)."""
+    r0 = table.optional_floats("r0")
+    for i in np.flatnonzero(r0 <= 0):
+        raise table.error(i, f"column 'r0': the zero-crossing radius must be > 0 (got {table.text(i, 'r0')})")
+    observed = np.isfinite(sigma[:, list(balanced.CHANGED)]) & np.isfinite(r0)[:, None]
+    for i in np.flatnonzero(observed.any(axis=1))[:1]:
+        names = [CAMERA_ELEMENTS[e] for e, o in zip(balanced.CHANGED, observed[i]) if o]
+        raise table.error(i, f"with r0 (balanced radial distortion) {', '.join(names)} may be held (empty sigma) or "
+                             "'free', not observed with a standard deviation: the balanced elements' weights do not "
+                             "carry over to the Gaussian form the adjustment uses")
+    return r0
 
 
 # ---------------------------------------------------------------------------------------------

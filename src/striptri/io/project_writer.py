@@ -22,6 +22,7 @@ from striptri.lens import CAMERA_ELEMENTS, CONVENTION_NAMES, has_distortion
 from striptri.io.csvtable import format_csv
 from striptri.io.gnss_writer import gnss_camera_columns, gnss_photo_columns, gnss_toml
 from striptri.io.output import write_output_folder
+from striptri.balanced import balanced_from_gaussian
 from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES, RADIANS_PER_UNIT
 
 _AXIS_NAMES = {axis: name for name, axis in BASE_AXES.items()}
@@ -133,10 +134,15 @@ def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
     columns: dict[str, Sequence] = {"camera_id": cameras.ids}
     extended = has_distortion(cameras.interior, ~np.isnan(cameras.sigma_interior)) or bool(np.any(cameras.convention))
     names = CAMERA_ELEMENTS if extended else CAMERA_ELEMENTS[:3]
+    r0 = cameras.r0 if cameras.r0 is not None and np.isfinite(cameras.r0).any() else None
+    # cameras given balanced are written balanced (striptri.balanced), with their r0
+    interior = cameras.interior if r0 is None else balanced_from_gaussian(cameras.interior, r0, cameras.convention)[0]
     for j, name in enumerate(names):
-        columns[name] = cameras.interior[:, j]
+        columns[name] = interior[:, j]
     if extended:
         columns["distortion"] = [CONVENTION_NAMES[int(c)] for c in cameras.convention]
+    if r0 is not None:
+        columns["r0"] = r0
     for j, name in enumerate(names):
         columns[f"sigma_{name}"] = [_camera_sigma(s) for s in cameras.sigma_interior[:, j]]
     return columns
