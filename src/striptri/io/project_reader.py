@@ -43,7 +43,7 @@ import numpy as np
 
 from striptri import balanced, model, rotations
 from striptri.errors import InputError
-from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
+from striptri.lens import CAMERA_ELEMENTS, CONVENTIONS, NCP
 from striptri.core.options import DATUMS, METHODS
 from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
@@ -373,10 +373,6 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
                                  f"DBAT/photogrammetry) or 'image' (applied to the projected point, "
                                  f"BAL/COLMAP/OpenCV), not '{word}'")
         convention[i] = CONVENTIONS[word]
-    affine = (interior[:, B1:] != 0) | ~np.isnan(sigma[:, B1:])
-    for i in np.flatnonzero((convention == IMAGE) & affine.any(axis=1)):
-        raise table.error(i, "b1, b2 (affinity, shear) belong to the plate convention; with distortion = image "
-                             "they must be empty or 0 and held")
     r0 = _balanced_radius(table, sigma) if table.has("r0") else None
     if r0 is not None:
         interior = balanced.gaussian_from_balanced(interior, r0, convention)
