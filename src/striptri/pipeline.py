@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import balanced, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
+from . import balanced, covariance_export, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
@@ -84,7 +84,7 @@ def input_paths(project_dir: Path) -> list[Path]:
 
 def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders: str = "off",
                keep_unconverged: bool = False, on_warning: Callable[[str], None] | None = None,
-               corrections: dict | None = None, **overrides) -> AdjustmentProducts:
+               corrections: dict | None = None, covariance=None, **overrides) -> AdjustmentProducts:
     """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure.
 
     The output location is checked before the project is read and reserved before the adjustment
@@ -94,7 +94,8 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
     point_precision: "schmid90", the orientation part plus the measurement part (Schmid 87-90), or
     "joint92", the rigorous joint form (92) (docs/decisions.md: for points in the adjustment the
     two agree to rounding). corrections: {"earth_curvature": bool | None, "refraction": bool | None},
-    the command line's values over project.toml's [corrections] (None: project.toml's)."""
+    the command line's values over project.toml's [corrections] (None: project.toml's). covariance: a
+    covariance_export.CovarianceRequest: covariance.npz is written too."""
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
@@ -123,6 +124,15 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
                                                   on_warning, seconds_reading)
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
+        if covariance is not None:
+            if framed is not None:
+                raise InputError("command line", None, "--covariance with [coordinates] crs: not available yet (the "
+                                 "covariance would be that of the local frame, not of the CRS's axes)")
+            try:
+                products.files["covariance.npz"] = covariance_export.covariance_file(
+                    products.project, products.result, covariance)
+            except ValueError as exc:
+                raise InputError("command line", None, str(exc)) from None
         reservation.commit(products.files)
     return products
 
