@@ -14,7 +14,8 @@ from striptri import model
 from striptri import simulate as sim
 from striptri.adjustment import adjust
 from striptri.model import BaseComponents
-from striptri.rotations import angles_from_R
+from striptri.pipeline import photo_table
+from striptri.rotations import angles_from_R, angles_jacobian
 
 
 def _pair(seed, sigma_image=0.005, relief=50.0, single=0, extra=6, layout="corners"):
@@ -101,7 +102,7 @@ def test_fixed_centre_element_is_held():
     assert _positions(r)[0, 0] == truth.xyz0[0, 0]
 
 
-@pytest.mark.parametrize("convention", ["omega-phi-kappa", "alpha-omega-chi"])
+@pytest.mark.parametrize("convention", ["omega-phi-kappa", "alpha-omega-chi", "phi-omega-kappa"])
 def test_partially_fixed_angles_are_held_and_match_the_heavy_weight_limit(convention):
     p, truth = _pair(5)
     p = replace(p, settings=replace(p.settings, rotation=convention))
@@ -172,3 +173,39 @@ def test_mean_error_of_bx_matches_monte_carlo_scatter():
     n = len(bx)
     ratio = np.var(bx, ddof=1) / np.mean(reported) ** 2
     assert abs(ratio - 1.0) < 4 * np.sqrt(2 / (n - 1))
+
+
+def test_phi_omega_kappa_project_adjusts_as_omega_phi_kappa_and_writes_its_angles():
+    """The same enforced attitudes given in phi-omega-kappa (primary axis Y) and in omega-phi-kappa
+    give the same adjustment; photos.csv then carries pok_phi, pok_omega, pok_kappa whose mean errors
+    equal those of the angles as functions of the unknowns (Schmid 81-84)."""
+
+    p, truth = _pair(7)
+    sig = np.full((2, 3), 2e-4)
+    opk = _with_photo_sigmas(p, sigma_angles=sig, angles=angles_from_R(truth.R_ground_from_cam, "omega-phi-kappa"),
+                             R_ground_from_cam=truth.R_ground_from_cam)
+    # held angles (sigma 0): the same rotation in either convention must give the same adjustment
+    a = adjust(replace(opk, photos=replace(opk.photos, sigma_angles=np.zeros((2, 3)))))
+    pok_angles = angles_from_R(truth.R_ground_from_cam, "phi-omega-kappa")
+    pok = replace(opk, settings=replace(opk.settings, rotation="phi-omega-kappa"),
+                  photos=replace(opk.photos, angles=pok_angles, sigma_angles=np.zeros((2, 3))))
+    b = adjust(pok)
+    np.testing.assert_allclose(b.state.R_ground_from_cam, a.state.R_ground_from_cam, atol=1e-14)
+    assert b.vtpv == pytest.approx(a.vtpv, rel=1e-10)
+    free = adjust(replace(pok, photos=replace(pok.photos, sigma_angles=np.full((2, 3), np.nan))))
+    table = photo_table(pok, free)
+    unit = 180.0 / np.pi if pok.settings.angle_unit == "deg" else {"gon": 200.0 / np.pi, "rad": 1.0}[pok.settings.angle_unit]
+    got = np.column_stack([table[n] for n in ("pok_phi", "pok_omega", "pok_kappa")]) / unit
+    np.testing.assert_allclose(got, angles_from_R(free.state.R_ground_from_cam, "phi-omega-kappa"), atol=1e-13)
+    sig_pok = np.column_stack([table[f"sigma_{n}"] for n in ("pok_phi", "pok_omega", "pok_kappa")]) / unit
+    # second way: each angle as a function of the unknowns, its gradient J T on the photo's rotation
+    # columns, through the general mean error of a function (Schmid 81-84)
+    T = free.layout.rotation_maps(free.state)
+    for k in range(2):
+        G = angles_jacobian(free.state.R_ground_from_cam[k], "phi-omega-kappa") @ T[k]
+        cols = free.layout.photo_cols[k, 3:]
+        for row in range(3):
+            f = np.zeros(free.n_unknowns)
+            f[cols[cols >= 0]] = G[row, cols >= 0]
+            assert sig_pok[k, row] == pytest.approx(free.mean_error(f), rel=1e-9)
+    assert np.all(sig_pok > 0)

@@ -45,10 +45,10 @@ def image_camera(rng, m):
 
 
 def camera(convention, rng, m):
-    """A camera of the convention (image convention without b1, b2) and m measurements."""
+    """A camera of the convention (the image convention with affinity and shear too) and m measurements."""
     xy, prm = (plate_camera if convention == PLATE else image_camera)(rng, m)
     if convention == IMAGE:
-        prm[:, lens.B1:] = 0.0
+        prm[:, lens.B1], prm[:, lens.B2] = 3e-3, -2e-3
     return xy, prm
 
 
@@ -88,7 +88,7 @@ def test_ideal_points_derivatives(convention):
     xy, prm = camera(convention, rng, 60)
     ideal = ideal_from_observed(xy, prm, convention)
     assert ideal.converged.all()
-    scale = SCALES if convention == PLATE else np.array([1.0, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1, 1])
+    scale = SCALES if convention == PLATE else np.array([1.0, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-4, 1e-4])
     cam = numeric_jacobian(lambda p: ideal_from_observed(xy, p, convention).xy, prm, scale)
     assert_jacobian(ideal.d_camera, cam, 1)
     if convention == IMAGE:  # residuals in the measured coordinates: d ideal / d measured
@@ -136,7 +136,7 @@ def test_projection_terms_derivatives(convention):
         pred_ideal = p[:, lens.XP:lens.YP + 1] + p[:, lens.C, None] * n
         t = projection_terms(pred_ideal, xy, p, convention)
         return t.pred - t.obs
-    scale = SCALES if convention == PLATE else np.array([1.0, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1, 1])
+    scale = SCALES if convention == PLATE else np.array([1.0, 0.1, 0.1, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-4, 1e-4])
     pred_ideal = prm[:, lens.XP:lens.YP + 1] + prm[:, lens.C, None] * n
     terms = projection_terms(pred_ideal, xy, prm, convention)
     assert_jacobian(terms.d_camera, numeric_jacobian(residual, prm, scale), 1)
@@ -161,3 +161,25 @@ def test_observed_from_ideal_inverts_ideal_from_observed(convention):
     ideal = ideal_from_observed(xy, prm, convention).xy
     np.testing.assert_allclose(lens.observed_from_ideal(ideal, prm, convention), xy, rtol=0,
                                atol=1e-11 * np.abs(xy).max())
+
+
+def test_image_convention_affinity_and_shear_is_the_calibration_matrix():
+    """x = xp + c ((1 + b1) dx + b2 dy), y = yp + c dy with (dx, dy) = brown(n): the pinhole K with
+    fx = c (1 + b1), fy = c, skew c b2 after the distortion, written out; the undistortion inverts it."""
+    rng = np.random.default_rng(12)
+    _, prm = image_camera(rng, 100)
+    prm[:, lens.B1], prm[:, lens.B2] = 4e-3, -3e-3
+    n = rng.uniform(-0.6, 0.6, (100, 2))
+    c, xp, yp = prm[:, lens.C], prm[:, lens.XP], prm[:, lens.YP]
+    d = brown(n, prm)[0]
+    K = np.zeros((100, 2, 3))
+    K[:, 0, 0], K[:, 0, 1], K[:, 0, 2] = c * (1 + prm[:, lens.B1]), c * prm[:, lens.B2], xp
+    K[:, 1, 1], K[:, 1, 2] = c, yp
+    by_hand = np.einsum("mij,mj->mi", K, np.column_stack([d, np.ones(100)]))
+    ideal = prm[:, lens.XP:lens.YP + 1] + c[:, None] * n
+    np.testing.assert_allclose(lens.observed_from_ideal(ideal, prm, IMAGE), by_hand, rtol=0, atol=1e-10)
+    back = ideal_from_observed(by_hand, prm, IMAGE)
+    assert back.converged.all()
+    np.testing.assert_allclose(back.xy, ideal, rtol=0, atol=1e-9)
+    t = projection_terms(ideal, by_hand, prm, IMAGE)
+    np.testing.assert_allclose(t.pred, by_hand, rtol=0, atol=1e-10)

@@ -8,11 +8,13 @@ from striptri.camera import project, ray_ground
 from striptri.rotations import (
     R_from_aoc,
     R_from_opk,
+    R_from_pok,
     angles_from_R,
     aoc_from_R,
     exp_so3,
     log_so3,
     opk_from_R,
+    pok_from_R,
     schmid_auxiliaries,
     skew,
     wrap_angle,
@@ -31,7 +33,7 @@ def test_opk_is_rx_ry_rz():
     np.testing.assert_allclose(R_from_opk([omega, phi, kappa]), rx @ ry @ rz, atol=1e-15)
 
 
-@pytest.mark.parametrize("convention", ["omega-phi-kappa", "alpha-omega-chi"])
+@pytest.mark.parametrize("convention", ["omega-phi-kappa", "alpha-omega-chi", "phi-omega-kappa"])
 def test_conversions_both_ways_for_any_rotation(convention):
     rng = np.random.default_rng(0)
     R = _random_rotations(rng, 500)
@@ -102,3 +104,39 @@ def test_exp_log_and_skew():
 
 def test_wrap_angle():
     np.testing.assert_allclose(wrap_angle(np.array([0.1, 2 * np.pi + 0.1, -2 * np.pi - 0.1])), [0.1, 0.1, -0.1])
+
+
+def test_pok_is_ry_rx_rz_with_phi_first():
+    phi, omega, kappa = 0.3, -0.2, 1.1
+    rx = np.array([[1, 0, 0], [0, np.cos(omega), -np.sin(omega)], [0, np.sin(omega), np.cos(omega)]])
+    ry = np.array([[np.cos(phi), 0, np.sin(phi)], [0, 1, 0], [-np.sin(phi), 0, np.cos(phi)]])
+    rz = np.array([[np.cos(kappa), -np.sin(kappa), 0], [np.sin(kappa), np.cos(kappa), 0], [0, 0, 1]])
+    np.testing.assert_allclose(R_from_pok([phi, omega, kappa]), ry @ rx @ rz, atol=1e-15)
+
+
+def test_pok_round_trips_to_1e12_rad_and_describes_the_same_rotation_as_opk():
+    """Angles in the convention's range (phi, kappa in (-pi, pi], omega in [-pi/2, pi/2]) -> R ->
+    angles to 1e-12 rad; opk and pok of one R give the same R."""
+    rng = np.random.default_rng(11)
+    angles = np.column_stack([rng.uniform(-np.pi, np.pi, 1000), rng.uniform(-1.55, 1.55, 1000),
+                              rng.uniform(-np.pi, np.pi, 1000)])
+    np.testing.assert_allclose(pok_from_R(R_from_pok(angles)), angles, rtol=0, atol=1e-12)
+    R = _random_rotations(rng, 300)
+    np.testing.assert_allclose(R_from_pok(pok_from_R(R)), R_from_opk(opk_from_R(R)), atol=1e-13)
+    # a small rotation about Y alone is phi in pok and phi in opk
+    np.testing.assert_allclose(pok_from_R(R_from_opk([0.0, 0.2, 0.0])), [0.2, 0.0, 0.0], atol=1e-15)
+
+
+@pytest.mark.parametrize("convention", ["omega-phi-kappa", "alpha-omega-chi", "phi-omega-kappa"])
+def test_gimbal_lock_angles_reproduce_the_matrix(convention):
+    """At the lock of the middle angle (+-90 deg) the angles are not unique; the conversion must
+    still give angles whose matrix is the given one (the same behaviour for every convention)."""
+    from striptri.rotations import R_from_angles
+
+    for first in (0.3, -1.2, 2.9):
+        for middle in (np.pi / 2, -np.pi / 2):
+            angles = np.array([first + (np.pi if convention == "alpha-omega-chi" else 0.0), middle, 0.7])
+            R = R_from_angles(angles, convention)
+            back = angles_from_R(R, convention)
+            np.testing.assert_allclose(R_from_angles(back, convention), R, atol=1e-15)
+            assert abs(abs(back[1]) - np.pi / 2) < 1e-7

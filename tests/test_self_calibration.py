@@ -36,6 +36,7 @@ def true_lens(convention: int) -> np.ndarray:
         prm[lens.K1], prm[lens.K2], prm[lens.P1], prm[lens.P2], prm[lens.B1] = 4e-8, -1e-12, 2e-7, -1.5e-7, 3e-5
     else:  # normalised coordinates: r_n = r / c
         prm[lens.K1], prm[lens.K2], prm[lens.P1], prm[lens.P2] = 9e-4, -5e-4, 3e-5, -2e-5
+        prm[lens.B1], prm[lens.B2] = 2e-4, -1e-4  # affinity and shear after the distortion (K matrix)
     return prm
 
 
@@ -65,7 +66,7 @@ def calibration_project(convention: int, noise: sim.NoiseOptions, seed: int = 3,
 
 @pytest.mark.parametrize("convention", [PLATE, IMAGE])
 def test_linearised_conditions_with_the_camera_model(convention):
-    free = FREE + ("c", "xp", "yp", "k3") + (("b1", "b2") if convention == PLATE else ())
+    free = FREE + ("c", "xp", "yp", "k3", "b1", "b2")
     project, _, prm = calibration_project(convention, sim.NoiseOptions(), free=free)
     # evaluate away from zero: the true lens, slightly changed
     cams = replace(project.cameras, interior=(prm * (1 + 0.1 * np.arange(NCP) / NCP))[None, :])
@@ -221,3 +222,27 @@ def test_observed_distortion_element_is_a_weighted_observation():
     # equal weights of the prior and of the data: half-way (the update of a Gaussian estimate)
     assert equal.state.interior[0, lens.K1] == pytest.approx((k1_free + observed) / 2, abs=0.05 * sig_free)
     assert equal.redundancy == free.redundancy + 1
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_image_convention_affinity_and_shear_recovered_and_methods_agree(method):
+    """Affinity and shear in the image convention (issue 17): noise-free, b1 and b2 free from 0 are
+    recovered; with noise the method of conditions equals the bundle method."""
+    free = FREE + ("b1", "b2")
+    noise = sim.NoiseOptions(sigma_image=0.0, stated_sigma_image=0.005, sigma_control_xy=0.0, sigma_control_z=0.0)
+    project, truth, prm = calibration_project(IMAGE, noise, free=free)
+    result = adjust(project, AdjustmentOptions(method=method))
+    got = result.state.interior[0]
+    for name in free:
+        e = lens.CAMERA_ELEMENTS.index(name)
+        assert abs(got[e] - prm[e]) <= 1e-7 * abs(prm[e]), (name, got[e], prm[e])
+    if method == "bundle":
+        project, _, _ = calibration_project(IMAGE, sim.NoiseOptions(), seed=5, free=free)
+        a = adjust(project, AdjustmentOptions(method="conditions"))
+        b = adjust(project, AdjustmentOptions(method="bundle"))
+        assert a.redundancy == b.redundancy
+        np.testing.assert_allclose(a.vtpv, b.vtpv, rtol=1e-7)
+        sig = a.camera_mean_errors()[0]
+        cols = a.layout.camera_cols[0] >= 0
+        diff = np.abs(a.state.interior[0] - b.state.interior[0])[cols] / sig[cols]
+        assert diff.max() < 1e-5, diff

@@ -370,6 +370,15 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
               help="Gross errors: off (flag |w| > 3.29 only), snoop (Baarda data snooping: inseparable groups rejected "
                    "together, rejections re-tested), snoop-classic (the snooping before issue 18) "
                    "or robust (re-weighting, then least squares of the survivors).")
+@click.option("--covariance", "covariance_groups", default=None, metavar="GROUPS",
+              help="Also write covariance.npz: the full covariance of these groups, comma-separated from photos, "
+                   "camera, points (docs/file-formats.md).")
+@click.option("--covariance-datum", default=None, metavar="POINTS",
+              help="S-transform the covariance to the datum of these object points (comma-separated ids, at least "
+                   "three): their inner constraints define it.")
+@click.option("--covariance-rigid", is_flag=True, default=False,
+              help="With --covariance-datum: a rigid motion (6 parameters; the scale stays the measurements') "
+                   "instead of a similarity (7).")
 @click.option("--procedure", type=click.Choice(["1", "2"]), default=None,
               help="Sequential method: Schut's procedure 1 (relative orientation, scale transfer) or 2 "
                    "(six elements by coplanarity and carried-over points) [1].")
@@ -392,6 +401,7 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
                    "vTPv, largest correction and seconds, then the phases after the adjustment).")
 @reports_errors
 def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders,
+           covariance_groups, covariance_datum, covariance_rigid,
            procedure, direction, polynomial_degree, init, earth_curvature, refraction, keep_unconverged, quiet):
     """Adjust the project in PROJECT_DIR and write the results to --out.
 
@@ -403,9 +413,10 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
     from striptri import progress
     from striptri.pipeline import run_adjust
 
+    covariance = _covariance_request(covariance_groups, covariance_datum, covariance_rigid)
     with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):
         products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
-                              keep_unconverged=keep_unconverged, on_warning=_warn,
+                              covariance=covariance, keep_unconverged=keep_unconverged, on_warning=_warn,
                               corrections={"earth_curvature": earth_curvature, "refraction": refraction},
                               method=method, solver=solver, init=init, direction=direction,
                               procedure=None if procedure is None else int(procedure),
@@ -605,3 +616,21 @@ def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every
 
 if __name__ == "__main__":
     main()
+
+
+def _covariance_request(groups, datum, rigid):
+    """--covariance, --covariance-datum, --covariance-rigid -> covariance_export.CovarianceRequest or
+    None; a bad combination is an InputError (exit status 2)."""
+    from striptri.covariance_export import CovarianceRequest
+
+    if groups is None:
+        if datum is not None or rigid:
+            raise InputError("command line", None, "--covariance-datum and --covariance-rigid need --covariance")
+        return None
+
+    def split(text):
+        return tuple(t.strip() for t in text.split(",") if t.strip())
+    try:
+        return CovarianceRequest(split(groups), split(datum or ""), not rigid)
+    except ValueError as exc:
+        raise InputError("command line", None, str(exc)) from None

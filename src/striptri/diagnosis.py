@@ -76,7 +76,7 @@ PAIR_CHUNK = 200_000  # ray pairs evaluated at once (bounds the memory)
 LIST_MAX = 8  # photos, points or groups named in one message before "and N more"
 
 ANGLE_UNITS = {"deg": 180.0 / np.pi, "gon": 200.0 / np.pi, "rad": 1.0}
-THIRD_ANGLE = {"omega-phi-kappa": "kappa", "alpha-omega-chi": "chi"}
+THIRD_ANGLE = {"omega-phi-kappa": "kappa", "alpha-omega-chi": "chi", "phi-omega-kappa": "kappa"}
 
 
 def likely_causes(project: Project, failure: str) -> list[str]:

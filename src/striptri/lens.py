@@ -5,7 +5,7 @@ Ten elements per camera, in this order (CAMERA_ELEMENTS):
     c, xp, yp        principal distance and principal point (plate units)
     k1, k2, k3       radial distortion (Brown)
     p1, p2           decentering distortion (Brown)
-    b1, b2           affinity (aspect) and shear (skew); plate convention only
+    b1, b2           affinity (aspect) and shear (skew), in either convention
 
 Brown's polynomial on a 2-vector ``u = (x, y)`` with ``r^2 = x^2 + y^2``::
 
@@ -21,8 +21,11 @@ Two conventions, chosen per camera:
   evaluated at the measured point, as DBAT does), so the weights of the measurements apply to
   the refined coordinates.
 * ``image`` (IMAGE; BAL, COLMAP, OpenCV): the distortion is applied to the *projected* point in
-  normalised coordinates ``n = -m_xy / m_z``: ``x = xp + c brown(n)`` (k, p dimensionless),
-  and the residuals live in the measured coordinates. b1, b2 must stay 0.
+  normalised coordinates ``n = -m_xy / m_z``: with ``(dx, dy) = brown(n)`` (k, p dimensionless),
+  ``x = xp + c ((1 + b1) dx + b2 dy)``, ``y = yp + c dy``, i.e. the calibration matrix
+  ``K = [[c (1 + b1), c b2, xp], [0, c, yp]]`` of computer vision (focal lengths fx = c (1 + b1),
+  fy = c and skew c b2; Hartley & Zisserman 2004, section 6.1) after the distortion; the residuals
+  live in the measured coordinates. b1 = b2 = 0 is the plain ``x = xp + c brown(n)``.
 
 Both give, for every measurement, an *ideal* plate point ``xy_ideal`` whose ray is
 ``(xy_ideal - (xp, yp), -c)`` (the distortion-free collinearity of DESIGN section 1), which is how
@@ -144,9 +147,30 @@ def _plate_refinement(xy, prm, out_xy, d_obs, d_cam, where):
     d_cam[where] = d
 
 
+def _affine(prm: np.ndarray) -> np.ndarray:
+    """The image convention's affinity and shear: A = [[1 + b1, b2], [0, 1]]. (m, NCP) -> (m, 2, 2)."""
+    A = np.zeros((len(prm), 2, 2))
+    A[:, 0, 0] = 1.0 + prm[:, B1]
+    A[:, 0, 1] = prm[:, B2]
+    A[:, 1, 1] = 1.0
+    return A
+
+
+def _affine_inverse(prm: np.ndarray) -> np.ndarray:
+    """A^-1 = [[1/(1 + b1), -b2/(1 + b1)], [0, 1]]. (m, NCP) -> (m, 2, 2)."""
+    a = 1.0 + prm[:, B1]
+    Ai = np.zeros((len(prm), 2, 2))
+    Ai[:, 0, 0] = 1.0 / a
+    Ai[:, 0, 1] = -prm[:, B2] / a
+    Ai[:, 1, 1] = 1.0
+    return Ai
+
+
 def _undistort(xy, prm, out_xy, d_obs, d_cam, where):
+    """Image convention: the ideal point pp + c n with brown(n) = q = A^-1 (xy - pp) / c (Newton)."""
     c = prm[:, C]
-    q = (xy - prm[:, XP:YP + 1]) / c[:, None]
+    Ai = _affine_inverse(prm)
+    q = np.einsum("mij,mj->mi", Ai, (xy - prm[:, XP:YP + 1]) / c[:, None])
     n = q.copy()
     tol = 1e-14 * (1.0 + np.abs(q).max(axis=-1))
     done = np.zeros(len(q), dtype=bool)
@@ -163,10 +187,13 @@ def _undistort(xy, prm, out_xy, d_obs, d_cam, where):
     ok = done & (det > 0) & np.all(np.abs(val - q) <= 1e-10 * (1.0 + np.abs(q)), axis=-1)
     d = np.zeros((len(xy), 2, NCP))
     d[:, :, C] = n - np.einsum("mij,mj->mi", inv, q)
-    d[:, :, XP:YP + 1] = np.eye(2) - inv
+    d[:, :, XP:YP + 1] = np.eye(2) - inv @ Ai
     d[:, :, K1:P2 + 1] = -c[:, None, None] * (inv @ d_k)
+    # dq/db1 = -A^-1 (q_x, 0), dq/db2 = -A^-1 (q_y, 0); d ideal = c inv dq
+    d[:, :, B1] = -c[:, None] * np.einsum("mij,mj->mi", inv, Ai[:, :, 0] * q[:, 0, None])
+    d[:, :, B2] = -c[:, None] * np.einsum("mij,mj->mi", inv, Ai[:, :, 0] * q[:, 1, None])
     out_xy[where] = prm[:, XP:YP + 1] + c[:, None] * n
-    d_obs[where] = inv
+    d_obs[where] = inv @ Ai
     d_cam[where] = d
     return ok
 
@@ -186,7 +213,8 @@ def observed_from_ideal(xy_ideal: np.ndarray, params: np.ndarray, convention: np
     if image.any():
         prm = params[image]
         c, pp = prm[:, C], prm[:, XP:YP + 1]
-        out[image] = pp + c[:, None] * brown((xy_ideal[image] - pp) / c[:, None], prm)[0]
+        val = brown((xy_ideal[image] - pp) / c[:, None], prm)[0]
+        out[image] = pp + c[:, None] * np.einsum("mij,mj->mi", _affine(prm), val)
     plate = ~image
     if plate.any():
         prm, target = params[plate], xy_ideal[plate]
@@ -254,13 +282,16 @@ def projection_terms(pred_ideal: np.ndarray, xy_obs: np.ndarray, params: np.ndar
         prm = params[image]
         val, d_u, d_k = brown(n[image], prm)
         cc = c[image]
+        A = _affine(prm)
         obs[image] = xy_obs[image]
-        pred[image] = pp[image] + cc[:, None] * val
-        d_ideal[image] = d_u
+        pred[image] = pp[image] + cc[:, None] * np.einsum("mij,mj->mi", A, val)
+        d_ideal[image] = A @ d_u
         dp = np.zeros((len(prm), 2, NCP))
-        dp[:, :, C] = val
+        dp[:, :, C] = np.einsum("mij,mj->mi", A, val)
         dp[:, 0, XP] = dp[:, 1, YP] = 1.0
-        dp[:, :, K1:P2 + 1] = cc[:, None, None] * d_k
+        dp[:, :, K1:P2 + 1] = cc[:, None, None] * (A @ d_k)
+        dp[:, 0, B1] = cc * val[:, 0]
+        dp[:, 0, B2] = cc * val[:, 1]
         d_cam[image] = dp
     return ProjectionTerms(obs, pred, d_ideal, d_cam)
 

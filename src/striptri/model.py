@@ -59,7 +59,13 @@ def _kind_codes(kind) -> np.ndarray:
         raise ValueError(f"unknown point kind code(s) {sorted(set(codes[(codes < 0) | (codes > CHECK)].tolist()))}")
     return codes
 
-ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi")
+ROTATION_CONVENTIONS = ("omega-phi-kappa", "alpha-omega-chi", "phi-omega-kappa")
+# Output photos.csv always has omega, phi, kappa; a project in another convention also gets that
+# convention's angles, with these column prefixes (docs/file-formats.md, output folder).
+ROTATION_OUTPUT_NAMES = {
+    "alpha-omega-chi": ("schmid_alpha", "schmid_omega", "schmid_chi"),
+    "phi-omega-kappa": ("pok_phi", "pok_omega", "pok_kappa"),
+}
 ANGLE_UNITS = ("deg", "gon", "rad")
 # Values of [units] plate: the unit of the plate quantities (c, xp, yp, x, y and their sigmas).
 PLATE_UNITS = ("mm", "px")
@@ -73,6 +79,9 @@ class Cameras:
     interior: (ncam, NCP) columns lens.CAMERA_ELEMENTS (c, xp, yp, k1, k2, k3, p1, p2, b1, b2);
     sigma_interior: (ncam, NCP), nan = held fixed, > 0 = observed, inf = free;
     convention: (ncam,) lens.PLATE or lens.IMAGE, where the distortion acts.
+    r0: (ncam,) the zero-crossing radius of cameras given with balanced radial distortion
+    (striptri.balanced; nan = none, None = no camera): ``interior`` always holds the Gaussian form,
+    r0 only says how to write the camera back.
     Tables with only the first columns (c, xp, yp) are padded: distortion 0 and held fixed.
     """
 
@@ -80,6 +89,7 @@ class Cameras:
     interior: np.ndarray
     sigma_interior: np.ndarray
     convention: np.ndarray | None = None
+    r0: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.ids)
@@ -234,3 +244,7 @@ class Project:
     # scanned film (striptri.film.reading.FilmData): the fiducial fit and the calibration report,
     # for the report and output tables; None: plate coordinates given in plate units
     film: object | None = None
+    # image_points.csv rows with active = 0 (striptri.inactive): kept, written back, given residuals
+    # against the adjusted result and reported, but never adjusted; None: every row is active.
+    # Their point_index refers to ``points`` like image_points' (a point may have inactive rows only).
+    inactive_image_points: ImagePoints | None = None

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import diagnosis, gnss_output, plate_corrections, progress, report, solvers, termination
+from . import balanced, covariance_export, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
@@ -31,7 +31,7 @@ from .io.output import OutputReservation, check_output_location
 from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
-from .model import CHECK, KIND_NAMES, Project
+from .model import CHECK, KIND_NAMES, ROTATION_OUTPUT_NAMES, Project
 from .precision import joint_point_covariance
 from .reliability import blunder_options, detect_blunders
 from .reliability.rejections import rejection_groups
@@ -86,7 +86,7 @@ def input_paths(project_dir: Path) -> list[Path]:
 
 def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders: str = "off",
                keep_unconverged: bool = False, on_warning: Callable[[str], None] | None = None,
-               corrections: dict | None = None, **overrides) -> AdjustmentProducts:
+               corrections: dict | None = None, covariance=None, **overrides) -> AdjustmentProducts:
     """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure.
 
     The output location is checked before the project is read and reserved before the adjustment
@@ -96,7 +96,8 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
     point_precision: "schmid90", the orientation part plus the measurement part (Schmid 87-90), or
     "joint92", the rigorous joint form (92) (docs/decisions.md: for points in the adjustment the
     two agree to rounding). corrections: {"earth_curvature": bool | None, "refraction": bool | None},
-    the command line's values over project.toml's [corrections] (None: project.toml's)."""
+    the command line's values over project.toml's [corrections] (None: project.toml's). covariance: a
+    covariance_export.CovarianceRequest: covariance.npz is written too."""
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
@@ -125,6 +126,15 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
                                                   on_warning, seconds_reading)
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
+        if covariance is not None:
+            if framed is not None:
+                raise InputError("command line", None, "--covariance with [coordinates] crs: not available yet (the "
+                                 "covariance would be that of the local frame, not of the CRS's axes)")
+            try:
+                products.files["covariance.npz"] = covariance_export.covariance_file(
+                    products.project, products.result, covariance)
+            except ValueError as exc:
+                raise InputError("command line", None, str(exc)) from None
         reservation.commit(products.files)
     return products
 
@@ -200,6 +210,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)
+    given = project  # as read: inactive.inactive_residuals corrects its inactive rows itself
     # [corrections]: Earth curvature and refraction of the plate coordinates, before everything else
     project, corrections = plate_corrections.correct_project(project)
     said: list[str] = []
@@ -252,6 +263,11 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         "points.csv": format_csv(point_cols),
         "residuals.csv": format_csv(residual_table(project, det)),
     }
+    off = None if inactive.none(given) else inactive.inactive_residuals(given, adjusted, result)
+    if off is not None:  # the inactive rows after the active ones (docs/file-formats.md)
+        table = residual_table(project, det)
+        more = inactive.residual_columns(adjusted, off)
+        tables["residuals.csv"] = format_csv({k: list(table[k]) + list(more[k]) for k in table})
     tables.update(gnss_tables(adjusted, result))
     if adjusted.film is not None and adjusted.film.fit is not None:  # scanned film (striptri.film)
         tables["fiducial_residuals.csv"] = format_csv(film_report.residual_columns(adjusted.film))
@@ -264,6 +280,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     summary["warnings"] = list(said)
     if corrections is not None:
         summary["plate_corrections"] = corrections.summary
+    if off is not None:
+        summary["inactive"] = inactive.summary_entry(adjusted, off)
     summary.update(gnss_output.summary_entry(adjusted, result))
     if adjusted.film is not None:
         summary["film"] = film_report.summary_entry(adjusted.film)
@@ -335,7 +353,7 @@ def _angle_scale(project: Project) -> float:
 
 def photo_table(project: Project, result: AdjustmentResult) -> dict:
     """photos.csv: centres (ground frame) and omega, phi, kappa in the project's angle unit, with
-    mean errors; for projects in Schmid's convention also alpha, omega, chi (prefixed schmid_)."""
+    mean errors; for projects in another convention also its angles (ROTATION_OUTPUT_NAMES)."""
     s = result.state
     xyz = s.xyz0 + result.offset
     unit = _angle_scale(project)
@@ -350,13 +368,15 @@ def photo_table(project: Project, result: AdjustmentResult) -> dict:
         cols[f"sigma_{name}"] = sig_xyz[:, a]
     for a, name in enumerate(("omega", "phi", "kappa")):
         cols[f"sigma_{name}"] = sig_opk[:, a] * unit
-    if project.settings.rotation == "alpha-omega-chi":
-        _, sig_aoc = result.photo_mean_errors("alpha-omega-chi")
-        aoc = angles_from_R(s.R_ground_from_cam, "alpha-omega-chi") * unit
-        for a, name in enumerate(("alpha", "omega", "chi")):
-            cols[f"schmid_{name}"] = aoc[:, a]
-        for a, name in enumerate(("alpha", "omega", "chi")):
-            cols[f"sigma_schmid_{name}"] = sig_aoc[:, a] * unit
+    convention = project.settings.rotation
+    if convention in ROTATION_OUTPUT_NAMES:
+        names = ROTATION_OUTPUT_NAMES[convention]
+        _, sig_other = result.photo_mean_errors(convention)
+        other = angles_from_R(s.R_ground_from_cam, convention) * unit
+        for a, name in enumerate(names):
+            cols[name] = other[:, a]
+        for a, name in enumerate(names):
+            cols[f"sigma_{name}"] = sig_other[:, a] * unit
     return cols
 
 
@@ -374,6 +394,11 @@ def camera_table(project: Project, result: AdjustmentResult) -> dict:
             cols["distortion"] = [CONVENTION_NAMES[int(c)] for c in result.state.convention]
         for e in range(first, last):
             cols[f"sigma_{CAMERA_ELEMENTS[e]}"] = np.where(estimated[:, e], sig[:, e], np.nan)
+    if cams.r0 is not None and np.isfinite(cams.r0).any():  # cameras given balanced (striptri.balanced)
+        idx = result.layout.camera_cols[:, list(balanced.CHANGED)]
+        Q = result.covariance.entries(idx[:, :, None], idx[:, None, :])
+        cols.update(balanced.output_columns(cams.r0, result.state.interior, result.state.convention, Q,
+                                            result.sigma0_for_precision))
     return cols
 
 

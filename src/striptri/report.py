@@ -60,6 +60,7 @@ SECTIONS = {  # id -> heading, in the order of the report
     "check-points": "Check points",
     "flagged": "Flagged measurements",
     "rejected": "Rejected measurements (gross errors)",
+    "inactive": "Inactive measurements",  # only when image_points.csv has inactive rows
     "largest": "Largest normalised residuals",
     "photos": "Photographs",
     "camera": "Camera calibration",
@@ -401,6 +402,25 @@ def _corrections_section(summary: dict) -> list[str]:
             f"{html.escape(applied['heights'])}.</p>",
             _table(["correction", f"largest ({unit})", f"RMS ({unit})", f"at the largest radius ({unit})",
                     "direction", "formula and source"], rows, left=1)]
+
+
+def _inactive_section(summary: dict, unit: "ResidualUnit") -> list[str]:
+    """The measurements image_points.csv marks inactive (summary.json "inactive", striptri.inactive):
+    not adjusted; their residuals against the adjusted result. Nothing when there are none."""
+    info = summary.get("inactive")
+    if not info:
+        return []
+    rows = [[html.escape(r["photo_id"]), html.escape(r["point_id"]), unit(r["vx"]), unit(r["vy"])]
+            for r in info["largest"]]
+    rms = ("" if info["rms_vx"] is None else
+           f" RMS of their residuals: x {unit(info['rms_vx'])}, y {unit(info['rms_vy'])} {unit.label}.")
+    return [_section("inactive"),
+            f"<p>{info['n']} measurements are marked inactive in image_points.csv: they took no part in the "
+            f"adjustment; their residuals (the adjusted point projected with the adjusted orientation and camera, "
+            f"minus the measurement) are in residuals.csv with the flag <i>inactive</i>; {info['n_determined']} "
+            f"of them have a point determined by the active measurements.{rms} The largest:</p>",
+            _table(["photo", "point", f"v<sub>x</sub> ({unit.label})", f"v<sub>y</sub> ({unit.label})"], rows,
+                   left=2)]
 
 
 def _checks_section(summary: dict) -> list[str]:
@@ -901,6 +921,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
                  [_section("check-points"), "<p>Not available (no triangulated points given).</p>"]]
     body += [timed("flagged", lambda: _flagged_section(project, result, w, absw, flagged, flag_text)),
              timed("rejected", lambda: _rejected_section(summary)),
+             _inactive_section(summary, residual_unit(project)),
              timed("largest", lambda: _largest_section(project, result, w, absw)),
              timed("photos", lambda: _photos_section(project, result, stats)),
              timed("camera", lambda: _camera_section(project, result))]
@@ -922,7 +943,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items()
                    if (k != "corrections" or "plate_corrections" in summary)
                    and (k != "gnss" or result.layout.gnss_cols is not None)
-                   and (k != "film" or project.film is not None))
+                   and (k != "film" or project.film is not None)
+                   and (k != "inactive" or "inactive" in summary))
     total = time.perf_counter() - t0
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
     breakdown = ", ".join(f"{html.escape(SECTIONS.get(k, k).lower())} {v:.2f}" for v, k in slow)

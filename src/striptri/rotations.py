@@ -1,8 +1,10 @@
 """Rotations, batched over a leading axis (DESIGN section 1).
 
-Two angle conventions for ``R_ground_from_cam``:
+Three angle conventions for ``R_ground_from_cam``:
 
-* omega-phi-kappa: ``R = Rx(omega) Ry(phi) Rz(kappa)``;
+* omega-phi-kappa: ``R = Rx(omega) Ry(phi) Rz(kappa)`` (primary axis X);
+* phi-omega-kappa: ``R = Ry(phi) Rx(omega) Rz(kappa)`` (primary axis Y; the order of many European
+  and Chinese textbooks and programs); the angles are stored in the order (phi, omega, kappa);
 * Schmid's alpha-omega-chi (Schmid 9): the columns of R are (A1, B1, C1), (A2, B2, C2) and
   -(D1, E1, F1), so that the ray of Schmid (11), ``u = (x-xp) A1 + (y-yp) A2 + c D1`` etc., is
   ``R p`` with the diapositive vector ``p = (x - xp, y - yp, -c)``. His normal case
@@ -49,6 +51,31 @@ def opk_from_R(R: np.ndarray) -> np.ndarray:
     return np.stack([omega, phi, kappa], -1)
 
 
+def R_from_pok(angles: np.ndarray) -> np.ndarray:
+    """R_ground_from_cam = Ry(phi) Rx(omega) Rz(kappa). angles: (..., 3) radians, order (phi, omega,
+    kappa) -> (..., 3, 3)."""
+    angles = np.asarray(angles, dtype=float)
+    return _ry(angles[..., 0]) @ _rx(angles[..., 1]) @ _rz(angles[..., 2])
+
+
+def pok_from_R(R: np.ndarray) -> np.ndarray:
+    """Inverse of R_from_pok, omega in [-90, 90] deg. R: (..., 3, 3) -> (..., 3) radians (phi, omega,
+    kappa).
+
+    R[1, 2] = -sin(omega); R[0, 2] = sin(phi) cos(omega); R[2, 2] = cos(phi) cos(omega);
+    R[1, 0] = cos(omega) sin(kappa); R[1, 1] = cos(omega) cos(kappa). At gimbal lock (omega = +-90
+    deg) phi and kappa are not separable; as in opk_from_R and aoc_from_R nothing special is done:
+    atan2 of the entries that carry the factor cos(omega) (rounded, not zero, for a matrix made from
+    angles) recovers the angles; the Jacobian is singular there (the adjustment never uses angles,
+    only the rotation vector).
+    """
+    R = np.asarray(R, dtype=float)
+    phi = np.arctan2(R[..., 0, 2], R[..., 2, 2])
+    omega = np.arcsin(np.clip(-R[..., 1, 2], -1.0, 1.0))
+    kappa = np.arctan2(R[..., 1, 0], R[..., 1, 1])
+    return np.stack([phi, omega, kappa], -1)
+
+
 def schmid_auxiliaries(angles: np.ndarray) -> dict[str, np.ndarray]:
     """Schmid's rotational auxiliaries A1..H2 (formula 9) from alpha, omega, chi (radians), batched."""
     a, w, x = (np.asarray(angles, dtype=float)[..., i] for i in range(3))
@@ -90,6 +117,7 @@ def aoc_from_R(R: np.ndarray) -> np.ndarray:
 CONVENTIONS = {
     "omega-phi-kappa": (R_from_opk, opk_from_R),
     "alpha-omega-chi": (R_from_aoc, aoc_from_R),
+    "phi-omega-kappa": (R_from_pok, pok_from_R),
 }
 
 
@@ -166,6 +194,9 @@ def angles_jacobian(R: np.ndarray, convention: str) -> np.ndarray:
     elif convention == "alpha-omega-chi":
         (r12, d12), (r02, d02), (r22, d22), (r10, d10), (r11, d11) = e(1, 2), e(0, 2), e(2, 2), e(1, 0), e(1, 1)
         rows = [_d_atan2(-r02, -r22, -d02, -d22), _d_asin(-r12, -d12), _d_atan2(-r10, r11, -d10, d11)]
+    elif convention == "phi-omega-kappa":
+        (r02, d02), (r22, d22), (r12, d12), (r10, d10), (r11, d11) = e(0, 2), e(2, 2), e(1, 2), e(1, 0), e(1, 1)
+        rows = [_d_atan2(r02, r22, d02, d22), _d_asin(-r12, -d12), _d_atan2(r10, r11, d10, d11)]
     else:
         raise ValueError(f"unknown rotation convention {convention!r}")
     return np.stack(rows, -2)

@@ -175,7 +175,7 @@ def photo_columns_to_grid(cols: dict, project: model.Project, frame: LocalFrame)
         out[name], out[f"sigma_{name}"] = xyz_grid[:, a], sig_grid[:, a]
     per_unit = RADIANS_PER_UNIT[project.settings.angle_unit]
     for convention, names in (("omega-phi-kappa", ("omega", "phi", "kappa")),
-                              ("alpha-omega-chi", ("schmid_alpha", "schmid_omega", "schmid_chi"))):
+                              *model.ROTATION_OUTPUT_NAMES.items()):
         if names[0] not in cols:
             continue
         angles = np.column_stack([np.asarray(cols[n], dtype=float) for n in names]) * per_unit

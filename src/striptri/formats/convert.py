@@ -137,12 +137,17 @@ def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_
     fmt, scene = read_scene(src, source_format, pixel_size, drop_distortion)
     project = scene.project
     notes += scene.notes
+    off = project.inactive_image_points
+    n_off = 0 if off is None else len(off)
+    if n_off and to != "project":
+        notes.append(f"inactive measurements (image_points.csv active = 0) left out: {n_off}")
     if to == "project":
         files = project_files(project)
         # the points the project files hold: control points and measured tie points (a tie point
         # measured on no photo, e.g. a BAL point without observations, has no file to live in)
-        kept = (project.points.kind != model.TIE) | np.isin(np.arange(len(project.points)),
-                                                            project.image_points.point_index)
+        measured = project.image_points.point_index if not n_off else np.concatenate(
+            [project.image_points.point_index, off.point_index])
+        kept = (project.points.kind != model.TIE) | np.isin(np.arange(len(project.points)), measured)
         if not kept.all():
             notes.append(f"points measured on no photo left out (a project has no file for them): {int((~kept).sum())}")
         files[APPROX_POINTS_FILE] = format_csv({

@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from striptri import model, rotations
+from striptri import balanced, model, rotations
 from striptri.errors import InputError
-from striptri.lens import B1, CAMERA_ELEMENTS, CONVENTIONS, IMAGE, NCP
+from striptri.lens import CAMERA_ELEMENTS, CONVENTIONS, NCP
 from striptri.core.options import DATUMS, METHODS
 from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
@@ -68,6 +68,7 @@ RADIANS_PER_UNIT = {"deg": math.pi / 180.0, "gon": math.pi / 200.0, "rad": 1.0}
 ANGLE_COLUMNS = {
     "omega-phi-kappa": ("omega", "phi", "kappa"),
     "alpha-omega-chi": ("alpha", "omega", "chi"),
+    "phi-omega-kappa": ("phi", "omega", "kappa"),
 }
 # Base components of bases.csv (Schmid 17, 24): component -> ground axis.
 BASE_AXES = {"bx": 0, "by": 1, "bz": 2}
@@ -175,20 +176,24 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
         image_points = model.ImagePoints(photo_index=np.zeros(0, dtype=np.int64), point_index=np.zeros(0, dtype=np.int64),
                                          xy=np.zeros((0, 2)), sigma_xy=np.zeros((0, 2)))
         points = _object_points(list(control.ids), control)
+        active = np.ones(0, dtype=bool)
     else:
         image_points, points = _read_image_points(table("image_points.csv"), photos, control, settings)
         film, cameras, image_points, film_notes = _read_film(files, tables, cameras, photos, image_points)
         _check_plate_geometry(tables["image_points.csv"], tables["cameras.csv"], image_points, photos, cameras)
+        active = _active_column(tables["image_points.csv"])
     bases = _read_bases(table("bases.csv"), photos) if files.present("bases.csv") else model.BaseComponents.empty()
     if files.present("approx_points.csv"):
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
     gnss = _read_gnss(files, tables, cameras, photos, settings)
     notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids))
              if "image_points.csv" in tables else []) + film_notes + files.unread_notes()
+    inactive = None if active.all() else _rows(image_points, ~active)
     return model.Project(
         cameras=cameras,
         photos=photos,
-        image_points=image_points,
+        image_points=image_points if inactive is None else _rows(image_points, active),
+        inactive_image_points=inactive,
         points=points,
         bases=bases,
         settings=settings,
@@ -395,11 +400,29 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
                                  f"DBAT/photogrammetry) or 'image' (applied to the projected point, "
                                  f"BAL/COLMAP/OpenCV), not '{word}'")
         convention[i] = CONVENTIONS[word]
-    affine = (interior[:, B1:] != 0) | ~np.isnan(sigma[:, B1:])
-    for i in np.flatnonzero((convention == IMAGE) & affine.any(axis=1)):
-        raise table.error(i, "b1, b2 (affinity, shear) belong to the plate convention; with distortion = image "
-                             "they must be empty or 0 and held")
-    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma, convention=convention)
+    r0 = _balanced_radius(table, sigma) if table.has("r0") else None
+    if r0 is not None:
+        interior = balanced.gaussian_from_balanced(interior, r0, convention)
+        for i in np.flatnonzero(np.isfinite(r0) & ~(interior[:, 0] > 0)):
+            raise table.error(i, f"with r0 = {table.text(i, 'r0')} the balanced radial distortion gives a principal "
+                                 f"distance {interior[i, 0]:.6g} <= 0: check k1, k2, k3 and r0")
+    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma, convention=convention, r0=r0)
+
+
+def _balanced_radius(table: CsvTable, sigma: np.ndarray) -> np.ndarray:
+    """cameras.csv's optional r0 (striptri.balanced): empty = Gaussian; otherwise > 0 (plate units,
+    or normalised for distortion = image), and c, k1-k3, p1, p2 held or free, not observed (their
+    weights would not carry over exactly)."""
+    r0 = table.optional_floats("r0")
+    for i in np.flatnonzero(r0 <= 0):
+        raise table.error(i, f"column 'r0': the zero-crossing radius must be > 0 (got {table.text(i, 'r0')})")
+    observed = np.isfinite(sigma[:, list(balanced.CHANGED)]) & np.isfinite(r0)[:, None]
+    for i in np.flatnonzero(observed.any(axis=1))[:1]:
+        names = [CAMERA_ELEMENTS[e] for e, o in zip(balanced.CHANGED, observed[i]) if o]
+        raise table.error(i, f"with r0 (balanced radial distortion) {', '.join(names)} may be held (empty sigma) or "
+                             "'free', not observed with a standard deviation: the balanced elements' weights do not "
+                             "carry over to the Gaussian form the adjustment uses")
+    return r0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -539,6 +562,24 @@ def _read_image_points(
     ).reshape(-1, 2)
     image_points = model.ImagePoints(photo_index=photo_index, point_index=point_index, xy=xy, sigma_xy=sigma_xy)
     return image_points, _object_points(point_ids, control)
+
+
+ACTIVE_WORDS = {"1": True, "true": True, "0": False, "false": False}  # image_points.csv's active, any case
+
+
+def _active_column(table: CsvTable) -> np.ndarray:
+    """image_points.csv's optional ``active`` column -> (m,) bool: 1/true (or empty) = adjusted,
+    0/false = kept and reported but not adjusted (striptri.inactive). Anything else: InputError."""
+    words = [w.lower() or "1" for w in table.optional_strings("active", "1")]
+    for i, w in enumerate(words):
+        if w not in ACTIVE_WORDS:
+            raise table.error(i, f"column 'active': '{table.text(i, 'active')}' is not 1, 0, true or false")
+    return np.array([ACTIVE_WORDS[w] for w in words], dtype=bool).reshape(len(words))
+
+
+def _rows(ip: model.ImagePoints, keep: np.ndarray) -> model.ImagePoints:
+    return model.ImagePoints(photo_index=ip.photo_index[keep], point_index=ip.point_index[keep], xy=ip.xy[keep],
+                             sigma_xy=ip.sigma_xy[keep])
 
 
 def _image_sigma(table: CsvTable, name: str, default: float) -> np.ndarray:

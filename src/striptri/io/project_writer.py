@@ -22,6 +22,7 @@ from striptri.lens import CAMERA_ELEMENTS, CONVENTION_NAMES, has_distortion
 from striptri.io.csvtable import format_csv
 from striptri.io.gnss_writer import gnss_camera_columns, gnss_photo_columns, gnss_toml
 from striptri.io.output import write_output_folder
+from striptri.balanced import balanced_from_gaussian
 from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES, RADIANS_PER_UNIT
 
 _AXIS_NAMES = {axis: name for name, axis in BASE_AXES.items()}
@@ -69,8 +70,11 @@ def reader_point_order(project: model.Project) -> np.ndarray:
     """Indices of the object points in the order read_project gives them after write_project:
     control points (kind != TIE) in their order, then tie points by first measurement."""
     control = np.flatnonzero(project.points.kind != model.TIE)
-    _, first = np.unique(project.image_points.point_index, return_index=True)
-    measured = project.image_points.point_index[np.sort(first)]
+    off = project.inactive_image_points
+    point_index = project.image_points.point_index if off is None else np.concatenate(
+        [project.image_points.point_index, off.point_index])  # the file's rows: active, then inactive
+    _, first = np.unique(point_index, return_index=True)
+    measured = point_index[np.sort(first)]
     ties = measured[project.points.kind[measured] == model.TIE]
     return np.concatenate([control, ties]).astype(np.int64)
 
@@ -130,10 +134,15 @@ def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
     columns: dict[str, Sequence] = {"camera_id": cameras.ids}
     extended = has_distortion(cameras.interior, ~np.isnan(cameras.sigma_interior)) or bool(np.any(cameras.convention))
     names = CAMERA_ELEMENTS if extended else CAMERA_ELEMENTS[:3]
+    r0 = cameras.r0 if cameras.r0 is not None and np.isfinite(cameras.r0).any() else None
+    # cameras given balanced are written balanced (striptri.balanced), with their r0
+    interior = cameras.interior if r0 is None else balanced_from_gaussian(cameras.interior, r0, cameras.convention)[0]
     for j, name in enumerate(names):
-        columns[name] = cameras.interior[:, j]
+        columns[name] = interior[:, j]
     if extended:
         columns["distortion"] = [CONVENTION_NAMES[int(c)] for c in cameras.convention]
+    if r0 is not None:
+        columns["r0"] = r0
     for j, name in enumerate(names):
         columns[f"sigma_{name}"] = [_camera_sigma(s) for s in cameras.sigma_interior[:, j]]
     return columns
@@ -164,16 +173,21 @@ def _photo_columns(photos: model.Photos, cameras: model.Cameras, settings: model
 
 
 def _image_point_columns(project: model.Project) -> dict[str, Sequence]:
-    """image_points.csv with explicit sigmas, rows in the project's order."""
-    ip = project.image_points
-    return {
-        "photo_id": [project.photos.ids[k] for k in ip.photo_index],
-        "point_id": [project.points.ids[k] for k in ip.point_index],
-        "x": ip.xy[:, 0],
-        "y": ip.xy[:, 1],
-        "sigma_x": ip.sigma_xy[:, 0],
-        "sigma_y": ip.sigma_xy[:, 1],
+    """image_points.csv with explicit sigmas, rows in the project's order; inactive rows last, with
+    the column active (1/0) when there are any."""
+    ip, off = project.image_points, project.inactive_image_points
+    rows = [(ip, 1)] + ([(off, 0)] if off is not None and len(off) else [])
+    columns = {
+        "photo_id": [project.photos.ids[k] for t, _ in rows for k in t.photo_index],
+        "point_id": [project.points.ids[k] for t, _ in rows for k in t.point_index],
+        "x": np.concatenate([t.xy[:, 0] for t, _ in rows]),
+        "y": np.concatenate([t.xy[:, 1] for t, _ in rows]),
+        "sigma_x": np.concatenate([t.sigma_xy[:, 0] for t, _ in rows]),
+        "sigma_y": np.concatenate([t.sigma_xy[:, 1] for t, _ in rows]),
     }
+    if len(rows) > 1:  # the active rows, then the inactive ones (image_points.csv's active column)
+        columns["active"] = np.concatenate([np.full(len(t), a, dtype=int) for t, a in rows])
+    return columns
 
 
 def _control_columns(points: model.ObjectPoints) -> dict[str, Sequence]:
