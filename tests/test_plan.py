@@ -310,7 +310,8 @@ def test_rank3_update_equals_brute_force_with_weighted_partial_control_and_defec
     a = 0
     b = int(np.argmax(np.linalg.norm(xy - xy[a], axis=1)))
     u = (xy[b] - xy[a]) / np.linalg.norm(xy[b] - xy[a])
-    c = int(np.argmax(np.abs(np.cross(u, xy - xy[a]))))  # farthest from the line a-b
+    d = xy - xy[a]
+    c = int(np.argmax(np.abs(u[0] * d[:, 1] - u[1] * d[:, 0])))  # farthest from the line a-b
     keep = [int(control[a]), int(control[b]), int(control[c])]
     kind = np.where(np.isin(np.arange(len(pts)), control) & ~np.isin(np.arange(len(pts)), keep), TIE, pts.kind)
     kind[keep[2]] = HEIGHT
