@@ -64,6 +64,20 @@ def test_the_blocks_of_qvv_extend_its_diagonal(clean_block):
     assert np.allclose(diag, q, rtol=1e-10, atol=1e-14)
 
 
+def test_the_reliability_pass_gives_the_same_blocks(clean_block):
+    """Snooping takes the blocks from the pass that computes the redundancy numbers
+    (residual_cofactors with plate_blocks), not from a second pass: the same blocks as
+    plate_cofactor_blocks, and the same diagonal as without them."""
+    project, result = clean_block
+    reference = plate_cofactor_blocks(project, result, OPTIONS)
+    cof = residual_cofactors(project, result, OPTIONS, plate_blocks=True)
+    assert len(cof.plate_blocks) == len(reference)
+    for (rows, qvv), (rows_ref, qvv_ref) in zip(cof.plate_blocks, reference):
+        np.testing.assert_array_equal(rows, rows_ref)
+        np.testing.assert_allclose(qvv, qvv_ref, rtol=0, atol=1e-12 * np.abs(qvv_ref).max())
+    np.testing.assert_array_equal(cof.plate, residual_cofactors(project, result, OPTIONS).plate)
+
+
 def test_the_x_of_a_three_ray_strip_point_are_correlated_to_one(clean_block):
     """One scale transfer checks the three x coordinates: their w-tests correlate with |rho| ~ 1,
     above RHO_MAX (never told apart), while the y stay below RHO_MIN (always told apart)."""

@@ -36,6 +36,9 @@ class ResidualCofactors:
     plate: np.ndarray  # (m_ip, 2) qvv of the plate coordinates
     control: np.ndarray  # (n_pt, 3) qvv of weighted control coordinates (0 elsewhere)
     parameters: np.ndarray  # (p,) qvv of observed elements
+    # with plate_blocks: per chunk (image_rows (m, k), Qvv (m, 2k, 2k)), the plate part of each
+    # group's Qvv, (x, y) per ray in chain order (reliability.separability's blocks)
+    plate_blocks: list | None = None
 
     def redundancy_numbers(self, project: Project, result: AdjustmentResult) -> dict:
         obs = observations_of(project, result.offset)
@@ -47,8 +50,11 @@ class ResidualCofactors:
         }
 
 
-def residual_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions()) -> ResidualCofactors:
-    """Diagonal of Qvv for every observation, at the converged solution.
+def residual_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions(),
+                       plate_blocks: bool = False) -> ResidualCofactors:
+    """Diagonal of Qvv for every observation, at the converged solution; with ``plate_blocks`` also
+    each group's whole plate block of Qvv from the same products (the correlations of its w-tests,
+    reliability.separability), at a small fraction of the pass's cost.
 
     Per batch of groups, by matrix products (no einsum of three operands): ``M = (A Q) A^T``,
     ``B Qxx B^T`` by Covariance.group_forms (Qxx read by blocks of photo pairs), ``K = M^-1 (M - B Qxx
@@ -59,13 +65,17 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     cov = result.covariance
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
+    blocks = [] if plate_blocks else None
     for chunk, s in sweep.systems():
         AQ = s.A * s.Q[:, None, :]  # (m, nc, no): A Q
         M = AQ @ np.swapaxes(s.A, 1, 2)
         Minv = _group_inverse(M, chunk, project)
         K = Minv @ (M - cov.group_forms(_group_slots(s.B, chunk, result))) @ Minv
-        qvv = np.einsum("mco,mco->mo", K @ AQ, AQ)
+        KAQ = K @ AQ
+        qvv = np.einsum("mco,mco->mo", KAQ, AQ)
         m, k = chunk.image_rows.shape
+        if blocks is not None:
+            blocks.append((chunk.image_rows, np.swapaxes(AQ[:, :, : 2 * k], 1, 2) @ KAQ[:, :, : 2 * k]))
         q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
         if chunk.has_control:
             q_control[chunk.point_index] = qvv[:, 2 * k :]
@@ -75,7 +85,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
         _, grad, cols = pobs.evaluate(result.state, result.layout, sweep.T)
         Qloc = cov.entries(cols[:, :, None], cols[:, None, :])
         q_par = pobs.sigma**2 - np.einsum("pi,pi->p", (Qloc @ grad[:, :, None])[:, :, 0], grad)
-    return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par)
+    return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par, plate_blocks=blocks)
 
 
 def _group_slots(G: np.ndarray, chunk, result: AdjustmentResult) -> list:

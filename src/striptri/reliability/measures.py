@@ -81,14 +81,17 @@ class PlateReliability:
     bnr: np.ndarray  # bias-to-noise ratio (external reliability); inf where r_i <= R_ZERO
     critical: float
     delta0: float
+    # with cofactor_blocks: precision.ResidualCofactors.plate_blocks (the w-tests' correlations)
+    cofactor_blocks: list | None = None
 
 
 def plate_reliability(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions(),
-                      alpha0: float = ALPHA0, beta0: float = BETA0) -> PlateReliability:
+                      alpha0: float = ALPHA0, beta0: float = BETA0, cofactor_blocks: bool = False) -> PlateReliability:
     """Redundancy numbers, w, MDB and bias-to-noise ratios of the plate coordinates (module doc).
     For both methods: at convergence the bundle's solution is the conditions method's, and the
-    cofactors are formed from the conditions at that solution."""
-    cof = residual_cofactors(project, result, options)
+    cofactors are formed from the conditions at that solution. cofactor_blocks: also each point's
+    plate block of Qvv (precision.residual_cofactors), for the w-tests' correlations."""
+    cof = residual_cofactors(project, result, options, plate_blocks=cofactor_blocks)
     sigma = project.image_points.sigma_xy
     r = np.clip(cof.plate / sigma**2, 0.0, 1.0)
     ok = r > R_ZERO
@@ -96,4 +99,5 @@ def plate_reliability(project: Project, result: AdjustmentResult, options: Adjus
     delta0 = noncentrality(alpha0, beta0)
     w = np.where(ok, result.plate_residuals / (sigma * np.sqrt(safe_r)), np.nan)
     bnr = np.where(ok, delta0 * np.sqrt((1.0 - r) / safe_r), np.inf)
-    return PlateReliability(r, w, minimal_detectable_bias(sigma, r, delta0), bnr, critical_value(alpha0), delta0)
+    return PlateReliability(r, w, minimal_detectable_bias(sigma, r, delta0), bnr, critical_value(alpha0), delta0,
+                            cof.plate_blocks)

@@ -39,7 +39,7 @@ from ..model import Project
 from ..precision import residual_cofactors
 from .measures import critical_value, plate_reliability, row_abs
 from .robust import studentised_gross_errors
-from .separability import Correlations, inseparable_rows, plate_cofactor_blocks
+from .separability import Correlations, inseparable_rows
 from .outcome import (
     BlunderOptions,
     BlunderResult,
@@ -199,14 +199,14 @@ def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable,
             rounds[-1].rejected = 0
             stopped = f"failure: {exc}"
             break
-        rel = plate_reliability(current, result, options, blunders.alpha0, blunders.beta0)
+        rel = plate_reliability(current, result, options, blunders.alpha0, blunders.beta0, cofactor_blocks=separable)
         rows = np.flatnonzero(keep)
         last = (current, result, rel, rows)
         abs_w = row_abs(rel.w)
         sub = current.image_points
         expand, members = None, {}
         if separable and np.any(abs_w > crit):
-            corr = Correlations(plate_cofactor_blocks(current, result, options), len(sub))
+            corr = Correlations(rel.cofactor_blocks, len(sub))
 
             def expand(i):
                 members[i] = inseparable_rows(corr, i, rel.w, crit)
