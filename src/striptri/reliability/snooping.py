@@ -19,7 +19,9 @@ a row only if
 Procedure "separable" (the default): the rows of the taken row's point whose w-tests correlate
 with its own beyond separability (separability.inseparable_rows) are rejected with it as one group
 (flag "inseparable": detected, not located); once the rest is clean the rejected groups are
-re-tested against it and those that pass are re-admitted (:func:`retest`). Procedure "classic":
+re-tested against it and those that pass are re-admitted (:func:`retest`); then the rejected rows
+get their other coordinate back where it passes the same test (:func:`readmit_coordinates`: a gross
+error spoils x or y; a group is inseparable in one coordinate). Procedure "classic":
 rows of the taken row's point whose |w| equals its own to ``TWIN_TOLERANCE`` (the two rays of a
 tie point in two photos share a single condition) are rejected with it, and nothing is re-tested.
 docs/reliability.md shows that this meets the same detection and false-alarm figures as one row
