@@ -285,7 +285,9 @@ def test_robust_reweighting_finds_the_gross_errors():
 def test_the_warm_start_changes_only_where_the_adjustment_starts():
     """Each re-adjustment starts from the previous orientations, but observed elements (here GNSS
     centres, sigma 0.2 m) must keep their observed values: the final result equals the adjustment
-    of the surviving rows from the original approximations."""
+    of the surviving rows from the original approximations. Rejected rows kept for their other
+    coordinate (snooping.readmit_coordinates) keep the rejected one at out.weights (1e-6), which
+    the result's v^T P v leaves out."""
     design = replace(STRIP, control=sim.ControlDesign(layout="every-k", every_k=2))
     project, _ = sim.simulate_project("strip", sim.SimulateOptions(design, sim.NoiseOptions(
         sigma_image=SIGMA, sigma_gnss=0.2)), 5)
@@ -293,9 +295,16 @@ def test_the_warm_start_changes_only_where_the_adjustment_starts():
     spoiled = with_blunders(spoiled, rows[:1], np.array([[0.0, 30.0 * SIGMA]]))  # at least one 2-D error
     out = detect_blunders(spoiled)
     assert len(out.rejected) >= 1
-    keep = (out.flag != FLAG_REJECTED) & (out.flag != FLAG_INSEPARABLE)
-    scratch = adjust(drop_rows(spoiled, np.flatnonzero(~keep)))
-    assert out.result.vtpv == pytest.approx(scratch.vtpv, rel=1e-8)
+    keep = np.zeros(len(spoiled.image_points), dtype=bool)
+    keep[out.rows] = True
+    weights = np.ones((len(keep), 2)) if out.weights is None else out.weights
+    ip = spoiled.image_points
+    scaled = replace(spoiled, image_points=replace(ip, sigma_xy=ip.sigma_xy / np.sqrt(weights)))
+    scratch = adjust(drop_rows(scaled, np.flatnonzero(~keep)))
+    partial = weights[keep] < 1.0
+    vtpv_partial = np.sum((scratch.plate_residuals / scaled.image_points.sigma_xy[keep])[partial] ** 2)
+    assert out.result.vtpv == pytest.approx(scratch.vtpv - vtpv_partial, rel=1e-8)
+    assert out.result.redundancy == scratch.redundancy - np.count_nonzero(partial)
     np.testing.assert_allclose(out.result.state.xyz0 + out.result.offset, scratch.state.xyz0 + scratch.offset,
                                atol=1e-6)
     np.testing.assert_allclose(out.result.parameter_residuals, scratch.parameter_residuals, atol=1e-6)

@@ -67,6 +67,7 @@ def _ground_effects(project: Project, det: BlunderResult, groups: list[np.ndarra
     result = det.result
     kept = np.zeros(len(ip), dtype=bool)
     kept[det.rows] = True
+    kept[det.rejected_rows] = False  # a rejected row may be kept for its other coordinate (snooping)
     pt_of_group = np.array([ip.point_index[g[0]] for g in groups])
     # kept rows of each group's point, and the group's own rows, each tagged with the group number
     kept_rows = np.flatnonzero(kept)

@@ -19,7 +19,9 @@ a row only if
 Procedure "separable" (the default): the rows of the taken row's point whose w-tests correlate
 with its own beyond separability (separability.inseparable_rows) are rejected with it as one group
 (flag "inseparable": detected, not located); once the rest is clean the rejected groups are
-re-tested against it and those that pass are re-admitted (:func:`retest`). Procedure "classic":
+re-tested against it and those that pass are re-admitted (:func:`retest`); then the rejected rows
+get their other coordinate back where it passes the same test (:func:`readmit_coordinates`: a gross
+error spoils x or y; a group is inseparable in one coordinate). Procedure "classic":
 rows of the taken row's point whose |w| equals its own to ``TWIN_TOLERANCE`` (the two rays of a
 tie point in two photos share a single condition) are rejected with it, and nothing is re-tested.
 docs/reliability.md shows that this meets the same detection and false-alarm figures as one row
@@ -36,11 +38,14 @@ import numpy as np
 from ..adjustment import AdjustmentOptions, adjust
 from ..errors import NumericalFailure
 from ..model import Project
+from ..core.result import sigma0_of
 from ..precision import residual_cofactors
 from .measures import critical_value, plate_reliability, row_abs
 from .robust import studentised_gross_errors
 from .separability import Correlations, inseparable_rows
 from .outcome import (
+    FLAG_INSEPARABLE,
+    FLAG_REJECTED,
     BlunderOptions,
     BlunderResult,
     Rejection,
@@ -129,12 +134,118 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         rejected[:] = [rej for rej in rejected if rej.row not in gone]
         start = warm_start(subset(project, keep), last[1].state, last[1].offset)
         stopped, last = _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, start)
+    factor = np.ones((m, 2))
+    for _ in range(READMIT_PASSES if separable else 0):
+        out_now = [rej for rej in rejected if not keep[rej.row]]
+        back = readmit_coordinates(project, options, blunders, out_now, last[1], factor) \
+            if stopped == "clean" and out_now else None
+        if back is None:
+            break
+        saved = (keep.copy(), list(rejected), len(rounds), factor.copy())
+        factor[back[0], back[1]] = RETEST_SIGMA_FACTOR
+        weighted = _scaled(project, factor)
+        keep[back[0]] = True
+        start = warm_start(subset(weighted, keep), last[1].state, last[1].offset)
+        try:
+            stopped, last = _snoop_rounds(weighted, options, blunders, keep, rejected, rounds, separable, start)
+        except NumericalFailure:
+            keep[:], rejected[:], factor = saved[0], saved[1], saved[3]
+            del rounds[saved[2]:]
+            break
+        latest = {rej.row: k for k, rej in enumerate(rejected)}  # a row rejected again: its last rejection
+        rejected[:] = [rej for k, rej in enumerate(rejected) if latest[rej.row] == k]
+        factor[~keep] = 1.0
+    partial = bool(np.any(factor > 1.0))
+    if partial:
+        last = _without_coordinates(*last, factor)
     current, result, rel, rows = last
-    return blunder_result("snoop", project, current, result, rel, rows, rejected, rounds, stopped,
-                          time.perf_counter() - t_start)
+    det = blunder_result("snoop", project, current, result, rel, rows, rejected, rounds, stopped,
+                         time.perf_counter() - t_start, weights=factor**-2.0 if partial else None)
+    if partial:
+        _flag_rejected(det, rejected)
+    return det
+
+
+def _scaled(project: Project, factor: np.ndarray) -> Project:
+    """The project with the sigmas of its image points times factor (m, 2)."""
+    ip = project.image_points
+    return replace(project, image_points=replace(ip, sigma_xy=ip.sigma_xy * factor))
+
+
+def _without_coordinates(current, result, rel, rows, factor):
+    """The last adjustment (current, result, rel, rows) with the coordinates kept at
+    ``RETEST_SIGMA_FACTOR`` times their sigma (factor (m, 2) over the original rows) taken out of its
+    redundancy and v^T P v (each adds about 1 to the redundancy and nothing to v^T P v), and their w,
+    redundancy, MDB and BNR nan, like a rejected row's."""
+    i, j = np.nonzero(factor[rows] > 1.0)
+    for name in ("w", "redundancy", "mdb", "bnr"):
+        getattr(rel, name)[i, j] = np.nan
+    sigma = current.image_points.sigma_xy[i, j]
+    vtpv = result.vtpv - float(np.sum((result.plate_residuals[i, j] / sigma) ** 2))
+    redundancy = result.redundancy - len(i)
+    result = replace(result, vtpv=vtpv, redundancy=redundancy, sigma0=sigma0_of(vtpv, redundancy))
+    return current, result, rel, rows
+
+
+def _flag_rejected(det: BlunderResult, rejected: list[Rejection]) -> None:
+    """Flags of rejected rows kept for one coordinate (readmit_coordinates): "rejected", or
+    "inseparable" for the members of a group of several, as blunder_result flags rejected rows."""
+    sizes: dict[int, int] = {}
+    for rej in rejected:
+        sizes[rej.group] = sizes.get(rej.group, 0) + 1
+    for rej in rejected:
+        det.flag[rej.row] = FLAG_INSEPARABLE if rej.group >= 0 and sizes[rej.group] > 1 else FLAG_REJECTED
+
+
+def rejected_axes(rejected: list[Rejection]) -> np.ndarray:
+    """(len(rejected),) the coordinate (0 x, 1 y) each rejected row was rejected for: that of the
+    larger |w| of its group's lead row (the first rejected of the group), the row tested; the
+    members of an inseparable group are inseparable in that coordinate."""
+    lead: dict[int, int] = {}
+    axes = np.zeros(len(rejected), dtype=int)
+    for k, rej in enumerate(rejected):
+        key = rej.group if rej.group >= 0 else -1 - k
+        if key not in lead:
+            lead[key] = int(np.argmax(np.nan_to_num(np.abs(rej.w), nan=-np.inf)))
+        axes[k] = lead[key]
+    return axes
+
+
+def readmit_coordinates(project: Project, options: AdjustmentOptions, blunders: BlunderOptions,
+                        rejected: list[Rejection], result, factor: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rejected rows whose other coordinate comes back (snoop, procedure "separable"): a gross
+    error spoils x or y, and a group is inseparable in one coordinate (x along the strip,
+    docs/reliability.md); removing whole rows also removes clean coordinates, which costs ground
+    accuracy.
+
+    Once snooping is clean: one adjustment of all rows with the rejected ones at
+    ``RETEST_SIGMA_FACTOR`` times their sigma gives every rejected coordinate its studentised gross
+    error u (as :func:`retest`); the other coordinate (rejected_axes) of each rejected row whose u
+    is finite and below the critical value comes back at full weight, while the rejected one stays at
+    ``RETEST_SIGMA_FACTOR`` times its sigma (1e-6 of its weight) and the snooping rounds go on
+    (:func:`snoop`). -> (rows (k,), their rejected axis (k,)) or None (none passes, or the adjustment
+    failed)."""
+    ip = project.image_points
+    gone = np.array([rej.row for rej in rejected], dtype=int)
+    axes = rejected_axes(rejected)
+    factor = factor.copy()
+    factor[gone] = RETEST_SIGMA_FACTOR
+    weighted = _scaled(project, factor)
+    try:
+        res = adjust(warm_start(weighted, result.state, result.offset), options)
+        if not succeeded(res):
+            return None
+        cof = residual_cofactors(weighted, res, options)
+    except NumericalFailure:
+        return None
+    u = studentised_gross_errors(res.plate_residuals, cof.plate, weighted.image_points.sigma_xy**2, ip.sigma_xy**2)
+    other = u[gone, 1 - axes]
+    ok = np.isfinite(other) & (other <= critical_value(blunders.alpha0))
+    return (gone[ok], axes[ok]) if np.any(ok) else None
 
 
 RETEST_SIGMA_FACTOR = 1e3  # the rejected rows are re-tested at this many times their sigma
+READMIT_PASSES = 3  # readmit_coordinates and further rounds at most this many times
 
 
 def retest(project: Project, options: AdjustmentOptions, blunders: BlunderOptions, keep: np.ndarray,
