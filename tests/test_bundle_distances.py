@@ -11,7 +11,6 @@ from striptri.bundle import solve_bundle
 from striptri.bundle.adjust import _Problem
 from striptri.bundle.distances import Distances, linearise_distances
 from striptri.core.options import AdjustmentOptions
-from striptri.parameters import initial_state
 
 
 def test_distance_jacobian_matches_central_differences():

@@ -131,3 +131,21 @@ def couple(dist: Distances, kept: list, where: tuple[np.ndarray, np.ndarray], po
     h = q + G @ e
     growth = float(2 * q @ e + e @ G @ e - h @ np.linalg.solve(M, h))
     return (Coupling(points, JD, P, M, e), R, np.broadcast_to(cols, R.shape).copy(), f, float(e @ e), growth)
+
+
+def distance_columns(point_ids: list[str], dist: Distances, xyz: np.ndarray) -> dict:
+    """The output table distances.csv (docs/file-formats.md) for the adjusted points xyz (n_pt, 3):
+    the observation, the adjusted distance ``|X_a - X_b|``, the residual v = adjusted - observed
+    (m) and v / sigma."""
+    adjusted = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1)
+    v = adjusted - dist.distance
+    return {"point_from": [point_ids[p] for p in dist.point_from], "point_to": [point_ids[p] for p in dist.point_to],
+            "distance": dist.distance, "sigma": dist.sigma, "adjusted": adjusted, "residual": v,
+            "residual_sigma": v / dist.sigma}
+
+
+def summary_entry(dist: Distances, xyz: np.ndarray) -> dict:
+    """summary.json "distances": count, rms and largest |v| (m) and largest |v| / sigma."""
+    v = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1) - dist.distance
+    return {"count": len(dist), "rms_residual_m": float(np.sqrt(np.mean(v**2))),
+            "max_abs_residual_m": float(np.max(np.abs(v))), "max_abs_residual_sigma": float(np.max(np.abs(v) / dist.sigma))}
