@@ -93,3 +93,20 @@ def test_output_table_and_summary(files_and_truth, tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["distances"]["count"] == 1
     assert summary["distances"]["max_abs_residual_sigma"] == pytest.approx(abs(float(row[6])), rel=1e-9)
+    report = (tmp_path / "out" / "report.html").read_text()
+    section = report[report.index("<h2 id='distances'>"):]
+    assert "href='#distances'" in report and f"<td class='l'>{a}</td>" in section
+    assert f"{1000 * float(row[5]):.2f}" in section
+
+
+def test_no_distances_no_section(files_and_truth, tmp_path):
+    files, _, _ = files_and_truth
+    folder = tmp_path / "p"
+    folder.mkdir()
+    for name, text in files.items():
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_text(text)
+    run_adjust(folder, tmp_path / "out", method="bundle")
+    assert not (tmp_path / "out" / "distances.csv").exists()
+    assert "distances" not in json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert "id='distances'" not in (tmp_path / "out" / "report.html").read_text()

@@ -22,6 +22,7 @@ touched: the loops run over them (a few scale bars), not over all points.
 
 from __future__ import annotations
 
+import html
 from dataclasses import dataclass
 
 import numpy as np
@@ -149,3 +150,16 @@ def summary_entry(dist: Distances, xyz: np.ndarray) -> dict:
     v = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1) - dist.distance
     return {"count": len(dist), "rms_residual_m": float(np.sqrt(np.mean(v**2))),
             "max_abs_residual_m": float(np.max(np.abs(v))), "max_abs_residual_sigma": float(np.max(np.abs(v) / dist.sigma))}
+
+
+def report_parts(point_ids: list[str], dist: Distances, xyz: np.ndarray) -> list:
+    """The report section's parts (report.py): a paragraph and (header, rows, cls, left) of a table,
+    every distance with its residual, largest |v| / sigma first."""
+    cols = distance_columns(point_ids, dist, xyz)
+    order = np.argsort(-np.abs(cols["residual_sigma"]), kind="stable")
+    rows = [[html.escape(cols["point_from"][i]), html.escape(cols["point_to"][i]), f"{cols['distance'][i]:.4f}", f"{cols['sigma'][i]:.4g}",
+             f"{cols['adjusted'][i]:.4f}", f"{1000 * cols['residual'][i]:.2f}", f"{cols['residual_sigma'][i]:.2f}"]
+            for i in order]
+    text = (f"<p>{len(dist)} observed distances between object points (distances.csv), adjusted with the points; "
+            "residual = adjusted - observed (also in the output distances.csv).</p>")
+    return [text, (["from", "to", "observed (m)", "sigma (m)", "adjusted (m)", "v (mm)", "v / sigma"], rows, "", 2)]
