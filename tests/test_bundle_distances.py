@@ -133,3 +133,4 @@ def test_converged_solution_is_stationary_in_the_distance_points():
     assert abs(sol.distance_residuals[0]) < abs(length(free) - d) / 10
     assert sol.distance_residuals[0] == pytest.approx(length(sol) - d, abs=1e-12)
     assert sol.result.checks.vtpv_reduction_relative_difference < 1e-6
+    assert sol.result.checks.max_point_gradient_sigma < 1e-6  # (58) for the points, the distance's share included

@@ -45,7 +45,7 @@ from ..parameter_observations import ParameterObservations, build_parameter_obse
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
 from .dense import DenseSchur
-from .distances import couple, distance_cost, locate_points
+from .distances import couple, distance_cost, linearise_distances, locate_points
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
 
 METHOD = "bundle"
@@ -491,6 +491,13 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
     reuse = normals_at_solution is not None
     normals = normals_at_solution if reuse else problem.normals()
     max_g, max_gp = 0.0, 0.0
+    # the distances' share of the points' gradient and of the diagonal of their normals (bundle.distances)
+    b_dist, d_dist = np.zeros_like(xyz), np.zeros_like(xyz)
+    if problem.distances is not None:
+        e_d, Ja, Jb = linearise_distances(problem.distances, xyz, problem.unknowns.free)
+        for ends, J in ((problem.distances.point_from, Ja), (problem.distances.point_to, Jb)):
+            np.add.at(b_dist, ends, J * e_d[:, None])
+            np.add.at(d_dist, ends, J**2)
     for chunk, scatters in zip(normals.kept if reuse else problem.chunks(state, xyz), problem.scatters):
         if not reuse:
             normals.add_points(chunk, state.camera_of_photo, scatters, keep=False)
@@ -500,9 +507,10 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
         g_control = np.sqrt(chunk.weight) * (control_hat[chunk.batch.point_index] - xyz[chunk.batch.point_index])
         if g.size:
             max_g = max(max_g, float(np.max(np.abs(g))), float(np.max(np.abs(g_control))))
-        d = np.einsum("mii->mi", chunk.N_pp)
+        pt = chunk.batch.point_index
+        d = np.einsum("mii->mi", chunk.N_pp) + d_dist[pt]
         if chunk.b_p.size:
-            max_gp = max(max_gp, float(np.max(np.where(chunk.free, np.abs(chunk.b_p) / np.sqrt(d), 0.0))))
+            max_gp = max(max_gp, float(np.max(np.where(chunk.free, np.abs(chunk.b_p + b_dist[pt]) / np.sqrt(d), 0.0))))
     if len(problem.pobs):
         J, cols, e = problem.parameter_rows(state)
         if not reuse:
