@@ -102,6 +102,11 @@ def _adjust_explained(project: Project, options: AdjustmentOptions) -> Adjustmen
         raise NumericalFailure("the sequential method does not carry the GNSS model (lever arm, boresight, shift, "
                                "drift: docs/decisions.md): adjust with the method conditions or bundle",
                                reason="failed")
+    if project.distances is not None and len(project.distances) and options.method != "bundle":
+        raise NumericalFailure(f"distances.csv: observed distances between object points are adjusted by the bundle "
+                               f"method only (the method {options.method} eliminates the points ray group by ray "
+                               "group, and a distance joins two groups: docs/decisions.md); run with --method bundle",
+                               reason="failed")
     try:
         # the adjustment tests its numbers for finiteness itself and explains what overflows, so
         # numpy's floating-point warnings would only repeat it on stderr

@@ -248,3 +248,6 @@ class Project:
     # against the adjusted result and reported, but never adjusted; None: every row is active.
     # Their point_index refers to ``points`` like image_points' (a point may have inactive rows only).
     inactive_image_points: ImagePoints | None = None
+    # distances.csv (striptri.bundle.distances.Distances): observed distances between object
+    # points, bundle method only; None: none
+    distances: object | None = None

@@ -20,6 +20,7 @@ import numpy as np
 
 from . import balanced, covariance_export, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
+from .bundle.distances import distance_columns, summary_entry as distances_summary
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
@@ -269,6 +270,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         more = inactive.residual_columns(adjusted, off)
         tables["residuals.csv"] = format_csv({k: list(table[k]) + list(more[k]) for k in table})
     tables.update(gnss_tables(adjusted, result))
+    if adjusted.distances is not None:  # distances.csv (bundle.distances): from the adjusted points
+        tables["distances.csv"] = format_csv(distance_columns(adjusted.points.ids, adjusted.distances, points.xyz))
     if adjusted.film is not None and adjusted.film.fit is not None:  # scanned film (striptri.film)
         tables["fiducial_residuals.csv"] = format_csv(film_report.residual_columns(adjusted.film))
     phases["tables"] = time.perf_counter() - t0
@@ -283,6 +286,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     if off is not None:
         summary["inactive"] = inactive.summary_entry(adjusted, off)
     summary.update(gnss_output.summary_entry(adjusted, result))
+    if adjusted.distances is not None:
+        summary["distances"] = distances_summary(adjusted.distances, points.xyz)
     if adjusted.film is not None:
         summary["film"] = film_report.summary_entry(adjusted.film)
     if frame is not None:

@@ -26,6 +26,7 @@ import numpy as np
 
 from . import figures as fig
 from .core.result import AdjustmentResult
+from .bundle.distances import report_parts as distance_report_parts
 from .film import report as film_report
 from .gnss_output import report_tables as gnss_report_tables
 from .io.project_reader import RADIANS_PER_UNIT
@@ -61,6 +62,7 @@ SECTIONS = {  # id -> heading, in the order of the report
     "flagged": "Flagged measurements",
     "rejected": "Rejected measurements (gross errors)",
     "inactive": "Inactive measurements",  # only when image_points.csv has inactive rows
+    "distances": "Distances between points",  # only with distances.csv (striptri.bundle.distances)
     "largest": "Largest normalised residuals",
     "photos": "Photographs",
     "camera": "Camera calibration",
@@ -402,6 +404,14 @@ def _corrections_section(summary: dict) -> list[str]:
             f"{html.escape(applied['heights'])}.</p>",
             _table(["correction", f"largest ({unit})", f"RMS ({unit})", f"at the largest radius ({unit})",
                     "direction", "formula and source"], rows, left=1)]
+
+
+def _distances_section(project: Project, points) -> list[str]:
+    """The observed distances and their residuals (bundle.distances.report_parts); nothing without."""
+    if project.distances is None or points is None:
+        return []
+    return [_section("distances")] + [p if isinstance(p, str) else _table(*p) for p in
+                                      distance_report_parts(project.points.ids, project.distances, points.xyz)]
 
 
 def _inactive_section(summary: dict, unit: "ResidualUnit") -> list[str]:
@@ -922,6 +932,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     body += [timed("flagged", lambda: _flagged_section(project, result, w, absw, flagged, flag_text)),
              timed("rejected", lambda: _rejected_section(summary)),
              _inactive_section(summary, residual_unit(project)),
+             _distances_section(project, points),
              timed("largest", lambda: _largest_section(project, result, w, absw)),
              timed("photos", lambda: _photos_section(project, result, stats)),
              timed("camera", lambda: _camera_section(project, result))]
@@ -944,7 +955,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
                    if (k != "corrections" or "plate_corrections" in summary)
                    and (k != "gnss" or result.layout.gnss_cols is not None)
                    and (k != "film" or project.film is not None)
-                   and (k != "inactive" or "inactive" in summary))
+                   and (k != "inactive" or "inactive" in summary)
+                   and (k != "distances" or (project.distances is not None and points is not None)))
     total = time.perf_counter() - t0
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
     breakdown = ", ".join(f"{html.escape(SECTIONS.get(k, k).lower())} {v:.2f}" for v, k in slow)

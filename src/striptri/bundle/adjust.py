@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 import copy
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -45,6 +45,7 @@ from ..parameter_observations import ParameterObservations, build_parameter_obse
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
 from .dense import DenseSchur
+from .distances import couple, distance_cost, linearise_distances, locate_points
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
 
 METHOD = "bundle"
@@ -59,6 +60,8 @@ class BundleSolution:
     result: AdjustmentResult
     xyz_points: np.ndarray
     n_point_unknowns: int
+    # residuals (r,) m of the distances (bundle.distances): adjusted minus observed; empty without
+    distance_residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def adjust_bundle(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
@@ -91,6 +94,29 @@ class _Problem:
         self.pattern, self.S, self.dense, self.scatters = block_pattern(self.batches, self.initial_state, self.layout,
                                                                         options.chunk_size)
         self.n_points = sum(len(b) for b in self.batches)
+        self.distances = project.distances if project.distances is not None and len(project.distances) else None
+        if self.distances is not None:
+            self.distance_points = np.unique(np.concatenate([self.distances.point_from, self.distances.point_to]))
+            self.where = locate_points([c.point_index for b in self.batches for c in b.chunks(options.chunk_size)],
+                                       self.distance_points)
+            if np.any(self.where[0] < 0):
+                ids = [str(project.points.ids[p]) for p in self.distance_points[self.where[0] < 0]]
+                raise NumericalFailure("distances.csv: the point(s) " + ", ".join(ids) + " take no part in the "
+                                       "adjustment (a tie point needs two rays); their distances cannot be adjusted")
+            self.redundancy += len(self.distances)
+
+    def couple(self, normals: ReducedNormals, kept: list, xyz: np.ndarray) -> None:
+        """Add the distances' Woodbury correction (bundle.distances) to normals before finish;
+        kept: the linearised chunks in assembly order."""
+        if self.distances is None:
+            normals.coupling = None
+            return
+        coupling, R, cols, f, ee, growth = couple(self.distances, kept, self.where, self.distance_points, xyz,
+                                                  self.unknowns.free, self.layout.n_unknowns)
+        normals.rows.append((R, cols, f))
+        normals.ee += ee
+        normals.reduced += growth
+        normals.coupling = coupling
 
     def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0):
         """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp."""
@@ -113,6 +139,8 @@ class _Problem:
                 total += residual_sum_of_squares(chunk, state, self.layout, self.obs, self.unknowns, xyz)
         if len(self.pobs):
             total += float(np.sum(self.parameter_rows(state)[2] ** 2))
+        if self.distances is not None:
+            total += distance_cost(self.distances, xyz)
         return total
 
     def normals(self) -> ReducedNormals:
@@ -127,6 +155,7 @@ class _Problem:
             normals.add_points(chunk, state.camera_of_photo, scatters)
         if len(self.pobs):
             normals.add_rows(*self.parameter_rows(state))
+        self.couple(normals, normals.kept, xyz)
         return normals.finish()
 
 
@@ -185,7 +214,11 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         n_parameter_observations=len(problem.pobs), parameter_residuals=now.v_par, N=normals.N, checks=checks,
         timings=timings, termination=status, termination_message=message,
     )
-    return BundleSolution(result=result, xyz_points=now.xyz, n_point_unknowns=problem.unknowns.n_unknowns)
+    dist = problem.distances
+    residuals = (np.zeros(0) if dist is None else
+                 np.linalg.norm(now.xyz[dist.point_from] - now.xyz[dist.point_to], axis=1) - dist.distance)
+    return BundleSolution(result=result, xyz_points=now.xyz, n_point_unknowns=problem.unknowns.n_unknowns,
+                          distance_residuals=residuals)
 
 
 @dataclass
@@ -252,7 +285,8 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
         return None, problem.assemble(state, xyz, damping.lam)
     dx = solved.dx
     t1 = time.perf_counter()
-    step = _back_substitute(problem, state, xyz, dx, damping.lam, kept=normals.kept)
+    step = _back_substitute(problem, state, xyz, dx, damping.lam, kept=normals.kept,
+                            coupling=getattr(normals, "coupling", None))
     # the kept chunks served their one back substitution (a failed step is assembled afresh): not
     # alive beside the trial's
     normals.kept = damped.kept = None
@@ -346,7 +380,8 @@ def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndar
         dx = solver.solve(normals.N, normals.b).dx
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
         return float("inf")
-    return _back_substitute(problem, state, xyz, dx, kept=normals.kept).correction
+    return _back_substitute(problem, state, xyz, dx, kept=normals.kept,
+                            coupling=getattr(normals, "coupling", None)).correction
 
 
 @dataclass
@@ -361,19 +396,33 @@ class _Step:
 
 
 def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.ndarray, damping: float = 0.0,
-                     kept: list | None = None) -> _Step:
+                     kept: list | None = None, coupling=None) -> _Step:
     """Point corrections and the adjusted observations l + v of the linearised step (v from
     ``Jc dx + Jp dX - e``, like the conditions method's ``v = Q A^T k``), and the step's size as
     core.convergence.correction_in_sigma measures it: ``sqrt(d^T N d)`` for the whole step d = (dx, dX),
     the norm of the change ``J d = v + e`` of the whitened residuals it makes. kept: the chunks the
     assembly of these normals linearised at (state, xyz) with this damping (ReducedNormals.kept);
-    linearised again when not given."""
+    linearised again when not given. coupling: the distances' correction of these normals
+    (bundle.distances.Coupling; required with distances)."""
     obs = problem.obs
     xyz_new = xyz.copy()
     plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
     vtpv, energy, crit = 0.0, 0.0, 0.0
-    for chunk in (kept if kept is not None else problem.chunks(state, xyz, damping)):
-        dX, v_plate, v_control = point_corrections(chunk, dx)
+    chunks = list(kept if kept is not None else problem.chunks(state, xyz, damping))
+    shift = {}
+    if problem.distances is not None:  # the distance points' dX' - dX (bundle.distances)
+        if coupling is None:
+            coupling = couple(problem.distances, chunks, problem.where, problem.distance_points, xyz,
+                              problem.unknowns.free, problem.layout.n_unknowns)[0]
+        dX0 = np.array([point_corrections(chunks[c], dx)[0][row] for c, row in zip(*problem.where)])
+        ddX = coupling.point_shift(dX0)
+        for c, row, dd in zip(*problem.where, ddX):
+            shift.setdefault(int(c), np.zeros((len(chunks[c].N_pp), 3)))[row] = dd
+        v_dist = coupling.residuals(dX0 + ddX)
+        vtpv += float(v_dist @ v_dist)
+        energy += float(np.sum((v_dist + coupling.e) ** 2))
+    for c, chunk in enumerate(chunks):
+        dX, v_plate, v_control = point_corrections(chunk, dx, shift.get(c))
         pt, rows = chunk.batch.point_index, chunk.batch.image_rows
         xyz_new[pt] = xyz[pt] + dX
         plate_hat[rows] = obs.plate[rows] + v_plate * chunk.sigma
@@ -442,6 +491,13 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
     reuse = normals_at_solution is not None
     normals = normals_at_solution if reuse else problem.normals()
     max_g, max_gp = 0.0, 0.0
+    # the distances' share of the points' gradient and of the diagonal of their normals (bundle.distances)
+    b_dist, d_dist = np.zeros_like(xyz), np.zeros_like(xyz)
+    if problem.distances is not None:
+        e_d, Ja, Jb = linearise_distances(problem.distances, xyz, problem.unknowns.free)
+        for ends, J in ((problem.distances.point_from, Ja), (problem.distances.point_to, Jb)):
+            np.add.at(b_dist, ends, J * e_d[:, None])
+            np.add.at(d_dist, ends, J**2)
     for chunk, scatters in zip(normals.kept if reuse else problem.chunks(state, xyz), problem.scatters):
         if not reuse:
             normals.add_points(chunk, state.camera_of_photo, scatters, keep=False)
@@ -451,15 +507,17 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
         g_control = np.sqrt(chunk.weight) * (control_hat[chunk.batch.point_index] - xyz[chunk.batch.point_index])
         if g.size:
             max_g = max(max_g, float(np.max(np.abs(g))), float(np.max(np.abs(g_control))))
-        d = np.einsum("mii->mi", chunk.N_pp)
+        pt = chunk.batch.point_index
+        d = np.einsum("mii->mi", chunk.N_pp) + d_dist[pt]
         if chunk.b_p.size:
-            max_gp = max(max_gp, float(np.max(np.where(chunk.free, np.abs(chunk.b_p) / np.sqrt(d), 0.0))))
+            max_gp = max(max_gp, float(np.max(np.where(chunk.free, np.abs(chunk.b_p + b_dist[pt]) / np.sqrt(d), 0.0))))
     if len(problem.pobs):
         J, cols, e = problem.parameter_rows(state)
         if not reuse:
             normals.add_rows(J, cols, e)
         max_g = max(max_g, float(np.max(np.abs(e + v_par / problem.pobs.sigma))))
     if not reuse:
+        problem.couple(normals, list(problem.chunks(state, xyz)), xyz)
         normals.finish()
     normals.kept = []  # not needed beyond the checks
     d = normals.N.diagonal()

@@ -212,14 +212,17 @@ def reduce_points_one_camera(chunk: PointChunk) -> OneCameraReduction:
     return OneCameraReduction(pp, pc, cc, b_photo, b_camera, reduced)
 
 
-def point_corrections(chunk: PointChunk, dx: np.ndarray):
+def point_corrections(chunk: PointChunk, dx: np.ndarray, shift: np.ndarray | None = None):
     """Back-substitution ``dX = N_pp^-1 (b_p - N_pc dx)`` (m, 3) and the linearised whitened
-    residuals after the step: plate (m, k, 2) ``Jc dx + Jp dX - e`` and control (m, 3)."""
+    residuals after the step: plate (m, k, 2) ``Jc dx + Jp dX - e`` and control (m, 3).
+    shift: (m, 3) added to dX (the distances' coupling, bundle.distances), or None."""
     m, k = chunk.e.shape[:2]
     dxp = np.concatenate([dx, [0.0]])
     dx_loc = dxp[chunk.cols]  # (m, k, 9); column -1 reads 0
     rhs = chunk.b_p - np.einsum("mci,mc->mi", chunk.N_cp, dx_loc.reshape(m, -1))
     dX = np.linalg.solve(chunk.N_pp, rhs[..., None])[..., 0]
+    if shift is not None:
+        dX = dX + shift
     v_plate = (np.einsum("mkai,mki->mka", chunk.Jc, dx_loc) + np.einsum("mkai,mi->mka", chunk.Jp, dX)
                - chunk.e)
     v_control = np.sqrt(chunk.weight) * (dX - chunk.control_misclosure)

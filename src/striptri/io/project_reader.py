@@ -48,6 +48,7 @@ from striptri.core.options import DATUMS, METHODS
 from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import CsvTable, decode_text, input_present, parse_csv, read_input_bytes
+from striptri.io.distances_reader import FILE_NAME as DISTANCES_FILE, read_distances
 from striptri.io.film_reader import FILE_NAMES as FILM_FILES, TOML_KEYS as FILM_TOML_KEYS, read_film
 from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION, read_gnss
 from striptri.io.project_notes import project_notes, unread_files_note
@@ -86,7 +87,7 @@ TOML_KEYS = {
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
-              "project.toml") + FILM_FILES
+              "project.toml", DISTANCES_FILE) + FILM_FILES
 # the required tables and what their rows are (for "no cameras ..." messages)
 REQUIRED_TABLES = {"cameras.csv": "cameras", "photos.csv": "photos", "image_points.csv": "plate measurements"}
 
@@ -186,6 +187,7 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
     if files.present("approx_points.csv"):
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
     gnss = _read_gnss(files, tables, cameras, photos, settings)
+    distances = read_distances(table(DISTANCES_FILE), points) if files.present(DISTANCES_FILE) else None
     notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids))
              if "image_points.csv" in tables else []) + film_notes + files.unread_notes()
     inactive = None if active.all() else _rows(image_points, ~active)
@@ -194,6 +196,7 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
         photos=photos,
         image_points=image_points if inactive is None else _rows(image_points, active),
         inactive_image_points=inactive,
+        distances=distances,
         points=points,
         bases=bases,
         settings=settings,

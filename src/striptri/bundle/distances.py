@@ -1,0 +1,165 @@
+"""Distance observations between object points (scale bars, taped distances) in the bundle method.
+
+A distance is the observation equation ``|X_a - X_b| = d + v`` with standard deviation sigma;
+whitened, ``Jd dX = e_d + v~`` with ``e_d = (d - |X_a^ - X_b^|) / sigma`` and the rows
+``+u^T / sigma`` for point a, ``-u^T / sigma`` for point b (u the unit vector from b to a; held
+coordinates have zero columns, as in Jp).
+
+The distance rows couple the two points, so the point-by-point elimination of bundle.reduced no
+longer gives the Schur complement. With ``P = N_pp^-1`` (block diagonal, as eliminated) and
+``Y = N_cp P``, the Woodbury identity for ``(N_pp + Jd^T Jd)^-1`` gives the exact correction
+(r distances, ``G = Jd P Jd^T``, ``M = I + G`` (r, r), ``q = Jd P b_p``, ``U = Y Jd^T`` (n, r)):
+
+    N_rcs' = N_rcs + U M^-1 U^T          b_rcs' = b_rcs + U M^-1 (q - e_d)
+    dX'    = dX + P Jd^T M^-1 (e_d - Jd dX)      (dX the point-by-point back substitution)
+
+and the points' share of the reduced sum of squares grows by
+``2 q^T e_d + e_d^T G e_d - (q + G e_d)^T M^-1 (q + G e_d)``. The correction enters the reduced
+normals as r rows ``L^-1 U^T`` with misclosures ``L^-1 (q - e_d)`` (M = L L^T), in the columns of
+the photos (and cameras) that see the distance points. Only the distance points' blocks are
+touched: the loops run over them (a few scale bars), not over all points.
+"""
+
+from __future__ import annotations
+
+import html
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Distances:
+    """point_from, point_to: (r,) indices into Project.points; distance (r,) m; sigma (r,) m (> 0);
+    line: (r,) line numbers in distances.csv (for messages), or None."""
+
+    point_from: np.ndarray
+    point_to: np.ndarray
+    distance: np.ndarray
+    sigma: np.ndarray
+    line: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.distance)
+
+
+def linearise_distances(dist: Distances, xyz: np.ndarray, free: np.ndarray):
+    """Whitened misclosures e (r,) and rows Ja, Jb (r, 3) of the points from and to at xyz (n_pt, 3);
+    free (n_pt, 3) the unknown coordinates (others get zero columns)."""
+    delta = xyz[dist.point_from] - xyz[dist.point_to]
+    length = np.linalg.norm(delta, axis=1)
+    u = delta / length[:, None]
+    s = dist.sigma[:, None]
+    e = (dist.distance - length) / dist.sigma
+    return e, u / s * free[dist.point_from], -u / s * free[dist.point_to]
+
+
+def distance_cost(dist: Distances, xyz: np.ndarray) -> float:
+    """Sum of the squared whitened distance residuals at xyz."""
+    length = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1)
+    return float(np.sum(((dist.distance - length) / dist.sigma) ** 2))
+
+
+def locate_points(chunk_point_index: list[np.ndarray], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Chunk number and row in it (each (len(points),)) of the given points, from the point_index
+    of each chunk in assembly order; -1 for a point in no chunk."""
+    chunk_of = np.full(points.max() + 1 if len(points) else 0, -1)
+    row_of = np.full_like(chunk_of, -1)
+    wanted = np.zeros(len(chunk_of), dtype=bool)
+    wanted[points] = True
+    for c, pt in enumerate(chunk_point_index):
+        inside = pt < len(wanted)
+        hit = np.flatnonzero(inside)[wanted[pt[inside]]]
+        chunk_of[pt[hit]] = c
+        row_of[pt[hit]] = hit
+    return chunk_of[points], row_of[points]
+
+
+@dataclass
+class Coupling:
+    """The Woodbury correction of one assembly (module doc). points (nD,) distance points;
+    JD (r, nD, 3); P (nD, 3, 3); M (r, r); e (r,) whitened misclosures."""
+
+    points: np.ndarray
+    JD: np.ndarray
+    P: np.ndarray
+    M: np.ndarray
+    e: np.ndarray
+
+    def point_shift(self, dX_points: np.ndarray) -> np.ndarray:
+        """dX' - dX (nD, 3) for the point-by-point corrections dX_points (nD, 3) of the distance points."""
+        w = np.linalg.solve(self.M, self.e - np.einsum("rpi,pi->r", self.JD, dX_points))
+        return np.einsum("pij,rpj,r->pi", self.P, self.JD, w)
+
+    def residuals(self, dX_points: np.ndarray) -> np.ndarray:
+        """Whitened linearised residuals (r,) ``Jd dX' - e`` for the corrected dX_points (nD, 3)."""
+        return np.einsum("rpi,pi->r", self.JD, dX_points) - self.e
+
+
+def couple(dist: Distances, kept: list, where: tuple[np.ndarray, np.ndarray], points: np.ndarray,
+           xyz: np.ndarray, free: np.ndarray, n: int):
+    """The Woodbury correction of the reduced normals (module doc) from the linearised chunks
+    kept (bundle.reduced.PointChunk, assembly order) at xyz.
+
+    where: locate_points of ``points`` (nD,), the distance points; n: the number of unknowns of
+    the reduced system. Returns (Coupling, rows J (r, w), cols (r, w), f (r,), e_d^T e_d, the
+    growth of the reduced sum of squares)."""
+    e, Ja, Jb = linearise_distances(dist, xyz, free)
+    r, nD = len(dist), len(points)
+    slot = {int(p): i for i, p in enumerate(points)}
+    ia = np.array([slot[int(p)] for p in dist.point_from])
+    ib = np.array([slot[int(p)] for p in dist.point_to])
+    JD = np.zeros((r, nD, 3))
+    JD[np.arange(r), ia] += Ja
+    JD[np.arange(r), ib] += Jb
+    P = np.zeros((nD, 3, 3))
+    bP = np.zeros((nD, 3))
+    U = np.zeros((n + 1, r))  # row n collects the held columns (-1)
+    for i, (c, row) in enumerate(zip(*where)):
+        chunk = kept[c]
+        P[i] = np.linalg.inv(chunk.N_pp[row])
+        bP[i] = P[i] @ chunk.b_p[row]
+        Y = chunk.N_cp[row] @ P[i]  # (k w, 3)
+        np.add.at(U, chunk.cols[row].ravel(), Y @ JD[:, i].T)
+    U = U[:n]
+    G = np.einsum("rpi,pij,spj->rs", JD, P, JD)
+    q = np.einsum("rpi,pi->r", JD, bP)
+    M = np.eye(r) + G
+    L = np.linalg.cholesky(M)
+    cols = np.flatnonzero(np.any(U != 0.0, axis=1))
+    R = np.linalg.solve(L, U[cols].T)  # (r, w)
+    f = np.linalg.solve(L, q - e)
+    h = q + G @ e
+    growth = float(2 * q @ e + e @ G @ e - h @ np.linalg.solve(M, h))
+    return (Coupling(points, JD, P, M, e), R, np.broadcast_to(cols, R.shape).copy(), f, float(e @ e), growth)
+
+
+def distance_columns(point_ids: list[str], dist: Distances, xyz: np.ndarray) -> dict:
+    """The output table distances.csv (docs/file-formats.md) for the adjusted points xyz (n_pt, 3):
+    the observation, the adjusted distance ``|X_a - X_b|``, the residual v = adjusted - observed
+    (m) and v / sigma."""
+    adjusted = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1)
+    v = adjusted - dist.distance
+    return {"point_from": [point_ids[p] for p in dist.point_from], "point_to": [point_ids[p] for p in dist.point_to],
+            "distance": dist.distance, "sigma": dist.sigma, "adjusted": adjusted, "residual": v,
+            "residual_sigma": v / dist.sigma}
+
+
+def summary_entry(dist: Distances, xyz: np.ndarray) -> dict:
+    """summary.json "distances": count, rms and largest |v| (m) and largest |v| / sigma."""
+    v = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1) - dist.distance
+    return {"count": len(dist), "rms_residual_m": float(np.sqrt(np.mean(v**2))),
+            "max_abs_residual_m": float(np.max(np.abs(v))), "max_abs_residual_sigma": float(np.max(np.abs(v) / dist.sigma))}
+
+
+def report_parts(point_ids: list[str], dist: Distances, xyz: np.ndarray) -> list:
+    """The report section's parts (report.py): a paragraph and (header, rows, cls, left) of a table,
+    every distance with its residual, largest |v| / sigma first."""
+    cols = distance_columns(point_ids, dist, xyz)
+    order = np.argsort(-np.abs(cols["residual_sigma"]), kind="stable")
+    rows = [[html.escape(cols["point_from"][i]), html.escape(cols["point_to"][i]), f"{cols['distance'][i]:.4f}", f"{cols['sigma'][i]:.4g}",
+             f"{cols['adjusted'][i]:.4f}", f"{1000 * cols['residual'][i]:.2f}", f"{cols['residual_sigma'][i]:.2f}"]
+            for i in order]
+    text = (f"<p>{len(dist)} observed distances between object points (distances.csv), adjusted with the points; "
+            "residual = adjusted - observed (also in the output distances.csv).</p>")
+    return [text, (["from", "to", "observed (m)", "sigma (m)", "adjusted (m)", "v (mm)", "v / sigma"], rows, "", 2)]
