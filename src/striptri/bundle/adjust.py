@@ -517,7 +517,10 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
             normals.add_rows(J, cols, e)
         max_g = max(max_g, float(np.max(np.abs(e + v_par / problem.pobs.sigma))))
     if not reuse:
-        problem.couple(normals, list(problem.chunks(state, xyz)), xyz)
+        if problem.distances is not None:  # the chunks linearised again only for the distances' correction
+            problem.couple(normals, list(problem.chunks(state, xyz)), xyz)
+        else:
+            normals.coupling = None
         normals.finish()
     normals.kept = []  # not needed beyond the checks
     d = normals.N.diagonal()
