@@ -101,6 +101,18 @@ class CsvTable:
             raise self.error(values.index(""), f"column '{name}' is empty")
         return values
 
+    def id_indices(self, names: Sequence[str], index_of: Mapping[str, int], known_in: str) -> dict[str, np.ndarray]:
+        """Columns of ids turned into indices: name -> (rows,) int64 through ``index_of``; an id it
+        does not hold is an error naming the line ("unknown NAME 'ID' (not in KNOWN_IN)")."""
+        out = {}
+        for name in names:
+            out[name] = np.zeros(len(self), dtype=np.int64)
+            for i, key in enumerate(self.strings(name)):
+                if key not in index_of:
+                    raise self.error(i, f"unknown {name} '{key}' (not in {known_in})")
+                out[name][i] = index_of[key]
+        return out
+
     def optional_strings(self, name: str, default: str = "") -> list[str]:
         """Values of an optional column; ``default`` for every row when the column is absent."""
         self.used.add(name)

@@ -23,13 +23,7 @@ def read_distances(table: CsvTable, points: model.ObjectPoints) -> Distances:
     positive."""
     table.require("point_from", "point_to", "distance", "sigma")
     point_of = {pid: k for k, pid in enumerate(points.ids)}
-    index = {}
-    for name in ("point_from", "point_to"):
-        index[name] = np.zeros(len(table), dtype=np.int64)
-        for i, pid in enumerate(table.strings(name)):
-            if pid not in point_of:
-                raise table.error(i, f"unknown {name} '{pid}' (not in image_points.csv or control.csv)")
-            index[name][i] = point_of[pid]
+    index = table.id_indices(("point_from", "point_to"), point_of, "image_points.csv or control.csv")
     first_line: dict[tuple[int, int], int] = {}
     for i, (a, b) in enumerate(zip(index["point_from"], index["point_to"])):
         if a == b:

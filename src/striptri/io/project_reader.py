@@ -669,13 +669,7 @@ def _read_bases(table: CsvTable, photos: model.Photos) -> model.BaseComponents:
     """
     table.require("photo_from", "photo_to", "component", "value", "sigma")
     photo_of = {pid: k for k, pid in enumerate(photos.ids)}
-    index = {}
-    for name in ("photo_from", "photo_to"):
-        index[name] = np.zeros(len(table), dtype=np.int64)
-        for i, pid in enumerate(table.strings(name)):
-            if pid not in photo_of:
-                raise table.error(i, f"unknown {name} '{pid}' (not in photos.csv)")
-            index[name][i] = photo_of[pid]
+    index = table.id_indices(("photo_from", "photo_to"), photo_of, "photos.csv")
     axis = np.zeros(len(table), dtype=np.int64)
     first_line: dict[tuple[int, int, int], int] = {}
     for i, text in enumerate(table.strings("component")):
