@@ -56,25 +56,14 @@ def test_conditions_and_bundle_export_the_same_covariance():
 
 
 def _distance_sigma(e, p1, p2):
-    i = [e.labels.index(f"points/{p1}/{a}") for a in "XYZ"]
-    j = [e.labels.index(f"points/{p2}/{a}") for a in "XYZ"]
-    d = e.values[i] - e.values[j]
-    f = np.zeros(len(e.labels))
-    f[i], f[j] = d / np.linalg.norm(d), -d / np.linalg.norm(d)
+    _, f = e.distance(p1, p2)
     return float(np.sqrt(f @ e.cov @ f))
 
 
 def _ratio_sigma(e, a, b, c, d):
-    """Mean error of |a - b| / |c - d| (gradient by hand)."""
-    def grad(p1, p2):
-        i = [e.labels.index(f"points/{p1}/{x}") for x in "XYZ"]
-        j = [e.labels.index(f"points/{p2}/{x}") for x in "XYZ"]
-        v = e.values[i] - e.values[j]
-        f = np.zeros(len(e.labels))
-        f[i], f[j] = v / np.linalg.norm(v), -v / np.linalg.norm(v)
-        return np.linalg.norm(v), f
-    d1, f1 = grad(a, b)
-    d2, f2 = grad(c, d)
+    """Mean error of |a - b| / |c - d| (the gradient of a quotient)."""
+    d1, f1 = e.distance(a, b)
+    d2, f2 = e.distance(c, d)
     f = f1 / d2 - d1 / d2**2 * f2
     return float(np.sqrt(f @ e.cov @ f))
 

@@ -20,15 +20,6 @@ from striptri.pipeline import triangulate_result
 TRIALS = 150
 
 
-def _gradient(e, p1, p2):
-    i = [e.labels.index(f"points/{p1}/{a}") for a in "XYZ"]
-    j = [e.labels.index(f"points/{p2}/{a}") for a in "XYZ"]
-    v = e.values[i] - e.values[j]
-    f = np.zeros(len(e.labels))
-    f[i], f[j] = v / np.linalg.norm(v), -v / np.linalg.norm(v)
-    return f, i, j
-
-
 @pytest.fixture(scope="module")
 def trials():
     design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=6), control=sim.ControlDesign(layout="ends"),
@@ -48,8 +39,9 @@ def trials():
         Q = e.cov / e.sigma0**2  # cofactors: a-priori sigma0 = 1
         row_e, row_f, row_b = [], [], []
         for a, b in pairs:
-            f, i, j = _gradient(e, a, b)
-            row_e.append(np.linalg.norm(e.values[i] - e.values[j]) - np.linalg.norm(true_xyz[a] - true_xyz[b]))
+            length, f = e.distance(a, b)
+            i, j = e.point_rows(a), e.point_rows(b)
+            row_e.append(length - np.linalg.norm(true_xyz[a] - true_xyz[b]))
             row_f.append(f @ Q @ f)
             no_cross = Q.copy()
             no_cross[np.ix_(i, j)] = 0.0

@@ -60,6 +60,20 @@ class CovarianceExport:
     convention: str
     datum: tuple[str, ...] | str = "adjustment"
 
+    def point_rows(self, point_id: str) -> list[int]:
+        """The rows of point ``point_id``'s X, Y, Z (ValueError when it is not exported)."""
+        return [self.labels.index(f"points/{point_id}/{axis}") for axis in "XYZ"]
+
+    def distance(self, p1: str, p2: str) -> tuple[float, np.ndarray]:
+        """|X_p1 - X_p2| (m) and its gradient f (n,) over the labels: the distance's mean error is
+        ``sqrt(f^T cov f)``, the points' cross-covariance included."""
+        i, j = self.point_rows(p1), self.point_rows(p2)
+        d = self.values[i] - self.values[j]
+        length = float(np.linalg.norm(d))
+        f = np.zeros(len(self.labels))
+        f[i], f[j] = d / length, -d / length
+        return length, f
+
     def npz_bytes(self) -> bytes:
         """covariance.npz (docs/file-formats.md)."""
         buf = io.BytesIO()
