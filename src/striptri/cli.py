@@ -372,7 +372,7 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
                    "or robust (re-weighting, then least squares of the survivors).")
 @click.option("--covariance", "covariance_groups", default=None, metavar="GROUPS",
               help="Also write covariance.npz: the full covariance of these groups, comma-separated from photos, "
-                   "camera, points (docs/file-formats.md).")
+                   "camera, points (docs/file-formats.md); in the CRS's axes with [coordinates] crs.")
 @click.option("--covariance-datum", default=None, metavar="POINTS",
               help="S-transform the covariance to the datum of these object points (comma-separated ids, at least "
                    "three): their inner constraints define it.")

@@ -30,15 +30,16 @@ measurements', e.g. scale bars) distances too.
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.sparse as sp
 
 from .adjusted_points import triangulate_adjusted
 from .core.result import AdjustmentResult
 from .lens import CAMERA_ELEMENTS
 from .model import Project
-from .rotations import angles_from_R, angles_jacobian, skew
+from .rotations import R_from_angles, angles_from_R, angles_jacobian, skew
 from .triangulation import Triangulated, ray_terms
 
 GROUPS = ("photos", "camera", "points")
@@ -59,6 +60,7 @@ class CovarianceExport:
     sigma0: float
     convention: str
     datum: tuple[str, ...] | str = "adjustment"
+    crs: str = ""
 
     def point_rows(self, point_id: str) -> list[int]:
         """The rows of point ``point_id``'s X, Y, Z (ValueError when it is not exported)."""
@@ -79,7 +81,8 @@ class CovarianceExport:
         buf = io.BytesIO()
         np.savez(buf, labels=np.array(self.labels), values=self.values, covariance=self.cov,
                  sigma0=np.float64(self.sigma0), convention=np.array(self.convention),
-                 datum=np.array(self.datum if isinstance(self.datum, str) else ",".join(self.datum)))
+                 datum=np.array(self.datum if isinstance(self.datum, str) else ",".join(self.datum)),
+                 crs=np.array(self.crs))
         return buf.getvalue()
 
 
@@ -243,6 +246,44 @@ def s_transform(export: CovarianceExport, datum_points: list[str], scale: bool =
                             datum=tuple(datum_points))
 
 
+def in_grid(export: CovarianceExport, frame) -> CovarianceExport:
+    """The export of a project in map coordinates (adjusted in the local frame ``frame``, a
+    crs.frame.LocalFrame) in its CRS: ``values`` grid E, N, H and the angles of the grid frame,
+    ``cov = F cov F^T`` with F the block-diagonal derivative of the grid values by the local ones
+    (LocalFrame.point_jacobian_to_grid per point, photo_jacobian_to_grid per photo, the camera
+    unchanged), ``H = F H`` (the local frame's similarity seen in grid values). An S-transformation
+    belongs before this: the similarity is one of the Cartesian local frame."""
+    group, ident, element = (np.array(x) for x in zip(*(label.rsplit("/", 2) for label in export.labels)))
+    n = len(export.labels)
+    rows, cols, vals = [np.arange(n)], [np.arange(n)], [np.ones(n)]
+    values = export.values.copy()
+    photo = np.flatnonzero((group == "photos") & (element == "X0"))  # X0, Y0, Z0, three angles
+    point = np.flatnonzero((group == "points") & (element == "X"))  # X, Y, Z
+    blocks = []
+    if len(photo):
+        at = photo[:, None] + np.arange(6)
+        xyz, ang = values[at[:, :3]], values[at[:, 3:]]
+        R = R_from_angles(ang, export.convention)
+        blocks.append((at, frame.photo_jacobian_to_grid(xyz, R, export.convention)))
+        values[at[:, 3:]] = angles_from_R(frame.rotations_to_grid(xyz, R), export.convention)
+        values[at[:, :3]] = frame.from_local(xyz)
+    if len(point):
+        at = point[:, None] + np.arange(3)
+        blocks.append((at, frame.point_jacobian_to_grid(values[at])))
+        values[at] = frame.from_local(values[at])
+    for at, J in blocks:
+        rows[0][at.ravel()] = -1  # these rows come from the blocks
+        k = at.shape[1]
+        rows.append(np.repeat(at, k, axis=1).ravel())
+        cols.append(np.tile(at, (1, k)).ravel())
+        vals.append(J.ravel())
+    keep = rows[0] >= 0
+    rows[0], cols[0], vals[0] = rows[0][keep], cols[0][keep], vals[0][keep]
+    F = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    cov = F @ (F @ export.cov).T
+    return replace(export, values=values, cov=0.5 * (cov + cov.T), H=F @ export.H, crs=frame.settings.crs)
+
+
 @dataclass(frozen=True)
 class CovarianceRequest:
     """What ``striptri adjust --covariance`` asks for: groups (GROUPS), the datum points of an
@@ -262,11 +303,13 @@ class CovarianceRequest:
             raise ValueError("--covariance-datum needs the group points in --covariance")
 
 
-def covariance_file(project: Project, result: AdjustmentResult, request: CovarianceRequest) -> bytes:
+def covariance_file(project: Project, result: AdjustmentResult, request: CovarianceRequest, frame=None) -> bytes:
     """covariance.npz of ``request`` (docs/file-formats.md) for the adjusted ``project`` (the rows
     the adjustment kept). The points are intersected again for their measurement parts (points.csv's
-    may hold the joint form (92) instead). ValueError for what cannot be done."""
+    may hold the joint form (92) instead). frame: the crs.frame.LocalFrame of a project in map
+    coordinates (``project`` then in that frame): S-transformed there, then written in the CRS
+    (:func:`in_grid`). ValueError for what cannot be done."""
     export = joint_covariance(project, result, triangulate_adjusted(project, result), request.groups)
     if request.datum_points:
         export = s_transform(export, list(request.datum_points), request.scale)
-    return export.npz_bytes()
+    return (export if frame is None else in_grid(export, frame)).npz_bytes()

@@ -128,12 +128,9 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
         except SolverUnavailable as exc:
             raise InputError(project_dir / "project.toml", None, str(exc)) from exc
         if covariance is not None:
-            if framed is not None:
-                raise InputError("command line", None, "--covariance with [coordinates] crs: not available yet (the "
-                                 "covariance would be that of the local frame, not of the CRS's axes)")
             try:
                 products.files["covariance.npz"] = covariance_export.covariance_file(
-                    products.project, products.result, covariance)
+                    products.project, products.result, covariance, None if framed is None else framed.frame)
             except ValueError as exc:
                 raise InputError("command line", None, str(exc)) from None
         reservation.commit(products.files)
@@ -256,8 +253,10 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     t0 = time.perf_counter()
     photo_cols, point_cols = photo_table(adjusted, result), point_table(adjusted, result, points)
     if frame is not None:
-        photo_cols = map_coordinates.photo_columns_to_grid(photo_cols, adjusted, frame)
-        point_cols = map_coordinates.point_columns_to_grid(point_cols, frame)
+        # standard deviations in the CRS's axes with the local frame's correlations (docs/decisions.md)
+        photo_cols = map_coordinates.photo_columns_to_grid(photo_cols, adjusted, frame, result.photo_covariances)
+        point_cols = map_coordinates.point_columns_to_grid(
+            point_cols, frame, point_covariances(result, points))
     tables = {
         "photos.csv": format_csv(photo_cols),
         "cameras.csv": format_csv(camera_table(adjusted, result)),
@@ -421,10 +420,14 @@ def gnss_tables(project: Project, result: AdjustmentResult) -> dict:
     return out
 
 
+def point_covariances(result: AdjustmentResult, tri: Triangulated) -> np.ndarray:
+    """(n, 3, 3) covariances of the triangulated points, m^2: sigma0^2 (measurement + orientation part)."""
+    return (tri.cov_measurement + tri.cov_orientation) * result.sigma0_for_precision**2
+
+
 def point_table(project: Project, result: AdjustmentResult, tri: Triangulated) -> dict:
     pts = project.points
-    s0 = result.sigma0_for_precision
-    cov = (tri.cov_measurement + tri.cov_orientation) * s0**2
+    cov = point_covariances(result, tri)
     sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
     xyz = tri.xyz + result.offset
     sig = np.where(tri.determined[:, None], sig, np.nan)

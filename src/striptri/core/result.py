@@ -248,13 +248,24 @@ class AdjustmentResult:
     def photo_mean_errors(self, convention: str) -> tuple[np.ndarray, np.ndarray]:
         """Mean errors of the centres (n, 3) and of the angles in ``convention`` (n, 3, radians)."""
         s0 = self.sigma0_for_precision
+        Q_xyz, Q_ang = self._photo_cofactors(convention)
+        return (s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Q_xyz), 0)),
+                s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Q_ang), 0)))
+
+    def photo_covariances(self, convention: str) -> np.ndarray:
+        """Covariances (sigma0^2 Q) of each photo's centre and angles in ``convention``:
+        (n, 6, 6) over X0, Y0, Z0 (m) and the three angles (rad); fixed elements zero."""
         Qphoto = self.covariance.photo_blocks()  # (n, 6, 6), fixed elements zero
-        sig_xyz = s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Qphoto[:, :3, :3]), 0))
+        F = np.zeros_like(Qphoto)
+        F[:, :3, :3] = np.eye(3)
+        F[:, 3:, 3:] = angles_jacobian(self.state.R_ground_from_cam, convention) @ self.layout.rotation_maps(self.state)
+        return self.sigma0_for_precision**2 * (F @ Qphoto @ np.swapaxes(F, 1, 2))
+
+    def _photo_cofactors(self, convention: str) -> tuple[np.ndarray, np.ndarray]:
+        Qphoto = self.covariance.photo_blocks()  # (n, 6, 6), fixed elements zero
         T = self.layout.rotation_maps(self.state)
         J = angles_jacobian(self.state.R_ground_from_cam, convention) @ T
-        Qang = J @ Qphoto[:, 3:, 3:] @ np.swapaxes(J, 1, 2)
-        sig_ang = s0 * np.sqrt(np.maximum(np.einsum("nii->ni", Qang), 0))
-        return sig_xyz, sig_ang
+        return Qphoto[:, :3, :3], J @ Qphoto[:, 3:, 3:] @ np.swapaxes(J, 1, 2)
 
     def camera_mean_errors(self) -> np.ndarray:
         s0 = self.sigma0_for_precision

@@ -33,7 +33,7 @@ import numpy as np
 
 from striptri.errors import InputError
 from striptri.model import CoordinateSettings
-from striptri.rotations import angles_jacobian
+from striptri.rotations import angles_from_R, angles_jacobian
 
 
 def _pyproj():
@@ -236,6 +236,37 @@ class LocalFrame:
         """Inverse of sigmas_to_local, the points given in the local frame."""
         return _propagate_diagonal(np.linalg.inv(self.jacobian(self.from_local(xyz_local))), sigma_local)
 
+    def point_jacobian_to_grid(self, xyz_local) -> np.ndarray:
+        """d xyz_grid / d xyz_local at points given in the local frame: (n, 3) -> (n, 3, 3), the
+        inverse of :meth:`jacobian`. Rows of a point not all finite come out nan."""
+        xyz = np.asarray(xyz_local, dtype=float).reshape(-1, 3)
+        ok = np.all(np.isfinite(xyz), axis=1)
+        J = np.linalg.inv(self.jacobian(self.from_local(np.where(ok[:, None], xyz, 0.0))))
+        J[~ok] = np.nan
+        return J
+
+    def photo_jacobian_to_grid(self, xyz0_local, R_local_from_cam, convention: str) -> np.ndarray:
+        """d (E0, N0, H0, angles_grid) / d (X0, Y0, Z0, angles_local) of photos (n, 3), (n, 3, 3) ->
+        (n, 6, 6), angles in ``convention`` (rad). The grid angles depend on the centre too (the
+        change of frame turns with the position, about 2e-7 rad per metre: meridian convergence and
+        the direction of the ellipsoid normal); that block is taken by central differences over
+        +-1 m (the rotation is smooth on the scale of the Earth's radius: truncation below 1e-13)."""
+        xyz0 = np.asarray(xyz0_local, dtype=float).reshape(-1, 3)
+        R = np.asarray(R_local_from_cam, dtype=float)
+        R_grid = self.rotations_to_grid(xyz0, R)
+        F = np.zeros((len(xyz0), 6, 6))
+        F[:, :3, :3] = self.point_jacobian_to_grid(xyz0)
+        F[:, 3:, 3:] = angle_change_jacobian(R, R_grid, convention)
+        step = 1.0
+        for j in range(3):
+            dO = np.zeros(3)
+            dO[j] = step
+            d = (angles_from_R(self.rotations_to_grid(xyz0 + dO, R), convention)
+                 - angles_from_R(self.rotations_to_grid(xyz0 - dO, R), convention))
+            F[:, 3:, j] = (d + np.pi) % (2 * np.pi) - np.pi  # across +-pi: the short way
+        F[:, 3:, :3] /= 2 * step
+        return F
+
     def describe(self) -> str:
         o = self.origin
         return (f"topocentric at lat {o.lat:.6f}, lon {o.lon:.6f} deg, h = 0 on the ellipsoid; X along grid east there "
@@ -258,8 +289,13 @@ def angle_sigmas(R_from: np.ndarray, R_to: np.ndarray, sigma_angles: np.ndarray,
     vector d, so ``Cov(a_to) = J_to J_from^-1 Cov(a_from) J_from^-T J_to^T`` with
     J = rotations.angles_jacobian. (n, 3, 3), (n, 3, 3), (n, 3) rad -> (n, 3) rad (diagonal kept;
     rows not all finite and > 0 returned as given)."""
-    J = angles_jacobian(R_to, convention) @ np.linalg.inv(angles_jacobian(R_from, convention))
-    return _propagate_diagonal(J, sigma_angles)
+    return _propagate_diagonal(angle_change_jacobian(R_from, R_to, convention), sigma_angles)
+
+
+def angle_change_jacobian(R_from: np.ndarray, R_to: np.ndarray, convention: str) -> np.ndarray:
+    """d a_to / d a_from (n, 3, 3) for ``R_to = C R_from`` with C a fixed change of frame (see
+    :func:`angle_sigmas`): ``J_to J_from^-1``, J = rotations.angles_jacobian."""
+    return angles_jacobian(R_to, convention) @ np.linalg.inv(angles_jacobian(R_from, convention))
 
 
 def _propagate_diagonal(J: np.ndarray, sigma: np.ndarray) -> np.ndarray:

@@ -163,39 +163,60 @@ def has_partial_control(project: model.Project) -> bool:
 # ------------------------------------------------------------------------------------- outputs
 
 
-def photo_columns_to_grid(cols: dict, project: model.Project, frame: LocalFrame) -> dict:
+def photo_columns_to_grid(cols: dict, project: model.Project, frame: LocalFrame, covariances=None) -> dict:
     """photos.csv's columns (pipeline.photo_table, in the local frame) in the project's CRS: centres,
-    omega, phi, kappa (and Schmid's alpha, omega, chi) and their standard deviations."""
+    omega, phi, kappa (and the project's own convention's angles) and their standard deviations.
+    covariances(convention) -> (n, 6, 6) the local frame's covariance of centre (m) and angles (rad)
+    (AdjustmentResult.photo_covariances): the standard deviations are then propagated with all
+    correlations through LocalFrame.photo_jacobian_to_grid; without it from the local standard
+    deviations alone (diagonal)."""
     out = dict(cols)
     xyz_local = np.column_stack([np.asarray(cols[n], dtype=float) for n in ("X0", "Y0", "Z0")])
-    sig_local = np.column_stack([np.asarray(cols[f"sigma_{n}"], dtype=float) for n in ("X0", "Y0", "Z0")])
     xyz_grid = frame.from_local(xyz_local)
-    sig_grid = frame.sigmas_to_grid(xyz_local, sig_local)
-    for a, name in enumerate(("X0", "Y0", "Z0")):
-        out[name], out[f"sigma_{name}"] = xyz_grid[:, a], sig_grid[:, a]
     per_unit = RADIANS_PER_UNIT[project.settings.angle_unit]
     for convention, names in (("omega-phi-kappa", ("omega", "phi", "kappa")),
                               *model.ROTATION_OUTPUT_NAMES.items()):
         if names[0] not in cols:
             continue
         angles = np.column_stack([np.asarray(cols[n], dtype=float) for n in names]) * per_unit
-        sig = np.column_stack([np.asarray(cols[f"sigma_{n}"], dtype=float) for n in names]) * per_unit
         R_local = R_from_angles(angles, convention)
         R_grid = frame.rotations_to_grid(xyz_local, R_local)
         grid_angles = angles_from_R(R_grid, convention) / per_unit
-        grid_sig = angle_sigmas(R_local, R_grid, sig, convention) / per_unit
+        if covariances is None:
+            sig = np.column_stack([np.asarray(cols[f"sigma_{n}"], dtype=float) for n in names]) * per_unit
+            sig_xyz = frame.sigmas_to_grid(xyz_local, np.column_stack(
+                [np.asarray(cols[f"sigma_{n}"], dtype=float) for n in ("X0", "Y0", "Z0")]))
+            grid_sig = angle_sigmas(R_local, R_grid, sig, convention) / per_unit
+        else:
+            F = frame.photo_jacobian_to_grid(xyz_local, R_local, convention)
+            sig6 = _sigmas(F @ covariances(convention) @ np.swapaxes(F, -1, -2))
+            sig_xyz, grid_sig = sig6[:, :3], sig6[:, 3:] / per_unit
         for a, name in enumerate(names):
             out[name], out[f"sigma_{name}"] = grid_angles[:, a], grid_sig[:, a]
+    for a, name in enumerate(("X0", "Y0", "Z0")):  # the same in every convention: the last one's
+        out[name], out[f"sigma_{name}"] = xyz_grid[:, a], sig_xyz[:, a]
     return out
 
 
-def point_columns_to_grid(cols: dict, frame: LocalFrame) -> dict:
-    """points.csv's columns (pipeline.point_table, local frame) in the project's CRS."""
+def point_columns_to_grid(cols: dict, frame: LocalFrame, cov_local: np.ndarray | None = None) -> dict:
+    """points.csv's columns (pipeline.point_table, local frame) in the project's CRS. cov_local:
+    the points' (n, 3, 3) covariances in the local frame (m^2): the standard deviations are then
+    propagated with the correlations; without it from the local standard deviations alone."""
     out = dict(cols)
     xyz_local = np.column_stack([np.asarray(cols[n], dtype=float) for n in "XYZ"])
-    sig_local = np.column_stack([np.asarray(cols[f"sigma_{n}"], dtype=float) for n in "XYZ"])
     xyz_grid = frame.from_local(xyz_local)
-    sig_grid = frame.sigmas_to_grid(np.where(np.isfinite(xyz_local), xyz_local, 0.0), sig_local)
+    if cov_local is None:
+        sig_local = np.column_stack([np.asarray(cols[f"sigma_{n}"], dtype=float) for n in "XYZ"])
+        sig_grid = frame.sigmas_to_grid(np.where(np.isfinite(xyz_local), xyz_local, 0.0), sig_local)
+    else:
+        given = np.column_stack([np.asarray(cols[f"sigma_{n}"], dtype=float) for n in "XYZ"])
+        J = frame.point_jacobian_to_grid(xyz_local)
+        sig_grid = np.where(np.isfinite(given), _sigmas(J @ cov_local @ np.swapaxes(J, -1, -2)), np.nan)
     for a, name in enumerate("XYZ"):
         out[name], out[f"sigma_{name}"] = xyz_grid[:, a], sig_grid[:, a]
     return out
+
+
+def _sigmas(cov: np.ndarray) -> np.ndarray:
+    """Square roots of the diagonals of (n, k, k) covariances (nan stays nan)."""
+    return np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
