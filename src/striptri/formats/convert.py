@@ -137,6 +137,7 @@ def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_
     fmt, scene = read_scene(src, source_format, pixel_size, drop_distortion)
     project = scene.project
     notes += scene.notes
+    notes += what_the_target_leaves_out(project, to)
     off = project.inactive_image_points
     n_off = 0 if off is None else len(off)
     if n_off and to != "project":
@@ -176,6 +177,33 @@ def _convert(reservation: OutputReservation, src, to: str, source_format, pixel_
     return ConvertResult(out_dir=out, source_format=fmt, target_format=to, n_cameras=len(project.cameras),
                          n_photos=len(project.photos), n_points=len(project.points),
                          n_image_points=len(project.image_points), notes=list(notes))
+
+def what_the_target_leaves_out(project: model.Project, to: str) -> list[str]:
+    """Notes on what a project's settings mean for the numbers written to ``to``: map coordinates,
+    plate corrections and GNSS models that the exchange formats cannot express (a project target
+    keeps them), and scanned film, whose image points are written as plate coordinates."""
+    target = {"bal": "BAL", "colmap": "COLMAP", "dbat": "DBAT", "project": "a project"}[to]
+    notes = []
+    settings = project.settings
+    if to != "project":
+        if settings.coordinates is not None:
+            notes.append(f"map coordinates ([coordinates] crs = {settings.coordinates.crs!r}, {settings.coordinates.heights} "
+                         f"heights): {target} has no coordinate reference system; centres and points are written as "
+                         "grid E, N, H as they are, which is not a Cartesian frame (the projection's scale and the "
+                         "Earth's curvature are in it)")
+        corrected = [name for name, on in (("earth_curvature", settings.earth_curvature),
+                                           ("refraction", settings.refraction)) if on]
+        if corrected:
+            notes.append(f"[corrections] {' and '.join(corrected)}: {target} gets the plate coordinates as measured, "
+                         "without these corrections")
+        if project.gnss is not None:
+            notes.append(f"GNSS/IMU model ([gnss], lever arm, boresight, shifts, drifts): not written to {target}")
+    if project.film is not None:
+        notes.append("scanned film: the image points are written as plate coordinates (the scanner measurements "
+                     "through each photo's fiducial transformation); the fiducial measurements and the film "
+                     "calibration are not carried over")
+    return notes
+
 
 def _validate_project(src: Path, files: dict[str, str]) -> tuple:
     """Read the project files about to be written with the project reader's rules (in memory).
