@@ -328,6 +328,7 @@ def test_wkt_crs_is_read(tmp_path):
     assert np.abs(frame.to_local(g) - LocalFrame(CoordinateSettings(UTM33, "ellipsoidal"), CENTRE).to_local(g)).max() < 1e-9
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # the domain check, not numpy's warnings, says it
 def test_coordinates_outside_the_projection_are_an_input_error(tmp_path):
     runner = CliRunner()
     assert runner.invoke(main, ["simulate", "block", "--out", str(tmp_path / "p"), "--photos", "4", "--strips", "2",

@@ -128,9 +128,18 @@ class LocalFrame:
         x, y, z = self._cart.transform(lon, lat, h)
         return np.column_stack([x, y, z])
 
+    def _geodetic(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Longitude and latitude (deg, (n,)) of grid points (n, 3); outside the projection's domain
+        nan (PROJ's inf would make the trigonometry warn; callers find the rows not finite)."""
+        lon, lat = self._to_geo.transform(g[:, 0], g[:, 1])
+        lon, lat = np.asarray(lon, dtype=float), np.asarray(lat, dtype=float)
+        bad = ~(np.isfinite(lon) & np.isfinite(lat))
+        return np.where(bad, np.nan, lon), np.where(bad, np.nan, lat)
+
     def _convergence(self, lon, lat):
         """Meridian convergence at (lon, lat) (degrees, (n,)): grid north clockwise from true north."""
-        return np.asarray(self._proj.get_factors(lon, lat).meridian_convergence, dtype=float).reshape(-1)
+        gamma = np.asarray(self._proj.get_factors(lon, lat).meridian_convergence, dtype=float).reshape(-1)
+        return np.where(np.isfinite(gamma), gamma, np.nan)  # outside the domain: nan, as _geodetic
 
     def geoid_undulation(self, lon, lat) -> np.ndarray:
         """N at (lon, lat) in degrees, (n,) -> (n,) m: the constant of [coordinates], the grid's value,
@@ -184,8 +193,7 @@ class LocalFrame:
         """Rotation taking the grid's axes at grid points (n, 3) (grid east, grid north, the ellipsoid
         normal) to the local frame: (n, 3, 3). The orthonormal part of :meth:`jacobian`."""
         g = np.asarray(xyz_grid, dtype=float).reshape(-1, 3)
-        lon, lat = self._to_geo.transform(g[:, 0], g[:, 1])
-        lon, lat = np.asarray(lon, dtype=float), np.asarray(lat, dtype=float)
+        lon, lat = self._geodetic(g)
         R_ecef_from_enu = np.swapaxes(_R_enu_from_ecef(np.radians(lon), np.radians(lat)), -1, -2)
         R_enu_from_grid = np.swapaxes(_rz_plan(np.radians(self._convergence(lon, lat))), -1, -2)
         return self.R_local_from_ecef @ R_ecef_from_enu @ R_enu_from_grid
@@ -197,8 +205,7 @@ class LocalFrame:
         the prime vertical; h the ellipsoidal height). The variation of the geoid undulation across a
         metre is neglected (below 1e-5)."""
         g = np.asarray(xyz_grid, dtype=float).reshape(-1, 3)
-        lon, lat = self._to_geo.transform(g[:, 0], g[:, 1])
-        lon, lat = np.asarray(lon, dtype=float), np.asarray(lat, dtype=float)
+        lon, lat = self._geodetic(g)
         k = np.asarray(self._proj.get_factors(lon, lat).meridional_scale, dtype=float).reshape(-1)
         h = g[:, 2] + self.geoid_undulation(lon, lat)
         w = np.sqrt(1.0 - self._e2 * np.sin(np.radians(lat)) ** 2)
