@@ -174,3 +174,43 @@ def test_convert_says_it_leaves_inactive_rows_out(tmp_path):
     again = convert(folder, tmp_path / "copy", "project", source_format="project")
     assert not any("inactive" in n for n in again.notes)
     assert len(read_project(tmp_path / "copy").inactive_image_points) == 2
+
+
+def test_an_inactive_row_may_repeat_an_active_measurement(tmp_path):
+    """A rejected measurement kept (active = 0) beside its re-measurement of the same point on the
+    same photo: read, the adjustment equals the one without it, and its residual is reported; two
+    active rows of one photo and point stay an error; notes count the active rays only."""
+    p = _block(8)
+    r = int(_tie_rows(p, 1)[0])
+    ip = p.image_points
+    again = _rows(ip, np.array([r]))
+    again = replace(again, xy=again.xy + [0.3, -0.2])  # the rejected first measurement
+    with_off = replace(p, inactive_image_points=again)
+    folder = write_project(tmp_path / "proj", with_off)
+    q = read_project(folder)
+    assert len(q.inactive_image_points) == 1 and len(q.image_points) == len(ip)
+    products = adjust_products(q, options_for(q))
+    plain = read_project(write_project(tmp_path / "plain", p))  # the same numbers through the files
+    assert products.result.vtpv == adjust(plain, options_for(plain)).vtpv
+    last = products.files["residuals.csv"].splitlines()[-1].split(",")
+    assert last[:2] == [p.photos.ids[ip.photo_index[r]], p.points.ids[ip.point_index[r]]] and last[5] == "inactive"
+    assert abs(float(last[2]) + 0.3) < 0.05 and abs(float(last[3]) - 0.2) < 0.05  # about the spoilt amount
+    text = (folder / "image_points.csv").read_text().splitlines()
+    (folder / "image_points.csv").write_text("\n".join(text[:-1] + [text[-1].rsplit(",", 1)[0] + ",1"]) + "\n")
+    with pytest.raises(InputError) as err:
+        read_project(folder)
+    assert "duplicate measurement" in str(err.value) and f"line {len(text)}" in str(err.value)
+
+
+def test_notes_count_active_rays_only(tmp_path):
+    """A tie point with two rays, one of them inactive, is a point on one photo for the adjustment."""
+    p = _block(9)
+    ip = p.image_points
+    rays = np.bincount(ip.point_index, minlength=len(p.points))
+    two = [k for k in range(len(p.points)) if p.points.kind[k] == model.TIE and rays[k] == 2]
+    assert two
+    row = int(np.flatnonzero(ip.point_index == two[0])[1])
+    with_off, _ = _split(p, np.array([row]))
+    q = read_project(write_project(tmp_path / "proj", with_off))
+    said = [str(n) for n in q.notes if "measured on one photo only" in str(n)]
+    assert len(said) == 1 and f"'{p.points.ids[two[0]]}'" in said[0]

@@ -39,17 +39,21 @@ KNOWN_OTHER_ENTRIES = ("truth", "striptri_ids.csv")
 
 
 def project_notes(tables: Mapping[str, CsvTable], cameras: model.Cameras, photos: model.Photos,
-                  image_points: model.ImagePoints, points: model.ObjectPoints, n_control: int) -> list[Note]:
+                  image_points: model.ImagePoints, points: model.ObjectPoints, n_control: int,
+                  active: np.ndarray | None = None) -> list[Note]:
     """Every note on the parsed tables (file name -> CsvTable) of a project that read without error.
-    points: the first n_control are the rows of control.csv, in its order."""
+    points: the first n_control are the rows of control.csv, in its order. active: (m,) bool over
+    image_points' rows (None: all): rays and measured photos count the active rows only."""
     notes = [n for table in tables.values() for n in [_column_note(table)] if n is not None]
-    rays = np.bincount(image_points.point_index, minlength=len(points))
+    used = np.arange(len(image_points.point_index)) if active is None else np.flatnonzero(active)
+    point_index, photo_index = image_points.point_index[used], image_points.photo_index[used]
+    rays = np.bincount(point_index, minlength=len(points))
     if "control.csv" in tables:
         notes += _control_notes(tables["control.csv"], points, rays, n_control)
     ip_table = tables["image_points.csv"]
-    _, first_row = np.unique(image_points.point_index, return_index=True)
+    _, first_row = np.unique(point_index, return_index=True)
     first = np.full(len(points), -1)
-    first[image_points.point_index[first_row]] = first_row
+    first[point_index[first_row]] = used[first_row]
     lonely = np.flatnonzero(rays[n_control:] == 1) + n_control
     lonely = lonely[np.argsort(first[lonely], kind="stable")]  # in the order of image_points.csv
     notes += _note(ip_table.path, [
@@ -57,7 +61,7 @@ def project_notes(tables: Mapping[str, CsvTable], cameras: model.Cameras, photos
         for j in lonely[:MAX_LISTED]], "tie point measured on one photo only; it gives no condition and is not used",
         "tie points measured on one photo only; they give no condition and are not used", len(lonely))
     ph_table = tables["photos.csv"]
-    unmeasured = np.flatnonzero(np.bincount(image_points.photo_index, minlength=len(photos)) == 0)
+    unmeasured = np.flatnonzero(np.bincount(photo_index, minlength=len(photos)) == 0)
     notes += _note(ph_table.path, [(ph_table.lines[i], f"'{photos.ids[i]}'", "") for i in unmeasured[:MAX_LISTED]],
                    "photo with no measurements in image_points.csv; no ray of it enters the adjustment",
                    "photos with no measurements in image_points.csv; no ray of them enters the adjustment",

@@ -179,16 +179,16 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
         points = _object_points(list(control.ids), control)
         active = np.ones(0, dtype=bool)
     else:
-        image_points, points = _read_image_points(table("image_points.csv"), photos, control, settings)
+        active = _active_column(table("image_points.csv"))
+        image_points, points = _read_image_points(tables["image_points.csv"], photos, control, settings, active)
         film, cameras, image_points, film_notes = _read_film(files, tables, cameras, photos, image_points)
         _check_plate_geometry(tables["image_points.csv"], tables["cameras.csv"], image_points, photos, cameras)
-        active = _active_column(tables["image_points.csv"])
     bases = _read_bases(table("bases.csv"), photos) if files.present("bases.csv") else model.BaseComponents.empty()
     if files.present("approx_points.csv"):
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
     gnss = _read_gnss(files, tables, cameras, photos, settings)
     distances = read_distances(table(DISTANCES_FILE), points) if files.present(DISTANCES_FILE) else None
-    notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids))
+    notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids), active)
              if "image_points.csv" in tables else []) + film_notes + files.unread_notes()
     inactive = None if active.all() else _rows(image_points, ~active)
     return model.Project(
@@ -526,12 +526,14 @@ def _read_control(table: CsvTable) -> _Control:
 
 
 def _read_image_points(
-    table: CsvTable, photos: model.Photos, control: _Control, settings: model.ProjectSettings
+    table: CsvTable, photos: model.Photos, control: _Control, settings: model.ProjectSettings, active: np.ndarray
 ) -> tuple[model.ImagePoints, model.ObjectPoints]:
     """image_points.csv: photo_id, point_id, x, y[, sigma_x, sigma_y] (plate units).
 
     Empty sigma -> settings.sigma_image; a sigma must be > 0. Object points: control points in
-    control.csv order, then tie points by first measurement.
+    control.csv order, then tie points by first measurement. active (m,) bool (the ``active``
+    column): a point may be measured on a photo once among the active rows; inactive rows of the same
+    photo and point beside it (a rejected measurement kept with its re-measurement) are allowed.
     """
     table.require("photo_id", "point_id", "x", "y")
     photo_of = {pid: k for k, pid in enumerate(photos.ids)}
@@ -547,6 +549,7 @@ def _read_image_points(
     # the first row that is an error: an unknown photo, or a point measured twice on one photo
     unknown = np.flatnonzero(photo_index < 0)
     key = photo_index * max(len(point_ids), 1) + point_index
+    key = np.where(active, key, -1 - np.arange(len(key)))  # inactive rows never repeat a key
     order = np.argsort(key, kind="stable")
     repeated = np.flatnonzero(key[order][1:] == key[order][:-1]) + 1  # in order: a later row of the same key
     first_unknown = int(unknown[0]) if len(unknown) else len(table)
@@ -556,8 +559,9 @@ def _read_image_points(
     if first_repeat < len(table):
         i = first_repeat
         first = int(np.flatnonzero(key == key[i])[0])
+        also = "" if active.all() else "; an inactive row (active = 0) may repeat it"
         raise table.error(i, f"duplicate measurement of point '{measured_ids[i]}' on photo '{photo_ids[i]}' "
-                             f"(first on line {table.lines[first]})")
+                             f"(first on line {table.lines[first]}{also})")
     xy = np.column_stack([table.floats("x"), table.floats("y")]).reshape(-1, 2)
     _check_limit(table, ("x", "y"), xy, limits.PLATE_LIMIT, "plate units")
     sigma_xy = np.column_stack(
