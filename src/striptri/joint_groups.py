@@ -28,7 +28,7 @@ of the distances and of the joined points' plate coordinates, and the points' pr
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -38,8 +38,11 @@ from .conditions import first_pair_intersection
 from .errors import InputError
 from .groups import COLLINEARITY, GroupBatch
 from .linearise import evaluate, linearise, unknown_blocks
+from .core.observations import observations_of
+from .covariance import ray_slots
+from .groups import adjusted_kind, build_batches, rays_per_point
 from .model import FULL, Project
-from .groups import adjusted_kind, rays_per_point
+from .triangulation import ray_terms
 
 FILE_NAME = "distances.csv"
 
@@ -271,3 +274,69 @@ def whiten_joint(js: JointSystem):
     M = AQ @ js.A.T
     Linv = np.linalg.inv(np.linalg.cholesky(M))
     return Linv @ js.B, Linv @ js.w, Linv @ js.g, Linv @ AQ
+
+
+def joint_point_precision(project: Project, result, tri):
+    """Schmid's (90) precision of the points joined by distances, as one intersection per joint group
+    (module doc): with the orientation held the member points are intersected together from their
+    adjusted rays, their weighted given coordinates and the distances, ``Qm = (J^T P J + P_given +
+    J_d^T P_d J_d)^-1`` over their free coordinates (3n at most), and the orientation part is
+    ``G Qxx G^T`` with ``G = -Qm J^T P J_x`` (the same two parts triangulation.triangulate forms
+    per point; the distance rows do not depend on the orientation). This is the bundle's point
+    covariance with the distances (the block of the points in the inverse of its normals).
+
+    tri: triangulation.Triangulated of the adjusted result with its orientation part
+    (adjusted_points.triangulate_adjusted); returns it with the members' cov_measurement and
+    cov_orientation replaced by the diagonal 3x3 blocks of the joint form (unchanged without distances)."""
+    if not has_distances(project):
+        return tri
+    _, joint = JointGroups.of(project, build_batches(project))
+    dist, ip, state, lay = project.distances, project.image_points, result.state, result.layout
+    obs_q = observations_of(project, result.offset).q_control
+    T_all = lay.rotation_maps(state)
+    cov_m, cov_o = tri.cov_measurement.copy(), tri.cov_orientation.copy()
+    given = project.points.given_axes
+    for comp in joint.components:
+        pts = joint.member_point[comp.members]
+        n = len(pts)
+        N = np.zeros((3 * n, 3 * n))
+        Nx_parts, photos = [], []
+        for j, p in enumerate(pts):
+            rows = np.flatnonzero(ip.point_index == p)
+            ph = ip.photo_index[rows]
+            params, conv = state.camera_terms(ph[None])
+            _, dX, dO, drot, dcam = ray_terms(state.R_ground_from_cam[ph][None], state.xyz0[ph][None], params, conv,
+                                              tri.xyz[p][None], result.plate_adjusted[rows][None], ip.xy[rows][None],
+                                              lay.lens_in_play(state))
+            J_parts = [dO[0], np.einsum("kai,kij->kaj", drot[0], T_all[ph])]
+            if lay.camera_width:
+                J_parts.append(dcam[0][..., lay.camera_elements])
+            J_x = np.concatenate(J_parts, 2)  # (k, 2, 6 + camera_width)
+            PJ = dX[0] / ip.sigma_xy[rows][:, :, None] ** 2  # (k, 2, 3)
+            sl = slice(3 * j, 3 * j + 3)
+            N[sl, sl] += np.einsum("kai,kaj->ij", dX[0], PJ)
+            q = obs_q[p]
+            N[sl, sl] += np.diag(np.where(given[p] & (q > 0), 1.0 / np.where(q > 0, q, 1.0), 0.0))
+            part = np.zeros((3 * n, len(rows), J_x.shape[2]))
+            part[sl] = np.einsum("kai,kaw->ikw", PJ, J_x)
+            Nx_parts.append(part)
+            photos.append(ph)
+        for e, (a, b) in zip(comp.distances, comp.ends):
+            u = tri.xyz[pts[a]] - tri.xyz[pts[b]]
+            u /= np.linalg.norm(u)
+            Jd = np.zeros(3 * n)
+            Jd[3 * a:3 * a + 3], Jd[3 * b:3 * b + 3] = u, -u
+            N += np.outer(Jd, Jd) / dist.sigma[e] ** 2
+        free = ~(given[pts] & (obs_q[pts] == 0)).ravel()
+        Qm = np.zeros((3 * n, 3 * n))
+        Qm[np.ix_(free, free)] = np.linalg.inv(N[np.ix_(free, free)])
+        Nx = np.concatenate(Nx_parts, 1)  # (3n, K, w)
+        G = -np.einsum("ij,jkw->ikw", Qm, Nx)  # (3n, K, w)
+        photo = np.concatenate(photos)[None]
+        camera = state.camera_of_photo[photo]
+        slots = ray_slots(G[None], photo, lay.photo_cols, camera, lay.camera_cols[:, lay.camera_elements])
+        GQG = result.covariance.group_forms(slots)[0]
+        for j, p in enumerate(pts):
+            sl = slice(3 * j, 3 * j + 3)
+            cov_m[p], cov_o[p] = Qm[sl, sl], GQG[sl, sl]
+    return replace(tri, cov_measurement=cov_m, cov_orientation=cov_o)

@@ -1,0 +1,212 @@
+"""Observed distances in the method of conditions and in precision and reliability (issue 17;
+striptri.joint_groups): the distance condition on the groups' intersections, the joint groups,
+their agreement with the bundle, the redundancy numbers and w-tests of the distances."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from striptri import model
+from striptri import simulate as sim
+from striptri.adjusted_points import triangulate_adjusted
+from striptri.bundle import solve_bundle
+from striptri.bundle.distances import Distances
+from striptri.collinearity import collinearity_jacobians
+from striptri.conditions_method import adjust_conditions
+from striptri.conditions_method.adjust import _Problem
+from striptri.core.options import AdjustmentOptions
+from striptri.errors import InputError
+from striptri.joint_groups import joint_point_precision
+from striptri.precision import residual_cofactors
+
+OPTIONS = AdjustmentOptions(tolerance=1e-10, max_iterations=30)
+
+
+def _strip(sigma_image, seed=3, n_photos=5):
+    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=n_photos), control=sim.ControlDesign(layout="ends"),
+                                 points=sim.PointDesign(extra_ties_per_model=2))
+    truth = sim.make_truth(design, np.random.default_rng(seed))
+    project = sim.perturb(truth, sim.NoiseOptions(sigma_image=sigma_image, approx_position_error=1.0,
+                                                  approx_angle_error=0.1), np.random.default_rng(seed + 1))
+    rays = np.bincount(project.image_points.point_index, minlength=len(project.points))
+    usable = np.flatnonzero(rays >= 2)
+    true_xyz = np.array([truth.xyz_ground[truth.point_ids.index(pid)] for pid in project.points.ids])
+    return project, usable, true_xyz
+
+
+def _with(project, true_xyz, held: dict, pairs, sigma, offsets=None, held_angles=True):
+    """Every point a tie point but those in held (index -> (kind, sigma or nan)), given at their true
+    coordinates; photo 0's angles held; the distances between pairs at their true length plus offsets."""
+    n = len(project.points)
+    kind = np.full(n, model.TIE)
+    xyz_given = np.full((n, 3), np.nan)
+    sigma_given = np.full((n, 3), np.nan)
+    for p, (k, s) in held.items():
+        kind[p], xyz_given[p], sigma_given[p] = k, true_xyz[p], s
+    points = replace(project.points, kind=kind, xyz_given=xyz_given, sigma_given=sigma_given)
+    photos = project.photos
+    if held_angles:
+        sa = photos.sigma_angles.copy()
+        sa[0] = 0.0
+        photos = replace(photos, sigma_angles=sa)
+    a, b = np.array([p for p, _ in pairs]), np.array([q for _, q in pairs])
+    d = np.linalg.norm(true_xyz[a] - true_xyz[b], axis=1) + (0.0 if offsets is None else np.asarray(offsets))
+    return replace(project, points=points, photos=photos,
+                   distances=Distances(a, b, d, np.broadcast_to(np.asarray(sigma, float), d.shape).copy(),
+                                       np.arange(len(d)) + 2))
+
+
+# ------------------------------------------------------------------ the Jacobian of the distance condition
+
+
+def _joint_system(project, state, plate_hat, control_hat, d_hat):
+    prob = _Problem(project, OPTIONS)
+    T = prob.layout.rotation_maps(state)
+    return prob, prob.joint.systems(state, prob.layout, T, prob.obs, plate_hat, control_hat, d_hat)
+
+
+def test_distance_condition_jacobian_matches_central_differences():
+    project, usable, true_xyz = _strip(sigma_image=0.005)
+    P, Q, R = usable[0], usable[-1], usable[3]
+    # a tie-tie distance and a distance to a weighted full control point
+    project = _with(project, true_xyz, {P: (model.FULL, 0.02), usable[1]: (model.FULL, np.nan)}, [(Q, R), (P, R)],
+                    [0.01, 0.02], [0.03, -0.02])
+    prob = _Problem(project, OPTIONS)
+    obs, state = prob.obs, prob.initial_state
+    plate, control = obs.plate.copy(), obs.control.copy()
+    d_hat = project.distances.distance.copy()
+    (js,) = prob.joint.systems(state, prob.layout, prob.layout.rotation_maps(state), obs, plate, control, d_hat)
+    rows = js.n_conditions - len(project.distances) + np.arange(len(project.distances))
+    # the scaled distance rows: g = s (|X_a - X_b| - d^), s the scale linearise-style (a constant here)
+    scale = js.g[rows] / (np.linalg.norm(js.xyz[js.component.ends[:, 0]] - js.xyz[js.component.ends[:, 1]], axis=1)
+                          - d_hat[js.component.distances])
+
+    def g_at(plate_, control_, d_, state_):
+        (j,) = prob.joint.systems(state_, prob.layout, prob.layout.rotation_maps(state_), obs, plate_, control_, d_)
+        ends = j.component.ends
+        return (np.linalg.norm(j.xyz[ends[:, 0]] - j.xyz[ends[:, 1]], axis=1) - d_[j.component.distances]) * scale
+
+    h_plate, h_ground = 1e-5, 1e-4
+    # plate coordinates, control coordinates and the distances (positions in the joint observation vector)
+    numeric = np.zeros((len(rows), len(js.Q)))
+    for c, (o, t) in enumerate(zip(js.plate_pos, js.plate_target)):
+        up, dn = plate.copy(), plate.copy()
+        up.reshape(-1)[t] += h_plate
+        dn.reshape(-1)[t] -= h_plate
+        numeric[:, o] = (g_at(up, control, d_hat, state) - g_at(dn, control, d_hat, state)) / (2 * h_plate)
+    for o, t in zip(js.control_pos, js.control_target):
+        up, dn = control.copy(), control.copy()
+        up.reshape(-1)[t] += h_ground
+        dn.reshape(-1)[t] -= h_ground
+        numeric[:, o] = (g_at(plate, up, d_hat, state) - g_at(plate, dn, d_hat, state)) / (2 * h_ground)
+    for o, e in zip(js.distance_pos, js.component.distances):
+        up, dn = d_hat.copy(), d_hat.copy()
+        up[e] += h_ground
+        dn[e] -= h_ground
+        numeric[:, o] = (g_at(plate, control, up, state) - g_at(plate, control, dn, state)) / (2 * h_ground)
+    A = js.A[rows]
+    assert np.abs(numeric[:, js.plate_pos]).max() > 1e-3  # the rays do enter
+    assert np.allclose(A, numeric, rtol=1e-6, atol=1e-6 * np.abs(A).max())
+    # photo elements: each unknown column, in the parametrisation the solver updates
+    n = prob.layout.n_unknowns
+    numeric_B = np.zeros((len(rows), n))
+    for col in range(n):
+        dx = np.zeros(n)
+        h = 1e-5  # metres for the centres, radians for the rotation unknowns
+        dx[col] = h
+        up, dn = state.updated(prob.layout, dx), state.updated(prob.layout, -dx)
+        numeric_B[:, col] = (g_at(plate, control, d_hat, up) - g_at(plate, control, d_hat, dn)) / (2 * h)
+    B = np.zeros((len(rows), n + 1))
+    np.add.at(B, (slice(None), np.where(js.cols >= 0, js.cols, n)), js.B[rows])
+    assert np.abs(B[:, :n]).max() > 1e-3
+    assert np.allclose(B[:, :n], numeric_B, rtol=1e-5, atol=1e-6 * np.abs(B).max())
+
+
+# ------------------------------------------------------------------ conditions = bundle
+
+
+def _add_distances(project, true_xyz, pairs, sigma, offsets):
+    a, b = np.array([p for p, _ in pairs]), np.array([q for _, q in pairs])
+    d = np.linalg.norm(true_xyz[a] - true_xyz[b], axis=1) + np.asarray(offsets, float)
+    return replace(project, distances=Distances(a, b, d, np.full(len(d), float(sigma)), np.arange(len(d)) + 2))
+
+
+def _strip_case(name):
+    project, usable, true_xyz = _strip(sigma_image=0.005)
+    P, Q, R, S = usable[0], usable[-1], usable[3], usable[len(usable) // 2]
+    if name == "scale bar":
+        return _add_distances(project, true_xyz, [(R, S)], 0.01, [0.03])
+    if name == "chain":  # two distances sharing the point S, one of them to a held control point
+        control = int(np.flatnonzero(project.points.kind == model.FULL)[0])
+        return _add_distances(project, true_xyz, [(R, S), (S, control)], 0.01, [0.03, -0.02])
+    # a distance to a weighted full control point, the scale from the distances alone
+    return _with(project, true_xyz, {P: (model.FULL, 0.05), Q: (model.HEIGHT, 0.05), usable[1]: (model.HEIGHT, np.nan)},
+                 [(P, S), (S, Q)], 0.02, [0.02, -0.03])
+
+
+def _close_range(tmp_path, n_photos=14, n_targets=24):
+    import sys
+    from pathlib import Path
+
+    from striptri.io import read_project
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    net = close_range.make_close_range(n_photos, n_targets, n_control=3, seed=5)
+    project = read_project(close_range.write_close_range(tmp_path / "p", net))
+    true_xyz = np.array([net.xyz_ground[close_range.target_ids(n_targets).index(pid)] for pid in project.points.ids])
+    return project, true_xyz
+
+
+def _assert_same(project, tol=1e-7):
+    b = solve_bundle(project, OPTIONS)
+    c = adjust_conditions(project, OPTIONS)
+    assert b.result.termination == c.termination == "converged"
+    assert c.redundancy == b.result.redundancy
+    assert c.vtpv == pytest.approx(b.result.vtpv, rel=tol)
+    assert np.abs(c.state.xyz0 - b.result.state.xyz0).max() < tol
+    assert np.abs(c.state.R_ground_from_cam - b.result.state.R_ground_from_cam).max() < tol
+    xyz_c = triangulate_adjusted(project, c).xyz
+    ok = np.isfinite(b.xyz_points).all(axis=1)
+    assert np.abs(xyz_c[ok] - b.xyz_points[ok]).max() < tol
+    dist = project.distances
+    adjusted_c = np.linalg.norm(xyz_c[dist.point_from] - xyz_c[dist.point_to], axis=1)
+    assert np.abs(adjusted_c - dist.distance - b.distance_residuals).max() < tol
+    # Schmid's final checks: every condition satisfied, B^T k = 0, (59)
+    assert c.checks.max_condition_misclosure_sigma < 1e-6
+    assert c.checks.max_BTk_sigma < 1e-6
+    assert abs(c.checks.vtpv_reduction_relative_difference) < 1e-6
+    return b, c
+
+
+@pytest.mark.parametrize("name", ["scale bar", "chain", "weighted control"])
+def test_conditions_equal_the_bundle_with_distances_on_a_strip(name):
+    project = _strip_case(name)
+    b, c = _assert_same(project)
+    n_plain = adjust_conditions(replace(project, distances=None), OPTIONS).redundancy
+    assert c.redundancy == n_plain + len(project.distances)
+    assert np.abs(b.distance_residuals).max() > 1e-3  # the distances are not satisfied trivially
+
+
+def test_conditions_equal_the_bundle_with_a_scale_bar_close_range(tmp_path):
+    project, true_xyz = _close_range(tmp_path)
+    ties = np.flatnonzero(project.points.kind == model.TIE)
+    far = ties[np.argmax(np.linalg.norm(true_xyz[ties] - true_xyz[ties[0]], axis=1))]
+    project = _add_distances(project, true_xyz, [(ties[0], far)], 1e-4, [2e-4])
+    _assert_same(project)
+
+
+def test_noise_free_strip_scaled_by_a_scale_bar_is_recovered():
+    project, usable, true_xyz = _strip(sigma_image=0.0)
+    P, Q = usable[0], usable[-1]
+    # P held, photo 0's angles held, the scale from the distance P-Q alone (a minimal datum)
+    project = _with(project, true_xyz, {P: (model.FULL, np.nan)}, [(P, Q)], 0.001)
+    c = adjust_conditions(project, OPTIONS)
+    assert c.termination == "converged" and c.vtpv < 1e-12
+    xyz = triangulate_adjusted(project, c).xyz + c.offset
+    i, j = np.triu_indices(len(usable), 1)
+    got = np.linalg.norm(xyz[usable[i]] - xyz[usable[j]], axis=1)
+    want = np.linalg.norm(true_xyz[usable[i]] - true_xyz[usable[j]], axis=1)
+    assert np.abs(got - want).max() < 1e-7
