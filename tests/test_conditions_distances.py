@@ -19,6 +19,11 @@ from striptri.core.options import AdjustmentOptions
 from striptri.errors import InputError
 from striptri.joint_groups import joint_point_precision
 from striptri.precision import residual_cofactors
+from striptri.adjustment import adjust
+from striptri.reliability import ALPHA0, blunder_options, critical_value, detect_blunders
+from striptri.reliability.distances import distance_table
+from striptri.reliability.outcome import subset
+from striptri.reliability.snooping import STOPPED_DISTANCE
 
 OPTIONS = AdjustmentOptions(tolerance=1e-10, max_iterations=30)
 
@@ -134,8 +139,9 @@ def _add_distances(project, true_xyz, pairs, sigma, offsets):
 
 def _strip_case(name):
     project, usable, true_xyz = _strip(sigma_image=0.005)
-    P, Q, R, S = usable[0], usable[-1], usable[3], usable[len(usable) // 2]
-    if name == "scale bar":
+    ties = usable[project.points.kind[usable] == model.TIE]
+    P, Q, R, S = usable[0], usable[-1], ties[1], ties[len(ties) // 2]
+    if name == "scale bar":  # between two tie points
         return _add_distances(project, true_xyz, [(R, S)], 0.01, [0.03])
     if name == "chain":  # two distances sharing the point S, one of them to a held control point
         control = int(np.flatnonzero(project.points.kind == model.FULL)[0])
@@ -187,7 +193,7 @@ def test_conditions_equal_the_bundle_with_distances_on_a_strip(name):
     b, c = _assert_same(project)
     n_plain = adjust_conditions(replace(project, distances=None), OPTIONS).redundancy
     assert c.redundancy == n_plain + len(project.distances)
-    assert np.abs(b.distance_residuals).max() > 1e-3  # the distances are not satisfied trivially
+    assert np.abs(b.distance_residuals).max() > 1e-4  # the distances are not satisfied trivially
 
 
 def test_conditions_equal_the_bundle_with_a_scale_bar_close_range(tmp_path):
@@ -210,3 +216,155 @@ def test_noise_free_strip_scaled_by_a_scale_bar_is_recovered():
     got = np.linalg.norm(xyz[usable[i]] - xyz[usable[j]], axis=1)
     want = np.linalg.norm(true_xyz[usable[i]] - true_xyz[usable[j]], axis=1)
     assert np.abs(got - want).max() < 1e-7
+
+
+# ------------------------------------------------------------------ precision and reliability
+
+
+def _dense_bundle_cofactors(project, result, xyz):
+    """An independent reference: the bundle's Gauss-Markov model with the points as unknowns, its
+    whole Jacobian J (plate rows, weighted control rows, distance rows) formed densely at the
+    solution (orientation result.state, points xyz (n_pt, 3) reduced frame) and inverted densely.
+    Returns (Qx over [orientation unknowns, free point coordinates], J, sigmas of the rows, the
+    row slices (plate, control, distances), the column of each point coordinate (n_pt, 3), -1)."""
+    lay, state, ip = result.layout, result.state, project.image_points
+    assert lay.camera_width == 0 and not (project.photos.sigma_xyz0 > 0).any()
+    n = lay.n_unknowns
+    q_control = (project.points.sigma_given ** 2)
+    given = project.points.given_axes
+    in_bundle = np.isfinite(xyz).all(axis=1)
+    free = in_bundle[:, None] & ~(given & ~(q_control > 0))
+    col = np.full((len(xyz), 3), -1)
+    col[free] = n + np.arange(int(free.sum()))
+    width = n + int(free.sum())
+    rows_used = np.flatnonzero(in_bundle[ip.point_index])
+    ph, pt = ip.photo_index[rows_used], ip.point_index[rows_used]
+    interior = project.cameras.interior[project.photos.camera_index[ph], :3]
+    jac = collinearity_jacobians(state.R_ground_from_cam[ph], state.xyz0[ph], interior, xyz[pt])
+    T = lay.rotation_maps(state)[ph]
+    d_rot = np.einsum("mai,mij->maj", jac.d_rotation, T)
+    J_plate = np.zeros((len(rows_used), 2, width + 1))
+    pc = np.where(lay.photo_cols[ph] >= 0, lay.photo_cols[ph], width)
+    for a in range(2):
+        np.add.at(J_plate[:, a], (np.arange(len(ph))[:, None], pc), np.concatenate([jac.d_centre[:, a], d_rot[:, a]], 1))
+        np.add.at(J_plate[:, a], (np.arange(len(ph))[:, None], np.where(col[pt] >= 0, col[pt], width)), jac.d_ground[:, a])
+    J_plate = J_plate.reshape(-1, width + 1)[:, :width]
+    s_plate = ip.sigma_xy[rows_used].ravel()
+    wc = np.argwhere(free & given & (q_control > 0))
+    J_ctrl = np.zeros((len(wc), width))
+    J_ctrl[np.arange(len(wc)), col[wc[:, 0], wc[:, 1]]] = 1.0
+    s_ctrl = np.sqrt(q_control[wc[:, 0], wc[:, 1]])
+    dist = project.distances
+    u = xyz[dist.point_from] - xyz[dist.point_to]
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    J_d = np.zeros((len(dist), width + 1))
+    for sign, ends in ((1.0, dist.point_from), (-1.0, dist.point_to)):
+        c = np.where(col[ends] >= 0, col[ends], width)
+        np.add.at(J_d, (np.arange(len(dist))[:, None], c), sign * u)
+    J = np.vstack([J_plate, J_ctrl, J_d[:, :width]])
+    sig = np.concatenate([s_plate, s_ctrl, dist.sigma])
+    Jw = J / sig[:, None]
+    Qx = np.linalg.inv(Jw.T @ Jw)
+    parts = (slice(0, len(s_plate)), slice(len(s_plate), len(s_plate) + len(s_ctrl)),
+             slice(len(s_plate) + len(s_ctrl), len(sig)))
+    return Qx, J, sig, parts, col, rows_used
+
+
+@pytest.mark.parametrize("name", ["scale bar", "chain", "weighted control"])
+def test_redundancy_numbers_and_sigmas_equal_the_dense_bundle(name):
+    project = _strip_case(name)
+    b = solve_bundle(project, OPTIONS)
+    result = b.result
+    cof = residual_cofactors(project, result, OPTIONS)
+    rn = cof.redundancy_numbers(project, result)
+    total = sum(float(np.sum(v)) for v in rn.values())
+    assert total == pytest.approx(result.redundancy, abs=1e-9 * result.redundancy)
+    Qx, J, sig, parts, col, rows_used = _dense_bundle_cofactors(project, result, b.xyz_points)
+    qvv_dense = sig**2 - np.einsum("ri,ij,rj->r", J, Qx, J)
+    # the reference's own redundancy (observations - unknowns) is the adjustment's
+    assert float(np.sum(qvv_dense / sig**2)) == pytest.approx(result.redundancy, rel=1e-9)
+    d = project.distances
+    assert np.allclose(cof.distances, qvv_dense[parts[2]], rtol=1e-9, atol=0)
+    sigma_adjusted_dense = np.sqrt(np.einsum("ri,ij,rj->r", J[parts[2]], Qx, J[parts[2]]))
+    assert np.allclose(np.sqrt(d.sigma**2 - cof.distances), sigma_adjusted_dense, rtol=1e-9)
+    # the plate coordinates of the joined points (their w-tests see the coupling) and all others
+    assert np.allclose(cof.plate[rows_used].ravel(), qvv_dense[parts[0]], rtol=1e-7, atol=1e-12 * sig[0] ** 2)
+    # the points' (90) precision: the joint intersection equals the bundle's point covariance
+    tri = joint_point_precision(project, result, triangulate_adjusted(project, result, orientation_part=True))
+    ends = np.unique(np.concatenate([d.point_from, d.point_to]))
+    for p in ends:
+        c = col[p]
+        ref = np.zeros((3, 3))
+        f = c >= 0
+        ref[np.ix_(f, f)] = Qx[np.ix_(c[f], c[f])]
+        got = tri.cov_measurement[p] + tri.cov_orientation[p]
+        assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+    assert any((col[q] >= 0).all() for q in ends)  # a point with its coordinates free is compared
+
+
+# ------------------------------------------------------------------ bad input
+
+
+def test_a_distance_to_a_single_ray_point_is_an_input_error_for_both_methods():
+    project, usable, true_xyz = _strip(sigma_image=0.005)
+    ties = usable[project.points.kind[usable] == model.TIE]
+    single = int(ties[-1])
+    rows = np.flatnonzero(project.image_points.point_index == single)
+    keep = np.ones(len(project.image_points), dtype=bool)
+    keep[rows[1:]] = False  # the tie point keeps one ray
+    project = subset(project, keep)
+    bad = _add_distances(project, true_xyz, [(ties[1], ties[2]), (ties[3], single)], 0.01, [0.0, 0.0])
+    for method in ("conditions", "bundle"):
+        with pytest.raises(InputError) as info:
+            adjust(bad, AdjustmentOptions(method=method))
+        assert info.value.path == "distances.csv" and info.value.line == 3
+        assert f"point {project.points.ids[single]} is measured on 1 photo" in info.value.reason
+
+
+def test_a_distance_to_an_unmeasured_control_point_is_an_input_error():
+    project, usable, true_xyz = _strip(sigma_image=0.005)
+    full = int(np.flatnonzero(project.points.kind == model.FULL)[0])
+    project = subset(project, project.image_points.point_index != full)
+    bad = _add_distances(project, true_xyz, [(full, usable[2])], 0.01, [0.0])
+    with pytest.raises(InputError, match="measured on no photo"):
+        adjust(bad, AdjustmentOptions(method="conditions"))
+
+
+# ------------------------------------------------------------------ w-tests of the distances
+
+
+def _checked_bar(seed, gross=0.0):
+    """A strip with its control and a scale bar between two tie points whose sigma is of the order
+    of the points' precision (so the bar is checked: redundancy number well above 0)."""
+    project, usable, true_xyz = _strip(sigma_image=0.005, seed=seed)
+    ties = usable[project.points.kind[usable] == model.TIE]
+    sigma = 0.05
+    rng = np.random.default_rng(seed + 100)
+    return _add_distances(project, true_xyz, [(ties[0], ties[-1])], sigma, [rng.normal(0, sigma) + gross * sigma])
+
+
+@pytest.mark.parametrize("procedure", ["snoop", "snoop-classic"])
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_a_gross_distance_is_flagged_and_no_plate_row_is_rejected_for_it(method, procedure):
+    project = _checked_bar(seed=11, gross=20.0)
+    options = replace(OPTIONS, method=method)
+    det = detect_blunders(project, options, blunder_options(procedure))
+    assert det.stopped == STOPPED_DISTANCE and not det.rejected
+    xyz = triangulate_adjusted(det.project, det.result).xyz
+    cols = distance_table(det.project, det.result, xyz, options, det.critical)
+    r, w = cols["redundancy"][0], cols["w"][0]
+    assert r > 0.2  # checked: a 20-sigma error shows as w = 20 sqrt(r) on average, +- 1 (N(0, 1))
+    assert cols["flag"] == ["suspect"] and abs(abs(w) - 20 * np.sqrt(r)) < 4.0
+    # the plate rows of the bar's points see the error too, less clearly than the bar itself
+    assert np.nanmax(np.abs(det.w)) < abs(w)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_clean_distances_pass_the_w_test(seed):
+    project = _checked_bar(seed)
+    options = replace(OPTIONS, method="conditions")
+    det = detect_blunders(project, options, blunder_options("snoop"))
+    xyz = triangulate_adjusted(det.project, det.result).xyz
+    cols = distance_table(det.project, det.result, xyz, options, det.critical)
+    assert det.stopped != STOPPED_DISTANCE
+    assert cols["flag"] == [""] and abs(cols["w"][0]) < critical_value(ALPHA0)  # alpha0 = 0.001 per test
