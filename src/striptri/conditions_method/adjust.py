@@ -409,10 +409,10 @@ def normal_matrix_at_approximations(project: Project, options: AdjustmentOptions
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         offset = reduction_offset(project)
         state, layout = initial_state(project, offset), build_layout(project)
-        batches = build_batches(project)
+        batches, joint = JointGroups.of(project, build_batches(project))
         obs = observations_of(project, offset)
         assembly = Assembly.of(batches, state, layout, options.chunk_size)
-        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options, joint)
         acc = _assemble_checked(sweep, build_parameter_observations(project, offset), assembly, project, 1)
     return acc.N, layout
 
