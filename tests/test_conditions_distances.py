@@ -171,6 +171,7 @@ def _assert_same(project, tol=1e-7):
     c = adjust_conditions(project, OPTIONS)
     assert b.result.termination == c.termination == "converged"
     assert c.redundancy == b.result.redundancy
+    assert c.n_conditions == b.result.n_conditions and c.n_observations == b.result.n_observations
     assert c.vtpv == pytest.approx(b.result.vtpv, rel=tol)
     assert np.abs(c.state.xyz0 - b.result.state.xyz0).max() < tol
     assert np.abs(c.state.R_ground_from_cam - b.result.state.R_ground_from_cam).max() < tol
@@ -191,8 +192,10 @@ def _assert_same(project, tol=1e-7):
 def test_conditions_equal_the_bundle_with_distances_on_a_strip(name):
     project = _strip_case(name)
     b, c = _assert_same(project)
-    n_plain = adjust_conditions(replace(project, distances=None), OPTIONS).redundancy
-    assert c.redundancy == n_plain + len(project.distances)
+    plain = adjust_conditions(replace(project, distances=None), OPTIONS)
+    r = len(project.distances)
+    assert c.redundancy == plain.redundancy + r and c.n_conditions == plain.n_conditions + r
+    assert c.n_observations == plain.n_observations + r
     assert np.abs(b.distance_residuals).max() > 1e-4  # the distances are not satisfied trivially
 
 
