@@ -18,7 +18,7 @@ from striptri.conditions_method.adjust import _Problem
 from striptri.core.options import AdjustmentOptions
 from striptri.errors import InputError
 from striptri.joint_groups import joint_point_precision
-from striptri.precision import residual_cofactors
+from striptri.precision import joint_point_covariance, residual_cofactors
 from striptri.adjustment import adjust
 from striptri.reliability import ALPHA0, blunder_options, critical_value, detect_blunders
 from striptri.reliability.distances import distance_table
@@ -293,15 +293,17 @@ def test_redundancy_numbers_and_sigmas_equal_the_dense_bundle(name):
     # the plate coordinates of the joined points (their w-tests see the coupling) and all others
     assert np.allclose(cof.plate[rows_used].ravel(), qvv_dense[parts[0]], rtol=1e-7, atol=1e-12 * sig[0] ** 2)
     # the points' (90) precision: the joint intersection equals the bundle's point covariance
+    # and the rigorous joint form (92) likewise
     tri = joint_point_precision(project, result, triangulate_adjusted(project, result, orientation_part=True))
+    q92 = joint_point_covariance(project, result, tri, OPTIONS)
     ends = np.unique(np.concatenate([d.point_from, d.point_to]))
     for p in ends:
         c = col[p]
         ref = np.zeros((3, 3))
         f = c >= 0
         ref[np.ix_(f, f)] = Qx[np.ix_(c[f], c[f])]
-        got = tri.cov_measurement[p] + tri.cov_orientation[p]
-        assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+        for got in (tri.cov_measurement[p] + tri.cov_orientation[p], q92[p]):
+            assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
     assert any((col[q] >= 0).all() for q in ends)  # a point with its coordinates free is compared
 
 

@@ -39,6 +39,7 @@ from .errors import InputError
 from .groups import COLLINEARITY, GroupBatch
 from .linearise import evaluate, linearise, unknown_blocks
 from .core.observations import observations_of
+from .core.options import AdjustmentOptions
 from .covariance import ray_slots
 from .groups import adjusted_kind, build_batches, rays_per_point
 from .model import FULL, Project
@@ -290,53 +291,93 @@ def joint_point_precision(project: Project, result, tri):
     cov_orientation replaced by the diagonal 3x3 blocks of the joint form (unchanged without distances)."""
     if not has_distances(project):
         return tri
-    _, joint = JointGroups.of(project, build_batches(project))
-    dist, ip, state, lay = project.distances, project.image_points, result.state, result.layout
-    obs_q = observations_of(project, result.offset).q_control
-    T_all = lay.rotation_maps(state)
     cov_m, cov_o = tri.cov_measurement.copy(), tri.cov_orientation.copy()
-    given = project.points.given_axes
-    for comp in joint.components:
-        pts = joint.member_point[comp.members]
-        n = len(pts)
+    lay, state = result.layout, result.state
+    for js, inter in joint_intersections(project, result, tri.xyz):
+        photo = js.photo_index[None]
+        slots = ray_slots(inter.G.reshape(1, len(inter.G), len(js.photo_index), -1), photo, lay.photo_cols,
+                          state.camera_of_photo[photo], lay.camera_cols[:, lay.camera_elements])
+        GQG = result.covariance.group_forms(slots)[0]
+        for j, p in enumerate(js.point_index):
+            sl = slice(3 * j, 3 * j + 3)
+            cov_m[p], cov_o[p] = inter.Qm[sl, sl], GQG[sl, sl]
+    return replace(tri, cov_measurement=cov_m, cov_orientation=cov_o)
+
+
+@dataclass(frozen=True)
+class JointIntersection:
+    """The member points of a joint group intersected together with the orientation held (module
+    doc): Qm (3n, 3n) their measurement cofactors (zero rows and columns for held coordinates), F
+    (3n, no) = dX/dl over the joint group's observations and G (3n, nu) = dX/dx over its columns
+    (JointSystem's orders)."""
+
+    Qm: np.ndarray
+    F: np.ndarray
+    G: np.ndarray
+
+
+def joint_intersections(project: Project, result, xyz: np.ndarray, options=None):
+    """(JointSystem at the result, JointIntersection) of every joint group; xyz (n_pt, 3) the
+    adjusted points (reduced frame), where the distance rows are linearised. options: the
+    AdjustmentOptions whose conditions' scale form and chunking the systems use (defaults)."""
+    options = options or AdjustmentOptions()
+    _, joint = JointGroups.of(project, build_batches(project))
+    obs = observations_of(project, result.offset)
+    lay, state, ip = result.layout, result.state, project.image_points
+    T_all = lay.rotation_maps(state)
+    systems = joint.systems(state, lay, T_all, obs, result.plate_adjusted, result.control_adjusted,
+                            project.distances.distance, options.conditions.scale_form)
+    given, q_control, dist = project.points.given_axes, obs.q_control, project.distances
+    out = []
+    for js in systems:
+        pts = js.point_index
+        n, no, nu = len(pts), len(js.Q), len(js.cols)
         N = np.zeros((3 * n, 3 * n))
-        Nx_parts, photos = [], []
-        for j, p in enumerate(pts):
-            rows = np.flatnonzero(ip.point_index == p)
+        R = np.zeros((3 * n, no))  # the right-hand side's map from the observations: X = Qm R l
+        Nx = np.zeros((3 * n, nu))
+        o_plate, u = 0, 0
+        width = nu // len(js.photo_index)
+        for j, (p, rows) in enumerate(zip(pts, js.member_rays)):
+            k = len(rows)
             ph = ip.photo_index[rows]
             params, conv = state.camera_terms(ph[None])
             _, dX, dO, drot, dcam = ray_terms(state.R_ground_from_cam[ph][None], state.xyz0[ph][None], params, conv,
-                                              tri.xyz[p][None], result.plate_adjusted[rows][None], ip.xy[rows][None],
+                                              xyz[p][None], result.plate_adjusted[rows][None], ip.xy[rows][None],
                                               lay.lens_in_play(state))
             J_parts = [dO[0], np.einsum("kai,kij->kaj", drot[0], T_all[ph])]
             if lay.camera_width:
                 J_parts.append(dcam[0][..., lay.camera_elements])
-            J_x = np.concatenate(J_parts, 2)  # (k, 2, 6 + camera_width)
-            PJ = dX[0] / ip.sigma_xy[rows][:, :, None] ** 2  # (k, 2, 3)
+            J_x = np.concatenate(J_parts, 2)  # (k, 2, width): the columns of js.cols, ray by ray
             sl = slice(3 * j, 3 * j + 3)
-            N[sl, sl] += np.einsum("kai,kaj->ij", dX[0], PJ)
-            q = obs_q[p]
-            N[sl, sl] += np.diag(np.where(given[p] & (q > 0), 1.0 / np.where(q > 0, q, 1.0), 0.0))
-            part = np.zeros((3 * n, len(rows), J_x.shape[2]))
-            part[sl] = np.einsum("kai,kaw->ikw", PJ, J_x)
-            Nx_parts.append(part)
-            photos.append(ph)
-        for e, (a, b) in zip(comp.distances, comp.ends):
-            u = tri.xyz[pts[a]] - tri.xyz[pts[b]]
-            u /= np.linalg.norm(u)
+            JX = dX[0].reshape(2 * k, 3)
+            PJ = JX / ip.sigma_xy[rows].reshape(2 * k, 1) ** 2
+            N[sl, sl] += JX.T @ PJ
+            R[sl, js.plate_pos[o_plate:o_plate + 2 * k]] = PJ.T
+            Nx[sl, u:u + k * width] = _ray_block(PJ, J_x)
+            o_plate += 2 * k
+            u += k * width
+            here = js.control_target // 3 == p
+            if here.any():
+                qc = q_control[p]
+                pc = np.where(given[p] & (qc > 0), 1.0 / np.where(qc > 0, qc, 1.0), 0.0)
+                N[sl, sl] += np.diag(pc)
+                R[sl, js.control_pos[here]] = np.diag(pc)[:, js.control_target[here] % 3]
+        for e, (a, b), o in zip(js.component.distances, js.component.ends, js.distance_pos):
+            d = xyz[pts[a]] - xyz[pts[b]]
+            d /= np.linalg.norm(d)
             Jd = np.zeros(3 * n)
-            Jd[3 * a:3 * a + 3], Jd[3 * b:3 * b + 3] = u, -u
+            Jd[3 * a:3 * a + 3], Jd[3 * b:3 * b + 3] = d, -d
             N += np.outer(Jd, Jd) / dist.sigma[e] ** 2
-        free = ~(given[pts] & (obs_q[pts] == 0)).ravel()
+            R[:, o] = Jd / dist.sigma[e] ** 2
+        free = ~(given[pts] & (q_control[pts] == 0)).ravel()
         Qm = np.zeros((3 * n, 3 * n))
         Qm[np.ix_(free, free)] = np.linalg.inv(N[np.ix_(free, free)])
-        Nx = np.concatenate(Nx_parts, 1)  # (3n, K, w)
-        G = -np.einsum("ij,jkw->ikw", Qm, Nx)  # (3n, K, w)
-        photo = np.concatenate(photos)[None]
-        camera = state.camera_of_photo[photo]
-        slots = ray_slots(G[None], photo, lay.photo_cols, camera, lay.camera_cols[:, lay.camera_elements])
-        GQG = result.covariance.group_forms(slots)[0]
-        for j, p in enumerate(pts):
-            sl = slice(3 * j, 3 * j + 3)
-            cov_m[p], cov_o[p] = Qm[sl, sl], GQG[sl, sl]
-    return replace(tri, cov_measurement=cov_m, cov_orientation=cov_o)
+        out.append((js, JointIntersection(Qm, Qm @ R, -Qm @ Nx)))
+    return out
+
+
+def _ray_block(PJ: np.ndarray, J_x: np.ndarray) -> np.ndarray:
+    """(3, k width): J_X^T P J_x of one point's k rays, ray by ray in the columns (PJ (2k, 3) = P J_X,
+    J_x (k, 2, width))."""
+    k, _, width = J_x.shape
+    return np.einsum("kai,kaw->ikw", PJ.reshape(k, 2, 3), J_x).reshape(3, k * width)

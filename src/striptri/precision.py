@@ -24,7 +24,7 @@ from .core.result import AdjustmentResult
 from .covariance import ray_slots
 from .errors import NumericalFailure
 from .groups import build_batches
-from .joint_groups import JointGroups
+from .joint_groups import JointGroups, has_distances, joint_intersections
 from .model import Project
 from .parameter_observations import build_parameter_observations
 from .triangulation import ray_terms, safe_inverse
@@ -258,7 +258,33 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         Ft = np.swapaxes(F, 1, 2)
         cross = -(GQB @ (MAQ @ Ft))
         out[chunk.point_index] = GQG + F @ Qll @ Ft + cross + np.swapaxes(cross, 1, 2)
+    if has_distances(project):  # the points joined by distances: one joint intersection per joint group
+        _joint_groups_92(project, result, tri, options, out)
     return out
+
+
+def _joint_groups_92(project: Project, result: AdjustmentResult, tri, options: AdjustmentOptions,
+                     out: np.ndarray) -> None:
+    """The form (92) of joint_point_covariance for the points joined by distances (joint_groups):
+    X of the members intersected together from the joint group's adjusted observations (rays, given
+    coordinates, distances) with the orientation held, ``dX/dl = F``, ``dX/dx = G``
+    (joint_groups.JointIntersection), and ``Cov(l^)``, ``Cov(x^, l^)`` of the joint group. Writes
+    the members' 3x3 blocks into out (n_points, 3, 3)."""
+    cov = result.covariance
+    for js, inter in joint_intersections(project, result, tri.xyz, options):
+        n3 = len(inter.G)
+        AQ = js.A * js.Q[None, :]
+        M = AQ @ js.A.T
+        chunk = _JointChunk(js.photo_index[None], js.point_index)
+        Minv = _group_inverse(M[None], chunk, project)[0]
+        HQH = cov.group_forms(_group_slots(np.concatenate([inter.G, js.B], 0)[None], chunk, result))[0]
+        GQG, GQB, BQB = HQH[:n3, :n3], HQH[:n3, n3:], HQH[n3:, n3:]
+        MAQ = Minv @ AQ
+        Qll = np.diag(js.Q) - MAQ.T @ (M - BQB) @ MAQ
+        cross = -(GQB @ (MAQ @ inter.F.T))
+        full = GQG + inter.F @ Qll @ inter.F.T + cross + cross.T
+        for j, p in enumerate(js.point_index):
+            out[p] = full[3 * j:3 * j + 3, 3 * j:3 * j + 3]
 
 
 PHOTO_ELEMENTS = ("X0", "Y0", "Z0", "rot1", "rot2", "rot3")
