@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from striptri import covariance_export as ce
 from striptri import model
 from striptri import simulate as sim
 from striptri.adjusted_points import triangulate_adjusted
@@ -305,6 +306,16 @@ def test_redundancy_numbers_and_sigmas_equal_the_dense_bundle(name):
         for got in (tri.cov_measurement[p] + tri.cov_orientation[p], q92[p]):
             assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
     assert any((col[q] >= 0).all() for q in ends)  # a point with its coordinates free is compared
+    # the exported covariance of all points (covariance_export), cross-covariances included
+    e = ce.joint_covariance(project, result, triangulate_adjusted(project, result, orientation_part=False),
+                            ("points",))
+    free = [q for q in range(len(project.points)) if (col[q] >= 0).all()
+            and f"points/{project.points.ids[q]}/X" in e.labels]
+    assert set(ends) & set(free)
+    rows = np.concatenate([e.point_rows(project.points.ids[q]) for q in free])
+    ref = Qx[np.ix_(col[free].ravel(), col[free].ravel())]
+    got = e.cov[np.ix_(rows, rows)] / e.sigma0**2
+    assert np.abs(got - ref).max() < 1e-9 * np.abs(ref).max()
 
 
 # ------------------------------------------------------------------ bad input
