@@ -384,3 +384,19 @@ def test_clean_distances_pass_the_w_test(seed):
     cols = distance_table(det.project, det.result, xyz, options, det.critical)
     assert det.stopped != STOPPED_DISTANCE
     assert cols["flag"] == [""] and abs(cols["w"][0]) < critical_value(ALPHA0)  # alpha0 = 0.001 per test
+
+
+def test_snooping_that_would_leave_a_distance_point_with_one_ray_takes_the_row_back():
+    project, usable, true_xyz = _strip(sigma_image=0.005)
+    rays = np.bincount(project.image_points.point_index, minlength=len(project.points))
+    two = usable[(project.points.kind[usable] == model.TIE) & (rays[usable] == 2)]
+    ties = usable[project.points.kind[usable] == model.TIE]
+    p, q = int(two[0]), int(next(t for t in ties if t != two[0]))
+    row = int(np.flatnonzero(project.image_points.point_index == p)[0])
+    xy = project.image_points.xy.copy()
+    xy[row, 0] += 50 * project.image_points.sigma_xy[row, 0]
+    project = replace(project, image_points=replace(project.image_points, xy=xy))
+    project = _add_distances(project, true_xyz, [(p, q)], 0.05, [0.0])
+    det = detect_blunders(project, replace(OPTIONS, method="conditions"), blunder_options("snoop-classic"))
+    assert det.stopped.startswith("failure: distances.csv") and "measured on 1 photo" in det.stopped
+    assert not det.rejected and len(det.result.plate_residuals) == len(project.image_points)

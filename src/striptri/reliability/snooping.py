@@ -36,7 +36,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..adjustment import AdjustmentOptions, adjust
-from ..errors import NumericalFailure
+from ..errors import InputError, NumericalFailure
 from ..model import Project
 from ..core.result import sigma0_of
 from ..precision import residual_cofactors
@@ -311,7 +311,7 @@ def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable,
                 if last is None and not rejected:
                     return untested("snoop", project, result, blunders, time.perf_counter() - t_start)
                 raise NumericalFailure(result.termination_message.splitlines()[0])
-        except NumericalFailure as exc:
+        except (NumericalFailure, InputError) as exc:  # InputError: a distance point left with one ray
             if last is None:
                 raise
             keep[taken_rows] = True
