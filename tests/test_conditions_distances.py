@@ -400,3 +400,36 @@ def test_snooping_that_would_leave_a_distance_point_with_one_ray_takes_the_row_b
     det = detect_blunders(project, replace(OPTIONS, method="conditions"), blunder_options("snoop-classic"))
     assert det.stopped.startswith("failure: distances.csv") and "measured on 1 photo" in det.stopped
     assert not det.rejected and len(det.result.plate_residuals) == len(project.image_points)
+
+
+@pytest.mark.parametrize("solver", ["sparse", "banded", "cholmod", "gauss-seidel", "pcg", "strip-pcg"])
+def test_every_solver_agrees_with_dense_on_joint_groups(solver):
+    """The joint groups add blocks between photos that share no point (the distance's two ends):
+    every solver takes them (tolerances: the iterative solvers' convergence test, 1e-8 sigma)."""
+    if solver == "cholmod":
+        pytest.importorskip("sksparse")
+    project = _strip_case("chain")
+    ref = adjust_conditions(project, replace(OPTIONS, solver="dense"))
+    got = adjust_conditions(project, replace(OPTIONS, solver=solver))
+    assert got.termination == "converged"
+    assert got.vtpv == pytest.approx(ref.vtpv, rel=1e-9)
+    assert np.abs(got.state.xyz0 - ref.state.xyz0).max() < 1e-7
+
+
+def test_free_network_with_one_scale_bar():
+    """Without control, inner constraints (datum "inner") and one scale bar: the bar fixes the scale
+    (6 datum directions left instead of 7) and, having no redundancy, is met exactly; v^T P v and
+    the redundancy are those of the free network without it."""
+    project, usable, true_xyz = _strip(sigma_image=0.005)
+    n = len(project.points)
+    project = replace(project, points=replace(project.points, kind=np.full(n, model.TIE),
+                                              xyz_given=np.full((n, 3), np.nan), sigma_given=np.full((n, 3), np.nan)))
+    bar = _add_distances(project, true_xyz, [(usable[1], usable[-2])], 0.01, [0.05])
+    options = replace(OPTIONS, datum="inner")
+    with_bar, without = adjust_conditions(bar, options), adjust_conditions(project, options)
+    assert len(with_bar.free_network) == 6 and len(without.free_network) == 7
+    assert with_bar.redundancy == without.redundancy
+    assert with_bar.vtpv == pytest.approx(without.vtpv, rel=1e-9)
+    xyz = triangulate_adjusted(bar, with_bar).xyz
+    d = bar.distances
+    assert abs(np.linalg.norm(xyz[d.point_from[0]] - xyz[d.point_to[0]]) - d.distance[0]) < 1e-8

@@ -94,9 +94,10 @@ class JointSystem:
     global columns (-1 fixed), w, g (nc,), Q, l, l_hat (no,); photo_index (K,) the photos of the
     members' rays (each member's in chain order: B has 6 + camera_width columns per ray);
     plate_pos/plate_target: positions in the observation vector and flat indices into the (m_ip, 2)
-    plate table; control_pos/control_target likewise into (n_pt, 3); distance_pos (r,);
-    point_index (n,) the member points; point_rows (n, 3) the rows of A that are the distance...
-    (see JointGroups.systems)."""
+    plate table; control_pos/control_target likewise into (n_pt, 3); distance_pos (r,) the
+    distances' positions in it; point_index (n,) the member points; xyz (n, 3) the members as their
+    groups define them, with dX_dl (n, 3, no) and dX_dx (n, 3, nu); member_rays: (n,) the image
+    rows of each member in chain order. The last r rows of A, B, w, g are the distance conditions."""
 
     component: Component
     A: np.ndarray
@@ -114,7 +115,6 @@ class JointSystem:
     control_target: np.ndarray
     distance_pos: np.ndarray
     point_index: np.ndarray
-    # X (n, 3) of the members and their derivatives over the joint observations (n, 3, no) and columns (n, 3, nu)
     xyz: np.ndarray
     dX_dl: np.ndarray
     dX_dx: np.ndarray
