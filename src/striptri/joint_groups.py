@@ -29,6 +29,7 @@ of the distances and of the joined points' plate coordinates, and the points' pr
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -71,7 +72,7 @@ def check_distance_points(project: Project) -> None:
             what = (f"full control point {pid} is measured on no photo" if full[p] else
                     f"point {pid} is measured on {int(rays[p])} photo{'' if rays[p] == 1 else 's'}")
             line = None if dist.line is None else int(dist.line[i])
-            raise InputError(FILE_NAME, line, f"{what}: a distance needs both its points in the adjustment "
+            raise InputError(FILE_NAME if project.source is None else Path(project.source) / FILE_NAME, line, f"{what}: a distance needs both its points in the adjustment "
                                               "(a tie, height or plan point on two photos or more, or a full "
                                               "control point on at least one)")
 
