@@ -16,7 +16,7 @@ from striptri.bundle.distances import Distances
 from striptri.collinearity import collinearity_jacobians
 from striptri.conditions_method import adjust_conditions
 from striptri.conditions_method.adjust import _Problem
-from striptri.core.options import AdjustmentOptions
+from striptri.core.options import AdjustmentOptions, ConditionsOptions
 from striptri.errors import InputError
 from striptri.joint_groups import joint_point_precision
 from striptri.precision import joint_point_covariance, residual_cofactors
@@ -433,3 +433,13 @@ def test_free_network_with_one_scale_bar():
     xyz = triangulate_adjusted(bar, with_bar).xyz
     d = bar.distances
     assert abs(np.linalg.norm(xyz[d.point_from[0]] - xyz[d.point_to[0]]) - d.distance[0]) < 1e-8
+
+
+def test_schmids_projected_scale_form_gives_the_same_adjustment_with_distances():
+    """The members' own conditions in Schmid's XZ form (94): the distance conditions still use the
+    closest approach of the first pair; at convergence the adjustment is the same."""
+    project = _strip_case("chain")
+    a = adjust_conditions(project, OPTIONS)
+    b = adjust_conditions(project, replace(OPTIONS, conditions=ConditionsOptions(scale_form="xz")))
+    assert b.termination == "converged" and b.vtpv == pytest.approx(a.vtpv, rel=1e-9)
+    assert np.abs(a.state.xyz0 - b.state.xyz0).max() < 1e-7
