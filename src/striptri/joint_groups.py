@@ -320,7 +320,7 @@ class JointIntersection:
 def joint_intersections(project: Project, result, xyz: np.ndarray, options=None):
     """(JointSystem at the result, JointIntersection) of every joint group; xyz (n_pt, 3) the
     adjusted points (reduced frame), where the distance rows are linearised. options: the
-    AdjustmentOptions whose conditions' scale form and chunking the systems use (defaults)."""
+    AdjustmentOptions whose scale form the systems use (defaults)."""
     options = options or AdjustmentOptions()
     _, joint = JointGroups.of(project, build_batches(project))
     obs = observations_of(project, result.offset)
