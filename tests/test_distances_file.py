@@ -65,14 +65,15 @@ def test_missing_column(files_and_truth):
         parse_project(_with(files, f"point_from,point_to,distance\n{ids[0]},{ids[1]},10\n"))
 
 
-def test_conditions_method_refuses_distances(files_and_truth):
+def test_sequential_method_refuses_distances(files_and_truth):
     files, ids, _ = files_and_truth
     project = parse_project(_with(files, f"point_from,point_to,distance,sigma\n{ids[0]},{ids[1]},10,0.01\n"))
-    with pytest.raises(NumericalFailure, match="--method bundle"):
-        adjust(project, AdjustmentOptions(method="conditions"))
+    with pytest.raises(NumericalFailure, match="--method conditions or bundle"):
+        adjust(project, AdjustmentOptions(method="sequential"))
 
 
-def test_output_table_and_summary(files_and_truth, tmp_path):
+@pytest.mark.parametrize("method", ["bundle", "conditions"])
+def test_output_table_and_summary(files_and_truth, tmp_path, method):
     files, ids, xyz = files_and_truth
     a, b = ids[1], ids[-2]
     d = np.linalg.norm(xyz[a] - xyz[b])
@@ -81,10 +82,17 @@ def test_output_table_and_summary(files_and_truth, tmp_path):
     for name, text in _with(files, f"point_from,point_to,distance,sigma\n{a},{b},{float(d)!r},0.002\n").items():
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
         (folder / name).write_text(text)
-    run_adjust(folder, tmp_path / "out", method="bundle")
+    run_adjust(folder, tmp_path / "out", method=method)
     lines = (tmp_path / "out" / "distances.csv").read_text().splitlines()
-    assert lines[0] == "point_from,point_to,distance,sigma,adjusted,residual,residual_sigma"
+    assert lines[0] == ("point_from,point_to,distance,sigma,adjusted,residual,residual_sigma,sigma_adjusted,"
+                        "redundancy,w,flag,mdb")
     row = lines[1].split(",")
+    # the tests of the distance: w = v / (sigma sqrt(r)), the adjusted distance's mean error below sigma
+    s0 = json.loads((tmp_path / "out" / "summary.json").read_text())["sigma0"]
+    r, w = float(row[8]), float(row[9])
+    assert 0 < r < 1 and float(row[7]) < s0 * 0.002
+    assert w == pytest.approx(float(row[5]) / (0.002 * np.sqrt(r)), rel=1e-6)
+    assert row[10] == ("suspect" if abs(w) > 3.29 else "")
     points = {r.split(",")[0]: r.split(",") for r in (tmp_path / "out" / "points.csv").read_text().splitlines()}
     header = points["point_id"]
     X = lambda p: np.array([float(points[p][header.index(c)]) for c in ("X", "Y", "Z")])  # noqa: E731
@@ -93,6 +101,8 @@ def test_output_table_and_summary(files_and_truth, tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["distances"]["count"] == 1
     assert summary["distances"]["max_abs_residual_sigma"] == pytest.approx(abs(float(row[6])), rel=1e-9)
+    assert summary["distances"]["redundancy"] == pytest.approx(r, rel=1e-12)
+    assert summary["distances"]["max_abs_w"] == pytest.approx(abs(w), rel=1e-12)
     report = (tmp_path / "out" / "report.html").read_text()
     section = report[report.index("<h2 id='distances'>"):]
     assert "href='#distances'" in report and f"<td class='l'>{a}</td>" in section

@@ -52,6 +52,7 @@ from .core.result import (  # noqa: F401  (re-exported)
     Timings,
 )
 from .errors import NumericalFailure
+from .joint_groups import check_distance_points, has_distances
 from .model import Project
 from .parameters import uses_gnss
 from .sequential import adjust_sequential, sequential_approximations
@@ -102,11 +103,11 @@ def _adjust_explained(project: Project, options: AdjustmentOptions) -> Adjustmen
         raise NumericalFailure("the sequential method does not carry the GNSS model (lever arm, boresight, shift, "
                                "drift: docs/decisions.md): adjust with the method conditions or bundle",
                                reason="failed")
-    if project.distances is not None and len(project.distances) and options.method != "bundle":
-        raise NumericalFailure(f"distances.csv: observed distances between object points are adjusted by the bundle "
-                               f"method only (the method {options.method} eliminates the points ray group by ray "
-                               "group, and a distance joins two groups: docs/decisions.md); run with --method bundle",
+    if has_distances(project) and options.method == "sequential":
+        raise NumericalFailure("distances.csv: observed distances between object points are adjusted by the "
+                               "simultaneous methods only (docs/decisions.md); run with --method conditions or bundle",
                                reason="failed")
+    check_distance_points(project)
     try:
         # the adjustment tests its numbers for finiteness itself and explains what overflows, so
         # numpy's floating-point warnings would only repeat it on stderr

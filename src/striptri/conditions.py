@@ -253,6 +253,26 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
     )
 
 
+def first_pair_intersection(r, xyz_centre) -> RayConditions:
+    """The point as a ray group defines it: the closest approach on the first ray of its first pair,
+    ``X = O_1 + s r_1`` (DESIGN section 3, as the height and plan point conditions use it, Schmid
+    18-19), as three rows "g" = X (m, 3) with derivatives d_r, d_O (m, 3, k, 3) and d_X zero.
+    r, xyz_centre: (m, k, 3), k >= 2, in chain order. Used by the distance conditions
+    (striptri.joint_groups)."""
+    m, k, _ = r.shape
+    b = xyz_centre[:, 1] - xyz_centre[:, 0]
+    r0 = r[:, 0]
+    s, _, ds, _ = closest_scales(b, r0, r[:, 1])
+    eye = np.eye(3)
+    d_r, d_O = np.zeros((m, 3, k, 3)), np.zeros((m, 3, k, 3))
+    # X_axis = O0_axis + s r0_axis
+    d_r[:, :, 0] = r0[:, :, None] * ds[1][:, None, :] + s[:, None, None] * eye
+    d_r[:, :, 1] = r0[:, :, None] * ds[2][:, None, :]
+    d_O[:, :, 0] = eye - r0[:, :, None] * ds[0][:, None, :]
+    d_O[:, :, 1] = r0[:, :, None] * ds[0][:, None, :]
+    return RayConditions(xyz_centre[:, 0] + s[:, None] * r0, d_r, d_O, np.zeros((m, 3, 3)))
+
+
 def ray_chain(rc: RayConditions, R_ground_from_cam, p) -> Linearised:
     """Carry derivatives with respect to rays on to the primitives.
 

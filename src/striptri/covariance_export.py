@@ -37,6 +37,7 @@ import scipy.sparse as sp
 
 from .adjusted_points import triangulate_adjusted
 from .core.result import AdjustmentResult
+from .joint_groups import has_distances, joint_intersections
 from .lens import CAMERA_ELEMENTS
 from .model import Project
 from .rotations import R_from_angles, angles_from_R, angles_jacobian, skew
@@ -84,6 +85,25 @@ class CovarianceExport:
                  datum=np.array(self.datum if isinstance(self.datum, str) else ",".join(self.datum)),
                  crs=np.array(self.crs))
         return buf.getvalue()
+
+
+def _joint_points(project: Project, result: AdjustmentResult, tri: Triangulated, points: np.ndarray, n: int) -> list:
+    """Per joint group of points joined by distances (joint_groups.joint_intersections) whose
+    members are all exported: (rows (3n_m,) of G among the exported points' rows, G (3n_m, n) over
+    the unknowns, Qm (3n_m, 3n_m) the members' joint measurement part). Empty without distances."""
+    if not has_distances(project) or not len(points):
+        return []
+    slot = np.full(len(project.points), -1)
+    slot[points] = np.arange(len(points))
+    out = []
+    for js, inter in joint_intersections(project, result, tri.xyz):
+        where = slot[js.point_index]
+        if (where < 0).any():
+            continue
+        G = np.zeros((len(inter.G), n + 1))
+        np.add.at(G, (slice(None), np.where(js.cols >= 0, js.cols, n)), inter.G)
+        out.append(((3 * where[:, None] + np.arange(3)).ravel(), G[:, :n], inter.Qm))
+    return out
 
 
 def _point_gradients(project: Project, result: AdjustmentResult, tri: Triangulated, points: np.ndarray) -> np.ndarray:
@@ -166,9 +186,16 @@ def joint_covariance(project: Project, result: AdjustmentResult, tri: Triangulat
                          "choose fewer groups")
     Qxx = result.covariance.dense() if n else np.zeros((0, 0))
     G = _point_gradients(project, result, tri, points).reshape(3 * len(points), n)
+    joint = _joint_points(project, result, tri, points, n)
+    for rows, Gj, _ in joint:  # the points joined by distances: intersected together (joint_groups)
+        G[rows] = Gj
     F = np.vstack([Tm, G])
     Q = F @ Qxx @ F.T
-    for i in range(len(points)):
+    in_joint = np.zeros(len(points), dtype=bool)
+    for rows, _, Qm in joint:
+        in_joint[rows[::3] // 3] = True
+        Q[np.ix_(len(Tm) + rows, len(Tm) + rows)] += Qm
+    for i in np.flatnonzero(~in_joint):
         k = len(Tm) + 3 * i
         Q[k:k + 3, k:k + 3] += tri.cov_measurement[points[i]]
     xyz = tri.xyz[points] + result.offset

@@ -52,7 +52,7 @@ def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_
 
 
 def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d",
-             with_lens: bool = True, plate_measured=None):
+             with_lens: bool = True, plate_measured=None, ray_function=None):
     """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised, with
     ``d_interior`` (m, nc, k, NCP) with respect to all camera elements (striptri.lens).
 
@@ -61,7 +61,9 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     rule. with_lens=False skips the camera model (allowed only when no additional parameter is
     nonzero or estimated: the ideal points are then the observations). plate_measured: the
     measurements (all image rows) when plate_hat are adjusted observations (lens doc: the plate
-    convention corrects the measurement and adds the residual).
+    convention corrects the measurement and adds the residual). ray_function: callable(r, O) ->
+    conditions.RayConditions evaluated instead of the group's ray conditions (e.g.
+    conditions.first_pair_intersection: the point as its group defines it).
     """
     xy = plate_hat[batch.image_rows]
     R_ground_from_cam = state.R_ground_from_cam[batch.photo_index]
@@ -84,7 +86,8 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     else:
         p = plate_vector(xy, params[..., :3])
         r = np.einsum("mkij,mkj->mki", R_ground_from_cam, p)
-        rc = ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star)
+        rc = (ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star)
+              if ray_function is None else ray_function(r, xyz_centre))
         lin = ray_chain(rc, R_ground_from_cam, p)
     d_camera = np.zeros(lin.d_interior.shape[:-1] + (NCP,))
     d_camera[..., :3] = lin.d_interior
@@ -124,6 +127,24 @@ def linearise(
         A_parts.append(lin.d_control)
     A = np.concatenate(A_parts, 2)
 
+    B, cols = unknown_blocks(lin, batch, state, layout, rotation_maps)
+
+    g = lin.g
+    scale = 1.0 / np.sqrt(np.matmul(A * A, Q[..., None])[..., 0])  # 1 / sigma of each condition
+    A, B, g = A * scale[..., None], B * scale[..., None], g * scale
+    if transform is not None:
+        Tg = transform(batch)
+        A, B, g = Tg @ A, Tg @ B, np.einsum("mab,mb->ma", Tg, g)
+    w = g + np.einsum("mco,mo->mc", A, l - l_hat)
+    return GroupSystem(A=A, B=B, cols=cols, w=w, Q=Q, l=l, l_hat=l_hat, g=g)
+
+
+def unknown_blocks(lin, batch: GroupBatch, state: State, layout: UnknownLayout, rotation_maps: np.ndarray):
+    """B (m, nc, k (6 + camera_width)) and its global columns (m, k (6 + camera_width)), -1 fixed:
+    per ray its photo's centre and rotation unknowns, then its camera's estimated elements, from
+    the primitive derivatives lin (conditions.Linearised, nc rows) of a chunk."""
+    m, nc = lin.g.shape
+    k = batch.k
     T = rotation_maps[batch.photo_index]  # (m, k, 3, 3)
     d_rot = np.matmul(lin.d_rot[..., None, :], T[:, None])[..., 0, :]  # row vectors times T (m, nc, k, 3)
     width = 6 + layout.camera_width
@@ -135,12 +156,4 @@ def linearise(
         col_parts.append(layout.camera_cols[cam][..., elements])
     B = np.concatenate(B_parts, 3).reshape(m, nc, width * k)
     cols = np.concatenate(col_parts, 2).reshape(m, width * k)
-
-    g = lin.g
-    scale = 1.0 / np.sqrt(np.matmul(A * A, Q[..., None])[..., 0])  # 1 / sigma of each condition
-    A, B, g = A * scale[..., None], B * scale[..., None], g * scale
-    if transform is not None:
-        Tg = transform(batch)
-        A, B, g = Tg @ A, Tg @ B, np.einsum("mab,mb->ma", Tg, g)
-    w = g + np.einsum("mco,mo->mc", A, l - l_hat)
-    return GroupSystem(A=A, B=B, cols=cols, w=w, Q=Q, l=l, l_hat=l_hat, g=g)
+    return B, cols

@@ -249,5 +249,5 @@ class Project:
     # Their point_index refers to ``points`` like image_points' (a point may have inactive rows only).
     inactive_image_points: ImagePoints | None = None
     # distances.csv (striptri.bundle.distances.Distances): observed distances between object
-    # points, bundle method only; None: none
+    # points (methods conditions and bundle, striptri.joint_groups); None: none
     distances: object | None = None

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import balanced, covariance_export, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
-from .bundle.distances import distance_columns, summary_entry as distances_summary
+from .bundle.distances import summary_entry as distances_summary
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
@@ -33,8 +33,10 @@ from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, ROTATION_OUTPUT_NAMES, Project
+from .joint_groups import joint_point_precision
 from .precision import joint_point_covariance
 from .reliability import blunder_options, detect_blunders
+from .reliability.distances import distance_table
 from .reliability.rejections import rejection_groups
 from .reliability.outcome import without_tests
 from .rotations import angles_from_R
@@ -269,8 +271,10 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         more = inactive.residual_columns(adjusted, off)
         tables["residuals.csv"] = format_csv({k: list(table[k]) + list(more[k]) for k in table})
     tables.update(gnss_tables(adjusted, result))
-    if adjusted.distances is not None:  # distances.csv (bundle.distances): from the adjusted points
-        tables["distances.csv"] = format_csv(distance_columns(adjusted.points.ids, adjusted.distances, points.xyz))
+    distance_cols = None
+    if adjusted.distances is not None:  # distances.csv (bundle.distances): from the adjusted points, with tests
+        distance_cols = distance_table(adjusted, result, points.xyz, options, det.critical)
+        tables["distances.csv"] = format_csv(distance_cols)
     if adjusted.film is not None and adjusted.film.fit is not None:  # scanned film (striptri.film)
         tables["fiducial_residuals.csv"] = format_csv(film_report.residual_columns(adjusted.film))
     phases["tables"] = time.perf_counter() - t0
@@ -286,7 +290,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         summary["inactive"] = inactive.summary_entry(adjusted, off)
     summary.update(gnss_output.summary_entry(adjusted, result))
     if adjusted.distances is not None:
-        summary["distances"] = distances_summary(adjusted.distances, points.xyz)
+        summary["distances"] = distances_summary(adjusted.distances, points.xyz, distance_cols)
     if adjusted.film is not None:
         summary["film"] = film_report.summary_entry(adjusted.film)
     if frame is not None:
@@ -348,7 +352,8 @@ def blunder_summary(det) -> dict:
 def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulated:
     """Ground points from the adjusted rays, with Schmid's (90) precision split
     (adjusted_points.triangulate_adjusted with the orientation part)."""
-    return triangulate_adjusted(project, result, orientation_part=True)
+    # the points joined by distances.csv intersected together (joint_groups.joint_point_precision)
+    return joint_point_precision(project, result, triangulate_adjusted(project, result, orientation_part=True))
 
 
 def _angle_scale(project: Project) -> float:

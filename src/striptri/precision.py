@@ -13,7 +13,7 @@ the a-priori sigma0 = 1 (the plate sigmas are taken as known).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from .core.result import AdjustmentResult
 from .covariance import ray_slots
 from .errors import NumericalFailure
 from .groups import build_batches
+from .joint_groups import JointGroups, has_distances, joint_intersections
 from .model import Project
 from .parameter_observations import build_parameter_observations
 from .triangulation import ray_terms, safe_inverse
@@ -37,8 +38,12 @@ class ResidualCofactors:
     control: np.ndarray  # (n_pt, 3) qvv of weighted control coordinates (0 elsewhere)
     parameters: np.ndarray  # (p,) qvv of observed elements
     # with plate_blocks: per chunk (image_rows (m, k), Qvv (m, 2k, 2k)), the plate part of each
-    # group's Qvv, (x, y) per ray in chain order (reliability.separability's blocks)
+    # group's Qvv, (x, y) per ray in chain order (reliability.separability's blocks); a joint group
+    # of points joined by distances (joint_groups) is one block over all its rays
     plate_blocks: list | None = None
+    distances: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (r,) qvv of distances.csv's rows (m^2)
+    # (r,) |X_a - X_b| of the points as their groups define them at the result (m, reduced frame)
+    distance_adjusted: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def redundancy_numbers(self, project: Project, result: AdjustmentResult) -> dict:
         obs = observations_of(project, result.offset)
@@ -47,6 +52,7 @@ class ResidualCofactors:
             "plate": self.plate / obs.q_plate,
             "control": np.where(obs.q_control > 0, self.control / np.where(obs.q_control > 0, obs.q_control, 1), 0),
             "parameters": self.parameters / pobs.sigma**2 if len(pobs) else np.zeros(0),
+            "distances": self.distances / project.distances.sigma**2 if len(self.distances) else np.zeros(0),
         }
 
 
@@ -60,8 +66,9 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     ``B Qxx B^T`` by Covariance.group_forms (Qxx read by blocks of photo pairs), ``K = M^-1 (M - B Qxx
     B^T) M^-1`` and ``qvv_o = sum_c (K A Q)_co (A Q)_co``. Memory is that of one chunk of groups."""
     obs = observations_of(project, result.offset)
-    sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
-                  result.control_adjusted, options)
+    batches, joint = JointGroups.of(project, build_batches(project))
+    sweep = Sweep(batches, result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted, options,
+                  joint)
     cov = result.covariance
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
@@ -79,13 +86,67 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
         q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
         if chunk.has_control:
             q_control[chunk.point_index] = qvv[:, 2 * k :]
+    q_distance, d_adjusted = _joint_residual_cofactors(sweep.joint_systems(), result, project, q_plate, q_control,
+                                                       blocks)
     pobs = build_parameter_observations(project, result.offset)
     q_par = np.zeros(len(pobs))
     if len(pobs):
         _, grad, cols = pobs.evaluate(result.state, result.layout, sweep.T)
         Qloc = cov.entries(cols[:, :, None], cols[:, None, :])
         q_par = pobs.sigma**2 - np.einsum("pi,pi->p", (Qloc @ grad[:, :, None])[:, :, 0], grad)
-    return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par, plate_blocks=blocks)
+    return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par, plate_blocks=blocks,
+                             distances=q_distance, distance_adjusted=d_adjusted)
+
+
+def distance_cofactors(project: Project, result: AdjustmentResult,
+                       options: AdjustmentOptions = AdjustmentOptions()) -> tuple[np.ndarray, np.ndarray]:
+    """qvv (r,) of distances.csv's rows and the adjusted distances (r,) (m), from the joint groups
+    alone (joint_groups; the same numbers as residual_cofactors, without the pass over the other
+    groups). Empty arrays without distances."""
+    obs = observations_of(project, result.offset)
+    _, joint = JointGroups.of(project, build_batches(project))
+    sweep = Sweep([], result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted, options, joint)
+    return _joint_residual_cofactors(sweep.joint_systems(), result, project, np.zeros_like(obs.plate),
+                                     np.zeros_like(obs.control), None)
+
+
+def _joint_residual_cofactors(systems: list, result: AdjustmentResult, project: Project, q_plate: np.ndarray,
+                              q_control: np.ndarray, blocks: list | None) -> np.ndarray:
+    """Qvv of the joint groups (joint_groups.JointSystem, one at a time: few) into q_plate (m_ip, 2)
+    and q_control (n_pt, 3), each group's plate block appended to blocks (image rows (1, K) of all
+    its rays, Qvv (1, 2K, 2K)); returns the distances' qvv (r,) and their adjusted values (r,) (m),
+    |X_a - X_b| of the points as their groups define them (empty without distances)."""
+    if not systems:
+        return np.zeros(0), np.zeros(0)
+    q_distance = np.zeros(len(project.distances))
+    adjusted = np.zeros(len(project.distances))
+    cov = result.covariance
+    for js in systems:
+        AQ = js.A * js.Q[None, :]
+        M = AQ @ js.A.T
+        chunk = _JointChunk(js.photo_index[None], js.point_index)
+        Minv = _group_inverse(M[None], chunk, project)[0]
+        K = Minv @ (M - cov.group_forms(_group_slots(js.B[None], chunk, result))[0]) @ Minv
+        KAQ = K @ AQ
+        qvv = np.einsum("co,co->o", KAQ, AQ)
+        q_plate.reshape(-1)[js.plate_target] = qvv[js.plate_pos]
+        q_control.reshape(-1)[js.control_target] = qvv[js.control_pos]
+        q_distance[js.component.distances] = qvv[js.distance_pos]
+        ends = js.component.ends
+        adjusted[js.component.distances] = np.linalg.norm(js.xyz[ends[:, 0]] - js.xyz[ends[:, 1]], axis=1)
+        if blocks is not None:
+            p = js.plate_pos
+            blocks.append((np.concatenate(js.member_rays)[None], (AQ[:, p].T @ KAQ[:, p])[None]))
+    return q_distance, adjusted
+
+
+@dataclass(frozen=True)
+class _JointChunk:
+    """What _group_slots and _group_inverse read of a chunk, for one joint group: photo_index
+    (1, K) and the member points (point_index, for messages)."""
+
+    photo_index: np.ndarray
+    point_index: np.ndarray
 
 
 def _group_slots(G: np.ndarray, chunk, result: AdjustmentResult) -> list:
@@ -197,7 +258,33 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         Ft = np.swapaxes(F, 1, 2)
         cross = -(GQB @ (MAQ @ Ft))
         out[chunk.point_index] = GQG + F @ Qll @ Ft + cross + np.swapaxes(cross, 1, 2)
+    if has_distances(project):  # the points joined by distances: one joint intersection per joint group
+        _joint_groups_92(project, result, tri, options, out)
     return out
+
+
+def _joint_groups_92(project: Project, result: AdjustmentResult, tri, options: AdjustmentOptions,
+                     out: np.ndarray) -> None:
+    """The form (92) of joint_point_covariance for the points joined by distances (joint_groups):
+    X of the members intersected together from the joint group's adjusted observations (rays, given
+    coordinates, distances) with the orientation held, ``dX/dl = F``, ``dX/dx = G``
+    (joint_groups.JointIntersection), and ``Cov(l^)``, ``Cov(x^, l^)`` of the joint group. Writes
+    the members' 3x3 blocks into out (n_points, 3, 3)."""
+    cov = result.covariance
+    for js, inter in joint_intersections(project, result, tri.xyz, options):
+        n3 = len(inter.G)
+        AQ = js.A * js.Q[None, :]
+        M = AQ @ js.A.T
+        chunk = _JointChunk(js.photo_index[None], js.point_index)
+        Minv = _group_inverse(M[None], chunk, project)[0]
+        HQH = cov.group_forms(_group_slots(np.concatenate([inter.G, js.B], 0)[None], chunk, result))[0]
+        GQG, GQB, BQB = HQH[:n3, :n3], HQH[:n3, n3:], HQH[n3:, n3:]
+        MAQ = Minv @ AQ
+        Qll = np.diag(js.Q) - MAQ.T @ (M - BQB) @ MAQ
+        cross = -(GQB @ (MAQ @ inter.F.T))
+        full = GQG + inter.F @ Qll @ inter.F.T + cross + cross.T
+        for j, p in enumerate(js.point_index):
+            out[p] = full[3 * j:3 * j + 3, 3 * j:3 * j + 3]
 
 
 PHOTO_ELEMENTS = ("X0", "Y0", "Z0", "rot1", "rot2", "rot3")

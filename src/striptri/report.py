@@ -27,6 +27,7 @@ import numpy as np
 from . import figures as fig
 from .core.result import AdjustmentResult
 from .bundle.distances import report_parts as distance_report_parts
+from .reliability.distances import distance_table
 from .film import report as film_report
 from .gnss_output import report_tables as gnss_report_tables
 from .io.project_reader import RADIANS_PER_UNIT
@@ -406,12 +407,14 @@ def _corrections_section(summary: dict) -> list[str]:
                     "direction", "formula and source"], rows, left=1)]
 
 
-def _distances_section(project: Project, points) -> list[str]:
-    """The observed distances and their residuals (bundle.distances.report_parts); nothing without."""
+def _distances_section(project: Project, result: AdjustmentResult, summary: dict, points) -> list[str]:
+    """The observed distances, their residuals and tests (bundle.distances.report_parts,
+    reliability.distances); nothing without."""
     if project.distances is None or points is None:
         return []
+    cols = distance_table(project, result, points.xyz, critical=(summary.get("blunders") or {}).get("critical_value"))
     return [_section("distances")] + [p if isinstance(p, str) else _table(*p) for p in
-                                      distance_report_parts(project.points.ids, project.distances, points.xyz)]
+                                      distance_report_parts(project.points.ids, project.distances, points.xyz, cols)]
 
 
 def _inactive_section(summary: dict, unit: "ResidualUnit") -> list[str]:
@@ -932,7 +935,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     body += [timed("flagged", lambda: _flagged_section(project, result, w, absw, flagged, flag_text)),
              timed("rejected", lambda: _rejected_section(summary)),
              _inactive_section(summary, residual_unit(project)),
-             _distances_section(project, points),
+             _distances_section(project, result, summary, points),
              timed("largest", lambda: _largest_section(project, result, w, absw)),
              timed("photos", lambda: _photos_section(project, result, stats)),
              timed("camera", lambda: _camera_section(project, result))]

@@ -104,6 +104,7 @@ class _Problem:
                 raise NumericalFailure("distances.csv: the point(s) " + ", ".join(ids) + " take no part in the "
                                        "adjustment (a tie point needs two rays); their distances cannot be adjusted")
             self.redundancy += len(self.distances)
+            self.n_conditions += len(self.distances)  # one condition per distance in the conditions form
 
     def couple(self, normals: ReducedNormals, kept: list, xyz: np.ndarray) -> None:
         """Add the distances' Woodbury correction (bundle.distances) to normals before finish;

@@ -134,32 +134,62 @@ def couple(dist: Distances, kept: list, where: tuple[np.ndarray, np.ndarray], po
     return (Coupling(points, JD, P, M, e), R, np.broadcast_to(cols, R.shape).copy(), f, float(e @ e), growth)
 
 
-def distance_columns(point_ids: list[str], dist: Distances, xyz: np.ndarray) -> dict:
+def distance_columns(point_ids: list[str], dist: Distances, xyz: np.ndarray, tests=None, sigma0: float = 1.0,
+                     critical: float = float("nan")) -> dict:
     """The output table distances.csv (docs/file-formats.md) for the adjusted points xyz (n_pt, 3):
     the observation, the adjusted distance ``|X_a - X_b|``, the residual v = adjusted - observed
-    (m) and v / sigma."""
+    (m) and v / sigma; with tests (reliability.measures.DistanceTests of the adjustment) also the
+    mean error of the adjusted distance ``sigma0 sqrt(sigma^2 - qvv)`` (m), the redundancy number,
+    the normalised residual w, the flag ("suspect" where |w| > critical) and the MDB (m), as
+    residuals.csv names them (empty where not tested)."""
     adjusted = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1)
     v = adjusted - dist.distance
-    return {"point_from": [point_ids[p] for p in dist.point_from], "point_to": [point_ids[p] for p in dist.point_to],
+    cols = {"point_from": [point_ids[p] for p in dist.point_from], "point_to": [point_ids[p] for p in dist.point_to],
             "distance": dist.distance, "sigma": dist.sigma, "adjusted": adjusted, "residual": v,
             "residual_sigma": v / dist.sigma}
+    r = len(dist)
+    if tests is None or len(tests.w) != r:
+        nan = np.full(r, np.nan)
+        return {**cols, "sigma_adjusted": nan, "redundancy": nan, "w": nan, "flag": [""] * r, "mdb": nan}
+    with np.errstate(invalid="ignore"):
+        suspect = np.abs(tests.w) > critical
+    return {**cols, "sigma_adjusted": sigma0 * np.sqrt(np.maximum(dist.sigma**2 - tests.qvv, 0.0)),
+            "redundancy": tests.redundancy, "w": tests.w, "flag": ["suspect" if s else "" for s in suspect],
+            "mdb": tests.mdb}
 
 
-def summary_entry(dist: Distances, xyz: np.ndarray) -> dict:
-    """summary.json "distances": count, rms and largest |v| (m) and largest |v| / sigma."""
+def summary_entry(dist: Distances, xyz: np.ndarray, cols: dict | None = None) -> dict:
+    """summary.json "distances": count, rms and largest |v| (m) and largest |v| / sigma; with the
+    tested table cols (distance_columns with tests) also the sum of the redundancy numbers, the
+    largest |w| and the number flagged suspect (null where not tested)."""
     v = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1) - dist.distance
-    return {"count": len(dist), "rms_residual_m": float(np.sqrt(np.mean(v**2))),
-            "max_abs_residual_m": float(np.max(np.abs(v))), "max_abs_residual_sigma": float(np.max(np.abs(v) / dist.sigma))}
+    out = {"count": len(dist), "rms_residual_m": float(np.sqrt(np.mean(v**2))),
+           "max_abs_residual_m": float(np.max(np.abs(v))), "max_abs_residual_sigma": float(np.max(np.abs(v) / dist.sigma))}
+    if cols is not None:
+        w = np.abs(np.asarray(cols["w"], dtype=float))
+        tested = bool(np.isfinite(np.asarray(cols["redundancy"], dtype=float)).all())
+        out.update({"redundancy": float(np.sum(cols["redundancy"])) if tested else None,
+                    "max_abs_w": float(np.max(w)) if np.isfinite(w).any() and tested else None,
+                    "n_suspect": int(sum(f == "suspect" for f in cols["flag"]))})
+    return out
 
 
-def report_parts(point_ids: list[str], dist: Distances, xyz: np.ndarray) -> list:
+def report_parts(point_ids: list[str], dist: Distances, xyz: np.ndarray, cols: dict | None = None) -> list:
     """The report section's parts (report.py): a paragraph and (header, rows, cls, left) of a table,
-    every distance with its residual, largest |v| / sigma first."""
-    cols = distance_columns(point_ids, dist, xyz)
-    order = np.argsort(-np.abs(cols["residual_sigma"]), kind="stable")
+    every distance with its residual, mean error, redundancy number and w, largest |w| (else
+    |v| / sigma) first. cols: the output table (distance_columns), formed here when not given."""
+    cols = distance_columns(point_ids, dist, xyz) if cols is None else cols
+    w = np.asarray(cols["w"], dtype=float)
+    key = np.where(np.isfinite(w), np.abs(w), np.abs(cols["residual_sigma"]))
+    order = np.argsort(-key, kind="stable")
+    fmt = lambda x, f: "" if not np.isfinite(x) else format(x, f)  # noqa: E731
     rows = [[html.escape(cols["point_from"][i]), html.escape(cols["point_to"][i]), f"{cols['distance'][i]:.4f}", f"{cols['sigma'][i]:.4g}",
-             f"{cols['adjusted'][i]:.4f}", f"{1000 * cols['residual'][i]:.2f}", f"{cols['residual_sigma'][i]:.2f}"]
+             f"{cols['adjusted'][i]:.4f}", fmt(1000 * cols["sigma_adjusted"][i], ".3g"), f"{1000 * cols['residual'][i]:.2f}",
+             fmt(cols["redundancy"][i], ".3f"), fmt(w[i], ".2f"), cols["flag"][i]]
             for i in order]
     text = (f"<p>{len(dist)} observed distances between object points (distances.csv), adjusted with the points; "
-            "residual = adjusted - observed (also in the output distances.csv).</p>")
-    return [text, (["from", "to", "observed (m)", "sigma (m)", "adjusted (m)", "v (mm)", "v / sigma"], rows, "", 2)]
+            "residual v = adjusted - observed, sigma adj. the mean error of the adjusted distance, r its redundancy "
+            "number and w its normalised residual (flagged suspect above the critical value; a distance is flagged, "
+            "never rejected; also in the output distances.csv).</p>")
+    return [text, (["from", "to", "observed (m)", "sigma (m)", "adjusted (m)", "sigma adj. (mm)", "v (mm)", "r", "w",
+                    "flag"], rows, "", 2)]

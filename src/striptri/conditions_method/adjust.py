@@ -29,6 +29,7 @@ from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
 from ..errors import NumericalFailure
 from ..groups import build_batches
+from ..joint_groups import JointGroups, whiten_joint
 from ..linearise import linearise
 from ..model import Project
 from ..normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix,
@@ -42,11 +43,25 @@ METHOD = "conditions"
 class Sweep:
     """One sweep over all groups at a fixed (x^, l^)."""
 
-    def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options):
+    def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options, joint=None, distance_hat=None):
         self.batches, self.state, self.layout = batches, state, layout
         self.obs, self.plate_hat, self.control_hat, self.options = obs, plate_hat, control_hat, options
         self.T = layout.rotation_maps(state)
         self.seconds = 0.0  # time spent evaluating and linearising the conditions
+        # the joint groups of the points joined by distances (joint_groups; None without) and the
+        # adjusted distances d + v_d (the observed ones when None)
+        self.joint, self.distance_hat = joint, distance_hat
+
+    def joint_systems(self) -> list:
+        """The linearised joint groups (joint_groups.JointSystem) of this sweep; none without distances."""
+        if self.joint is None:
+            return []
+        t0 = time.perf_counter()
+        d_hat = self.joint.project.distances.distance if self.distance_hat is None else self.distance_hat
+        out = self.joint.systems(self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat, d_hat,
+                                 self.options.conditions.scale_form, self.options.conditions.condition_transform)
+        self.seconds += time.perf_counter() - t0
+        return out
 
     def systems(self):
         for batch in self.batches:
@@ -91,6 +106,13 @@ def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", k
         acc.add_groups(Bw, ww, gw, chunk.photo_index, cam_of_photo[chunk.photo_index], scatters)
         if system.g.size:
             acc.max_misclosure = max(acc.max_misclosure, float(np.max(np.abs(system.g))))
+    acc.kept_joint = [] if keep else None
+    for js in sweep.joint_systems():  # the groups joined by distances (joint_groups), one at a time
+        Bw, ww, gw, Gt = whiten_joint(js)
+        acc.extra.add(Bw[None], ww[None], js.cols[None], gw[None])
+        if keep:
+            acc.kept_joint.append((js, Bw, ww, Gt))
+        acc.max_misclosure = max(acc.max_misclosure, float(np.max(np.abs(js.g), initial=0.0)))
     if len(pobs):
         f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         acc.add_rows(grad, cols, pobs.misclosure(f), pobs.sigma)
@@ -150,10 +172,12 @@ class Assembly:
 
 
 def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterObservations, dx: np.ndarray,
-                     obs: Observations):
+                     obs: Observations, kept_joint=None):
     """New adjusted observations l + v from the corrections dx, with the whitened systems the
     assembly kept: ``t = L^-1 (w + B dx)``, ``k = -L^-T t``, ``v = Q A^T k = -(L^-1 A Q)^T t`` and
-    ``v^T P v = k^T M k = t^T t``."""
+    ``v^T P v = k^T M k = t^T t``. kept_joint: the joint groups' (joint_groups.JointSystem, L^-1 B,
+    L^-1 w, L^-1 A Q). Returns plate_hat, control_hat, v_par, vtpv and the adjusted distances
+    (None without)."""
     plate_hat = obs.plate.copy()
     control_hat = obs.control.copy()
     dxp = np.concatenate([dx, [0.0]])
@@ -167,12 +191,23 @@ def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterOb
         plate_hat[chunk.image_rows] = obs.plate[chunk.image_rows] + v[:, : 2 * kk].reshape(m, kk, 2)
         if chunk.has_control:
             control_hat[chunk.point_index] = obs.control[chunk.point_index] + v[:, 2 * kk :]
+    distance_hat = None
+    if kept_joint:
+        distance_hat = sweep.joint.project.distances.distance.copy()
+        plate_flat, control_flat = plate_hat.reshape(-1), control_hat.reshape(-1)
+        for js, Bw, ww, Gt in kept_joint:
+            t = ww + Bw @ dxp[js.cols]
+            v = -Gt.T @ t
+            vtpv += float(t @ t)
+            plate_flat[js.plate_target] = obs.plate.reshape(-1)[js.plate_target] + v[js.plate_pos]
+            control_flat[js.control_target] = obs.control.reshape(-1)[js.control_target] + v[js.control_pos]
+            distance_hat[js.component.distances] = js.l[js.distance_pos] + v[js.distance_pos]
     v_par = np.zeros(len(pobs))
     if len(pobs):
         f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         v_par = -(pobs.misclosure(f) - np.einsum("pi,pi->p", grad, dxp[cols]))
         vtpv += float(np.sum((v_par / pobs.sigma) ** 2))
-    return plate_hat, control_hat, v_par, vtpv
+    return plate_hat, control_hat, v_par, vtpv, distance_hat
 
 
 def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork) -> solvers.SolveResult:
@@ -207,10 +242,13 @@ class _Problem:
         self.offset = reduction_offset(project)
         self.initial_state = initial_state(project, self.offset)
         self.layout = build_layout(project)
-        self.batches = build_batches(project)
+        # the points joined by distances leave their batches for joint groups (joint_groups)
+        self.batches, self.joint = JointGroups.of(project, build_batches(project))
         self.obs = observations_of(project, self.offset)
         self.pobs = build_parameter_observations(project, self.offset)
         self.n_conditions = sum(len(b) * b.n_conditions for b in self.batches)
+        if self.joint is not None:
+            self.n_conditions += self.joint.n_conditions
         self.assembly = Assembly.of(self.batches, self.initial_state, self.layout, options.chunk_size)
         if options.conditions.scale_form == "xz":
             _require_strip_along_x(self.batches, self.initial_state)
@@ -220,8 +258,9 @@ class _Problem:
         if self.redundancy < 0:
             self._explain_too_few()
 
-    def sweep(self, state: State, plate_hat: np.ndarray, control_hat: np.ndarray) -> Sweep:
-        return Sweep(self.batches, state, self.layout, self.obs, plate_hat, control_hat, self.options)
+    def sweep(self, state: State, plate_hat: np.ndarray, control_hat: np.ndarray, distance_hat=None) -> Sweep:
+        return Sweep(self.batches, state, self.layout, self.obs, plate_hat, control_hat, self.options, self.joint,
+                     distance_hat)
 
     def assemble(self, sweep: Sweep, iteration: int, keep: bool = False):
         return _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep)
@@ -255,6 +294,7 @@ class _Estimate:
     control_hat: np.ndarray
     v_par: np.ndarray
     vtpv: float = float("nan")
+    distance_hat: np.ndarray | None = None  # (r,) adjusted distances d + v_d (joint_groups); None without
 
 
 def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentOptions()) -> AdjustmentResult:
@@ -280,7 +320,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
             break
 
     t0 = time.perf_counter()
-    final = problem.sweep(now.state, now.plate_hat, now.control_hat)
+    final = problem.sweep(now.state, now.plate_hat, now.control_hat, now.distance_hat)
     acc = problem.assemble(final, len(history) + 1)
     free_network = problem.free_network
     if free_network is not None:
@@ -309,7 +349,7 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     round-off floor of its correction (core.convergence.energy_floor)."""
     t0 = time.perf_counter()
     state, layout = now.state, problem.layout
-    sweep = problem.sweep(state, now.plate_hat, now.control_hat)
+    sweep = problem.sweep(state, now.plate_hat, now.control_hat, now.distance_hat)
     acc = problem.assemble(sweep, len(history) + 1, keep=True)
     t1 = time.perf_counter()
     if problem.free_network is not None:
@@ -319,8 +359,9 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     dx = solved.dx
     t2 = time.perf_counter()
     with np.errstate(over="ignore", invalid="ignore"):
-        plate_hat, control_hat, v_par, vtpv = _back_substitute(acc.kept, sweep, problem.pobs, dx, problem.obs)
-    acc.kept = None  # the whitened systems are not needed beyond the back substitution
+        plate_hat, control_hat, v_par, vtpv, distance_hat = _back_substitute(acc.kept, sweep, problem.pobs, dx,
+                                                                             problem.obs, acc.kept_joint)
+    acc.kept = acc.kept_joint = None  # the whitened systems are not needed beyond the back substitution
     state = state.updated(layout, dx)
     t3 = time.perf_counter()
     timings.add("conditions", sweep.seconds)
@@ -333,15 +374,24 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
         floor = energy_floor(layout.n_unknowns, element_floor, n_diag)
         element = largest_correction(dx, n_diag, element_floor)
     else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
-        crit = element = _observation_change(plate_hat - now.plate_hat, control_hat - now.control_hat, problem.obs)
+        crit = element = _observation_change(plate_hat - now.plate_hat, control_hat - now.control_hat, problem.obs,
+                                             _distance_change(now.distance_hat, distance_hat, problem.project))
         floor = ROUNDING_FLOOR
     history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info,
                              element_correction=element))
     progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, solved.info)
-    return _Estimate(state, plate_hat, control_hat, v_par, vtpv), floor
+    return _Estimate(state, plate_hat, control_hat, v_par, vtpv, distance_hat), floor
 
 
-def _observation_change(d_plate: np.ndarray, d_control: np.ndarray, obs: Observations) -> float:
+def _distance_change(before, after, project: Project) -> float:
+    """The largest change of an adjusted distance in units of its sigma (0 without distances)."""
+    if after is None:
+        return 0.0
+    before = project.distances.distance if before is None else before
+    return float(np.max(np.abs(after - before) / project.distances.sigma, initial=0.0))
+
+
+def _observation_change(d_plate: np.ndarray, d_control: np.ndarray, obs: Observations, d_distance: float = 0.0) -> float:
     """The largest change of an adjusted observation in one iteration, in units of its standard
     deviation: the convergence criterion when there are no unknowns (a pure forward intersection,
     where only the adjusted observations l^ = l + v are iterated)."""
@@ -349,7 +399,7 @@ def _observation_change(d_plate: np.ndarray, d_control: np.ndarray, obs: Observa
     c = np.max(np.abs(d_plate) / np.where(sig > 0, sig, np.inf), initial=0.0)
     qc = obs.q_control
     c_control = np.max(np.abs(d_control) / np.where(qc > 0, np.sqrt(np.where(qc > 0, qc, 1.0)), np.inf), initial=0.0)
-    return float(max(c, c_control))
+    return float(max(c, c_control, d_distance))
 
 
 def normal_matrix_at_approximations(project: Project, options: AdjustmentOptions = AdjustmentOptions()):
@@ -359,10 +409,10 @@ def normal_matrix_at_approximations(project: Project, options: AdjustmentOptions
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         offset = reduction_offset(project)
         state, layout = initial_state(project, offset), build_layout(project)
-        batches = build_batches(project)
+        batches, joint = JointGroups.of(project, build_batches(project))
         obs = observations_of(project, offset)
         assembly = Assembly.of(batches, state, layout, options.chunk_size)
-        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options)
+        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options, joint)
         acc = _assemble_checked(sweep, build_parameter_observations(project, offset), assembly, project, 1)
     return acc.N, layout
 

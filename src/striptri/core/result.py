@@ -112,8 +112,10 @@ class Timings(_Record):
 
 def observation_count(project, obs: Observations, n_parameter_observations: int) -> int:
     """The observations of a simultaneous adjustment: two plate coordinates per image point, the
-    weighted control coordinates and the observed elements."""
-    return 2 * len(project.image_points) + int(np.count_nonzero(obs.q_control > 0)) + int(n_parameter_observations)
+    weighted control coordinates, the observed elements and the observed distances (distances.csv)."""
+    n_distances = 0 if project.distances is None else len(project.distances)
+    return (2 * len(project.image_points) + int(np.count_nonzero(obs.q_control > 0)) + int(n_parameter_observations)
+            + n_distances)
 
 
 def sigma0_of(vtpv: float, redundancy: int) -> float:

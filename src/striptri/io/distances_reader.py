@@ -1,5 +1,6 @@
 """distances.csv: observed distances between object points (scale bars, taped distances), for
-the bundle method (striptri.bundle.distances; docs/file-formats.md).
+the methods conditions and bundle (striptri.joint_groups, striptri.bundle.distances;
+docs/file-formats.md).
 
 Columns point_from, point_to (point ids of image_points.csv or control.csv), distance (m, > 0),
 sigma (m, > 0: a distance is always an observation; a very small sigma nearly enforces it).

@@ -25,7 +25,7 @@ and an MDB of hundreds of sigma.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import ndtri  # the normal quantile; scipy.stats would cost 0.4 s of imports
@@ -83,6 +83,8 @@ class PlateReliability:
     delta0: float
     # with cofactor_blocks: precision.ResidualCofactors.plate_blocks (the w-tests' correlations)
     cofactor_blocks: list | None = None
+    # w (r,) of distances.csv's rows (joint_groups; nan where r_i <= R_ZERO); empty without distances
+    distance_w: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def plate_reliability(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions(),
@@ -100,4 +102,31 @@ def plate_reliability(project: Project, result: AdjustmentResult, options: Adjus
     w = np.where(ok, result.plate_residuals / (sigma * np.sqrt(safe_r)), np.nan)
     bnr = np.where(ok, delta0 * np.sqrt((1.0 - r) / safe_r), np.inf)
     return PlateReliability(r, w, minimal_detectable_bias(sigma, r, delta0), bnr, critical_value(alpha0), delta0,
-                            cof.plate_blocks)
+                            cof.plate_blocks, distance_tests(project, cof.distances, cof.distance_adjusted).w)
+
+
+@dataclass(frozen=True)
+class DistanceTests:
+    """The w-test of every row of distances.csv (issue 17): v = adjusted - observed (m), qvv (m^2),
+    redundancy number r = qvv / sigma^2, w = v / sqrt(qvv) (a-priori sigma0 = 1; nan where
+    r <= R_ZERO), mdb (m), the minimal detectable bias (inf there)."""
+
+    v: np.ndarray
+    qvv: np.ndarray
+    redundancy: np.ndarray
+    w: np.ndarray
+    mdb: np.ndarray
+
+
+def distance_tests(project: Project, qvv: np.ndarray, adjusted: np.ndarray, alpha0: float = ALPHA0,
+                   beta0: float = BETA0) -> DistanceTests:
+    """DistanceTests from the distances' qvv and adjusted values (precision.distance_cofactors)."""
+    if not len(qvv):
+        z = np.zeros(0)
+        return DistanceTests(z, z, z, z, z)
+    sigma = project.distances.sigma
+    v = adjusted - project.distances.distance
+    r = np.clip(qvv / sigma**2, 0.0, 1.0)
+    ok = r > R_ZERO
+    w = np.where(ok, v / (sigma * np.sqrt(np.where(ok, r, 1.0))), np.nan)
+    return DistanceTests(v, qvv, r, w, minimal_detectable_bias(sigma, r, noncentrality(alpha0, beta0)))

@@ -36,7 +36,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..adjustment import AdjustmentOptions, adjust
-from ..errors import NumericalFailure
+from ..errors import InputError, NumericalFailure
 from ..model import Project
 from ..core.result import sigma0_of
 from ..precision import residual_cofactors
@@ -282,6 +282,15 @@ def retest(project: Project, options: AdjustmentOptions, blunders: BlunderOption
     return np.array(back, dtype=int)
 
 
+STOPPED_DISTANCE = "distance: a row of distances.csv has the largest |w| (flagged suspect there, not rejected)"
+
+
+def _distance_leads(distance_w: np.ndarray, row_abs_w: np.ndarray, crit: float) -> bool:
+    """Whether a distance's |w| exceeds the critical value and every plate row's |w|."""
+    a = np.abs(distance_w[np.isfinite(distance_w)])
+    return bool(len(a) and a.max() > crit and a.max() >= row_abs_w.max(initial=0.0))
+
+
 def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, current):
     """Snooping rounds from the rows ``keep`` (updated in place, as ``rejected`` and ``rounds``).
     -> (stopped, last) with last = (project, result, reliability, rows) of the last adjustment that
@@ -302,7 +311,7 @@ def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable,
                 if last is None and not rejected:
                     return untested("snoop", project, result, blunders, time.perf_counter() - t_start)
                 raise NumericalFailure(result.termination_message.splitlines()[0])
-        except NumericalFailure as exc:
+        except (NumericalFailure, InputError) as exc:  # InputError: a distance point left with one ray
             if last is None:
                 raise
             keep[taken_rows] = True
@@ -314,6 +323,14 @@ def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable,
         rows = np.flatnonzero(keep)
         last = (current, result, rel, rows)
         abs_w = row_abs(rel.w)
+        if _distance_leads(rel.distance_w, abs_w, crit):
+            # a distance has the largest |w| above the critical value: the plate rows whose w it
+            # raises are not rejected for it, and the distance itself is flagged, not rejected
+            # (docs/decisions.md, "Distances between object points")
+            rounds.append(Round(0, float(np.nanmax(np.abs(rel.distance_w))), result.iterations,
+                                time.perf_counter() - t0))
+            stopped = STOPPED_DISTANCE
+            break
         sub = current.image_points
         expand, members = None, {}
         if separable and np.any(abs_w > crit):
