@@ -37,14 +37,14 @@ STRICT_TOLERANCE = 1e-13
 LOOSE_TOLERANCE = 1e-7
 
 
-def similarity_changes(state: State, layout: UnknownLayout) -> np.ndarray:
+def similarity_changes(state: State, layout: UnknownLayout, centroid: np.ndarray | None = None) -> np.ndarray:
     """Change of each photo element (n, 6, 7) under the seven infinitesimal similarities.
 
     Elements are those of the unknown parametrisation: centre, then the rotation vector (free
     rotation) or the angles (photos with some angles fixed). The rotation is about the centroid
-    of the projection centres and the scale is centred there too.
+    of the projection centres (or ``centroid``) and the scale is centred there too.
     """
-    O = state.xyz0 - state.xyz0.mean(axis=0)
+    O = state.xyz0 - (state.xyz0.mean(axis=0) if centroid is None else centroid)
     n = len(O)
     H = np.zeros((n, 6, 7))
     H[:, :3, :3] = np.eye(3)
@@ -253,10 +253,11 @@ def _units(extent: float) -> np.ndarray:
     return np.array([1, 1, 1, 1 / extent, 1 / extent, 1 / extent, 1 / extent], dtype=float)
 
 
-def similarity_matrix(state: State, layout: UnknownLayout, extent: float):
-    """H (n_unknowns, 7): the change of the unknowns under the seven scaled similarities, and the
-    constraint rows (r, 7) that fixed and tied elements put on the similarity coefficients."""
-    H_el = similarity_changes(state, layout) * _units(extent)  # (n, 6, 7)
+def similarity_matrix(state: State, layout: UnknownLayout, extent: float, centroid: np.ndarray | None = None):
+    """H (n_unknowns, 7): the change of the unknowns under the seven scaled similarities (about the
+    centroid of the projection centres, or ``centroid``), and the constraint rows (r, 7) that fixed
+    and tied elements put on the similarity coefficients."""
+    H_el = similarity_changes(state, layout, centroid) * _units(extent)  # (n, 6, 7)
     cols = layout.photo_cols
     constraints = [H_el[cols < 0]]  # fixed elements must not move
     first_at_col: dict[int, tuple[int, int]] = {}

@@ -161,6 +161,11 @@ class PointDatum:
         xyz = self.xyz_approx if xyz is None else xyz
         return point_similarity(xyz, self.centroid, free) * self.free[:, :, None]
 
+    def photo_similarity(self, state: State, layout: UnknownLayout, free: FreeDirections) -> np.ndarray:
+        """H (n_unknowns, d) of the photos at ``state`` under the same similarities as
+        :meth:`similarity` (about ``centroid``): the pair (H, H_p) is a null vector of the normals."""
+        return similarity_matrix(state, layout, free.extent, self.centroid)[0] @ free.coefficients
+
     def linearise(self, state: State, layout: UnknownLayout, obs, xyz: np.ndarray):
         """The whitened collinearity blocks of the datum points at (state, xyz) (as
         bundle.reduced.linearise_points, flat over the rays): N_pp (n_D, 3, 3), b_p (n_D, 3),
@@ -196,7 +201,7 @@ class PointDatum:
         datum's definition: linear in X, met in one step); at_solution: H_p at ``xyz`` instead, the
         inner constraints at the adjusted points that define the precision (the S-transformation's)."""
         free = base.free
-        H = similarity_matrix(state, layout, free.extent)[0] @ free.coefficients
+        H = self.photo_similarity(state, layout, free)
         Hp = self.similarity(free, xyz if at_solution else None)
         N_pp, b_p, N_cp, cols = self.linearise(state, layout, obs, xyz)
         Y = np.linalg.solve(N_pp, Hp)  # (n_D, 3, d): N_pp^-1 H_p

@@ -143,9 +143,9 @@ class _Problem:
         pd, free = self.point_datum, self.free_network.free
         Hd = pd.similarity(free)
         a = np.linalg.solve(np.einsum("pia,pib->ab", Hd, Hd), pd.misclosure(step.xyz[pd.index], free))
-        H = datum.similarity_matrix(state, self.layout, free.extent)[0] @ free.coefficients
+        H = pd.photo_similarity(state, self.layout, free)
         included = self.unknowns.included
-        Hp = (point_datum.point_similarity(xyz[included], state.xyz0.mean(axis=0), free)
+        Hp = (point_datum.point_similarity(xyz[included], pd.centroid, free)
               * self.unknowns.free[included][:, :, None])
         step.xyz[included] -= Hp @ a
         weighted = (self.unknowns.weight > 0) & included[:, None]
