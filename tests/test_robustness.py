@@ -440,13 +440,13 @@ def test_simulate_refuses_zero_photos(tmp_path):
 
 def test_command_line_clash_is_blamed_on_the_command_line(tmp_path):
     """A command-line clash was blamed on project.toml."""
-    message = assert_clean_failure(cli_adjust(DATA / "pair", tmp_path / "out", "--method", "bundle", "--datum", "inner"),
-                                   2)
+    message = assert_clean_failure(cli_adjust(DATA / "pair", tmp_path / "out", "--method", "sequential", "--datum",
+                                              "inner"), 2)
     assert "command line" in message and "project.toml" not in message
     project = copy_project("pair", tmp_path / "p")
     set_toml(project, """
         [adjustment]
-        method = "bundle"
+        method = "sequential"
         [datum]
         mode = "inner"
     """)

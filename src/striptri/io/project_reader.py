@@ -301,7 +301,7 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
         raise fail("corrections", "earth_radius", f"{earth_radius!r} is not a radius of the Earth in metres "
                                                   f"(accepted: {low:.0f} to {high:.0f})")
     datum = choice("datum", "mode", DATUMS, defaults.datum)
-    datum_points = get("datum", "points", ())
+    datum_points = get("datum", "points", [])
     if not isinstance(datum_points, list) or not all(isinstance(p, str) for p in datum_points):
         raise fail("datum", "points", f"{datum_points!r} is not a list of point ids (strings)")
     if datum_points and datum != "inner-points":
