@@ -89,6 +89,9 @@ class _Problem:
         # observation equations of the points minus their unknown coordinates: the number of
         # conditions of the method of conditions, 2k - (3 - d) per point
         self.n_conditions = n_plate + self.unknowns.n_control_observations - self.unknowns.n_unknowns
+        # a rise of the sum of squares below this is round-off whatever its size relative to the sum:
+        # (1e-10 sigma)^2 per observation (noise-free data: a free network's datum still moving)
+        self.cost_floor = COST_ROUND_OFF * (n_plate + self.unknowns.n_control_observations)
         self.redundancy = self.n_conditions + len(self.pobs) - self.layout.n_unknowns
         self.initial_state = initial_state(project, self.offset)
         self.pattern, self.S, self.dense, self.scatters = block_pattern(self.batches, self.initial_state, self.layout,
@@ -374,7 +377,7 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     ee = normals.ee  # the sum of squares where the step started
     predicted, actual = ee - step.vtpv, ee - trial_ee
     lam_step = damping.lam
-    if actual < -ROUND_OFF * ee or not np.isfinite(actual):  # worse: back to the start, more damping
+    if actual < -(ROUND_OFF * ee + problem.cost_floor) or not np.isfinite(actual):  # worse: back to the start, more damping
         if damping.exhausted():
             raise NumericalFailure("\n".join([
                 f"the bundle adjustment cannot reduce the sum of squares after iteration {len(history)}: "
@@ -418,6 +421,7 @@ LM_START = 1e-4  # first Levenberg-Marquardt factor after a failed step
 LM_MAX = 1e8  # beyond this the step is a gradient step of nothing; give up
 LM_FLOOR = 1e-9  # below this the damping is dropped (plain Gauss-Newton again)
 ROUND_OFF = 1e-10  # a rise of the sum of squares below this fraction is round-off, not a worse step
+COST_ROUND_OFF = 1e-20  # and below this per observation (whitened residuals of 1e-10 sigma)
 
 
 def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
