@@ -324,6 +324,7 @@ def explain(defects: list[str]) -> str:
     lines.append(
         "Add control (at least two full points and one height point not on a line, i.e. seven "
         "independent datum elements), observed projection centres, or fix orientation elements; "
-        "or adjust it as a free network (--datum inner, or [datum] mode = \"inner\" in project.toml)."
+        "or adjust it as a free network (--datum inner or inner-points, or [datum] mode = \"inner\" or "
+        "\"inner-points\" in project.toml)."
     )
     return "\n".join(lines)
