@@ -1,9 +1,11 @@
 """A free network whose inner constraints act on object points (issue 17, striptri.point_datum), in
 both methods, against the photo datum after an S-transformation (covariance_export.s_transform)."""
 
-from dataclasses import replace
-
 import json
+import shutil
+import sys
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,9 +18,13 @@ from striptri.bundle import solve_bundle
 from striptri.bundle.distances import Distances
 from striptri.covariance_export import joint_covariance, s_transform
 from striptri.errors import NumericalFailure
-from striptri.io import write_project
+from striptri.io import read_project, write_project
 
 from cli_support import assert_clean_failure, run
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+import close_range  # noqa: E402
+import scale_cases  # noqa: E402
 
 TOL = 1e-12  # convergence tolerance of the comparisons: both methods converged far below the 1e-7 m asked
 
@@ -89,6 +95,43 @@ def test_noise_free_block_without_control_is_recovered_up_to_a_similarity(method
     used = _used(project)
     *_, resid = _helmert(np.vstack([xyz, r.state.xyz0 + r.offset]), np.vstack([true_xyz[used], true_centres]))
     assert resid < 1e-7
+
+
+def _close_range(tmp_path, monkeypatch, noise_free: bool):
+    """The small close-range case of the benchmark (scripts/bench/close_range.py: a dome of targets,
+    rings of convergent photos, the camera self-calibrated with k1, k2) without its control."""
+    case = scale_cases.CASES["close-small"]
+    if noise_free:  # the generator's noise; project.toml keeps the stated sigma
+        with monkeypatch.context() as m:
+            m.setattr(close_range, "SIGMA_IMAGE", 0.0)
+            net = close_range.make_close_range(case.photos, case.strips_or_targets, seed=scale_cases.CLOSE_SEED)
+    else:
+        net = close_range.make_close_range(case.photos, case.strips_or_targets, seed=scale_cases.CLOSE_SEED)
+    folder = close_range.write_close_range(tmp_path / "close", net)
+    (folder / "control.csv").unlink()
+    project = read_project(folder)
+    true_xyz = net.xyz_ground[[int(i[1:]) - 1 for i in project.points.ids]]
+    return project, net, true_xyz
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_noise_free_close_range_with_self_calibration_is_recovered(tmp_path, monkeypatch, method):
+    project, net, true_xyz = _close_range(tmp_path, monkeypatch, noise_free=True)
+    r, xyz = _run(project, method, "inner-points")
+    assert r.converged and len(r.free_network) == 7
+    *_, resid = _helmert(np.vstack([xyz, r.state.xyz0 + r.offset]), np.vstack([true_xyz[_used(project)], net.xyz0]))
+    assert resid < 1e-7
+    free = r.layout.camera_cols[0] >= 0
+    np.testing.assert_allclose(r.state.interior[0][free], net.interior[free], rtol=1e-9, atol=1e-12)
+
+
+def test_close_range_conditions_equal_bundle_in_the_point_datum(tmp_path, monkeypatch):
+    project, _, _ = _close_range(tmp_path, monkeypatch, noise_free=False)
+    (a, xa), (b, xb) = (_run(project, m, "inner-points") for m in ("conditions", "bundle"))
+    assert b.vtpv == pytest.approx(a.vtpv, rel=1e-7)
+    np.testing.assert_allclose(xb, xa, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(b.state.xyz0, a.state.xyz0, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(b.state.interior, a.state.interior, rtol=1e-9, atol=1e-12)
 
 
 # ---------------------------------------------------------------- conditions = bundle in each datum
@@ -337,7 +380,6 @@ def test_command_line_bad_datum_points(noisy, folder, tmp_path, given, words):
     ('\n[datum]\nmode = "inner"\npoints = ["X1", "X2", "X3"]\n', "inner-points"),
 ])
 def test_project_toml_bad_datum_points(folder, tmp_path, text, words):
-    import shutil
     copy = tmp_path / "p"
     shutil.copytree(folder, copy)
     _toml(copy, text)
