@@ -152,6 +152,26 @@ def test_conditions_equal_bundle_in_the_free_network(noisy, datum):
                                rtol=1e-6)
 
 
+@pytest.mark.parametrize("seed, datum", [(20, "inner-points"), (22, "inner")])
+def test_damped_bundle_reaches_the_datum_of_the_conditions_method(seed, datum):
+    """Approximations 100 m and 6 deg off: the bundle's Gauss-Newton steps fail and it takes a dozen
+    Levenberg-Marquardt steps (damped reduced system, minimum constraints, S-transformation), yet
+    it ends in the same datum as the method of conditions, whose iteration takes another path."""
+    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=4, n_strips=2),
+                                 control=sim.ControlDesign(layout="ends"), points=sim.PointDesign(extra_ties_per_model=4))
+    truth = sim.make_truth(design, np.random.default_rng(11))
+    p = sim.perturb(truth, sim.NoiseOptions(approx_position_error=100, approx_angle_error=6),
+                    np.random.default_rng(seed))
+    n = len(p.points)
+    p = replace(p, points=replace(p.points, kind=np.full(n, model.TIE), xyz_given=np.full((n, 3), np.nan),
+                                  sigma_given=np.full((n, 3), np.nan)))
+    (b, xb), (c, xc) = (_run(p, m, datum) for m in ("bundle", "conditions"))
+    assert sum(1 for h in b.history if h.solver_info.damping) >= 5
+    assert b.vtpv == pytest.approx(c.vtpv, rel=1e-9)
+    np.testing.assert_allclose(b.state.xyz0, c.state.xyz0, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(xb, xc, rtol=0, atol=1e-7)
+
+
 def test_the_two_datums_differ(noisy):
     """The datums are not the same one (else the comparisons below prove nothing): the photo and
     the point datum place the block differently."""
