@@ -272,9 +272,11 @@ def export_correction(terms: PointTerms, FH: np.ndarray, point_rows: np.ndarray,
     their indices in project.points."""
     slot = -np.ones(int(max(exported.max(initial=-1), terms.index.max(initial=-1))) + 1, dtype=int)
     slot[terms.index] = np.arange(len(terms.index))
-    Hq = np.zeros((FH.shape[1], len(FH)))
     s = slot[exported]
-    for row, p, k in zip(point_rows[s >= 0], exported[s >= 0], s[s >= 0]):
-        Hq[:, row:row + 3] = terms.H[k].T @ cov_measurement[p]
+    sel = s >= 0
+    Hq = np.zeros((FH.shape[1], len(FH)))
+    blocks = np.swapaxes(terms.H[s[sel]], 1, 2) @ cov_measurement[exported[sel]]  # (m, d, 3): H_p^T Qm_p
+    rows = point_rows[sel][:, None] + np.arange(3)
+    Hq[:, rows.ravel()] = np.moveaxis(blocks, 1, 0).reshape(FH.shape[1], -1)
     A = FH @ terms.K @ Hq
     return -(A + A.T)
