@@ -149,9 +149,8 @@ class PointDatum:
         rh = r / np.linalg.norm(r, axis=-1, keepdims=True)
         P = np.eye(3) - rh[:, :, None] * rh[:, None, :]
         n = len(self.index)
-        lhs, rhs = np.zeros((n, 3, 3)), np.zeros((n, 3))
-        np.add.at(lhs, self.slot, P)
-        np.add.at(rhs, self.slot, np.einsum("rij,rj->ri", P, state.xyz0[ph]))
+        lhs = _sum_by(self.slot, P, n)
+        rhs = _sum_by(self.slot, np.einsum("rij,rj->ri", P, state.xyz0[ph]), n)
         xyz = np.linalg.solve(lhs, rhs[..., None])[..., 0]
         return np.where(self.free, xyz, self.given)
 
@@ -185,10 +184,8 @@ class PointDatum:
         Jp = d_point * s * self.free[self.slot][:, None, :]
         e = e / sigma
         n = len(self.index)
-        N_pp = np.zeros((n, 3, 3))
-        b_p = np.zeros((n, 3))
-        np.add.at(N_pp, self.slot, np.einsum("rai,raj->rij", Jp, Jp))
-        np.add.at(b_p, self.slot, np.einsum("rai,ra->ri", Jp, e))
+        N_pp = _sum_by(self.slot, np.einsum("rai,raj->rij", Jp, Jp), n)
+        b_p = _sum_by(self.slot, np.einsum("rai,ra->ri", Jp, e), n)
         N_pp += (self.weight + ~self.free)[:, :, None] * np.eye(3)
         b_p += self.weight * np.where(self.weight > 0, self.given - xyz, 0.0)
         return N_pp, b_p, np.einsum("rai,raj->rij", Jc, Jp), cols
@@ -205,10 +202,8 @@ class PointDatum:
         Hp = self.similarity(free, xyz if at_solution else None)
         N_pp, b_p, N_cp, cols = self.linearise(state, layout, obs, xyz)
         Y = np.linalg.solve(N_pp, Hp)  # (n_D, 3, d): N_pp^-1 H_p
-        n, d = layout.n_unknowns, H.shape[1]
-        C = np.zeros((n + 1, d))
-        np.add.at(C, cols, -(N_cp @ Y[self.slot]))
-        C = C[:n]
+        n = layout.n_unknowns
+        C = _sum_by(np.where(cols >= 0, cols, n).ravel(), -(N_cp @ Y[self.slot]).reshape(cols.size, -1), n + 1)[:n]
         target = -(np.einsum("pia,pi->a", Hp, xyz - self.xyz_approx) + np.einsum("pia,pi->a", Y, b_p))
         V = np.einsum("pia,pib->ab", Hp, Y)
         V = 0.5 * (V + V.T)
@@ -221,6 +216,15 @@ class PointDatum:
         """sum_p H_p^T (X_p - X0_p) (d,) of the datum points xyz (n_D, 3), H_p at the approximations:
         zero in the point datum."""
         return np.einsum("pia,pi->a", self.similarity(free), xyz - self.xyz_approx)
+
+
+def _sum_by(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Sums of the rows of ``values`` (r, ...) by ``index`` (r,) into (n, ...) (a bincount per entry:
+    much faster than np.add.at)."""
+    flat = values.reshape(len(index), -1)
+    w = flat.shape[1]
+    out = np.bincount((index[:, None] * w + np.arange(w)).ravel(), weights=flat.ravel(), minlength=n * w)
+    return out.reshape((n,) + values.shape[1:])
 
 
 def point_similarity(xyz: np.ndarray, centroid: np.ndarray, free: FreeDirections) -> np.ndarray:
