@@ -332,6 +332,32 @@ def test_bundle_point_datum_with_a_scale_bar():
     assert _similarity_of(xyz, x0, scale=False) < 1e-9 * np.ptp(xyz, axis=0).max()
 
 
+def test_with_a_scale_bar_distances_keep_their_mean_errors_between_the_datums():
+    """The issue's check with the scale from a distance (bundle): six free directions, so distances
+    between points are invariant; their mean errors are equal to 1e-9 relative in the photo and the
+    point datum, and the photo datum's covariance S-transformed by a rigid motion (6 parameters) to
+    the datum points is the point datum's."""
+    project, true_xyz, _ = _block()
+    used = _used(project)
+    P, Q = int(used[0]), int(used[-1])
+    d = float(np.linalg.norm(true_xyz[P] - true_xyz[Q]))
+    project = replace(project, distances=Distances(np.array([P]), np.array([Q]), np.array([d]), np.array([0.001])))
+    (rph, _), (rpt, _) = (_run(project, "bundle", datum) for datum in ("inner", "inner-points"))
+    eph = joint_covariance(project, rph, triangulate_adjusted(project, rph), ("points",))
+    ept = joint_covariance(project, rpt, triangulate_adjusted(project, rpt), ("points",))
+    ids = [str(project.points.ids[i]) for i in rpt.free_network.points.index]
+    for a, b in ((0, 5), (2, 9), (3, 30), (1, len(ids) - 2)):
+        ma, mb = (np.sqrt(f @ e.cov @ f) for e, f in ((e, e.distance(ids[a], ids[b])[1]) for e in (eph, ept)))
+        assert mb == pytest.approx(ma, rel=1e-9)
+    st = s_transform(eph, ids, scale=False)
+    rows, q_st = _point_block(st, ids)
+    _, q_pt = _point_block(ept, ids)
+    s, R, _, resid = _helmert(st.values[rows].reshape(-1, 3), ept.values[rows].reshape(-1, 3))
+    assert resid < 1e-7 and abs(s - 1.0) < 1e-9
+    B = np.kron(np.eye(len(ids)), R)
+    np.testing.assert_allclose(B @ q_st @ B.T, q_pt, rtol=0, atol=1e-9 * np.abs(q_pt).max())
+
+
 # ---------------------------------------------------------------- bad input
 
 
