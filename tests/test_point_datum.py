@@ -172,6 +172,27 @@ def test_damped_bundle_reaches_the_datum_of_the_conditions_method(seed, datum):
     np.testing.assert_allclose(xb, xc, rtol=0, atol=1e-7)
 
 
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_with_plan_control_only_the_height_is_fixed_by_the_datum_points(method):
+    """Plan control (X, Y held) leaves only the translation in Z free: the point datum fixes that one
+    direction, sum (Z - Z0) = 0 over the datum points, and keeps the plan control exactly."""
+    project, true_xyz, _ = _block()
+    used = _used(project)
+    plan = used[[0, 7, 15, 30]]
+    kind, given = project.points.kind.copy(), project.points.xyz_given.copy()
+    kind[plan] = model.PLAN
+    given[plan, :2] = true_xyz[plan, :2]
+    project = replace(project, points=replace(project.points, kind=kind, xyz_given=given))
+    r, xyz = _run(project, method, "inner-points")
+    assert r.converged and len(r.free_network) == 1
+    assert r.free_network.summary(r.state, r.offset)["free_directions"] == ["translation in Z"]
+    np.testing.assert_allclose(xyz[[0, 7, 15, 30], :2], true_xyz[plan, :2], rtol=0, atol=1e-9)
+    dz = xyz[:, 2] - project.points.xyz_approx[used, 2]
+    assert abs(dz.sum()) < 1e-9 * len(used) and np.abs(dz).max() > 0.1
+    other = "bundle" if method == "conditions" else "conditions"
+    np.testing.assert_allclose(_run(project, other, "inner-points")[1], xyz, rtol=0, atol=1e-7)
+
+
 def test_the_two_datums_differ(noisy):
     """The datums are not the same one (else the comparisons below prove nothing): the photo and
     the point datum place the block differently."""

@@ -145,6 +145,7 @@ class FreeNetwork:
     mode: str = "inner"
     points: object = None
     misclosure: np.ndarray | None = None
+    centroid: np.ndarray | None = None  # the similarities turn about it (None: the projection centres' centroid)
 
     def __len__(self) -> int:
         return self.H.shape[1]
@@ -206,8 +207,9 @@ class FreeNetwork:
     def summary(self, state: State, offset) -> dict:
         """summary.json's \"datum\" entry of a free network: its mode, the free directions in words
         (describe) and, for the point datum, the number of datum points."""
+        centroid = state.xyz0.mean(axis=0) if self.centroid is None else self.centroid
         out = {"mode": self.mode, "free_directions": describe(self.free.coefficients, self.free.extent,
-                                                              state.xyz0.mean(axis=0) + offset)}
+                                                              centroid + offset)}
         if self.points is not None:
             out["n_datum_points"] = int(len(self.points.index))
         return out

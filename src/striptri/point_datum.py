@@ -210,7 +210,7 @@ class PointDatum:
         K = np.linalg.inv(C.T @ H)
         misclosure = self.misclosure(xyz, free)
         return FreeNetwork(H, C, base.held, FreeDirections(H, free.coefficients, free.extent), target, V,
-                           "inner-points", PointTerms(self.index, Hp, K), misclosure)
+                           "inner-points", PointTerms(self.index, Hp, K), misclosure, self.centroid)
 
     def misclosure(self, xyz: np.ndarray, free: FreeDirections) -> np.ndarray:
         """sum_p H_p^T (X_p - X0_p) (d,) of the datum points xyz (n_D, 3), H_p at the approximations:

@@ -14,7 +14,7 @@ sums it into N and u and keeps the whitened chunk for the back substitution afte
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -438,7 +438,7 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
         if free_network is None:
             dx = direct.solve(acc.N, acc.u).dx
         else:
-            dx = -_solve_free_network(acc, direct, free_network).dx
+            dx = -_solve_free_network(acc, direct, replace(free_network, target=None)).dx
         reduced = acc.wPw - float(acc.u @ dx)
         next_correction = correction_in_sigma(dx, acc.N)
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
