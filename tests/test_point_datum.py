@@ -4,7 +4,7 @@ both methods, against the photo datum after an S-transformation (covariance_expo
 import json
 import shutil
 import sys
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -382,15 +382,41 @@ def test_with_a_scale_bar_distances_keep_their_mean_errors_between_the_datums():
 # ---------------------------------------------------------------- bad input
 
 
-def test_datum_points_that_take_no_part_or_lie_on_a_line_are_explained(noisy):
+def _keep_rows(project, keep):
+    """The project with only the image points ``keep`` (bool per row)."""
+    ip = project.image_points
+    arrays = {f.name: getattr(ip, f.name)[keep] for f in fields(ip)
+              if isinstance(getattr(ip, f.name), np.ndarray) and len(getattr(ip, f.name)) == len(keep)}
+    return replace(project, image_points=replace(ip, **arrays))
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_points_with_one_ray_are_no_datum_points(noisy, method):
+    """A tie point left with one ray takes no part; a plan point with one ray takes part (its height
+    from the ray) but is no datum point by default; named as one it is refused, explained."""
     project, _ = noisy
-    rays = np.bincount(project.image_points.point_index, minlength=len(project.points))
-    lonely = [str(project.points.ids[i]) for i in np.flatnonzero(rays < 2)]
-    used = np.flatnonzero(rays >= 2)
-    if lonely:
-        ids = (lonely[0],) + tuple(str(project.points.ids[i]) for i in used[:2])
-        with pytest.raises(NumericalFailure, match="take no part in the adjustment"):
-            adjust(project, AdjustmentOptions(datum="inner-points", datum_points=ids))
+    used = _used(project)
+    lonely, plan = used[3], used[8]
+    ip = project.image_points
+    keep = np.ones(len(ip.point_index), dtype=bool)
+    for p in (lonely, plan):
+        keep[np.flatnonzero(ip.point_index == p)[1:]] = False
+    kind, given = project.points.kind.copy(), project.points.xyz_given.copy()
+    kind[plan] = model.PLAN
+    given[plan, :2] = project.points.xyz_approx[plan, :2]
+    q = replace(_keep_rows(project, keep), points=replace(project.points, kind=kind, xyz_given=given))
+    r, _ = _run(q, method, "inner-points")
+    assert r.converged and len(r.free_network.points.index) == len(used) - 2
+    assert lonely not in r.free_network.points.index and plan not in r.free_network.points.index
+    for p in (lonely, plan):
+        ids = (str(q.points.ids[p]),) + tuple(str(q.points.ids[i]) for i in used[10:12])
+        with pytest.raises(NumericalFailure, match="take no part in the adjustment with two or more rays"):
+            adjust(q, AdjustmentOptions(method=method, datum="inner-points", datum_points=ids))
+
+
+def test_datum_points_on_a_line_are_explained(noisy):
+    project, _ = noisy
+    used = _used(project)
     # three points on a line cannot fix the rotation about it: moved onto one by their approximations
     three = used[:3]
     approx = project.points.xyz_approx.copy()

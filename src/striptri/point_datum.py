@@ -91,13 +91,14 @@ class PointDatum:
 
     @staticmethod
     def of(project: Project, ids, batches, state: State, obs, offset: np.ndarray) -> "PointDatum":
-        """The datum points ``ids`` (empty: every point of the adjustment) of a project whose point
-        groups are ``batches`` (groups.GroupBatch). ValueError for an unknown id; NumericalFailure
+        """The datum points ``ids`` (empty: every point of the adjustment with two or more rays) of a
+        project whose point groups are ``batches`` (groups.GroupBatch). ValueError for an unknown id; NumericalFailure
         (explained) for datum points that take no part in the adjustment or fewer than three."""
         pts = project.points
         included = np.zeros(len(pts), dtype=bool)
-        for b in batches:
-            included[b.point_index] = True
+        for b in batches:  # of the adjustment, with two or more rays (a plan point may have one)
+            if b.k >= 2:
+                included[b.point_index] = True
         if ids:
             where = {str(p): i for i, p in enumerate(pts.ids)}
             unknown = [p for p in ids if p not in where]
@@ -107,9 +108,9 @@ class PointDatum:
             out = [str(pts.ids[i]) for i in index if not included[i]]
             if out:
                 raise NumericalFailure(
-                    f"the datum point(s) {', '.join(out)} take no part in the adjustment (a point needs two rays, "
-                    "a height point two, a plan point one): they cannot carry the inner constraints. Choose "
-                    "others ([datum] points in project.toml, --datum-points).", reason="datum_defect")
+                    f"the datum point(s) {', '.join(out)} take no part in the adjustment with two or more rays: "
+                    "they cannot carry the inner constraints. Choose others ([datum] points in project.toml, "
+                    "--datum-points).", reason="datum_defect")
         else:
             index = np.flatnonzero(included)
         if len(index) < MIN_POINTS:
