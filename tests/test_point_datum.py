@@ -315,6 +315,21 @@ def _angle(export, ids):
 
 
 @pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_point_datum_cofactors_are_a_generalised_inverse(noisy, method):
+    """Qxx of the point datum: a generalised inverse of N (N Q N = N), whose part besides the datum
+    points' own term H K V K^T H^T is orthogonal to the point datum's constraints C."""
+    _, runs = noisy
+    r = runs[(method, "inner-points")][0]
+    N, Q, fn = r.N.toarray(), r.Qxx, r.free_network
+    assert np.abs(N @ Q @ N - N).max() < 1e-9 * np.abs(N).max()
+    HK = fn.H @ fn.points.K
+    own = HK @ fn.extra @ HK.T
+    assert np.abs(own).max() > 1e-3 * np.abs(Q).max()  # not negligible
+    assert np.abs(fn.C.T @ (Q - own)).max() < 1e-9 * np.abs(fn.C).max() * np.abs(Q).max()
+    np.testing.assert_allclose(Q, Q.T, rtol=0, atol=1e-12 * np.abs(Q).max())
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
 def test_points_csv_precision_is_the_exported_covariance(noisy, method):
     """points.csv's mean errors (triangulate_adjusted, Schmid 90 with the point datum's cross term)
     are the diagonal of the exported covariance."""
