@@ -33,8 +33,8 @@ def _block(sigma_image=0.005, seed=11):
     """A two-strip block without any control (every point a tie point), with approximate
     coordinates of every point (approx_points.csv) 1 m off the truth. Returns the project and the
     true coordinates of its points and projection centres."""
-    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=4, n_strips=2), control=sim.ControlDesign(layout="ends"),
-                                 points=sim.PointDesign(extra_ties_per_model=4))
+    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=4, n_strips=2),
+                                 control=sim.ControlDesign(layout="ends"), points=sim.PointDesign(extra_ties_per_model=4))
     truth = sim.make_truth(design, np.random.default_rng(seed))
     p = sim.perturb(truth, sim.NoiseOptions(sigma_image=sigma_image, stated_sigma_image=0.005),
                     np.random.default_rng(seed + 1))
@@ -158,7 +158,8 @@ def test_damped_bundle_reaches_the_datum_of_the_conditions_method(seed, datum):
     Levenberg-Marquardt steps (damped reduced system, minimum constraints, S-transformation), yet
     it ends in the same datum as the method of conditions, whose iteration takes another path."""
     design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=4, n_strips=2),
-                                 control=sim.ControlDesign(layout="ends"), points=sim.PointDesign(extra_ties_per_model=4))
+                                 control=sim.ControlDesign(layout="ends"),
+                                 points=sim.PointDesign(extra_ties_per_model=4))
     truth = sim.make_truth(design, np.random.default_rng(11))
     p = sim.perturb(truth, sim.NoiseOptions(approx_position_error=100, approx_angle_error=6),
                     np.random.default_rng(seed))

@@ -77,6 +77,10 @@ def adjust_bundle(project: Project, options: AdjustmentOptions = AdjustmentOptio
 class _Problem:
     """Everything fixed during the adjustment."""
 
+    free_network: datum.FreeNetwork | None = None  # a free network: the datum's constraints (set_datum)
+    network: datum.FreeNetwork | None = None  # the constraints of the last solve
+    point_datum: point_datum.PointDatum | None = None  # "inner-points": the datum points
+
     def __init__(self, project: Project, options: AdjustmentOptions):
         self.project, self.options = project, options
         self.offset = reduction_offset(project)
@@ -107,10 +111,6 @@ class _Problem:
                 raise NumericalFailure("distances.csv: the point(s) " + ", ".join(ids) + " take no part in the "
                                        "adjustment (a tie point needs two rays); their distances cannot be adjusted")
             self.redundancy += len(self.distances)
-
-    free_network: datum.FreeNetwork | None = None  # a free network: the datum's constraints (set_datum)
-    network: datum.FreeNetwork | None = None  # the constraints of the last solve
-    point_datum: point_datum.PointDatum | None = None  # "inner-points": the datum points
 
     def set_datum(self, state: State, normals: ReducedNormals) -> None:
         """A free network (datum "inner" or "inner-points"): the directions the control leaves free
@@ -271,7 +271,9 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
 
     t0 = time.perf_counter()
     normals, checks, next_correction = _final_checks(problem, solver, now, normals if damping.lam == 0.0 else None)
-    free_network = None if problem.free_network is None else problem.datum_at(now.state, now.xyz, normals.N, at_solution=True)
+    free_network = None  # a free network: its inner constraints at the solution (the precision's)
+    if problem.free_network is not None:
+        free_network = problem.datum_at(now.state, now.xyz, normals.N, at_solution=True)
     timings.final_checks = time.perf_counter() - t0
     timings.total = time.perf_counter() - t_start
     message = ""
@@ -377,7 +379,8 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     ee = normals.ee  # the sum of squares where the step started
     predicted, actual = ee - step.vtpv, ee - trial_ee
     lam_step = damping.lam
-    if actual < -(ROUND_OFF * ee + problem.cost_floor) or not np.isfinite(actual):  # worse: back to the start, more damping
+    # worse: back to the start, more damping
+    if actual < -(ROUND_OFF * ee + problem.cost_floor) or not np.isfinite(actual):
         if damping.exhausted():
             raise NumericalFailure("\n".join([
                 f"the bundle adjustment cannot reduce the sum of squares after iteration {len(history)}: "
