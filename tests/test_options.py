@@ -28,7 +28,8 @@ def test_a_keyword_no_object_has_is_an_error():
     (lambda: BundleOptions(cost_tolerance=-1.0), "cost_tolerance"),
     (lambda: SequentialOptions(procedure=3), "unknown procedure"),
     (lambda: AdjustmentOptions.of(direction="sideways"), "unknown direction"),
-    (lambda: AdjustmentOptions(method="bundle", datum="inner"), "conditions method only"),
+    (lambda: AdjustmentOptions(datum="inner", datum_points=("a", "b", "c")), "for the point datum"),
+    (lambda: AdjustmentOptions(datum="inner-points", datum_points=("a", "b")), "at least three"),
     (lambda: AdjustmentOptions(method="sequential", datum="inner"), "datum from control"),
     (lambda: AdjustmentOptions(max_iterations=0), "at least 1"),
 ])

@@ -440,13 +440,13 @@ def test_simulate_refuses_zero_photos(tmp_path):
 
 def test_command_line_clash_is_blamed_on_the_command_line(tmp_path):
     """A command-line clash was blamed on project.toml."""
-    message = assert_clean_failure(cli_adjust(DATA / "pair", tmp_path / "out", "--method", "bundle", "--datum", "inner"),
-                                   2)
+    message = assert_clean_failure(cli_adjust(DATA / "pair", tmp_path / "out", "--method", "sequential", "--datum",
+                                              "inner"), 2)
     assert "command line" in message and "project.toml" not in message
     project = copy_project("pair", tmp_path / "p")
     set_toml(project, """
         [adjustment]
-        method = "bundle"
+        method = "sequential"
         [datum]
         mode = "inner"
     """)
@@ -1491,7 +1491,8 @@ def test_case2_unit_of_c_judged_by_the_field_angle(strip8):
 # ---------------------------------------------------------- case 3: diagnoses that named the wrong cause
 
 
-@pytest.mark.parametrize("method,datum", (("conditions", "control"), ("bundle", "control"), ("conditions", "inner")))
+@pytest.mark.parametrize("method,datum", (("conditions", "control"), ("bundle", "control"), ("conditions", "inner"),
+                                          ("bundle", "inner"), ("conditions", "inner-points"), ("bundle", "inner-points")))
 def test_case3a_a_sigma_of_1e20_is_named_not_a_datum_defect(strip8, method, datum):
     ip = strip8.image_points
     row = 10
@@ -1536,7 +1537,8 @@ def _cut_strip8(tmp_path: Path, control_in_second_part: bool) -> Path:
     return folder
 
 
-@pytest.mark.parametrize("method,datum", (("conditions", "control"), ("bundle", "control"), ("conditions", "inner")))
+@pytest.mark.parametrize("method,datum", (("conditions", "control"), ("bundle", "control"), ("conditions", "inner"),
+                                          ("bundle", "inner"), ("conditions", "inner-points"), ("bundle", "inner-points")))
 def test_case3b_a_strip_cut_in_two_names_the_groups(tmp_path, method, datum):
     project = read_project(_cut_strip8(tmp_path, control_in_second_part=False))
     with pytest.raises(NumericalFailure) as info:

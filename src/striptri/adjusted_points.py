@@ -8,9 +8,12 @@ control and the orientation from the project and the result and hands them to
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from .core.observations import observations_of
 from .core.result import AdjustmentResult
 from .model import Project
+from .point_datum import points_correction
 from .triangulation import GivenCoordinates, RayObservations, Triangulated, triangulate
 
 
@@ -24,12 +27,18 @@ def triangulate_adjusted(project: Project, result: AdjustmentResult, *, orientat
     Returns triangulation.Triangulated: coordinates, which points are determined, and the
     measurement part of their cofactors; with ``orientation_part`` also the orientation part
     ``G Qxx G^T`` (Schmid 87-90), which reads ``result.covariance`` (a NumericalFailure where N is
-    singular). Without it ``cov_orientation`` is zero.
+    singular). Without it ``cov_orientation`` is zero. In the point datum (point_datum) the
+    orientation part of the datum points carries also the orientation's covariance with their own
+    measurements (point_datum.points_correction).
     """
     ip = project.image_points
     rays = RayObservations(photo_index=ip.photo_index, point_index=ip.point_index, xy_plate=result.plate_adjusted,
                            sigma_xy=ip.sigma_xy, xy_measured=ip.xy)
     control = GivenCoordinates(xyz_ground=result.control_adjusted, given=project.points.given_axes,
                                q_given=observations_of(project, result.offset).q_control)
-    return triangulate(rays, control, state=result.state, layout=result.layout,
-                       Qxx=result.covariance if orientation_part else None)
+    tri = triangulate(rays, control, state=result.state, layout=result.layout,
+                      Qxx=result.covariance if orientation_part else None)
+    fn = result.free_network
+    if orientation_part and fn is not None and fn.points is not None:
+        tri = replace(tri, cov_orientation=tri.cov_orientation + points_correction(fn.points, tri.cov_measurement))
+    return tri

@@ -361,7 +361,11 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
 @click.option("--scale-form", type=click.Choice(["3d", "xz"]), default=None,
               help="Scale-transfer condition: direction-free 3d (default) or Schmid's XZ form (94).")
 @click.option("--datum", type=click.Choice(list(DATUMS)), default=None,
-              help="Datum: from control (default; a defect is an error) or a free network by inner constraints.")
+              help="Datum: from control (default; a defect is an error) or a free network by inner constraints "
+                   "on the photos (inner) or on object points (inner-points).")
+@click.option("--datum-points", default=None, metavar="POINTS",
+              help="With --datum inner-points: the datum points (comma-separated ids, at least three) [project.toml "
+                   "[datum] points, or every point of the adjustment].")
 @click.option("--point-precision", type=click.Choice(["schmid90", "joint92"]), default="schmid90", show_default=True,
               help="Mean errors of the ground points: orientation part + measurement part (Schmid 90) "
                    "or the rigorous joint form (92).")
@@ -400,7 +404,8 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
               help="No progress on stderr (shown otherwise once a run takes longer than 2 s: each iteration's "
                    "vTPv, largest correction and seconds, then the phases after the adjustment).")
 @reports_errors
-def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, point_precision, blunders,
+def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, datum_points, point_precision,
+           blunders,
            covariance_groups, covariance_datum, covariance_rigid,
            procedure, direction, polynomial_degree, init, earth_curvature, refraction, keep_unconverged, quiet):
     """Adjust the project in PROJECT_DIR and write the results to --out.
@@ -421,7 +426,8 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
                               method=method, solver=solver, init=init, direction=direction,
                               procedure=None if procedure is None else int(procedure),
                               polynomial_degree=polynomial_degree,
-                              max_iterations=max_iterations, scale_form=scale_form, datum=datum)
+                              max_iterations=max_iterations, scale_form=scale_form, datum=datum,
+                              datum_points=_datum_points(datum_points))
     s = products.summary
     b = s["blunders"]
     if b["method"] != "off" or b["suspect"]:
@@ -616,6 +622,13 @@ def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every
 
 if __name__ == "__main__":
     main()
+
+
+def _datum_points(text):
+    """--datum-points P1,P2,... -> a tuple of ids (None when not given)."""
+    if text is None:
+        return None
+    return tuple(p.strip() for p in text.split(",") if p.strip())
 
 
 def _covariance_request(groups, datum, rigid):

@@ -11,6 +11,7 @@ For a free network (datum.FreeNetwork) Qxx is the inverse under the inner constr
 ``Q = S Q_min S^T`` with ``S = I - H K C^T``, ``K = (C^T H)^-1`` and Q_min the inverse of N under
 the minimum constraints (held unknowns: zero rows and columns). An entry is then
 ``Q_min[r, c] - (HK)[r].Y[c] - Y[r].(HK)[c] + (HK)[r] (C^T Y) (HK)[c]^T`` with ``Y = Q_min C``.
+The point datum (striptri.point_datum) adds ``(HK)[r] V (HK)[c]^T`` (FreeNetwork.extra = V).
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ class Covariance:
         self._HK = H @ np.linalg.inv(C.T @ H)
         self._Y = Y
         self._CtY = C.T @ Y
+        if free_network.extra is not None:  # the point datum: + HK V HK^T (point_datum)
+            self._CtY = self._CtY + free_network.extra
 
     def entries(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Qxx[rows, cols] elementwise (broadcast; index -1, a fixed element, reads zero)."""
@@ -79,8 +82,10 @@ class Covariance:
         if self.free_network is None:
             return float(self._inv.quadratic_form(f))
         fn = self.free_network
-        g = f - fn.C @ (self._HK.T @ f)  # S^T f
-        return float(g @ (self._inv.solve(g) * self._keep))
+        h = self._HK.T @ f
+        g = f - fn.C @ h  # S^T f
+        extra = float(h @ fn.extra @ h) if fn.extra is not None else 0.0
+        return float(g @ (self._inv.solve(g) * self._keep)) + extra
 
     def dense(self) -> np.ndarray:
         idx = np.arange(self.n)

@@ -11,7 +11,8 @@ with Qxx = N^-1 of the unknowns (result.covariance), T the map from the unknowns
 camera elements (the angle Jacobian J T of rotations.angles_jacobian for the angles), and per point
 ``G_i = -Qm_i J_X^T P J_x`` the derivative of the point intersected from its adjusted rays with the
 orientation held (Schmid 87-90, as striptri.triangulation forms its blocks) and Qm_i its measurement
-part. The points share nothing through their own measurements, so the measurement parts are
+part (in the point datum plus the orientation's covariance with the datum points' own measurements,
+point_datum.export_correction). The points share nothing through their own measurements, so the measurement parts are
 block-diagonal; every cross term comes through Qxx. Multiplied by sigma0^2 a posteriori
 (``sigma0_for_precision``) it is the covariance; its diagonal blocks are photos.csv's, cameras.csv's
 and points.csv's mean errors squared (tested).
@@ -40,6 +41,7 @@ from .core.result import AdjustmentResult
 from .joint_groups import has_distances, joint_intersections
 from .lens import CAMERA_ELEMENTS
 from .model import Project
+from .point_datum import export_correction
 from .rotations import R_from_angles, angles_from_R, angles_jacobian, skew
 from .triangulation import Triangulated, ray_terms
 
@@ -198,6 +200,9 @@ def joint_covariance(project: Project, result: AdjustmentResult, tri: Triangulat
     for i in np.flatnonzero(~in_joint):
         k = len(Tm) + 3 * i
         Q[k:k + 3, k:k + 3] += tri.cov_measurement[points[i]]
+    fn = result.free_network
+    if fn is not None and fn.points is not None and len(points):  # the point datum (point_datum)
+        Q += export_correction(fn.points, F @ fn.H, len(Tm) + 3 * np.arange(len(points)), tri.cov_measurement, points)
     xyz = tri.xyz[points] + result.offset
     for i, k in enumerate(points):
         for a, name in enumerate("XYZ"):

@@ -19,7 +19,7 @@ import scipy.linalg as la
 import scipy.sparse as sp
 
 from .parameters import State, UnknownLayout
-from .rotations import angles_jacobian
+from .rotations import angles_from_R, angles_jacobian, log_so3
 
 DIRECTION_NAMES = (
     "translation in X",
@@ -37,14 +37,14 @@ STRICT_TOLERANCE = 1e-13
 LOOSE_TOLERANCE = 1e-7
 
 
-def similarity_changes(state: State, layout: UnknownLayout) -> np.ndarray:
+def similarity_changes(state: State, layout: UnknownLayout, centroid: np.ndarray | None = None) -> np.ndarray:
     """Change of each photo element (n, 6, 7) under the seven infinitesimal similarities.
 
     Elements are those of the unknown parametrisation: centre, then the rotation vector (free
     rotation) or the angles (photos with some angles fixed). The rotation is about the centroid
-    of the projection centres and the scale is centred there too.
+    of the projection centres (or ``centroid``) and the scale is centred there too.
     """
-    O = state.xyz0 - state.xyz0.mean(axis=0)
+    O = state.xyz0 - (state.xyz0.mean(axis=0) if centroid is None else centroid)
     n = len(O)
     H = np.zeros((n, 6, 7))
     H[:, :3, :3] = np.eye(3)
@@ -119,18 +119,33 @@ def free_directions(acc, state: State, layout: UnknownLayout, tolerance: float =
 
 @dataclass
 class FreeNetwork:
-    """Datum of a free network (no or too little control): the corrections satisfy ``C^T dx = 0``.
+    """Datum of a free network (no or too little control): the corrections satisfy ``C^T dx = t``.
 
     Solved by minimum constraints (the ``held`` unknowns, one per free direction, chosen by a
     pivoted QR so that they fix those directions well, are held at zero) followed by the
-    S-transformation ``dx = S dx_min``, ``S = I - H (C^T H)^-1 C^T``, which moves the solution along
-    the free similarity directions H onto the constraints; ``Q = S Q_min S^T``.
+    S-transformation ``dx = S dx_min + H (C^T H)^-1 t``, ``S = I - H (C^T H)^-1 C^T``, which moves
+    the solution along the free similarity directions H onto the constraints; ``Q = S Q_min S^T``
+    (plus ``HK V HK^T``, HK = H (C^T H)^-1, when ``extra`` V is given: the point datum, where the
+    constraint involves the datum points' own measurements, striptri.point_datum).
+
+    ``target`` t (d,): None is 0 (the increments alone constrained). ``mode``: "inner" (C on the
+    photos: inner_constraints) or "inner-points" (C from the datum points, point_datum).
+    ``points``: what the point datum's precision needs beyond Qxx (point_datum.PointTerms).
+    ``misclosure`` (d,): how far the current unknowns are from the datum, in the constraint's
+    terms (photos: ``C^T delta``; points: ``sum H_p^T (X_p - X0_p)``); None when only increments are
+    constrained.
     """
 
     H: np.ndarray
     C: np.ndarray
     held: np.ndarray
     free: FreeDirections
+    target: np.ndarray | None = None
+    extra: np.ndarray | None = None
+    mode: str = "inner"
+    points: object = None
+    misclosure: np.ndarray | None = None
+    centroid: np.ndarray | None = None  # the similarities turn about it (None: the projection centres' centroid)
 
     def __len__(self) -> int:
         return self.H.shape[1]
@@ -142,12 +157,16 @@ class FreeNetwork:
         _, _, piv = la.qr(scaled.T, pivoting=True, mode="economic")
         return FreeNetwork(free.H, C, np.sort(piv[: free.H.shape[1]]), free)
 
-    def at(self, state: State, layout: UnknownLayout, N) -> "FreeNetwork":
+    def at(self, state: State, layout: UnknownLayout, N, initial: State | None = None) -> "FreeNetwork":
         """The same free directions at another state (the similarity directions move with the
-        photos): H, C recomputed, the held unknowns kept."""
+        photos): H, C recomputed, the held unknowns kept. initial: the approximations; given, the
+        constraint gets the right-hand side ``t = -C^T delta`` (delta = displacement(initial, state)),
+        so that the adjusted unknowns satisfy ``C^T (x^ - x0) = 0`` whatever the iteration's path."""
         H = similarity_matrix(state, layout, self.free.extent)[0] @ self.free.coefficients
         free = FreeDirections(H, self.free.coefficients, self.free.extent)
-        return FreeNetwork(H, inner_constraints(free, N), self.held, free)
+        C = inner_constraints(free, N)
+        target = None if initial is None else -C.T @ displacement(initial, state, layout)
+        return FreeNetwork(H, C, self.held, free, target, misclosure=None if target is None else -target)
 
     def minimum_constraint_system(self, N):
         """N with the held unknowns replaced by identity rows and columns (scaled by N_ii)."""
@@ -160,6 +179,62 @@ class FreeNetwork:
         """S dx_min (class doc); dx_min may be a vector or a matrix of columns."""
         CtH = self.C.T @ self.H
         return dx_min - self.H @ np.linalg.solve(CtH, self.C.T @ dx_min)
+
+    def solution(self, dx_min: np.ndarray) -> np.ndarray:
+        """The correction on the constraints ``C^T dx = t`` from a minimum-constraint one."""
+        if self.target is None:
+            return self.transform(dx_min)
+        CtH = self.C.T @ self.H
+        return dx_min - self.H @ np.linalg.solve(CtH, self.C.T @ dx_min - self.target)
+
+    def datum_correction(self, n_diag: np.ndarray) -> float:
+        """The move of the datum this step makes, ``s = H (C^T H)^-1 misclosure``, measured as
+        ``sqrt(sum_i s_i^2 N_ii)`` (each element in units of its standard deviation if all others were
+        known: the datum has none of its own): the convergence test adds it to the correction of
+        the estimable functions, which does not see it (N s = 0). 0 without a misclosure."""
+        if self.misclosure is None:
+            return 0.0
+        s = self.H @ np.linalg.solve(self.C.T @ self.H, self.misclosure)
+        return float(np.sqrt(np.sum(s * s * np.maximum(n_diag, 0.0))))
+
+    def solve(self, solver, N, rhs: np.ndarray):
+        """Solve ``N dx = rhs`` on the constraints: minimum constraints by ``solver`` (a
+        solvers.NormalSolver), then :meth:`solution`. Returns (dx, the solver's SolveResult)."""
+        N_min, mask = self.minimum_constraint_system(N)
+        solved = solver.solve(N_min, rhs * (1.0 - mask))
+        return self.solution(solved.dx), solved
+
+    def summary(self, state: State, offset) -> dict:
+        """summary.json's \"datum\" entry of a free network: its mode, the free directions in words
+        (describe) and, for the point datum, the number of datum points."""
+        centroid = state.xyz0.mean(axis=0) if self.centroid is None else self.centroid
+        out = {"mode": self.mode, "free_directions": describe(self.free.coefficients, self.free.extent,
+                                                              centroid + offset)}
+        if self.points is not None:
+            out["n_datum_points"] = int(len(self.points.index))
+        return out
+
+
+def displacement(initial: State, state: State, layout: UnknownLayout) -> np.ndarray:
+    """The unknowns' displacement (n_unknowns,) of ``state`` from ``initial`` in the columns of
+    ``layout``, where a similarity moves them (the datum's right-hand side, FreeNetwork.at): centres
+    (m), rotation vectors ``Log(R0^T R)`` (rad; the corrections of the free angles for photos with
+    some held), GNSS shifts (m). Camera elements and the other GNSS unknowns read 0."""
+    n = layout.n_unknowns
+    delta = np.zeros(n + 1)  # column -1 writes into the sink
+    cols = layout.photo_cols
+    delta[cols[:, :3]] = state.xyz0 - initial.xyz0
+    rot = log_so3(np.einsum("nji,njk->nik", initial.R_ground_from_cam, state.R_ground_from_cam))
+    part = layout.partial_rotation
+    if part.any():
+        d_ang = (angles_from_R(state.R_ground_from_cam[part], layout.convention)
+                 - angles_from_R(initial.R_ground_from_cam[part], layout.convention))
+        rot[part] = (d_ang + np.pi) % (2 * np.pi) - np.pi
+    delta[cols[:, 3:]] = rot
+    if layout.gnss_cols is not None and state.gnss is not None and initial.gnss is not None:
+        delta[layout.gnss_cols.shift] = state.gnss.shift - initial.gnss.shift
+    delta[n] = 0.0
+    return delta[:n]
 
 
 def inner_constraints(free: FreeDirections, N) -> np.ndarray:
@@ -180,10 +255,11 @@ def _units(extent: float) -> np.ndarray:
     return np.array([1, 1, 1, 1 / extent, 1 / extent, 1 / extent, 1 / extent], dtype=float)
 
 
-def similarity_matrix(state: State, layout: UnknownLayout, extent: float):
-    """H (n_unknowns, 7): the change of the unknowns under the seven scaled similarities, and the
-    constraint rows (r, 7) that fixed and tied elements put on the similarity coefficients."""
-    H_el = similarity_changes(state, layout) * _units(extent)  # (n, 6, 7)
+def similarity_matrix(state: State, layout: UnknownLayout, extent: float, centroid: np.ndarray | None = None):
+    """H (n_unknowns, 7): the change of the unknowns under the seven scaled similarities (about the
+    centroid of the projection centres, or ``centroid``), and the constraint rows (r, 7) that fixed
+    and tied elements put on the similarity coefficients."""
+    H_el = similarity_changes(state, layout, centroid) * _units(extent)  # (n, 6, 7)
     cols = layout.photo_cols
     constraints = [H_el[cols < 0]]  # fixed elements must not move
     first_at_col: dict[int, tuple[int, int]] = {}
@@ -250,6 +326,7 @@ def explain(defects: list[str]) -> str:
     lines.append(
         "Add control (at least two full points and one height point not on a line, i.e. seven "
         "independent datum elements), observed projection centres, or fix orientation elements; "
-        "or adjust it as a free network (--datum inner, or [datum] mode = \"inner\" in project.toml)."
+        "or adjust it as a free network (--datum inner or inner-points, or [datum] mode = \"inner\" or "
+        "\"inner-points\" in project.toml)."
     )
     return "\n".join(lines)

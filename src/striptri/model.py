@@ -217,6 +217,7 @@ class ProjectSettings:
     solver: str = "auto"
     max_iterations: int = 30
     datum: str = "control"
+    datum_points: tuple = ()  # [datum] points: the datum points of mode "inner-points" (empty: all)
     cost_tolerance: float = 0.0  # bundle method: AdjustmentOptions.cost_tolerance (0 = off)
     plate_unit: str = "mm"  # PLATE_UNITS: mm of the plate (film, sensor) or px (pixels of the image)
     # [corrections] (striptri.plate_corrections): classical corrections of the plate coordinates

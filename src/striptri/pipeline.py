@@ -64,13 +64,17 @@ def options_for(project: Project, **overrides) -> AdjustmentOptions:
     own values clash, the command line when the values given there cause the clash."""
     s = project.settings
     base = dict(method=s.method, solver=s.solver, max_iterations=s.max_iterations, datum=s.datum,
-                cost_tolerance=s.cost_tolerance)
+                cost_tolerance=s.cost_tolerance, datum_points=s.datum_points)
     toml = project.source / "project.toml" if project.source is not None else "project.toml"
     try:
         AdjustmentOptions.of(**base)
     except ValueError as exc:
         raise InputError(toml, None, str(exc)) from None
     given = {k: v for k, v in overrides.items() if v is not None}
+    unknown = [p for p in given.get("datum_points", ()) if p not in set(map(str, project.points.ids))]
+    if unknown:
+        raise InputError("command line", None, f"--datum-points: {', '.join(unknown)} not among the object points "
+                                               "of the project")
     try:
         return AdjustmentOptions.of(**{**base, **given})
     except ValueError as exc:
@@ -330,6 +334,10 @@ def check_products_options(options: AdjustmentOptions, point_precision: str, blu
     if options.method == "sequential" and (blunders != "off" or point_precision != "schmid90"):
         raise ValueError("gross-error detection and the joint point precision (92) need a simultaneous "
                          "adjustment; with --method sequential use --blunders off")
+    if options.datum == "inner-points" and point_precision == "joint92":
+        raise ValueError("the joint point precision (92) is not available in the point datum (--datum inner-points): "
+                         "there the orientation depends on the datum points' own measurements, which (92) does not "
+                         "carry; use --point-precision schmid90, which includes that term (docs/decisions.md)")
 
 
 def blunder_summary(det) -> dict:
@@ -513,6 +521,8 @@ def summary_of(project: Project, result: AdjustmentResult, tri: Triangulated) ->
         "termination": result.termination,
         "message": result.termination_message if result.converged else failure_message(result),
         "plate_unit": project.settings.plate_unit,  # of c, the plate coordinates and residuals.csv's vx, vy
+        # a free network: its datum (mode, the free directions in words, the number of datum points)
+        **({"datum": result.free_network.summary(result.state, result.offset)} if result.free_network else {}),
         "checks": {k: _finite_or_none(v) for k, v in result.checks.as_dict().items()},
         "history": [
             {"vtpv": _finite_or_none(h.vtpv), "max_correction": _finite_or_none(h.max_correction),

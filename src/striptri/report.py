@@ -324,6 +324,12 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
             f"files in {f['crs_name']} ({f['crs']}), {f['heights']} heights"
             + (f" (geoid: {f['geoid']})" if "geoid" in f else "")
             + f"; adjusted, and shown in this report (points, check points), in the local frame: {f['local']}")))
+    if "datum" in summary:  # a free network (datum.FreeNetwork.summary)
+        d = summary["datum"]
+        on = (f"inner constraints on {d['n_datum_points']} object points" if "n_datum_points" in d
+              else "inner constraints on the photos")
+        free = "; ".join(d["free_directions"])
+        rows.append(("datum (free network)", html.escape(f"{d['mode']}: {on}; free: {free}")))
     if r > 0 and s0 is not None:
         lo, hi = np.sqrt(chi2_quantile(np.array([0.025, 0.975]), r) / r)
         inside = lo <= s0 <= hi

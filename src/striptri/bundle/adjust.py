@@ -32,9 +32,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from .. import datum, diagnosis, progress, solvers, termination
+from .. import datum, diagnosis, point_datum, progress, solvers, termination
 from ..core.convergence import energy_floor, has_converged, largest_correction, round_off_floor, stop_if_diverging
-from ..core.explain import datum_defect_failure, reduction_check, solve_or_explain, solver_for
+from ..core.explain import datum_defect_failure, reduction_check, singular_message, solve_or_explain, solver_for
 from ..core.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
@@ -77,6 +77,10 @@ def adjust_bundle(project: Project, options: AdjustmentOptions = AdjustmentOptio
 class _Problem:
     """Everything fixed during the adjustment."""
 
+    free_network: datum.FreeNetwork | None = None  # a free network: the datum's constraints (set_datum)
+    network: datum.FreeNetwork | None = None  # the constraints of the last solve
+    point_datum: point_datum.PointDatum | None = None  # "inner-points": the datum points
+
     def __init__(self, project: Project, options: AdjustmentOptions):
         self.project, self.options = project, options
         self.offset = reduction_offset(project)
@@ -89,6 +93,9 @@ class _Problem:
         # observation equations of the points minus their unknown coordinates: the number of
         # conditions of the method of conditions, 2k - (3 - d) per point
         self.n_conditions = n_plate + self.unknowns.n_control_observations - self.unknowns.n_unknowns
+        # a rise of the sum of squares below this is round-off whatever its size relative to the sum:
+        # (1e-10 sigma)^2 per observation (noise-free data: a free network's datum still moving)
+        self.cost_floor = COST_ROUND_OFF * (n_plate + self.unknowns.n_control_observations)
         self.redundancy = self.n_conditions + len(self.pobs) - self.layout.n_unknowns
         self.initial_state = initial_state(project, self.offset)
         self.pattern, self.S, self.dense, self.scatters = block_pattern(self.batches, self.initial_state, self.layout,
@@ -105,6 +112,72 @@ class _Problem:
                                        "adjustment (a tie point needs two rays); their distances cannot be adjusted")
             self.redundancy += len(self.distances)
             self.n_conditions += len(self.distances)  # one condition per distance in the conditions form
+
+    def set_datum(self, state: State, normals: ReducedNormals) -> None:
+        """A free network (datum "inner" or "inner-points"): the directions the control leaves free
+        at the start (datum.free_directions on the reduced camera system), the minimum constraints
+        and, for the point datum, the datum points; the redundancy counts the defect."""
+        if self.options.datum == "control":
+            return
+        free = datum.free_directions(normals, state, self.layout)
+        if not len(free):
+            return
+        self.free_network = datum.FreeNetwork.of(free, normals.N)
+        if self.options.datum == "inner-points":
+            self.point_datum = point_datum.PointDatum.of(self.project, self.options.datum_points, self.batches,
+                                                         self.initial_state, self.obs, self.offset)
+            point_datum.check_directions(self.point_datum, self.free_network, self.initial_state)
+        self.redundancy += len(free)
+
+    def datum_at(self, state: State, xyz: np.ndarray, N, at_solution: bool = False) -> datum.FreeNetwork:
+        """The free network's constraints at (state, xyz), N the undamped reduced camera system
+        there: on the photos (datum.FreeNetwork.at) or on the datum points (point_datum), each with
+        the right-hand side that makes the datum independent of the iteration's path."""
+        if self.point_datum is None:
+            return self.free_network.at(state, self.layout, N, self.initial_state)
+        return self.point_datum.free_network(self.free_network, state, self.layout, self.obs,
+                                             xyz[self.point_datum.index], at_solution)
+
+    def hold_point_datum(self, state: State, xyz: np.ndarray, dx: np.ndarray, step: "_Step") -> np.ndarray:
+        """Move a step (dx and step.xyz, in place) along the free similarity directions so that the
+        datum points meet their constraint ``sum H_p^T (X_p + dX_p - X0_p) = 0`` exactly (H_p at the
+        approximations, point_datum): the distances' coupling and the damping of the points'
+        blocks are not in the constraint's C. The linearised residuals do not change (J h = 0): the
+        move is a similarity of photos and points, h at the state the step starts from."""
+        pd, free = self.point_datum, self.free_network.free
+        Hd = pd.similarity(free)
+        a = np.linalg.solve(np.einsum("pia,pib->ab", Hd, Hd), pd.misclosure(step.xyz[pd.index], free))
+        H = pd.photo_similarity(state, self.layout, free)
+        included = self.unknowns.included
+        Hp = (point_datum.point_similarity(xyz[included], pd.centroid, free)
+              * self.unknowns.free[included][:, :, None])
+        step.xyz[included] -= Hp @ a
+        weighted = (self.unknowns.weight > 0) & included[:, None]
+        step.control_hat = np.where(weighted, step.xyz, step.control_hat)
+        return dx - H @ a
+
+    def solve(self, normals: ReducedNormals, solver, state: State, xyz: np.ndarray,
+              undamped: ReducedNormals | None = None, target: bool = True, explain: bool = True) -> solvers.SolveResult:
+        """Solve the reduced camera system of ``normals`` (a datum defect or a singularity
+        explained, _solve_or_explain); a free network by minimum constraints and the
+        S-transformation onto its constraints at (state, xyz) (formed with ``undamped``'s N, default
+        normals'). target: False solves on the constraints without their right-hand side (the checks);
+        explain: False, a plain solve of a control datum (its failures raised as the solver's)."""
+        if self.free_network is None:
+            if not explain:
+                return solver.solve(normals.N, normals.b)
+            return _solve_or_explain(normals, solver, state, self)
+        fn = self.datum_at(state, xyz, (undamped or normals).N)
+        fn = fn if target else replace(fn, target=None)
+        self.network = fn  # the constraints of this solve (the convergence test reads their datum move)
+        try:
+            dx, solved = fn.solve(solver, normals.N, normals.b)
+        except (solvers.SingularNormalMatrix, np.linalg.LinAlgError) as exc:
+            raise NumericalFailure(singular_message(
+                self.project, self.layout, getattr(exc, "column", None),
+                "the free network's reduced normal equations are singular beyond the datum", datum_fixed=False),
+                reason="singular") from exc
+        return solvers.SolveResult(dx, solved.solver, solved.info)
 
     def couple(self, normals: ReducedNormals, kept: list, xyz: np.ndarray) -> None:
         """Add the distances' Woodbury correction (bundle.distances) to normals before finish;
@@ -177,14 +250,15 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
                     obs.plate.copy(), obs.control.copy(), np.zeros(len(problem.pobs)))
     timings = Timings(initial_points=time.perf_counter() - t_start, linearisation_and_reduction=0.0, solve=0.0,
                       back_substitution=0.0)
-    if problem.redundancy < 0:
-        _explain_too_few(problem, now.state, now.xyz)
-    solver = solver_for(options, problem.layout, project)
     history: list[Iteration] = []
     damping = _Damping()
     normals = _assemble_or_none(problem, now.state, now.xyz)
     if normals is None:
         raise NumericalFailure(_not_formed_message(problem), reason="not_finite")
+    problem.set_datum(now.state, normals)
+    if problem.redundancy < 0:
+        _explain_too_few(problem, now.state, now.xyz)
+    solver = solver_for(options, problem.layout, project)
     causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
     status = "iteration_limit"
     while len(history) < options.max_iterations:
@@ -198,6 +272,9 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
 
     t0 = time.perf_counter()
     normals, checks, next_correction = _final_checks(problem, solver, now, normals if damping.lam == 0.0 else None)
+    free_network = None  # a free network: its inner constraints at the solution (the precision's)
+    if problem.free_network is not None:
+        free_network = problem.datum_at(now.state, now.xyz, normals.N, at_solution=True)
     timings.final_checks = time.perf_counter() - t0
     timings.total = time.perf_counter() - t_start
     message = ""
@@ -213,7 +290,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
         state=now.state, offset=problem.offset, n_conditions=int(problem.n_conditions),
         n_observations=observation_count(project, obs, len(problem.pobs)),
         n_parameter_observations=len(problem.pobs), parameter_residuals=now.v_par, N=normals.N, checks=checks,
-        timings=timings, termination=status, termination_message=message,
+        timings=timings, termination=status, termination_message=message, free_network=free_network,
     )
     dist = problem.distances
     residuals = (np.zeros(0) if dist is None else
@@ -278,7 +355,7 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     d = normals.N.diagonal()
     damped = damping.applied(normals)
     try:
-        solved = _solve_or_explain(damped, solver, state, problem)
+        solved = problem.solve(damped, solver, state, xyz, undamped=normals)
     except NumericalFailure:
         if not history or damping.exhausted():
             raise
@@ -288,6 +365,8 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     t1 = time.perf_counter()
     step = _back_substitute(problem, state, xyz, dx, damping.lam, kept=normals.kept,
                             coupling=getattr(normals, "coupling", None))
+    if problem.point_datum is not None:
+        dx = problem.hold_point_datum(state, xyz, dx, step)
     # the kept chunks served their one back substitution (a failed step is assembled afresh): not
     # alive beside the trial's
     normals.kept = damped.kept = None
@@ -301,7 +380,8 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     ee = normals.ee  # the sum of squares where the step started
     predicted, actual = ee - step.vtpv, ee - trial_ee
     lam_step = damping.lam
-    if actual < -ROUND_OFF * ee or not np.isfinite(actual):  # worse: back to the start, more damping
+    # worse: back to the start, more damping
+    if actual < -(ROUND_OFF * ee + problem.cost_floor) or not np.isfinite(actual):
         if damping.exhausted():
             raise NumericalFailure("\n".join([
                 f"the bundle adjustment cannot reduce the sum of squares after iteration {len(history)}: "
@@ -319,6 +399,8 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     timings.add("solve", t1 - t0)
     timings.add("back_substitution", t2 - t1)
     timings.add("linearisation_and_reduction", t3 - t2)
+    if problem.free_network is not None:  # the datum's move, which N does not see (datum.FreeNetwork)
+        step.correction = float(np.hypot(step.correction, problem.network.datum_correction(d)))
     history.append(Iteration(vtpv=new.vtpv, max_correction=step.correction, seconds=t3 - t0,
                              solver_info=solved.info.merged(damping=damping.lam or None),
                              element_correction=max(largest_correction(dx, d, round_off_floor(new.state, layout)),
@@ -343,6 +425,7 @@ LM_START = 1e-4  # first Levenberg-Marquardt factor after a failed step
 LM_MAX = 1e8  # beyond this the step is a gradient step of nothing; give up
 LM_FLOOR = 1e-9  # below this the damping is dropped (plain Gauss-Newton again)
 ROUND_OFF = 1e-10  # a rise of the sum of squares below this fraction is round-off, not a worse step
+COST_ROUND_OFF = 1e-20  # and below this per observation (whitened residuals of 1e-10 sigma)
 
 
 def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
@@ -378,8 +461,8 @@ def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndar
     if normals is None:
         return float("inf")
     try:
-        dx = solver.solve(normals.N, normals.b).dx
-    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
+        dx = problem.solve(normals, solver, state, xyz, explain=False).dx
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError, NumericalFailure):
         return float("inf")
     return _back_substitute(problem, state, xyz, dx, kept=normals.kept,
                             coupling=getattr(normals, "coupling", None)).correction
@@ -528,11 +611,11 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
     btk = float(np.max(np.abs(normals.b) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
     next_correction = None
     try:
-        dx = solver.solve(normals.N, normals.b).dx if len(d) else np.zeros(0)
+        dx = problem.solve(normals, solver, state, xyz, target=False, explain=False).dx if len(d) else np.zeros(0)
         reduced = normals.ee - normals.reduced - float(normals.b @ dx)
         # the undamped step's d^T N d = b_rcs^T dx + sum b_p^T N_pp^-1 b_p (core.convergence.correction_in_sigma)
         next_correction = float(np.sqrt(max(float(normals.b @ dx) + normals.reduced, 0.0))) if len(d) else None
-    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):
+    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError, NumericalFailure):
         reduced = float("nan")
     checks = Checks(max_condition_misclosure_sigma=max_g, max_BTk_sigma=btk,
                     vtpv_reduction_relative_difference=reduction_check(reduced, vtpv), max_point_gradient_sigma=max_gp)

@@ -14,12 +14,12 @@ sums it into N and u and keeps the whitened chunk for the back substitution afte
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 
-from .. import datum, diagnosis, progress, solvers, termination
+from .. import datum, diagnosis, point_datum, progress, solvers, termination
 from ..core.convergence import (ROUNDING_FLOOR, correction_in_sigma, energy_floor, has_converged, largest_correction,
                                 round_off_floor, stop_if_diverging)
 from ..core.explain import (datum_defect_failure, not_finite_message, reduction_check, singular_message,
@@ -211,10 +211,10 @@ def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterOb
 
 
 def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork) -> solvers.SolveResult:
-    """Minimum constraints, then the S-transformation onto the inner constraints (datum.FreeNetwork)."""
-    N_min, mask = fn.minimum_constraint_system(acc.N)
-    solved = solver.solve(N_min, -acc.u * (1.0 - mask))
-    return solvers.SolveResult(fn.transform(solved.dx), solved.solver, solved.info)
+    """Minimum constraints, then the S-transformation onto the inner constraints (datum.FreeNetwork,
+    with its right-hand side)."""
+    dx, solved = fn.solve(solver, acc.N, -acc.u)
+    return solvers.SolveResult(dx, solved.solver, solved.info)
 
 
 def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
@@ -235,7 +235,8 @@ def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, stat
 class _Problem:
     """Everything fixed during the adjustment: the reduced frame, the unknowns' layout, the point
     groups and observations, the pattern of N, the redundancy, and the free network's inner
-    constraints when the datum is "inner"."""
+    constraints when the datum is "inner" (on the photos) or "inner-points" (on object points:
+    ``point_datum``, the datum points and their approximations)."""
 
     def __init__(self, project: Project, options: AdjustmentOptions):
         self.project, self.options = project, options
@@ -252,7 +253,12 @@ class _Problem:
         self.assembly = Assembly.of(self.batches, self.initial_state, self.layout, options.chunk_size)
         if options.conditions.scale_form == "xz":
             _require_strip_along_x(self.batches, self.initial_state)
-        self.free_network = self._free_network() if options.datum == "inner" else None
+        self.free_network = self._free_network() if options.datum != "control" else None
+        self.point_datum = None
+        if self.free_network is not None and options.datum == "inner-points":
+            self.point_datum = point_datum.PointDatum.of(project, options.datum_points, self.batches,
+                                                         self.initial_state, self.obs, self.offset)
+            point_datum.check_directions(self.point_datum, self.free_network, self.initial_state)
         n_datum = 0 if self.free_network is None else len(self.free_network)
         self.redundancy = self.n_conditions + len(self.pobs) - self.layout.n_unknowns + n_datum
         if self.redundancy < 0:
@@ -264,6 +270,16 @@ class _Problem:
 
     def assemble(self, sweep: Sweep, iteration: int, keep: bool = False):
         return _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep)
+
+    def datum_at(self, state: State, N, plate_hat: np.ndarray, at_solution: bool = False):
+        """The free network's constraints at ``state`` (N there; plate_hat: the adjusted plate
+        coordinates, whose rays give the datum points), with the right-hand side that makes the
+        datum independent of the iteration's path (datum.FreeNetwork.at, point_datum); at_solution:
+        the point datum's inner constraints at the adjusted points (its precision)."""
+        if self.point_datum is None:
+            return self.free_network.at(state, self.layout, N, self.initial_state)
+        xyz = self.point_datum.intersection(state, plate_hat, self.obs)
+        return self.point_datum.free_network(self.free_network, state, self.layout, self.obs, xyz, at_solution)
 
     def _at_start(self):
         return self.assemble(self.sweep(self.initial_state, self.obs.plate, self.obs.control), 1)
@@ -324,7 +340,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     acc = problem.assemble(final, len(history) + 1)
     free_network = problem.free_network
     if free_network is not None:
-        free_network = free_network.at(now.state, problem.layout, acc.N)
+        free_network = problem.datum_at(now.state, acc.N, now.plate_hat, at_solution=True)
     checks, next_correction = _final_checks(final, acc, now.vtpv, problem.pobs, now.v_par, free_network, solver)
     timings.final_checks = time.perf_counter() - t0
     timings.total = time.perf_counter() - t_start
@@ -353,7 +369,7 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     acc = problem.assemble(sweep, len(history) + 1, keep=True)
     t1 = time.perf_counter()
     if problem.free_network is not None:
-        problem.free_network = problem.free_network.at(state, layout, acc.N)
+        problem.free_network = problem.datum_at(state, acc.N, now.plate_hat)
     solved = _solve_or_explain(acc, solver, state, layout, problem.project, problem.offset, problem.free_network,
                                diagnose=not history)
     dx = solved.dx
@@ -370,6 +386,8 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     timings.add("back_substitution", t3 - t2)
     if len(dx):
         crit = correction_in_sigma(dx, acc.N)
+        if problem.free_network is not None:  # the datum's move, which N does not see (datum.FreeNetwork)
+            crit = float(np.hypot(crit, problem.free_network.datum_correction(acc.N.diagonal())))
         element_floor, n_diag = round_off_floor(state, layout), acc.N.diagonal()
         floor = energy_floor(layout.n_unknowns, element_floor, n_diag)
         element = largest_correction(dx, n_diag, element_floor)
@@ -470,7 +488,7 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
         if free_network is None:
             dx = direct.solve(acc.N, acc.u).dx
         else:
-            dx = -_solve_free_network(acc, direct, free_network).dx
+            dx = -_solve_free_network(acc, direct, replace(free_network, target=None)).dx
         reduced = acc.wPw - float(acc.u @ dx)
         next_correction = correction_in_sigma(dx, acc.N)
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError):

@@ -17,8 +17,9 @@ METHODS = ("conditions", "bundle", "sequential")
 # approximate values: as given in photos.csv, or from the sequential method (rough values suffice)
 INITS = ("given", "sequential")
 # "control": the datum comes from control and observed elements (a defect is an error);
-# "inner": a free network, the directions the control leaves free fixed by inner constraints.
-DATUMS = ("control", "inner")
+# "inner": a free network, the directions the control leaves free fixed by inner constraints on the
+# photos; "inner-points": by inner constraints on object points (striptri.point_datum).
+DATUMS = ("control", "inner", "inner-points")
 SCALE_FORMS = ("3d", "xz")
 PROCEDURES = (1, 2)
 DIRECTIONS = ("forward", "backward")
@@ -109,7 +110,10 @@ class AdjustmentOptions:
     max_iterations, tolerance: converged when every correction is below ``tolerance`` times its
     standard deviation (core.convergence), within max_iterations.
     chunk_size: points linearised at once (memory, not results).
-    datum: "control" or "inner" (a free network; the method of conditions only, for now).
+    datum: "control", "inner" (a free network, inner constraints on the photos) or "inner-points"
+    (on object points; the conditions and the bundle method).
+    datum_points: the ids of the datum points of "inner-points" (empty: every point of the
+    adjustment; else at least three).
     init: approximate values "given" (photos.csv) or "sequential" (from the sequential method).
     keep_unconverged: return an adjustment that stopped at its iteration limit as a result, with
     termination "iteration_limit"; by default it is a NumericalFailure (an unconverged adjustment
@@ -123,6 +127,7 @@ class AdjustmentOptions:
     tolerance: float = 1e-8
     chunk_size: int = 4096
     datum: str = "control"
+    datum_points: tuple = ()
     init: str = "given"
     keep_unconverged: bool = False
     conditions: ConditionsOptions = field(default_factory=ConditionsOptions)
@@ -138,9 +143,13 @@ class AdjustmentOptions:
             raise ValueError(f"unknown datum {self.datum!r}; choose one of {', '.join(DATUMS)}")
         if self.method == "sequential" and self.datum != "control":
             raise ValueError("the sequential method takes its datum from control; --datum inner is not for it")
-        if self.datum != "control" and self.method == "bundle":
-            raise ValueError("the free-network datum (inner) is available with the conditions method only; "
-                             "use --method conditions")
+        if self.datum_points and self.datum != "inner-points":
+            raise ValueError("datum points are for the point datum: give it as well (--datum inner-points, or "
+                             "[datum] mode = \"inner-points\")")
+        if self.datum_points and len(self.datum_points) < 3:
+            raise ValueError(f"the point datum needs at least three datum points (given: {', '.join(self.datum_points)})")
+        if len(set(self.datum_points)) != len(self.datum_points):
+            raise ValueError("a datum point is given twice")
         solvers.resolve_solver(self.solver, 0)
         if self.max_iterations < 1:
             raise ValueError("max_iterations must be at least 1")

@@ -78,7 +78,7 @@ TOML_KEYS = {
     "units": ("angles", "rotation", "plate"),
     "defaults": ("sigma_image",),
     "adjustment": ("method", "solver", "max_iterations", "cost_tolerance"),
-    "datum": ("mode",),
+    "datum": ("mode", "points"),
     "corrections": ("earth_curvature", "refraction", "earth_radius"),
     GNSS_SECTION: GNSS_TOML_KEYS,  # GNSS shift and drift (io.gnss_reader)
     "coordinates": KEYS,  # striptri.crs.settings
@@ -191,6 +191,7 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
     notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids), active)
              if "image_points.csv" in tables else []) + film_notes + files.unread_notes()
     inactive = None if active.all() else _rows(image_points, ~active)
+    _check_datum_points(files, settings, points)
     return model.Project(
         cameras=cameras,
         photos=photos,
@@ -299,6 +300,16 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
     if isinstance(earth_radius, bool) or not isinstance(earth_radius, (int, float)) or not low <= earth_radius <= high:
         raise fail("corrections", "earth_radius", f"{earth_radius!r} is not a radius of the Earth in metres "
                                                   f"(accepted: {low:.0f} to {high:.0f})")
+    datum = choice("datum", "mode", DATUMS, defaults.datum)
+    datum_points = get("datum", "points", [])
+    if not isinstance(datum_points, list) or not all(isinstance(p, str) for p in datum_points):
+        raise fail("datum", "points", f"{datum_points!r} is not a list of point ids (strings)")
+    if datum_points and datum != "inner-points":
+        raise fail("datum", "points", "datum points are for mode = \"inner-points\" (the point datum)")
+    if datum_points and len(datum_points) < 3:
+        raise fail("datum", "points", f"{len(datum_points)} datum point(s): the point datum needs at least three")
+    if len(set(datum_points)) != len(datum_points):
+        raise fail("datum", "points", "a point is given twice")
     coordinates = None
     if "coordinates" in data:
         coordinates = parse_coordinates(data["coordinates"], path.parent, lambda key, reason: fail("coordinates", key, reason),
@@ -318,12 +329,24 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
         method=choice("adjustment", "method", METHODS, defaults.method),
         solver=choice("adjustment", "solver", SOLVERS, defaults.solver),
         max_iterations=max_iterations,
-        datum=choice("datum", "mode", DATUMS, defaults.datum),
+        datum=datum,
+        datum_points=tuple(datum_points),
         cost_tolerance=float(cost_tolerance),
         plate_unit=choice("units", "plate", model.PLATE_UNITS, defaults.plate_unit,
                           " (the unit of c and of the plate coordinates: mm of the film or sensor, px for the "
                           "pixels of the image)"),
     )
+
+
+def _check_datum_points(files, settings: model.ProjectSettings, points: model.ObjectPoints) -> None:
+    """[datum] points must name object points of the project (InputError at the key's line)."""
+    known = set(map(str, points.ids))
+    unknown = [p for p in settings.datum_points if p not in known]
+    if unknown:
+        path = files.path("project.toml")
+        text = decode_text(path, files.content("project.toml"))
+        raise InputError(path, _toml_line(text, "datum", "points"),
+                         f"[datum] points: {', '.join(unknown)} not among the object points of the project")
 
 
 def _parse_toml(path: Path, text: str) -> dict:

@@ -84,6 +84,9 @@ def settings_toml(settings: model.ProjectSettings) -> str:
     are not the default, so that the simulator's projects in mm keep their files)."""
     defaults = model.ProjectSettings()
     datum = "" if settings.datum == defaults.datum else f'\n[datum]\nmode = "{settings.datum}"\n'
+    if settings.datum_points:  # TOML basic strings: backslash and quote escaped
+        quoted = ('"' + p.replace("\\", "\\\\").replace('"', '\\"') + '"' for p in settings.datum_points)
+        datum += "points = [" + ", ".join(quoted) + "]\n"
     plate = "" if settings.plate_unit == defaults.plate_unit else f'plate = "{settings.plate_unit}"\n'
     return (
         "# striptri project settings (docs/file-formats.md)\n"
