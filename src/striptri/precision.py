@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .conditions_method.adjust import Sweep
+from .bundle import precision as collinearity_form
 from .core.observations import observations_of
 from .core.options import AdjustmentOptions
 from .core.result import AdjustmentResult
@@ -51,14 +52,24 @@ class ResidualCofactors:
 
 
 def residual_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions(),
-                       plate_blocks: bool = False) -> ResidualCofactors:
+                       plate_blocks: bool = False, form: str = "auto") -> ResidualCofactors:
     """Diagonal of Qvv for every observation, at the converged solution; with ``plate_blocks`` also
     each group's whole plate block of Qvv from the same products (the correlations of its w-tests,
     reliability.separability), at a small fraction of the pass's cost.
 
+    form: "conditions" (below), "collinearity" (bundle.precision: points as unknowns, for a bundle
+    result) or "auto": the collinearity form where ``bundle.precision.applies``, else the conditions
+    form. Both give the same numbers (tests/test_bundle_precision.py).
+
     Per batch of groups, by matrix products (no einsum of three operands): ``M = (A Q) A^T``,
     ``B Qxx B^T`` by Covariance.group_forms (Qxx read by blocks of photo pairs), ``K = M^-1 (M - B Qxx
     B^T) M^-1`` and ``qvv_o = sum_c (K A Q)_co (A Q)_co``. Memory is that of one chunk of groups."""
+    if form not in ("auto", "conditions", "collinearity"):
+        raise ValueError(f"unknown form {form!r}")
+    if form == "collinearity" or (form == "auto" and collinearity_form.applies(project, result)):
+        c = collinearity_form.residual_cofactors(project, result, plate_blocks)
+        return ResidualCofactors(plate=c.plate, control=c.control, parameters=_parameter_cofactors(project, result),
+                                 plate_blocks=c.plate_blocks)
     obs = observations_of(project, result.offset)
     sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
                   result.control_adjusted, options)
@@ -79,13 +90,18 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
         q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
         if chunk.has_control:
             q_control[chunk.point_index] = qvv[:, 2 * k :]
+    return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
+                             plate_blocks=blocks)
+
+
+def _parameter_cofactors(project: Project, result: AdjustmentResult) -> np.ndarray:
+    """qvv (p,) of the observed elements: ``sigma^2 - g^T Qxx g`` (g the gradient of each)."""
     pobs = build_parameter_observations(project, result.offset)
-    q_par = np.zeros(len(pobs))
-    if len(pobs):
-        _, grad, cols = pobs.evaluate(result.state, result.layout, sweep.T)
-        Qloc = cov.entries(cols[:, :, None], cols[:, None, :])
-        q_par = pobs.sigma**2 - np.einsum("pi,pi->p", (Qloc @ grad[:, :, None])[:, :, 0], grad)
-    return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par, plate_blocks=blocks)
+    if not len(pobs):
+        return np.zeros(0)
+    _, grad, cols = pobs.evaluate(result.state, result.layout, result.layout.rotation_maps(result.state))
+    Qloc = result.covariance.entries(cols[:, :, None], cols[:, None, :])
+    return pobs.sigma**2 - np.einsum("pi,pi->p", (Qloc @ grad[:, :, None])[:, :, 0], grad)
 
 
 def _group_slots(G: np.ndarray, chunk, result: AdjustmentResult) -> list:
