@@ -289,3 +289,17 @@ def test_a_free_network_keeps_the_conditions_form():
     assert not collinearity_form.applies(free, as_bundle)
     np.testing.assert_array_equal(residual_cofactors(free, as_bundle).plate,
                                   residual_cofactors(free, as_bundle, form="conditions").plate)
+
+
+@pytest.mark.parametrize("name", ["strip, held control, single-photo and check points",
+                                  "pair, one-photo points of every kind", "close range"])
+def test_points_with_conditions_are_those_build_batches_batches(solved, name):
+    from striptri.groups import build_batches, points_with_conditions
+
+    project, _ = solved(name)
+    batched = np.zeros(len(project.points), dtype=bool)
+    for batch in build_batches(project):
+        batched[batch.point_index] = True
+    np.testing.assert_array_equal(points_with_conditions(project), batched)
+    if name.startswith("pair, one-photo"):
+        assert not batched.all()  # one-photo tie and height points have no conditions

@@ -45,8 +45,9 @@ from ..core.observations import observations_of
 from ..core.result import AdjustmentResult
 from ..covariance import ray_slots
 from ..errors import NumericalFailure
+from ..groups import points_with_conditions
 from ..model import Project
-from ..triangulation import Triangulated, ray_terms, safe_inverse
+from ..triangulation import Triangulated, ray_terms
 
 METHOD = "bundle"
 MAX_ENTRIES = 1 << 21  # entries of the gathered Qcc blocks (m D^2) of one chunk of points (16 MB)
@@ -90,11 +91,9 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     state, layout = result.state, result.layout
     gather = _qcc_reader(result)
     given = project.points.given_axes
-    fixed = given & ~(obs.q_control > 0)
     weighted = given & (obs.q_control > 0)
-    p_given = np.where(weighted, 1.0 / np.where(weighted, obs.q_control, 1.0), 0.0)
     counts = np.bincount(ip.point_index, minlength=n_points)
-    with_conditions = 2 * counts - (3 - given.sum(axis=1)) > 0  # groups.condition_count
+    with_conditions = points_with_conditions(project)
     tri = triangulate_adjusted(project, result)  # X^: the adjusted rays' intersection, N_pp^-1
     order = np.lexsort((ip.photo_index, ip.point_index))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -106,6 +105,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     q_control = np.zeros_like(obs.control)
     cov_orientation = np.zeros((n_points, 3, 3))
     blocks = [] if plate_blocks else None
+    _check_determined(project, with_conditions & ~tri.determined)
     wanted = with_conditions | tri.determined  # a determined point without conditions: its (90) only
     for k in np.unique(counts[wanted]):
         k = int(k)
@@ -121,7 +121,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
                 _, dX, dO, drot, dcam = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
                                                   tri.xyz[sel], result.plate_adjusted[rows], obs.plate[rows], lens)
             Jc = np.concatenate([dO, drot @ T[ph], dcam[..., elements]], 3)  # (m, k, 2, 6 + e)
-            Qm, pJX = _point_part(project, sel, dX, 1.0 / obs.q_plate[rows], p_given[sel], ~fixed[sel])
+            Qm, pJX = tri.cov_measurement[sel], dX * (1.0 / obs.q_plate[rows])[..., None]
             chunk = _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], layout.photo_cols,
                                    camera_cols, obs.q_plate[rows], full=blocks is not None)
             cov_orientation[sel] = chunk.orientation
@@ -148,27 +148,18 @@ def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
     return residual_cofactors(project, result).points
 
 
-def _point_part(project: Project, sel: np.ndarray, dX: np.ndarray, p: np.ndarray, p_given: np.ndarray,
-                free: np.ndarray):
-    """N_pp^-1 (m, 3, 3) of the points ``sel`` (held axes: zero rows and columns) and the rays'
-    ``P_a Jp_a`` (m, k, 2, 3). dX: (m, k, 2, 3) derivatives of the rays by the point; p: (m, k, 2)
-    plate weights; p_given: (m, 3) weights of given coordinates (0: none); free: (m, 3) not held.
-    A point whose N_pp is singular or not finite is a NumericalFailure naming it."""
-    pJX = dX * p[..., None]
-    N = np.einsum("mkai,mkaj->mij", dX, pJX) + p_given[:, :, None] * np.eye(3)
-    keep = free[:, :, None] & free[:, None, :]
-    N = np.where(keep, N, 0.0) + (~free)[:, :, None] * np.eye(3)
-    with np.errstate(all="ignore"):
-        Qm, ok = safe_inverse(N)
-    if not ok.all():
-        bad = sel[~ok]
-        names = [project.points.ids[i] for i in bad[:8]]
-        raise NumericalFailure(
-            "the cofactors of the residuals cannot be computed: the rays of point"
-            f"{'s' if len(bad) > 1 else ''} {', '.join(names)}{' ...' if len(bad) > len(names) else ''} do not "
-            "determine it at the adjusted values (rays along one line, or standard deviations of zero or beyond "
-            "double precision).")
-    return Qm * keep, pJX
+def _check_determined(project: Project, bad: np.ndarray) -> None:
+    """A NumericalFailure naming the points ``bad`` (n_pt,) bool: points with conditions that their
+    rays do not determine at the adjusted values (the conditions form fails on them too)."""
+    if not bad.any():
+        return
+    bad = np.flatnonzero(bad)
+    names = [project.points.ids[i] for i in bad[:8]]
+    raise NumericalFailure(
+        "the cofactors of the residuals cannot be computed: the rays of point"
+        f"{'s' if len(bad) > 1 else ''} {', '.join(names)}{' ...' if len(bad) > len(names) else ''} do not "
+        "determine it at the adjusted values (rays along one line, or standard deviations of zero or beyond "
+        "double precision).")
 
 
 @dataclass
