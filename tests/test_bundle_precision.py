@@ -303,3 +303,23 @@ def test_points_with_conditions_are_those_build_batches_batches(solved, name):
     np.testing.assert_array_equal(points_with_conditions(project), batched)
     if name.startswith("pair, one-photo"):
         assert not batched.all()  # one-photo tie and height points have no conditions
+
+
+def test_covariance_read_whole_by_solves_equals_its_entries(solved):
+    """Covariance.dense_solved (n solves with the factor) and Covariance.set_blocks (blocks of set
+    pairs) read the same Qxx as Covariance.entries."""
+    from striptri.covariance import Slots
+
+    _, result = solved("close range, two cameras")
+    cov = result.covariance
+    dense = cov.dense()
+    np.testing.assert_allclose(cov.dense_solved(), dense, rtol=0, atol=1e-12 * np.abs(dense).max())
+    lay = result.layout
+    photos = np.array([[0, 3, 5], [7, 7, 2]])
+    cams = np.array([[0], [1]])
+    parts = [Slots(None, photos, lay.photo_cols), Slots(None, cams, lay.camera_cols[:, lay.camera_elements])]
+    idx = np.concatenate([lay.photo_cols[photos].reshape(2, -1), lay.camera_cols[:, lay.camera_elements][cams].reshape(2, -1)], 1)
+    Q = np.zeros((len(dense) + 1,) * 2)
+    Q[:-1, :-1] = dense
+    np.testing.assert_allclose(cov.set_blocks(parts), Q[idx[:, :, None], idx[:, None, :]], rtol=0,
+                               atol=1e-12 * np.abs(dense).max())
