@@ -79,11 +79,13 @@ class CollinearityCofactors:
 _last: tuple = ()  # (weak references to the project and the result, their Triangulated) of the last pass
 
 
-def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks: bool = False) -> CollinearityCofactors:
+def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks: bool = False,
+                       residuals: bool = True) -> CollinearityCofactors:
     """Residual cofactors of the plate and control observations and the points' cofactors of a
     bundle result by the collinearity form (module doc). Raises NumericalFailure naming the points
     with conditions whose rays do not determine them at the adjusted values. The points are kept
-    for :func:`points_of` (weakly: the last pass only)."""
+    for :func:`points_of` (weakly: the last pass only). residuals=False: the points only (plate
+    and control zero)."""
     global _last
     ip = project.image_points
     n_points = len(project.points)
@@ -105,8 +107,9 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     q_control = np.zeros_like(obs.control)
     cov_orientation = np.zeros((n_points, 3, 3))
     blocks = [] if plate_blocks else None
-    _check_determined(project, with_conditions & ~tri.determined)
-    wanted = with_conditions | tri.determined  # a determined point without conditions: its (90) only
+    if residuals:
+        _check_determined(project, with_conditions & ~tri.determined)
+    wanted = tri.determined  # with the points with conditions; one without: its (90) only
     for k in np.unique(counts[wanted]):
         k = int(k)
         sel_k = np.flatnonzero(wanted & (counts == k))
@@ -123,8 +126,10 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
             Jc = np.concatenate([dO, drot @ T[ph], dcam[..., elements]], 3)  # (m, k, 2, 6 + e)
             Qm, pJX = tri.cov_measurement[sel], dX * (1.0 / obs.q_plate[rows])[..., None]
             chunk = _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], layout.photo_cols,
-                                   camera_cols, obs.q_plate[rows], full=blocks is not None)
+                                   camera_cols, obs.q_plate[rows], full=blocks is not None, residuals=residuals)
             cov_orientation[sel] = chunk.orientation
+            if not residuals:
+                continue
             cond = with_conditions[sel]
             q_plate[rows[cond]] = chunk.diagonal[cond]
             q_control[sel] = np.where(weighted[sel] & cond[:, None],
@@ -145,7 +150,7 @@ def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
     when it was over the same project and result (the pipeline's reliability measures), else a pass."""
     if _last and _last[0]() is project and _last[1]() is result:
         return _last[2]
-    return residual_cofactors(project, result).points
+    return residual_cofactors(project, result, residuals=False).points
 
 
 def _check_determined(project: Project, bad: np.ndarray) -> None:
@@ -164,7 +169,7 @@ def _check_determined(project: Project, bad: np.ndarray) -> None:
 
 @dataclass
 class _RayChunk:
-    diagonal: np.ndarray  # (m, k, 2) qvv of the plate coordinates
+    diagonal: np.ndarray | None  # (m, k, 2) qvv of the plate coordinates (None: not asked)
     Q_pp: np.ndarray  # (m, 3, 3)
     orientation: np.ndarray  # (m, 3, 3) its orientation part G Qcc G^T
     block: np.ndarray | None  # (m, 2k, 2k) the plate block of Qvv, (x, y) per ray
@@ -189,10 +194,12 @@ def _qcc_reader(result: AdjustmentResult):
     return gather
 
 
-def _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, camera, photo_cols, camera_cols, q, full: bool) -> _RayChunk:
+def _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, camera, photo_cols, camera_cols, q, full: bool,
+                   residuals: bool = True) -> _RayChunk:
     """Qvv of the rays of m points of k rays each and their Q_pp (module doc). Jc: (m, k, 2, 6 + e);
     gather: _qcc_reader's; dX, pJX: (m, k, 2, 3); Qm: (m, 3, 3) N_pp^-1; ph, camera: (m, k) photo and camera of each ray;
-    photo_cols (n_photos, 6), camera_cols (n_cameras, e): columns of Qcc; q: (m, k, 2) plate cofactors."""
+    photo_cols (n_photos, 6), camera_cols (n_cameras, e): columns of Qcc; q: (m, k, 2) plate cofactors.
+    full: also the whole plate block of Qvv; residuals=False: Q_pp and its orientation part only."""
     m, k = ph.shape
     # G per ray: -N_pp^-1 Jp_a^T P_a Jc_a, (m, 3, k, 6 + e); ray_slots makes the point's unknown sets
     # (its k photos, then its camera once when its rays share one, else one camera set per ray)
@@ -203,6 +210,8 @@ def _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, camera, photo_cols, camera_cols,
     QG = Q @ np.swapaxes(Gf, 1, 2)  # (m, D, 3): Qcc G^T
     GQG = Gf @ QG
     Q_pp = Qm + GQG
+    if not residuals:
+        return _RayChunk(None, Q_pp, GQG, None)
     # Jc Qcc (m, 2k, D): the photo part of ray a reads the rows of its photo set a, the camera part
     # the rows of its camera set
     D = Q.shape[1]
