@@ -13,7 +13,7 @@ the a-priori sigma0 = 1 (the plate sigmas are taken as known).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -67,12 +67,52 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
     if form not in ("auto", "conditions", "collinearity"):
         raise ValueError(f"unknown form {form!r}")
     if form == "collinearity" or (form == "auto" and collinearity_form.applies(project, result)):
-        c = collinearity_form.residual_cofactors(project, result, plate_blocks)
-        return ResidualCofactors(plate=c.plate, control=c.control, parameters=_parameter_cofactors(project, result),
-                                 plate_blocks=c.plate_blocks)
+        return _collinearity_cofactors(project, result, options, plate_blocks)
+    q_plate, q_control, blocks = _conditions_cofactors(project, result, options, plate_blocks)
+    return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
+                             plate_blocks=blocks)
+
+
+def _collinearity_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
+                            plate_blocks: bool) -> ResidualCofactors:
+    """The collinearity form (bundle.precision), with the points where its subtraction ``q - J Qxx
+    J^T`` would lose digits (a redundancy number below bundle.precision.R_SUBTRACTION) taken from
+    the conditions form, which forms their qvv without it."""
+    c = collinearity_form.residual_cofactors(project, result, plate_blocks)
+    q_plate, q_control, blocks = c.plate, c.control, c.plate_blocks
+    if c.imprecise.any():
+        q_p, q_c, b = _conditions_cofactors(project, result, options, plate_blocks, points=c.imprecise)
+        rows = c.imprecise[project.image_points.point_index]
+        q_plate[rows] = q_p[rows]
+        q_control[c.imprecise] = q_c[c.imprecise]
+        if blocks is not None:  # each chunk without its imprecise points, then theirs
+            point_of = project.image_points.point_index
+            kept = []
+            for r, q in blocks:
+                keep = ~c.imprecise[point_of[r[:, 0]]]
+                if keep.any():
+                    kept.append((r[keep], q[keep]))
+            blocks = kept + b
+    return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
+                             plate_blocks=blocks)
+
+
+def _conditions_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
+                          plate_blocks: bool, points: np.ndarray | None = None):
+    """The conditions form (residual_cofactors' doc) of every group, or of the groups of the points
+    ``points`` (n_pt,) bool. -> (q_plate (m_ip, 2), q_control (n_pt, 3), blocks or None)."""
     obs = observations_of(project, result.offset)
-    sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
-                  result.control_adjusted, options)
+    if points is None:
+        batches = build_batches(project)
+    else:  # the batches of the points' own rows (a group's chain depends on its rows only), rows mapped back
+        ip = project.image_points
+        rows = np.flatnonzero(points[ip.point_index])
+        own = replace(project, image_points=replace(ip, photo_index=ip.photo_index[rows],
+                                                    point_index=ip.point_index[rows], xy=ip.xy[rows],
+                                                    sigma_xy=ip.sigma_xy[rows]))
+        batches = [replace(b, image_rows=rows[b.image_rows]) for b in build_batches(own)]
+    sweep = Sweep(batches, result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted,
+                  options)
     cov = result.covariance
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
@@ -90,8 +130,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
         q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
         if chunk.has_control:
             q_control[chunk.point_index] = qvv[:, 2 * k :]
-    return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
-                             plate_blocks=blocks)
+    return q_plate, q_control, blocks
 
 
 def _parameter_cofactors(project: Project, result: AdjustmentResult) -> np.ndarray:

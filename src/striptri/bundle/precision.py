@@ -52,6 +52,10 @@ from ..triangulation import Triangulated, ray_terms
 METHOD = "bundle"
 MAX_ENTRIES = 1 << 21  # entries of the gathered Qcc blocks (m D^2) of one chunk of points (16 MB)
 DENSE_UNKNOWNS = 2048  # up to this many unknowns Qcc is read once whole (32 MB) and gathered from
+# qvv = q - J Qxx J^T is exact to a few eps of q: a redundancy number r keeps ~ -log10(r / 1e-15)
+# digits. Points with a coordinate below this r are marked imprecise (at worst ~1e-11 relative here);
+# precision.residual_cofactors takes them from the conditions form, which has no subtraction.
+R_SUBTRACTION = 1e-4
 
 
 def applies(project: Project, result: AdjustmentResult) -> bool:
@@ -66,7 +70,8 @@ class CollinearityCofactors:
     """plate (m_ip, 2): qvv of the plate coordinates (0 for the rows of points without conditions);
     control (n_pt, 3): qvv of the weighted given coordinates (0 elsewhere); plate_blocks: when asked,
     per chunk (image_rows (m, k), Qvv (m, 2k, 2k)) with (x, y) per ray in the order of image_rows
-    (precision.ResidualCofactors.plate_blocks); points: triangulation.Triangulated, the points with
+    (precision.ResidualCofactors.plate_blocks); imprecise: the points whose qvv lost digits to the
+    subtraction (R_SUBTRACTION); points: triangulation.Triangulated, the points with
     Schmid's (90) cofactors (measurement part N_pp^-1, orientation part G Qcc G^T), as
     adjusted_points.triangulate_adjusted(..., orientation_part=True) gives them."""
 
@@ -74,6 +79,7 @@ class CollinearityCofactors:
     control: np.ndarray
     plate_blocks: list | None
     points: Triangulated
+    imprecise: np.ndarray  # (n_pt,) bool: points with a plate or weighted control r below R_SUBTRACTION
 
 
 _last: tuple = ()  # (weak references to the project and the result, their Triangulated) of the last pass
@@ -140,7 +146,11 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
                           cov_orientation=np.where(tri.determined[:, None, None], cov_orientation, 0.0),
                           determined=tri.determined)
     _last = (weakref.ref(project), weakref.ref(result), points)
-    return CollinearityCofactors(q_plate, q_control, blocks, points)
+    small = np.zeros(n_points, dtype=bool)
+    if residuals:
+        np.logical_or.at(small, ip.point_index, (q_plate < R_SUBTRACTION * obs.q_plate).any(axis=1))
+        small |= (weighted & (q_control < R_SUBTRACTION * obs.q_control)).any(axis=1)
+    return CollinearityCofactors(q_plate, q_control, blocks, points, small & with_conditions)
 
 
 def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
