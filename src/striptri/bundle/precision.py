@@ -28,7 +28,10 @@ within MAX_ENTRIES.
 
 At convergence (adjusted rays that meet in X^) both forms are the same linear model: the
 conditions are the collinearity equations with the point eliminated (A Jp = 0, B = -A Jc), so the
-numbers agree to rounding (tests/test_bundle_precision.py). Used by precision.residual_cofactors for
+numbers agree to rounding (tests/test_bundle_precision.py), except that the subtraction ``q - J Qxx J^T``
+loses digits where the redundancy number is tiny: such points are marked ``imprecise``
+(R_SUBTRACTION) and precision.residual_cofactors takes them from the conditions form. Used by
+precision.residual_cofactors for
 a bundle result without distances (their observations couple points) and without a free network
 (its Qxx is not the reduced system's inverse): :func:`applies`.
 """
