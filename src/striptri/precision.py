@@ -9,6 +9,10 @@ groups: the cofactor matrix of the residuals of each group,
 its diagonal gives the redundancy numbers ``r_i = qvv_i / q_i`` (they add up to the redundancy)
 and the normalised residuals ``w_i = v_i / (sigma_prior sqrt(qvv_i))`` of Baarda's w-test, with
 the a-priori sigma0 = 1 (the plate sigmas are taken as known).
+
+A bundle result (without distances or free network) takes the same numbers from the collinearity
+form, points as unknowns, O(k^2) per point of k rays instead of O(k^3) (bundle.precision;
+``residual_cofactors(form=...)``).
 """
 
 from __future__ import annotations
