@@ -74,6 +74,14 @@ def condition_count(kind: int, k: int) -> int:
     return max(0, 2 * k - (3 - d))
 
 
+def points_with_conditions(project: Project) -> np.ndarray:
+    """(n_pt,) True for the points that form a group (condition_count > 0 for their kind and rays):
+    those build_batches batches, without building the batches."""
+    counts = np.bincount(project.image_points.point_index, minlength=len(project.points))
+    given = given_axes(adjusted_kind(project.points.kind)).reshape(len(project.points), 3)
+    return 2 * counts - (3 - given.sum(axis=1)) > 0
+
+
 def build_batches(project: Project) -> list[GroupBatch]:
     """Group the image points by object point and batch the groups by shape."""
     ip = project.image_points

@@ -20,6 +20,7 @@ import numpy as np
 
 from . import balanced, covariance_export, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
 from .adjusted_points import triangulate_adjusted
+from .bundle import precision as collinearity_form
 from .bundle.distances import summary_entry as distances_summary
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
@@ -359,7 +360,10 @@ def blunder_summary(det) -> dict:
 
 def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulated:
     """Ground points from the adjusted rays, with Schmid's (90) precision split
-    (adjusted_points.triangulate_adjusted with the orientation part)."""
+    (adjusted_points.triangulate_adjusted with the orientation part; of a bundle result by the
+    collinearity form, bundle.precision.points_of, kept from the reliability measures' pass)."""
+    if collinearity_form.applies(project, result):
+        return collinearity_form.points_of(project, result)
     # the points joined by distances.csv intersected together (joint_groups.joint_point_precision)
     return joint_point_precision(project, result, triangulate_adjusted(project, result, orientation_part=True))
 

@@ -9,15 +9,20 @@ groups: the cofactor matrix of the residuals of each group,
 its diagonal gives the redundancy numbers ``r_i = qvv_i / q_i`` (they add up to the redundancy)
 and the normalised residuals ``w_i = v_i / (sigma_prior sqrt(qvv_i))`` of Baarda's w-test, with
 the a-priori sigma0 = 1 (the plate sigmas are taken as known).
+
+A bundle result (without distances or free network) takes the same numbers from the collinearity
+form, points as unknowns, O(k^2) per point of k rays instead of O(k^3) (bundle.precision;
+``residual_cofactors(form=...)``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .conditions_method.adjust import Sweep
+from .bundle import precision as collinearity_form
 from .core.observations import observations_of
 from .core.options import AdjustmentOptions
 from .core.result import AdjustmentResult
@@ -57,18 +62,69 @@ class ResidualCofactors:
 
 
 def residual_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions = AdjustmentOptions(),
-                       plate_blocks: bool = False) -> ResidualCofactors:
+                       plate_blocks: bool = False, form: str = "auto") -> ResidualCofactors:
     """Diagonal of Qvv for every observation, at the converged solution; with ``plate_blocks`` also
     each group's whole plate block of Qvv from the same products (the correlations of its w-tests,
     reliability.separability), at a small fraction of the pass's cost.
 
+    form: "conditions" (below), "collinearity" (bundle.precision: points as unknowns, for a bundle
+    result) or "auto": the collinearity form where ``bundle.precision.applies``, else the conditions
+    form. Both give the same numbers (tests/test_bundle_precision.py).
+
     Per batch of groups, by matrix products (no einsum of three operands): ``M = (A Q) A^T``,
     ``B Qxx B^T`` by Covariance.group_forms (Qxx read by blocks of photo pairs), ``K = M^-1 (M - B Qxx
     B^T) M^-1`` and ``qvv_o = sum_c (K A Q)_co (A Q)_co``. Memory is that of one chunk of groups."""
+    if form not in ("auto", "conditions", "collinearity"):
+        raise ValueError(f"unknown form {form!r}")
+    if form == "collinearity" or (form == "auto" and collinearity_form.applies(project, result)):
+        return _collinearity_cofactors(project, result, options, plate_blocks)
+    q_plate, q_control, blocks, q_distance, d_adjusted = _conditions_cofactors(project, result, options, plate_blocks)
+    return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
+                             plate_blocks=blocks, distances=q_distance, distance_adjusted=d_adjusted)
+
+
+def _collinearity_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
+                            plate_blocks: bool) -> ResidualCofactors:
+    """The collinearity form (bundle.precision), with the points where its subtraction ``q - J Qxx
+    J^T`` would lose digits (a redundancy number below bundle.precision.R_SUBTRACTION) taken from
+    the conditions form, which forms their qvv without it."""
+    c = collinearity_form.residual_cofactors(project, result, plate_blocks)
+    q_plate, q_control, blocks = c.plate, c.control, c.plate_blocks
+    if c.imprecise.any():
+        q_p, q_c, b, _, _ = _conditions_cofactors(project, result, options, plate_blocks, points=c.imprecise)
+        rows = c.imprecise[project.image_points.point_index]
+        q_plate[rows] = q_p[rows]
+        q_control[c.imprecise] = q_c[c.imprecise]
+        if blocks is not None:  # each chunk without its imprecise points, then theirs
+            point_of = project.image_points.point_index
+            kept = []
+            for r, q in blocks:
+                keep = ~c.imprecise[point_of[r[:, 0]]]
+                if keep.any():
+                    kept.append((r[keep], q[keep]))
+            blocks = kept + b
+    return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
+                             plate_blocks=blocks)
+
+
+def _conditions_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
+                          plate_blocks: bool, points: np.ndarray | None = None):
+    """The conditions form (residual_cofactors' doc) of every group, or of the groups of the points
+    ``points`` (n_pt,) bool (a project without distances). -> (q_plate (m_ip, 2), q_control (n_pt, 3),
+    blocks or None, the distances' qvv (r,), their adjusted values (r,); joint_groups)."""
     obs = observations_of(project, result.offset)
-    batches, joint = JointGroups.of(project, build_batches(project))
-    sweep = Sweep(batches, result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted, options,
-                  joint)
+    joint = None
+    if points is None:
+        batches, joint = JointGroups.of(project, build_batches(project))
+    else:  # the batches of the points' own rows (a group's chain depends on its rows only), rows mapped back
+        ip = project.image_points
+        rows = np.flatnonzero(points[ip.point_index])
+        own = replace(project, image_points=replace(ip, photo_index=ip.photo_index[rows],
+                                                    point_index=ip.point_index[rows], xy=ip.xy[rows],
+                                                    sigma_xy=ip.sigma_xy[rows]))
+        batches = [replace(b, image_rows=rows[b.image_rows]) for b in build_batches(own)]
+    sweep = Sweep(batches, result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted,
+                  options, joint)
     cov = result.covariance
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
@@ -88,14 +144,17 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
             q_control[chunk.point_index] = qvv[:, 2 * k :]
     q_distance, d_adjusted = _joint_residual_cofactors(sweep.joint_systems(), result, project, q_plate, q_control,
                                                        blocks)
+    return q_plate, q_control, blocks, q_distance, d_adjusted
+
+
+def _parameter_cofactors(project: Project, result: AdjustmentResult) -> np.ndarray:
+    """qvv (p,) of the observed elements: ``sigma^2 - g^T Qxx g`` (g the gradient of each)."""
     pobs = build_parameter_observations(project, result.offset)
-    q_par = np.zeros(len(pobs))
-    if len(pobs):
-        _, grad, cols = pobs.evaluate(result.state, result.layout, sweep.T)
-        Qloc = cov.entries(cols[:, :, None], cols[:, None, :])
-        q_par = pobs.sigma**2 - np.einsum("pi,pi->p", (Qloc @ grad[:, :, None])[:, :, 0], grad)
-    return ResidualCofactors(plate=q_plate, control=q_control, parameters=q_par, plate_blocks=blocks,
-                             distances=q_distance, distance_adjusted=d_adjusted)
+    if not len(pobs):
+        return np.zeros(0)
+    _, grad, cols = pobs.evaluate(result.state, result.layout, result.layout.rotation_maps(result.state))
+    Qloc = result.covariance.entries(cols[:, :, None], cols[:, None, :])
+    return pobs.sigma**2 - np.einsum("pi,pi->p", (Qloc @ grad[:, :, None])[:, :, 0], grad)
 
 
 def distance_cofactors(project: Project, result: AdjustmentResult,

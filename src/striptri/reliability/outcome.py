@@ -9,7 +9,7 @@ import numpy as np
 
 from ..adjusted_points import triangulate_adjusted  # re-exported: the ground points of an adjustment
 from ..core.result import SUCCESSFUL_TERMINATIONS, AdjustmentResult
-from ..groups import build_batches
+from ..groups import points_with_conditions
 from ..model import Project
 from ..parameters import with_state
 from ..triangulation import ray_terms
@@ -225,10 +225,7 @@ warm_start = with_state  # re-adjustments start from the previous adjusted orien
 
 def participating_rows(project: Project) -> np.ndarray:
     """(m,) True for the rows of points that have conditions (take part in the adjustment)."""
-    part = np.zeros(len(project.image_points), dtype=bool)
-    for batch in build_batches(project):
-        part[batch.image_rows.ravel()] = True
-    return part
+    return points_with_conditions(project)[project.image_points.point_index]
 
 
 def predicted_residuals(project: Project, adjusted: Project, result: AdjustmentResult, rows: np.ndarray) -> np.ndarray:
