@@ -127,9 +127,13 @@ def _bundle_normals(monkeypatch, project, path, damping=0.0, chunk_size=5):
     xyz = initial_points(problem.batches, problem.initial_state, problem.obs, problem.unknowns, chunk_size,
                          None if project.points.xyz_approx is None else project.points.xyz_approx - problem.offset)
     cam = problem.initial_state.camera_of_photo
-    summed = [reduced.sums_camera_columns(problem.pattern, cam[c.batch.photo_index])
-              for c in problem.chunks(problem.initial_state, xyz)]
-    return problem.assemble(problem.initial_state, xyz, damping), problem.dense, summed
+    chunks = list(problem.chunks(problem.initial_state, xyz))
+    summed = [reduced.sums_camera_columns(problem.pattern, cam[c.batch.photo_index]) for c in chunks]
+    padded = any(getattr(c.batch, "real", None) is not None for c in chunks)  # bundle.padding
+    assert padded == (problem.dense and len(problem.linearised) < len(problem.batches))
+    normals = problem.assemble(problem.initial_state, xyz, damping)
+    normals.padded = padded
+    return normals, problem.dense, summed
 
 
 def _assert_same_normals(fast, general):
@@ -167,7 +171,30 @@ def test_bundle_reductions_equal_the_general_reduction(monkeypatch, tmp_path, da
     assert not general_dense and not any(general_summed)
     fast, is_dense, summed = _bundle_normals(monkeypatch, project, path.removesuffix("_two_cameras"), damping)
     assert is_dense if path.startswith("dense") else (not is_dense and all(summed))
+    assert fast.padded == is_dense  # dense: the tracks of 7 to 20 rays joined with padded rays (bundle.padding)
     _assert_same_normals(fast, general)
+
+
+@pytest.mark.parametrize("damping", [0.0, 1e-3])
+def test_bundle_dense_padded_equals_dense_unpadded(monkeypatch, tmp_path, damping):
+    """The dense sum with small batches of neighbouring ray counts joined and padded with rays of
+    weight zero (bundle.padding) equals the dense sum batch by batch, to round-off."""
+    import sys
+    from pathlib import Path
+
+    from striptri.bundle import padding
+    from striptri.io import read_project
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    project = read_project(close_range.write_close_range(tmp_path / "p", close_range.make_close_range(24, 40, seed=3)))
+    padded, is_dense, _ = _bundle_normals(monkeypatch, project, "dense", damping, chunk_size=4096)
+    assert is_dense and padded.padded
+    monkeypatch.setattr(padding, "SMALL_BATCH", 1)  # no batch joined
+    plain, is_dense, _ = _bundle_normals(monkeypatch, project, "dense", damping, chunk_size=4096)
+    assert is_dense and not plain.padded
+    _assert_same_normals(padded, plain)
 
 
 @pytest.mark.parametrize("name", ["pair, weighted control", "strip, single-photo weighted control",

@@ -35,6 +35,7 @@ def _figure(**kwargs):
     return Figure(dpi=DPI, **kwargs)
 
 
+PNG_COMPRESSION = 3  # zlib level: 6 (PIL's default) makes the report's PNGs 5 % smaller in 40 % more time
 PAD_INCHES = 0.1  # margin kept about the drawn content when a figure is trimmed (savefig's pad_inches)
 
 
@@ -65,7 +66,7 @@ def _png(fig, tight: bool = True) -> bytes:
             pad = int(round(PAD_INCHES * DPI))
             rgba = rgba[max(rows[0] - pad, 0):rows[-1] + 1 + pad, max(cols[0] - pad, 0):cols[-1] + 1 + pad]
     buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(rgba[:, :, :3])).save(buf, format="png")
+    Image.fromarray(np.ascontiguousarray(rgba[:, :, :3])).save(buf, format="png", compress_level=PNG_COMPRESSION)
     return buf.getvalue()
 
 

@@ -89,6 +89,9 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     d_rot = d_rot @ rotation_maps[ph]
     sigma = np.sqrt(obs.q_plate[rows])
     s = (1.0 / sigma)[..., None]
+    real = getattr(batch, "real", None)  # bundle.padding: padded rays get weight zero
+    if real is not None:
+        s = s * real[:, :, None, None]
     parts, col_parts = [d_centre, d_rot], [layout.photo_cols[ph]]
     if layout.camera_width:
         elements = layout.camera_elements
@@ -97,7 +100,7 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     Jc = np.concatenate(parts, -1) * s
     free = unknowns.free[pt]
     Jp = d_point * s * free[:, None, None, :]
-    e = e / sigma
+    e = e / sigma if real is None else e / sigma * real[..., None]
     cols = np.concatenate(col_parts, -1)
     weight = unknowns.weight[pt]
     control_misclosure = np.where(weight > 0, unknowns.given[pt] - xyz_ground, 0.0)
