@@ -34,6 +34,37 @@ def _selection(rng, n_full, tie):
 
 
 @pytest.mark.parametrize("with_cameras", [True, False])
+def test_block_pattern_holds_every_pair_of_a_group_and_the_diagonal(with_cameras):
+    """BlockPattern's pp, pc, cc (from sparse incidence products) are the sorted unique keys
+    a n + b of every photo-photo, photo-camera and camera-camera pair within a group, plus every
+    photo's and camera's diagonal block: the definition, ray pair by ray pair. Groups of one
+    camera and of two, photos seen by no group, and a chunk of one-ray groups."""
+    rng = np.random.default_rng(11)
+    n_photos, n_cameras = 12, 3  # photo 11 and camera 2 in no group
+    chunks = []
+    for k in (1, 2, 3, 5):
+        photo = np.stack([rng.choice(n_photos - 1, k, replace=False) for _ in range(7)])
+        cam = rng.integers(0, n_cameras - 1, photo.shape) if k != 3 else np.zeros_like(photo)
+        chunks.append((photo, cam))
+    pat = BlockPattern(n_photos, n_cameras, with_cameras, chunks)
+
+    def keys(a, b, nb):
+        return {int(x) * nb + int(y) for ra, rb in zip(a, b) for x in ra for y in rb}
+
+    pp = set().union(*(keys(ph, ph, n_photos) for ph, _ in chunks)) | {i * (n_photos + 1) for i in range(n_photos)}
+    assert pat.pp.dtype == np.int64 and pat.pp.tolist() == sorted(pp)
+    if with_cameras:
+        pc = set().union(*(keys(ph, c, n_cameras) for ph, c in chunks))
+        cc = set().union(*(keys(c, c, n_cameras) for _, c in chunks)) | {i * (n_cameras + 1) for i in range(n_cameras)}
+        assert pat.pc.tolist() == sorted(pc) and pat.cc.tolist() == sorted(cc)
+        assert len(pat.pc) < n_photos * n_cameras  # camera 2 is in no group
+    else:
+        assert len(pat.pc) == len(pat.cc) == 0
+    empty = BlockPattern(4, 2, True, [])
+    assert empty.pp.tolist() == [0, 5, 10, 15] and empty.pc.tolist() == [] and empty.cc.tolist() == [0, 3]
+
+
+@pytest.mark.parametrize("with_cameras", [True, False])
 @pytest.mark.parametrize("tie", [False, True])
 def test_reduced_matrix_equals_the_product_of_the_selection(with_cameras, tie):
     rng = np.random.default_rng(3 + 2 * tie + with_cameras)
