@@ -228,6 +228,48 @@ def test_bundle_dense_padded_equals_dense_unpadded(monkeypatch, tmp_path, dampin
     _assert_same_normals(padded, plain)
 
 
+def test_dense_scatters_worked_out_once_equal_those_of_each_chunk(tmp_path):
+    """The dense sum with each chunk's places in G_Y, G_N and N_full worked out once per adjustment
+    (bundle.dense.DenseScatter, the problem's scatters) is the dense sum that works them out chunk
+    by chunk: the same numbers in the same order, so exactly equal; a scatter whose first column
+    is not the next free one (a chunk added out of order) is not used."""
+    import sys
+    from pathlib import Path
+
+    from striptri.bundle.adjust import _Problem
+    from striptri.bundle.dense import DenseSchur, DenseScatter
+    from striptri.bundle.points import initial_points
+    from striptri.core.options import AdjustmentOptions
+    from striptri.io import read_project
+    from striptri.normal_equations import ray_columns
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    project = read_project(close_range.write_close_range(tmp_path / "p", close_range.make_close_range(24, 40, seed=3)))
+    problem = _Problem(project, AdjustmentOptions(method="bundle", chunk_size=7))
+    assert problem.dense and all(isinstance(sc, DenseScatter) for sc in problem.scatters)
+    state = problem.initial_state
+    xyz = initial_points(problem.batches, state, problem.obs, problem.unknowns, 7, None)
+    chunks = list(problem.chunks(state, xyz))
+    assert len(chunks) == len(problem.scatters) > 2
+    once, each = (DenseSchur(problem.pattern.n_full, problem.n_points) for _ in range(2))
+    for chunk, scatter in zip(chunks, problem.scatters):
+        full_cols = ray_columns(problem.pattern, chunk.batch.photo_index, state.camera_of_photo[chunk.batch.photo_index])
+        np.testing.assert_array_equal(scatter.full_cols, full_cols)
+        r1 = once.add(chunk.Jc, chunk.Jp, chunk.N_pp, chunk.b_p, scatter.full_cols, scatter)
+        r2 = each.add(chunk.Jc, chunk.Jp, chunk.N_pp, chunk.b_p, full_cols)
+        assert r1 == r2
+    for a, b in zip(once.finish(), each.finish()):
+        np.testing.assert_array_equal(a, b)
+    # out of order: the second chunk's scatter offered first is not used (its columns would be wrong)
+    second = chunks[1]
+    wrong, right = (DenseSchur(problem.pattern.n_full, problem.n_points) for _ in range(2))
+    wrong.add(second.Jc, second.Jp, second.N_pp, second.b_p, problem.scatters[1].full_cols, problem.scatters[1])
+    right.add(second.Jc, second.Jp, second.N_pp, second.b_p, problem.scatters[1].full_cols)
+    np.testing.assert_array_equal(wrong.G_Y, right.G_Y)
+
+
 @pytest.mark.parametrize("name", ["pair, weighted control", "strip, single-photo weighted control",
                                   "strip, plan points, check points", "strip, IMU, held angle, bases, interior",
                                   "pair, one-photo points of every kind", "block_3x6"])

@@ -44,7 +44,7 @@ from ..model import Project
 from ..parameter_observations import ParameterObservations, build_parameter_observations
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
-from .dense import DenseSchur
+from .dense import DenseSchur, dense_scatters
 from .distances import couple, distance_cost, linearise_distances, locate_points
 from .padding import pad_batches, real_rays
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
@@ -96,8 +96,10 @@ class _Problem:
                                                                         options.chunk_size)
         # the batches linearised: summed dense, small ones joined with rays of weight zero (bundle.padding)
         self.linearised: list[GroupBatch] = pad_batches(self.batches) if self.dense else self.batches
-        if self.dense:
-            self.scatters = [None] * sum(1 for b in self.linearised for _ in b.chunks(options.chunk_size))
+        if self.dense:  # where each chunk's numbers go in the dense sum, worked out once
+            cam = self.initial_state.camera_of_photo
+            self.scatters = dense_scatters(self.pattern, [(c.photo_index, cam[c.photo_index]) for b in self.linearised
+                                                          for c in b.chunks(options.chunk_size)])
         self.n_points = sum(len(b) for b in self.batches)
         self.distances = project.distances if project.distances is not None and len(project.distances) else None
         if self.distances is not None:
