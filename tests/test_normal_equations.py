@@ -34,6 +34,37 @@ def _selection(rng, n_full, tie):
 
 
 @pytest.mark.parametrize("with_cameras", [True, False])
+def test_block_pattern_holds_every_pair_of_a_group_and_the_diagonal(with_cameras):
+    """BlockPattern's pp, pc, cc (from sparse incidence products) are the sorted unique keys
+    a n + b of every photo-photo, photo-camera and camera-camera pair within a group, plus every
+    photo's and camera's diagonal block: the definition, ray pair by ray pair. Groups of one
+    camera and of two, photos seen by no group, and a chunk of one-ray groups."""
+    rng = np.random.default_rng(11)
+    n_photos, n_cameras = 12, 3  # photo 11 and camera 2 in no group
+    chunks = []
+    for k in (1, 2, 3, 5):
+        photo = np.stack([rng.choice(n_photos - 1, k, replace=False) for _ in range(7)])
+        cam = rng.integers(0, n_cameras - 1, photo.shape) if k != 3 else np.zeros_like(photo)
+        chunks.append((photo, cam))
+    pat = BlockPattern(n_photos, n_cameras, with_cameras, chunks)
+
+    def keys(a, b, nb):
+        return {int(x) * nb + int(y) for ra, rb in zip(a, b) for x in ra for y in rb}
+
+    pp = set().union(*(keys(ph, ph, n_photos) for ph, _ in chunks)) | {i * (n_photos + 1) for i in range(n_photos)}
+    assert pat.pp.dtype == np.int64 and pat.pp.tolist() == sorted(pp)
+    if with_cameras:
+        pc = set().union(*(keys(ph, c, n_cameras) for ph, c in chunks))
+        cc = set().union(*(keys(c, c, n_cameras) for _, c in chunks)) | {i * (n_cameras + 1) for i in range(n_cameras)}
+        assert pat.pc.tolist() == sorted(pc) and pat.cc.tolist() == sorted(cc)
+        assert len(pat.pc) < n_photos * n_cameras  # camera 2 is in no group
+    else:
+        assert len(pat.pc) == len(pat.cc) == 0
+    empty = BlockPattern(4, 2, True, [])
+    assert empty.pp.tolist() == [0, 5, 10, 15] and empty.pc.tolist() == [] and empty.cc.tolist() == [0, 3]
+
+
+@pytest.mark.parametrize("with_cameras", [True, False])
 @pytest.mark.parametrize("tie", [False, True])
 def test_reduced_matrix_equals_the_product_of_the_selection(with_cameras, tie):
     rng = np.random.default_rng(3 + 2 * tie + with_cameras)
@@ -127,9 +158,13 @@ def _bundle_normals(monkeypatch, project, path, damping=0.0, chunk_size=5):
     xyz = initial_points(problem.batches, problem.initial_state, problem.obs, problem.unknowns, chunk_size,
                          None if project.points.xyz_approx is None else project.points.xyz_approx - problem.offset)
     cam = problem.initial_state.camera_of_photo
-    summed = [reduced.sums_camera_columns(problem.pattern, cam[c.batch.photo_index])
-              for c in problem.chunks(problem.initial_state, xyz)]
-    return problem.assemble(problem.initial_state, xyz, damping), problem.dense, summed
+    chunks = list(problem.chunks(problem.initial_state, xyz))
+    summed = [reduced.sums_camera_columns(problem.pattern, cam[c.batch.photo_index]) for c in chunks]
+    padded = any(getattr(c.batch, "real", None) is not None for c in chunks)  # bundle.padding
+    assert padded == (problem.dense and len(problem.linearised) < len(problem.batches))
+    normals = problem.assemble(problem.initial_state, xyz, damping)
+    normals.padded = padded
+    return normals, problem.dense, summed
 
 
 def _assert_same_normals(fast, general):
@@ -167,7 +202,72 @@ def test_bundle_reductions_equal_the_general_reduction(monkeypatch, tmp_path, da
     assert not general_dense and not any(general_summed)
     fast, is_dense, summed = _bundle_normals(monkeypatch, project, path.removesuffix("_two_cameras"), damping)
     assert is_dense if path.startswith("dense") else (not is_dense and all(summed))
+    assert fast.padded == is_dense  # dense: the tracks of 7 to 20 rays joined with padded rays (bundle.padding)
     _assert_same_normals(fast, general)
+
+
+@pytest.mark.parametrize("damping", [0.0, 1e-3])
+def test_bundle_dense_padded_equals_dense_unpadded(monkeypatch, tmp_path, damping):
+    """The dense sum with small batches of neighbouring ray counts joined and padded with rays of
+    weight zero (bundle.padding) equals the dense sum batch by batch, to round-off."""
+    import sys
+    from pathlib import Path
+
+    from striptri.bundle import padding
+    from striptri.io import read_project
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    project = read_project(close_range.write_close_range(tmp_path / "p", close_range.make_close_range(24, 40, seed=3)))
+    padded, is_dense, _ = _bundle_normals(monkeypatch, project, "dense", damping, chunk_size=4096)
+    assert is_dense and padded.padded
+    monkeypatch.setattr(padding, "SMALL_BATCH", 1)  # no batch joined
+    plain, is_dense, _ = _bundle_normals(monkeypatch, project, "dense", damping, chunk_size=4096)
+    assert is_dense and not plain.padded
+    _assert_same_normals(padded, plain)
+
+
+def test_dense_scatters_worked_out_once_equal_those_of_each_chunk(tmp_path):
+    """The dense sum with each chunk's places in G_Y, G_N and N_full worked out once per adjustment
+    (bundle.dense.DenseScatter, the problem's scatters) is the dense sum that works them out chunk
+    by chunk: the same numbers in the same order, so exactly equal; a scatter whose first column
+    is not the next free one (a chunk added out of order) is not used."""
+    import sys
+    from pathlib import Path
+
+    from striptri.bundle.adjust import _Problem
+    from striptri.bundle.dense import DenseSchur, DenseScatter
+    from striptri.bundle.points import initial_points
+    from striptri.core.options import AdjustmentOptions
+    from striptri.io import read_project
+    from striptri.normal_equations import ray_columns
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    project = read_project(close_range.write_close_range(tmp_path / "p", close_range.make_close_range(24, 40, seed=3)))
+    problem = _Problem(project, AdjustmentOptions(method="bundle", chunk_size=7))
+    assert problem.dense and all(isinstance(sc, DenseScatter) for sc in problem.scatters)
+    state = problem.initial_state
+    xyz = initial_points(problem.batches, state, problem.obs, problem.unknowns, 7, None)
+    chunks = list(problem.chunks(state, xyz))
+    assert len(chunks) == len(problem.scatters) > 2
+    once, each = (DenseSchur(problem.pattern.n_full, problem.n_points) for _ in range(2))
+    for chunk, scatter in zip(chunks, problem.scatters):
+        full_cols = ray_columns(problem.pattern, chunk.batch.photo_index, state.camera_of_photo[chunk.batch.photo_index])
+        np.testing.assert_array_equal(scatter.full_cols, full_cols)
+        r1 = once.add(chunk.Jc, chunk.Jp, chunk.N_pp, chunk.b_p, scatter.full_cols, scatter)
+        r2 = each.add(chunk.Jc, chunk.Jp, chunk.N_pp, chunk.b_p, full_cols)
+        assert r1 == r2
+    for a, b in zip(once.finish(), each.finish()):
+        np.testing.assert_array_equal(a, b)
+    # out of order: the second chunk's scatter offered first is not used (its columns would be wrong)
+    second = chunks[1]
+    wrong, right = (DenseSchur(problem.pattern.n_full, problem.n_points) for _ in range(2))
+    wrong.add(second.Jc, second.Jp, second.N_pp, second.b_p, problem.scatters[1].full_cols, problem.scatters[1])
+    right.add(second.Jc, second.Jp, second.N_pp, second.b_p, problem.scatters[1].full_cols)
+    np.testing.assert_array_equal(wrong.G_Y, right.G_Y)
 
 
 @pytest.mark.parametrize("name", ["pair, weighted control", "strip, single-photo weighted control",

@@ -21,7 +21,8 @@ Per case, interleaved over ``--repeats`` rounds (medians reported):
   initial_points and linearisation_and_reduction in the first two columns) and its total;
   gross_errors (the reliability measures: residual cofactors and w-tests, beyond the adjustment);
   point_precision; tables (CSV); report (report.html); the remainder of the wall time is the
-  interpreter's start, the imports and the writing of the files.
+  interpreter's start, the imports and the writing of the files. Every run reads byte-compiled
+  modules, as after a ``pip install`` (child_env: PYCACHE_DIR, even where PYTHONDONTWRITEBYTECODE is set).
 * pycolmap's bundle adjustment of the same project (colmap_ba.py, SPARSE_SCHUR, Levenberg-Marquardt)
   in its own process (colmap_worker.py; it holds numpy and pycolmap only), with each of
   ``--threads`` Ceres threads (OpenBLAS threads the same); its time is the adjuster's set-up and
@@ -67,6 +68,8 @@ SRC = HERE.parents[1] / "src"  # this checkout's striptri, here and in every run
 sys.path[:0] = [str(HERE), str(SRC)]
 
 import scale_cases  # noqa: E402
+
+PYCACHE_DIR = scale_cases.default_data_dir() / "pycache"  # bytecode of every run (child_env)
 
 TIME = "/usr/bin/time"
 METHODS = ("conditions", "bundle")
@@ -160,7 +163,14 @@ def versions() -> dict:
 
 
 def child_env(blas_threads: int) -> dict:
+    """The environment of every run: BLAS threads, this checkout's striptri, and byte-compiled
+    modules. A ``pip install`` compiles every module once; a run from a source tree with
+    PYTHONDONTWRITEBYTECODE (set in some sandboxes) would compile every striptri module in every run
+    (0.15-0.2 s), so the bytecode goes to PYCACHE_DIR instead, written by the first run (the
+    import measurement, import_seconds, which runs before any timed run)."""
     env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env["PYTHONPYCACHEPREFIX"] = str(PYCACHE_DIR)
     for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env[name] = str(blas_threads)
     env["PYTHONPATH"] = os.pathsep.join([str(SRC)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])

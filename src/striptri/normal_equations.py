@@ -120,23 +120,42 @@ class BlockPattern:
         self.n_photos, self.n_cameras, self.with_cameras = n_photos, n_cameras, with_cameras
         self.camera_elements = np.arange(NCP) if camera_elements is None else np.asarray(camera_elements, dtype=int)
         self.camera_width = len(self.camera_elements)
-        pp, pc, cc = [], [], []
+        # the pairs from the incidence of groups and photos (cameras): M^T M, M^T C and C^T C in
+        # sparse products, rather than the unique keys of every ray pair chunk by chunk
+        group, photos, cams, n_groups = [], [], [], 0
         for photo, cam in chunks:
-            pp.append(np.unique(self._keys(photo, photo, n_photos)))
-            if with_cameras:
-                if np.all(cam == cam[:, :1]):  # one camera per group: its pairs are those of the first ray
-                    cam = cam[:, :1]
-                pc.append(np.unique(self._keys(photo, cam, n_cameras)))
-                cc.append(np.unique(self._keys(cam, cam, n_cameras)))
+            m, k = photo.shape
+            group.append(np.repeat(np.arange(n_groups, n_groups + m), k))
+            photos.append(photo.ravel())
+            cams.append(cam.ravel())
+            n_groups += m
+        group, photos, cams = (np.concatenate(a) if a else np.zeros(0, dtype=np.int64) for a in (group, photos, cams))
+        M = self._incidence(group, photos, n_groups, n_photos)
         # every photo and camera keeps its diagonal block (N stays square even for unmeasured photos)
-        pp.append(np.arange(n_photos, dtype=np.int64) * (n_photos + 1))
-        self.pp = np.unique(np.concatenate(pp))
-        self.pc = np.unique(np.concatenate(pc)) if pc else np.zeros(0, dtype=np.int64)
-        self.cc = np.unique(np.concatenate(cc + [np.arange(n_cameras, dtype=np.int64) * (n_cameras + 1)])) \
-            if with_cameras else np.zeros(0, dtype=np.int64)
+        self.pp = self._pair_keys(M.T @ M + sp.identity(n_photos, format="csr"))
+        if with_cameras:
+            C = self._incidence(group, cams, n_groups, n_cameras)
+            self.pc = self._pair_keys(M.T @ C)
+            self.cc = self._pair_keys(C.T @ C + sp.identity(n_cameras, format="csr"))
+        else:
+            self.pc = self.cc = np.zeros(0, dtype=np.int64)
         self.n_full = 6 * n_photos + NCP * n_cameras
         self._reduction = None  # (S, ReducedPattern): the CSR structure of S^T N_full S, worked out once
         self._dense_places = None  # the place of every block number in a dense N_full (reduced_matrix_of_dense)
+
+    @staticmethod
+    def _incidence(group, member, n_groups, n_members):
+        """(n_groups, n_members) sparse matrix with a nonzero where the group holds the member."""
+        return sp.csr_matrix((np.ones(len(group)), (group, member)), shape=(n_groups, n_members))
+
+    @staticmethod
+    def _pair_keys(P) -> np.ndarray:
+        """Sorted keys ``a nb + b`` (int64) of the nonzeros (a, b) of the (na, nb) sparse matrix P."""
+        P = sp.csr_matrix(P)
+        P.sum_duplicates()  # one entry per place (the entries are counts: none is zero)
+        P.sort_indices()
+        rows = np.repeat(np.arange(P.shape[0], dtype=np.int64), np.diff(P.indptr))
+        return rows * P.shape[1] + P.indices.astype(np.int64)
 
     @staticmethod
     def _keys(a, b, nb):

@@ -44,8 +44,9 @@ from ..model import Project
 from ..parameter_observations import ParameterObservations, build_parameter_observations
 from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
-from .dense import DenseSchur
+from .dense import DenseSchur, dense_scatters
 from .distances import couple, distance_cost, linearise_distances, locate_points
+from .padding import pad_batches, real_rays
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
 
 METHOD = "bundle"
@@ -100,11 +101,17 @@ class _Problem:
         self.initial_state = initial_state(project, self.offset)
         self.pattern, self.S, self.dense, self.scatters = block_pattern(self.batches, self.initial_state, self.layout,
                                                                         options.chunk_size)
+        # the batches linearised: summed dense, small ones joined with rays of weight zero (bundle.padding)
+        self.linearised: list[GroupBatch] = pad_batches(self.batches) if self.dense else self.batches
+        if self.dense:  # where each chunk's numbers go in the dense sum, worked out once
+            cam = self.initial_state.camera_of_photo
+            self.scatters = dense_scatters(self.pattern, [(c.photo_index, cam[c.photo_index]) for b in self.linearised
+                                                          for c in b.chunks(options.chunk_size)])
         self.n_points = sum(len(b) for b in self.batches)
         self.distances = project.distances if project.distances is not None and len(project.distances) else None
         if self.distances is not None:
             self.distance_points = np.unique(np.concatenate([self.distances.point_from, self.distances.point_to]))
-            self.where = locate_points([c.point_index for b in self.batches for c in b.chunks(options.chunk_size)],
+            self.where = locate_points([c.point_index for b in self.linearised for c in b.chunks(options.chunk_size)],
                                        self.distance_points)
             if np.any(self.where[0] < 0):
                 ids = [str(project.points.ids[p]) for p in self.distance_points[self.where[0] < 0]]
@@ -195,7 +202,7 @@ class _Problem:
     def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0):
         """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp."""
         T = self.layout.rotation_maps(state)
-        for batch in self.batches:
+        for batch in self.linearised:
             for chunk in batch.chunks(self.options.chunk_size):
                 yield linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns, xyz, damping)
 
@@ -507,9 +514,10 @@ def _back_substitute(problem: _Problem, state: State, xyz: np.ndarray, dx: np.nd
         energy += float(np.sum((v_dist + coupling.e) ** 2))
     for c, chunk in enumerate(chunks):
         dX, v_plate, v_control = point_corrections(chunk, dx, shift.get(c))
-        pt, rows = chunk.batch.point_index, chunk.batch.image_rows
+        pt = chunk.batch.point_index
         xyz_new[pt] = xyz[pt] + dX
-        plate_hat[rows] = obs.plate[rows] + v_plate * chunk.sigma
+        rows, v_real, sigma = real_rays(chunk.batch, chunk.batch.image_rows, v_plate, chunk.sigma)
+        plate_hat[rows] = obs.plate[rows] + v_real * sigma
         weighted = chunk.weight > 0
         control_hat[pt] = np.where(weighted, xyz_new[pt], obs.control[pt])
         vtpv += float(np.sum(v_plate**2) + np.sum(v_control**2))
@@ -585,9 +593,9 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
     for chunk, scatters in zip(normals.kept if reuse else problem.chunks(state, xyz), problem.scatters):
         if not reuse:
             normals.add_points(chunk, state.camera_of_photo, scatters, keep=False)
-        rows = chunk.batch.image_rows
+        rows, e, sigma = real_rays(chunk.batch, chunk.batch.image_rows, chunk.e, chunk.sigma)
         # l^ - f = (l - f) + (l^ - l) = sigma e + v
-        g = chunk.e + (plate_hat[rows] - obs.plate[rows]) / chunk.sigma
+        g = e + (plate_hat[rows] - obs.plate[rows]) / sigma
         g_control = np.sqrt(chunk.weight) * (control_hat[chunk.batch.point_index] - xyz[chunk.batch.point_index])
         if g.size:
             max_g = max(max_g, float(np.max(np.abs(g))), float(np.max(np.abs(g_control))))

@@ -18,9 +18,11 @@ per adjustment.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from ..normal_equations import BlockPattern
+from ..normal_equations import BlockPattern, ray_columns
 
 # Dense when the product's work, n_full^2 per point, is at most this many times the ray pairs'
 # (6k)^2 per point: BLAS does the one product so much faster than numpy the small blocks and their
@@ -42,6 +44,42 @@ def dense_pays(pattern: BlockPattern, photo_of_chunks) -> bool:
             and n * n * n_points <= DENSE_WORK_RATIO * 36 * ray_pairs)
 
 
+@dataclass(frozen=True)
+class DenseScatter:
+    """Where one chunk's numbers go in a DenseSchur, worked out once per adjustment (they depend only
+    on the chunk's photos and cameras): full_cols (m, k, w) the full-space columns of each ray;
+    first: the chunk's first point column in G_Y and G_N (3 per point, chunks in assembly order);
+    at_G (m k w 3,) and at_N (m k w w,): flat places in G_Y / G_N and in N_full (int32: a dense
+    system has fewer than 2^31 places, DENSE_BYTES)."""
+
+    full_cols: np.ndarray
+    first: int
+    at_G: np.ndarray
+    at_N: np.ndarray
+
+
+def dense_scatters(pattern: BlockPattern, chunks) -> list[DenseScatter]:
+    """The DenseScatter of each chunk, (photo_index (m, k), camera_index (m, k)) in assembly order."""
+    n_cols = 3 * sum(len(photo) for photo, _ in chunks)
+    out, first = [], 0
+    for photo, cam in chunks:
+        full_cols = ray_columns(pattern, photo, cam)
+        full_cols = full_cols if pattern.with_cameras else full_cols[..., :6]
+        out.append(DenseScatter(full_cols, first, *_places(full_cols, first, n_cols, pattern.n_full)))
+        first += 3 * len(photo)
+    return out
+
+
+def _places(full_cols: np.ndarray, first: int, n_cols: int, n_full: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat places in G (n_full, n_cols) of the chunk's N_cp and Y, (m, k, w, 3), and in N_full of
+    its rays' N_cc, (m, k, w, w)."""
+    m = len(full_cols)
+    point_cols = first + 3 * np.arange(m)[:, None] + np.arange(3)  # (m, 3) columns of G
+    at_G = (full_cols[..., None] * n_cols + point_cols[:, None, None, :]).ravel()
+    at_N = (full_cols[..., :, None] * n_full + full_cols[..., None, :]).ravel()
+    return at_G.astype(np.int32), at_N.astype(np.int32)
+
+
 class DenseSchur:
     """Sums the points' share of the reduced camera system dense in the full space (module doc):
     N_cc, G_Y, G_N chunk by chunk, ``-G_Y G_N^T`` and ``-G_Y b_p`` at :meth:`finish`."""
@@ -53,24 +91,29 @@ class DenseSchur:
         self.b_p = np.zeros(3 * n_points)
         self.used = 0  # columns of G_Y and G_N filled
 
-    def add(self, Jc: np.ndarray, Jp: np.ndarray, N_pp: np.ndarray, b_p: np.ndarray, full_cols: np.ndarray) -> float:
+    def add(self, Jc: np.ndarray, Jp: np.ndarray, N_pp: np.ndarray, b_p: np.ndarray, full_cols: np.ndarray,
+            scatter: DenseScatter | None = None) -> float:
         """Add m points with k rays each: Jc (m, k, 2, w) whitened orientation Jacobians in the
         full-space columns full_cols (m, k, w) (the camera columns of rays of one camera are the
-        same), Jp (m, k, 2, 3), N_pp (m, 3, 3), b_p (m, 3). Returns sum b_p^T N_pp^-1 b_p."""
+        same), Jp (m, k, 2, 3), N_pp (m, 3, 3), b_p (m, 3); scatter: the chunk's DenseScatter when
+        worked out before (used where its first column is the next free one). Returns
+        sum b_p^T N_pp^-1 b_p."""
         m = len(N_pp)
         n_full, n_cols = self.G_Y.shape
+        if scatter is not None and scatter.first == self.used:
+            at_G, at_N = scatter.at_G, scatter.at_N
+        else:
+            at_G, at_N = _places(full_cols, self.used, n_cols, n_full)
         N_pp_inv = np.linalg.inv(N_pp)
-        N_cp = np.einsum("mkai,mkaj->mkij", Jc, Jp)  # (m, k, w, 3)
+        Jc_T = np.swapaxes(Jc, 2, 3)
+        N_cp = Jc_T @ Jp  # (m, k, w, 3)
         Y = N_cp @ N_pp_inv[:, None]
-        point_cols = self.used + 3 * np.arange(m)[:, None] + np.arange(3)  # (m, 3) columns of G
-        at = (full_cols[..., None] * n_cols + point_cols[:, None, None, :]).ravel()
-        np.add.at(self.G_Y.reshape(-1), at, Y.ravel())  # shared camera columns summed
-        np.add.at(self.G_N.reshape(-1), at, N_cp.ravel())
+        np.add.at(self.G_Y.reshape(-1), at_G, Y.ravel())  # shared camera columns summed
+        np.add.at(self.G_N.reshape(-1), at_G, N_cp.ravel())
         self.b_p[self.used : self.used + 3 * m] = b_p.ravel()
         self.used += 3 * m
-        N_cc = np.einsum("mkai,mkaj->mkij", Jc, Jc)  # (m, k, w, w): each ray's block
-        at = full_cols[..., :, None] * n_full + full_cols[..., None, :]
-        np.add.at(self.N_full.reshape(-1), at.ravel(), N_cc.ravel())
+        N_cc = Jc_T @ Jc  # (m, k, w, w): each ray's block
+        np.add.at(self.N_full.reshape(-1), at_N, N_cc.ravel())
         return float(np.sum(np.einsum("mi,mij,mj->m", b_p, N_pp_inv, b_p)))
 
     def finish(self) -> tuple[np.ndarray, np.ndarray]:

@@ -89,6 +89,9 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     d_rot = d_rot @ rotation_maps[ph]
     sigma = np.sqrt(obs.q_plate[rows])
     s = (1.0 / sigma)[..., None]
+    real = getattr(batch, "real", None)  # bundle.padding: padded rays get weight zero
+    if real is not None:
+        s = s * real[:, :, None, None]
     parts, col_parts = [d_centre, d_rot], [layout.photo_cols[ph]]
     if layout.camera_width:
         elements = layout.camera_elements
@@ -97,7 +100,7 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     Jc = np.concatenate(parts, -1) * s
     free = unknowns.free[pt]
     Jp = d_point * s * free[:, None, None, :]
-    e = e / sigma
+    e = e / sigma if real is None else e / sigma * real[..., None]
     cols = np.concatenate(col_parts, -1)
     weight = unknowns.weight[pt]
     control_misclosure = np.where(weight > 0, unknowns.given[pt] - xyz_ground, 0.0)
@@ -276,7 +279,7 @@ class ReducedNormals:
         cam = camera_of_photo[photo]
         pat = self.pattern
         if self.dense is not None:
-            self._add_dense(chunk, photo, cam)
+            self._add_dense(chunk, photo, cam, scatters)
         elif sums_camera_columns(pat, cam):
             scatters = scatters if scatters is not None else pat.scatters(photo, cam, camera_summed=True)
             self._add_one_camera(chunk, photo, cam, scatters)
@@ -284,14 +287,18 @@ class ReducedNormals:
             self._add_general(chunk, photo, cam, scatters if scatters is not None else pat.scatters(photo, cam))
         self.ee += chunk.sum_of_squares()
 
-    def _add_dense(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray) -> None:
+    def _add_dense(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatter=None) -> None:
         """add_points summed dense (bundle.dense): the points' share into the DenseSchur, ``Jc^T e``
-        and the diagonal of N_cc into b_full and d_full."""
+        and the diagonal of N_cc into b_full and d_full; scatter: the chunk's bundle.dense.DenseScatter
+        when worked out before."""
         pat = self.pattern
-        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
+        if scatter is not None:
+            full_cols = scatter.full_cols
+        else:
+            full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
+            full_cols = full_cols if pat.with_cameras else full_cols[..., :6]
         Jc = chunk.Jc if pat.with_cameras else chunk.Jc[..., :6]
-        full_cols = full_cols if pat.with_cameras else full_cols[..., :6]
-        self.reduced += self.dense.add(Jc, chunk.Jp, chunk.N_pp, chunk.b_p, full_cols)
+        self.reduced += self.dense.add(Jc, chunk.Jp, chunk.N_pp, chunk.b_p, full_cols, scatter)
         b_c = np.einsum("mkai,mka->mki", Jc, chunk.e)
         d3 = np.einsum("mkai,mkai->mki", Jc, Jc)  # diagonal of N_cc before the reduction
         self.b_full += np.bincount(full_cols.ravel(), weights=b_c.ravel(), minlength=pat.n_full)

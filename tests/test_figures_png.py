@@ -1,0 +1,83 @@
+"""figures._png (issue 11): a figure is drawn once and trimmed to its drawn pixels plus PAD_INCHES,
+which gives the picture savefig(bbox_inches="tight") gives after two draws; content reaching past
+the figure's edge, which trimming cannot bring back, goes through savefig."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from striptri import figures
+
+mpl_figure = pytest.importorskip("matplotlib.figure")
+
+
+def _pixels(png: bytes) -> np.ndarray:
+    with Image.open(io.BytesIO(png)) as im:
+        return np.asarray(im.convert("RGB"))
+
+
+def _savefig_png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=figures.DPI, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def _plot(text_x: float = 0.5):
+    fig = figures._figure(figsize=(4.0, 3.0))
+    fig.subplots_adjust(left=0.2, bottom=0.2)  # room for the labels inside the figure
+    ax = fig.subplots()
+    ax.plot([0, 1, 2], [1, 3, 2], "o-")
+    ax.set_title("a title")
+    ax.set_xlabel("x label")
+    ax.set_ylabel("y label")
+    ax.text(text_x, 0.5, "some words", transform=ax.transAxes)
+    return fig
+
+
+def _draws(monkeypatch) -> list:
+    count = []
+    original = mpl_figure.Figure.draw
+
+    def draw(self, renderer):
+        count.append(1)
+        return original(self, renderer)
+
+    monkeypatch.setattr(mpl_figure.Figure, "draw", draw)
+    return count
+
+
+def test_one_draw_and_the_picture_of_savefig_tight(monkeypatch):
+    draws = _draws(monkeypatch)
+    ours = _pixels(figures._png(_plot()))
+    assert len(draws) == 1
+    theirs = _pixels(_savefig_png(_plot()))
+    # the same content in the same margin: sizes agree to the rounding of the two boxes
+    assert abs(ours.shape[0] - theirs.shape[0]) <= 3 and abs(ours.shape[1] - theirs.shape[1]) <= 3
+    assert ours.shape[0] < 3.0 * figures.DPI and ours.shape[1] < 4.0 * figures.DPI  # trimmed
+    pad = int(round(figures.PAD_INCHES * figures.DPI))
+    drawn = (ours != 255).any(axis=2)
+    rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
+    assert rows[0] == pad and cols[0] == pad
+    assert rows[-1] == ours.shape[0] - 1 - pad and cols[-1] == ours.shape[1] - 1 - pad
+    # and the same picture: as many dark (ink) pixels, to a percent
+    ink_ours, ink_theirs = (int((p.sum(axis=2) < 300).sum()) for p in (ours, theirs))
+    assert ink_ours == pytest.approx(ink_theirs, rel=0.01)
+
+
+def test_content_past_the_edge_goes_through_savefig(monkeypatch):
+    """Text placed beyond the right edge of the figure is kept: the picture grows as savefig's."""
+    draws = _draws(monkeypatch)
+    ours = _pixels(figures._png(_plot(text_x=1.1)))
+    assert len(draws) > 1  # drawn once, found to touch the edge, drawn again by savefig
+    theirs = _pixels(_savefig_png(_plot(text_x=1.1)))
+    assert ours.shape == theirs.shape
+    assert ours.shape[1] > 4.0 * figures.DPI  # wider than the figure: nothing cut
+
+
+def test_untrimmed_keeps_the_figure_size():
+    png = figures._png(_plot(), tight=False)
+    assert _pixels(png).shape == (round(3.0 * figures.DPI), round(4.0 * figures.DPI), 3)
