@@ -33,7 +33,6 @@ from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, ROTATION_OUTPUT_NAMES, Project
-from .joint_groups import joint_point_precision
 from .precision import joint_point_covariance
 from .reliability import blunder_options, detect_blunders
 from .reliability.distances import distance_table
@@ -360,8 +359,8 @@ def blunder_summary(det) -> dict:
 def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulated:
     """Ground points from the adjusted rays, with Schmid's (90) precision split
     (adjusted_points.triangulate_adjusted with the orientation part)."""
-    # the points joined by distances.csv intersected together (joint_groups.joint_point_precision)
-    return joint_point_precision(project, result, triangulate_adjusted(project, result, orientation_part=True))
+    # the points joined by distances.csv are intersected together there (joint_groups.joint_point_precision)
+    return triangulate_adjusted(project, result, orientation_part=True)
 
 
 def _angle_scale(project: Project) -> float:
