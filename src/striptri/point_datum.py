@@ -37,6 +37,15 @@ and a point's covariance gets, beside Schmid's (90) parts, the cross term of the
 its own measurements, ``-(H_p K H_q^T Qm_q + Qm_p H_p K H_q^T)`` for q, p in D
 (:func:`points_correction`, :func:`export_correction`). With these, the covariance equals the
 S-transformation (covariance_export.s_transform, W = I on D) of any other datum's (tested).
+
+With distances (distances.csv) the points a distance joins are intersected together (joint_groups),
+and so are the datum points: ``dX_D = Qm_D (b_D - N_Dc dx)`` with Qm_D block-diagonal over groups (a
+lone point's 3x3 ``N_pp^-1``; a joint group's ``(sum N_pp + J_d^T P_d J_d)^-1``, whose members that are
+no datum points are linearised too, with H_p = 0), b_D with the distances' misclosures. Then
+``C = -N_cD Qm_D H_D``, ``t = -(sum H_p^T (X_p - X0_p) + H_D^T Qm_D b_D)``, ``V = H_D^T Qm_D H_D``
+(DatumJoint) and the cross term is ``-(H_p K B_q + B_p^T K^T H_q^T)`` with ``B_q = H_D^T Qm_{D,q}``
+(:func:`own_blocks`, from the joint groups' Qm of joint_groups.joint_intersections). Without distances
+every path is the per-point one above, unchanged.
 """
 
 from __future__ import annotations
