@@ -1,6 +1,7 @@
 """A free network whose inner constraints act on object points (issue 17, striptri.point_datum), in
 both methods, against the photo datum after an S-transformation (covariance_export.s_transform)."""
 
+import io
 import json
 import shutil
 import sys
@@ -16,9 +17,12 @@ from striptri.adjusted_points import triangulate_adjusted
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.bundle import solve_bundle
 from striptri.bundle.distances import Distances
-from striptri.covariance_export import joint_covariance, s_transform
+from striptri.covariance_export import CovarianceRequest, covariance_file, joint_covariance, s_transform
 from striptri.errors import NumericalFailure
 from striptri.io import read_project, write_project
+from striptri.pipeline import triangulate_result
+from striptri.point_datum import JointBlock, export_correction, points_correction
+from striptri.rotations import R_from_angles, angles_jacobian
 
 from cli_support import assert_clean_failure, run
 
@@ -393,6 +397,143 @@ def test_with_a_scale_bar_distances_keep_their_mean_errors_between_the_datums():
     assert resid < 1e-7 and abs(s - 1.0) < 1e-9
     B = np.kron(np.eye(len(ids)), R)
     np.testing.assert_allclose(B @ q_st @ B.T, q_pt, rtol=0, atol=1e-9 * np.abs(q_pt).max())
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_without_distances_the_per_point_form_is_kept(noisy, method):
+    """Without distances points.csv's cross term is the per-point form, bit for bit (the path the
+    joint groups leave alone), and the general form (own_blocks, each point a group of one) agrees."""
+    project, runs = noisy
+    r = runs[(method, "inner-points")][0]
+    terms = r.free_network.points
+    tri = triangulate_adjusted(project, r, orientation_part=True)
+    Qm, Hp, K = tri.cov_measurement, terms.H, terms.K
+    A = Hp @ K @ np.swapaxes(Hp, 1, 2) @ Qm[terms.index]
+    want = np.zeros_like(Qm)
+    want[terms.index] = -(A + np.swapaxes(A, 1, 2))
+    assert np.array_equal(points_correction(terms, Qm), want)
+    ones = [JointBlock(np.array([p]), Qm[p], Hp[k]) for k, p in enumerate(terms.index)]
+    np.testing.assert_allclose(points_correction(terms, Qm, ones), want, rtol=0, atol=1e-13 * np.abs(want).max())
+    rows = 3 * np.arange(len(terms.index))
+    FH = np.random.default_rng(1).normal(size=(3 * len(rows), Hp.shape[2]))
+    plain = export_correction(terms, FH, rows, Qm, terms.index)
+    np.testing.assert_allclose(export_correction(terms, FH, rows, Qm, terms.index, ones), plain, rtol=0,
+                               atol=1e-13 * np.abs(plain).max())
+
+
+# ---------------------------------------------------------------- scale bars between datum points
+
+
+def _with_bars(project, true_xyz):
+    """The block with three scale bars that over-determine the scale (observed 2e-4, -1e-4, 1e-4
+    relative off the truth, sigma 2 mm: they pull the points, 0.1 to 0.4 m): a chain P-Q-R (one joint
+    group of three points) and S-T (one of two)."""
+    used = _used(project)
+    ends = np.array([[used[0], used[-1]], [used[-1], used[20]], [used[5], used[30]]])
+    d = np.linalg.norm(true_xyz[ends[:, 0]] - true_xyz[ends[:, 1]], axis=1) * np.array([1.0002, 0.9999, 1.0001])
+    return replace(project, distances=Distances(ends[:, 0], ends[:, 1], d, np.full(3, 0.002)))
+
+
+@pytest.fixture(scope="module")
+def bars():
+    """The block with scale bars, adjusted by both methods in the photo and the point datum (every
+    point, and every second point: the datum then holds some members of the joint groups only)."""
+    project, true_xyz, _ = _block()
+    project = _with_bars(project, true_xyz)
+    subset = tuple(str(project.points.ids[i]) for i in _used(project)[::2])
+    runs = {(m, d, k): _run(project, m, d, pts) for m in ("conditions", "bundle")
+            for d, k, pts in (("inner", "all", ()), ("inner-points", "all", ()), ("inner-points", "subset", subset))}
+    return project, runs
+
+
+def _datum_ids(project, r):
+    return [str(project.points.ids[i]) for i in r.free_network.points.index]
+
+
+@pytest.mark.parametrize("which", ["all", "subset"])
+def test_conditions_equal_bundle_in_the_point_datum_with_scale_bars(bars, which):
+    """The point datum with distances between datum points: the iteration's constraint intersects
+    the joint groups together (the bars pull the points, so the points' own rays alone do not give
+    the datum: without the coupling the conditions method does not converge to the bundle's)."""
+    project, runs = bars
+    (a, xa), (b, xb) = runs[("conditions", "inner-points", which)], runs[("bundle", "inner-points", which)]
+    assert a.converged and b.converged and a.redundancy == b.redundancy
+    ids = _datum_ids(project, a)
+    assert ids == _datum_ids(project, b) and len(ids) == len(_used(project)[:: 1 if which == "all" else 2])
+    dist = project.distances
+    where = {p: k for k, p in enumerate(_used(project))}
+    lengths = np.linalg.norm(xb[[where[p] for p in dist.point_from]] - xb[[where[p] for p in dist.point_to]], axis=1)
+    # the bars have residuals (a lone bar would only give the scale and fit exactly): they pull their
+    # points away from their own rays' intersection
+    assert np.abs(lengths - dist.distance).min() > 1e-5
+    joined = {str(project.points.ids[p]) for p in np.concatenate([dist.point_from, dist.point_to])}
+    assert (joined <= set(ids)) == (which == "all")  # the subset leaves members of the groups out
+    assert b.vtpv == pytest.approx(a.vtpv, rel=1e-7)
+    np.testing.assert_allclose(xb, xa, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(b.state.xyz0, a.state.xyz0, rtol=0, atol=1e-7)
+    extent = np.ptp(xb, axis=0).max()
+    sel = [where[int(i)] for i in b.free_network.points.index]
+    assert _similarity_of(xb[sel], project.points.xyz_approx[b.free_network.points.index], scale=False) < 1e-9 * extent
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+@pytest.mark.parametrize("which", ["all", "subset"])
+def test_points_csv_sigmas_are_covariance_npz_with_scale_bars(bars, method, which):
+    """points.csv's mean errors (pipeline.triangulate_result: the joint groups intersected together,
+    the point datum's cross terms with their cross blocks) equal the diagonal of covariance.npz, for
+    every point, in the point datum with scale bars."""
+    project, runs = bars
+    r = runs[(method, "inner-points", which)][0]
+    tri = triangulate_result(project, r)
+    used = _used(project)
+    got = np.einsum("pii->pi", tri.cov_measurement[used] + tri.cov_orientation[used]) * r.sigma0_for_precision**2
+    npz = np.load(io.BytesIO(covariance_file(project, r, CovarianceRequest(("points",)))))
+    labels = list(npz["labels"])
+    rows = [[labels.index(f"points/{project.points.ids[p]}/{a}") for a in "XYZ"] for p in used]
+    want = np.array([npz["covariance"][i, i] for i in rows])
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+
+
+def _frame_change(src, dst):
+    """The block-diagonal map B of an export ``src`` (ground frame 1) into ``dst``'s frame, the two
+    solutions differing by a finite rigid motion R (fitted on the points): R on the points and the
+    projection centres, ``J(R R_k) J(R_k)^-1`` on the angles of photo k (angles_jacobian: a
+    perturbation of R_k, on the right, is the same rotation vector in both frames). Returns B and
+    the largest residual of the fit."""
+    pts = [i for i, lab in enumerate(src.labels) if lab.startswith("points/")]
+    s, R, _, resid = _helmert(src.values[pts].reshape(-1, 3), dst.values[pts].reshape(-1, 3))
+    B = np.zeros((len(src.labels), len(src.labels)))
+    k = 0
+    while k < len(src.labels):
+        if src.labels[k].startswith("photos/"):
+            ang = src.values[k + 3:k + 6]
+            Rk = R_from_angles(ang, src.convention)
+            J = angles_jacobian(np.stack([Rk, R @ Rk]), src.convention)
+            B[k:k + 3, k:k + 3] = R
+            B[k + 3:k + 6, k + 3:k + 6] = J[1] @ np.linalg.inv(J[0])
+            k += 6
+        else:
+            B[k:k + 3, k:k + 3] = R
+            k += 3
+    return B, resid, s
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+@pytest.mark.parametrize("which", ["all", "subset"])
+def test_full_covariance_of_the_point_datum_is_the_photo_datum_s_transformed_with_scale_bars(bars, method, which):
+    """The issue's check with scale bars for the whole exported covariance (photos and points): the
+    photo datum's S-transformed by a rigid motion (the bars give the scale) to the datum points is
+    the point datum's, 1e-9 of its largest entry, once the finite rigid motion between the two
+    solutions is brought in."""
+    project, runs = bars
+    rph, rpt = runs[(method, "inner", "all")][0], runs[(method, "inner-points", which)][0]
+    eph = joint_covariance(project, rph, triangulate_adjusted(project, rph), ("photos", "points"))
+    ept = joint_covariance(project, rpt, triangulate_adjusted(project, rpt), ("photos", "points"))
+    st = s_transform(eph, _datum_ids(project, rpt), scale=False)
+    B, resid, s = _frame_change(st, ept)
+    assert resid < 1e-7 and abs(s - 1.0) < 1e-9
+    assert np.abs(B - np.eye(len(B))).max() > 1e-6  # a real change of frame
+    np.testing.assert_allclose(B @ st.cov @ B.T, ept.cov, rtol=0, atol=1e-9 * np.abs(ept.cov).max())
 
 
 # ---------------------------------------------------------------- bad input

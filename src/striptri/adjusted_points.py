@@ -10,10 +10,13 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from .core.observations import observations_of
 from .core.result import AdjustmentResult
+from .joint_groups import joint_point_blocks
 from .model import Project
-from .point_datum import points_correction
+from .point_datum import JointBlock, points_correction
 from .triangulation import GivenCoordinates, RayObservations, Triangulated, triangulate
 
 
@@ -27,9 +30,11 @@ def triangulate_adjusted(project: Project, result: AdjustmentResult, *, orientat
     Returns triangulation.Triangulated: coordinates, which points are determined, and the
     measurement part of their cofactors; with ``orientation_part`` also the orientation part
     ``G Qxx G^T`` (Schmid 87-90), which reads ``result.covariance`` (a NumericalFailure where N is
-    singular). Without it ``cov_orientation`` is zero. In the point datum (point_datum) the
-    orientation part of the datum points carries also the orientation's covariance with their own
-    measurements (point_datum.points_correction).
+    singular). Without it ``cov_orientation`` is zero. With the orientation part, the points joined
+    by distances are intersected together (joint_groups.joint_point_precision: their blocks of the
+    joint form), and in the point datum (point_datum) the orientation part carries also the
+    orientation's covariance with the datum points' own measurements (point_datum.points_correction,
+    with the joint groups' cross blocks).
     """
     ip = project.image_points
     rays = RayObservations(photo_index=ip.photo_index, point_index=ip.point_index, xy_plate=result.plate_adjusted,
@@ -38,7 +43,13 @@ def triangulate_adjusted(project: Project, result: AdjustmentResult, *, orientat
                                q_given=observations_of(project, result.offset).q_control)
     tri = triangulate(rays, control, state=result.state, layout=result.layout,
                       Qxx=result.covariance if orientation_part else None)
+    if not orientation_part:
+        return tri
+    tri, pairs = joint_point_blocks(project, result, tri)
     fn = result.free_network
-    if orientation_part and fn is not None and fn.points is not None:
-        tri = replace(tri, cov_orientation=tri.cov_orientation + points_correction(fn.points, tri.cov_measurement))
+    if fn is not None and fn.points is not None:
+        H = np.vstack([fn.H, np.zeros((1, fn.H.shape[1]))])  # row -1: held elements do not move
+        groups = [JointBlock(js.point_index, inter.Qm, inter.G @ H[js.cols]) for js, inter in pairs]
+        tri = replace(tri, cov_orientation=tri.cov_orientation
+                      + points_correction(fn.points, tri.cov_measurement, groups))
     return tri

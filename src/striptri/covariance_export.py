@@ -13,7 +13,8 @@ camera elements (the angle Jacobian J T of rotations.angles_jacobian for the ang
 orientation held (Schmid 87-90, as striptri.triangulation forms its blocks) and Qm_i its measurement
 part (in the point datum plus the orientation's covariance with the datum points' own measurements,
 point_datum.export_correction). The points share nothing through their own measurements, so the measurement parts are
-block-diagonal; every cross term comes through Qxx. Multiplied by sigma0^2 a posteriori
+block-diagonal (per point, or per joint group of points joined by distances: joint_groups); every other cross term
+comes through Qxx. Multiplied by sigma0^2 a posteriori
 (``sigma0_for_precision``) it is the covariance; its diagonal blocks are photos.csv's, cameras.csv's
 and points.csv's mean errors squared (tested).
 
@@ -41,7 +42,7 @@ from .core.result import AdjustmentResult
 from .joint_groups import has_distances, joint_intersections
 from .lens import CAMERA_ELEMENTS
 from .model import Project
-from .point_datum import export_correction
+from .point_datum import JointBlock, export_correction
 from .rotations import R_from_angles, angles_from_R, angles_jacobian, skew
 from .triangulation import Triangulated, ray_terms
 
@@ -202,7 +203,9 @@ def joint_covariance(project: Project, result: AdjustmentResult, tri: Triangulat
         Q[k:k + 3, k:k + 3] += tri.cov_measurement[points[i]]
     fn = result.free_network
     if fn is not None and fn.points is not None and len(points):  # the point datum (point_datum)
-        Q += export_correction(fn.points, F @ fn.H, len(Tm) + 3 * np.arange(len(points)), tri.cov_measurement, points)
+        groups = [JointBlock(points[rows[::3] // 3], Qm) for rows, _, Qm in joint]
+        Q += export_correction(fn.points, F @ fn.H, len(Tm) + 3 * np.arange(len(points)), tri.cov_measurement, points,
+                               groups)
     xyz = tri.xyz[points] + result.offset
     for i, k in enumerate(points):
         for a, name in enumerate("XYZ"):

@@ -160,22 +160,7 @@ class JointGroups:
             member_of += [(len(members) - 1, i) for i in range(int(pick.sum()))]
         member_of = np.array(member_of, dtype=int).reshape(-1, 2)
         member_point = np.array([members[b].point_index[i] for b, i in member_of], dtype=int)
-        slot = np.full(len(project.points), -1)
-        slot[member_point] = np.arange(len(member_point))
-        a, c = slot[dist.point_from], slot[dist.point_to]
-        if (a < 0).any() or (c < 0).any():  # check_distance_points lets no such point through
-            raise ValueError("a distance point without a group")
-        n = len(member_point)
-        graph = coo_matrix((np.ones(len(a)), (a, c)), shape=(n, n))
-        n_comp, label = connected_components(graph, directed=False)
-        components = []
-        for k in range(n_comp):
-            mem = np.flatnonzero(label == k)
-            pos = np.full(n, -1)
-            pos[mem] = np.arange(len(mem))
-            rows = np.flatnonzero(label[a] == k)
-            components.append(Component(mem, rows, np.stack([pos[a[rows]], pos[c[rows]]], 1)))
-        return rest, JointGroups(project, members, member_of, components)
+        return rest, JointGroups(project, members, member_of, distance_components(project, member_point))
 
     def systems(self, state, layout, rotation_maps, obs, plate_hat, control_hat, distance_hat,
                 scale_form: str = "3d", transform=None) -> list[JointSystem]:
@@ -247,6 +232,30 @@ class JointGroups:
                            xyz, dX_dl, dX_dx, rays)
 
 
+def distance_components(project: Project, member_point: np.ndarray) -> list[Component]:
+    """The joint groups of a project with distances: the connected components of the distance graph
+    over ``member_point`` (n,), indices into project.points holding every end of a distance; the
+    components' members are positions in member_point (Component). Used by JointGroups.of and by the
+    point datum (point_datum), whose datum points are intersected jointly likewise."""
+    dist = project.distances
+    slot = np.full(len(project.points), -1)
+    slot[member_point] = np.arange(len(member_point))
+    a, c = slot[dist.point_from], slot[dist.point_to]
+    if (a < 0).any() or (c < 0).any():  # check_distance_points lets no such point through
+        raise ValueError("a distance point without a group")
+    n = len(member_point)
+    graph = coo_matrix((np.ones(len(a)), (a, c)), shape=(n, n))
+    n_comp, label = connected_components(graph, directed=False)
+    components = []
+    for k in range(n_comp):
+        mem = np.flatnonzero(label == k)
+        pos = np.full(n, -1)
+        pos[mem] = np.arange(len(mem))
+        rows = np.flatnonzero(label[a] == k)
+        components.append(Component(mem, rows, np.stack([pos[a[rows]], pos[c[rows]]], 1)))
+    return components
+
+
 def _sub(b: GroupBatch, pick: np.ndarray) -> GroupBatch:
     return GroupBatch(b.family, b.k, b.given_axes, b.point_index[pick], b.image_rows[pick], b.photo_index[pick],
                       b.n_conditions, b.star)
@@ -290,11 +299,19 @@ def joint_point_precision(project: Project, result, tri):
     tri: triangulation.Triangulated of the adjusted result with its orientation part
     (adjusted_points.triangulate_adjusted); returns it with the members' cov_measurement and
     cov_orientation replaced by the diagonal 3x3 blocks of the joint form (unchanged without distances)."""
+    return joint_point_blocks(project, result, tri)[0]
+
+
+def joint_point_blocks(project: Project, result, tri):
+    """:func:`joint_point_precision` and the joint groups it formed: (tri, the (JointSystem,
+    JointIntersection) pairs of joint_intersections; empty without distances). The point datum
+    needs the cross blocks between the members (point_datum.points_correction)."""
     if not has_distances(project):
-        return tri
+        return tri, []
     cov_m, cov_o = tri.cov_measurement.copy(), tri.cov_orientation.copy()
     lay, state = result.layout, result.state
-    for js, inter in joint_intersections(project, result, tri.xyz):
+    pairs = joint_intersections(project, result, tri.xyz)
+    for js, inter in pairs:
         photo = js.photo_index[None]
         slots = ray_slots(inter.G.reshape(1, len(inter.G), len(js.photo_index), -1), photo, lay.photo_cols,
                           state.camera_of_photo[photo], lay.camera_cols[:, lay.camera_elements])
@@ -302,7 +319,7 @@ def joint_point_precision(project: Project, result, tri):
         for j, p in enumerate(js.point_index):
             sl = slice(3 * j, 3 * j + 3)
             cov_m[p], cov_o[p] = inter.Qm[sl, sl], GQG[sl, sl]
-    return replace(tri, cov_measurement=cov_m, cov_orientation=cov_o)
+    return replace(tri, cov_measurement=cov_m, cov_orientation=cov_o), pairs
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,6 @@ from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, ROTATION_OUTPUT_NAMES, Project
-from .joint_groups import joint_point_precision
 from .precision import joint_point_covariance
 from .reliability import blunder_options, detect_blunders
 from .reliability.distances import distance_table
@@ -364,8 +363,8 @@ def triangulate_result(project: Project, result: AdjustmentResult) -> Triangulat
     collinearity form, bundle.precision.points_of, kept from the reliability measures' pass)."""
     if collinearity_form.applies(project, result):
         return collinearity_form.points_of(project, result)
-    # the points joined by distances.csv intersected together (joint_groups.joint_point_precision)
-    return joint_point_precision(project, result, triangulate_adjusted(project, result, orientation_part=True))
+    # the points joined by distances.csv are intersected together there (joint_groups.joint_point_precision)
+    return triangulate_adjusted(project, result, orientation_part=True)
 
 
 def _angle_scale(project: Project) -> float:

@@ -256,7 +256,9 @@ class _Problem:
         self.free_network = self._free_network() if options.datum != "control" else None
         self.point_datum = None
         if self.free_network is not None and options.datum == "inner-points":
-            self.point_datum = point_datum.PointDatum.of(project, options.datum_points, self.batches,
+            # every point group, the points joined by distances (the joint groups' members) too
+            every = self.batches + (self.joint.member_batches if self.joint is not None else [])
+            self.point_datum = point_datum.PointDatum.of(project, options.datum_points, every,
                                                          self.initial_state, self.obs, self.offset)
             point_datum.check_directions(self.point_datum, self.free_network, self.initial_state)
         n_datum = 0 if self.free_network is None else len(self.free_network)
