@@ -165,15 +165,22 @@ def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: 
             step = max(1, block_chunk // max(sa * sb * wa * wb, 1))
             for c0 in range(0, m, step):
                 c1 = min(c0 + step, m)
-                Q = table[index[c0:c1]]  # (mc, sa, sb, wa, wb)
-                if swap is not None:
-                    Q = np.where(swap[c0:c1, :, :, None, None], np.swapaxes(Q, -1, -2), Q)
-                Q = Q.transpose(0, 1, 3, 2, 4).reshape(c1 - c0, sa * wa, sb * wb)
+                Q = _set_pair_block(table, index, swap, slice(c0, c1))
                 Ga = Pa.G[c0:c1].reshape(c1 - c0, r, sa * wa)
                 Gb = Pb.G[c0:c1].reshape(c1 - c0, r, sb * wb)
                 T = (Ga @ Q) @ np.swapaxes(Gb, 1, 2)
                 out[c0:c1] += T if a == b else T + np.swapaxes(T, 1, 2)
     return out
+
+
+def _set_pair_block(table: np.ndarray, index: np.ndarray, swap: np.ndarray | None, groups: slice) -> np.ndarray:
+    """Q between two slots' unknowns for ``groups`` of a batch, from BlockStore.blocks' table:
+    (mc, sa * wa, sb * wb), each set's w columns together (set-major)."""
+    Q = table[index[groups]]  # (mc, sa, sb, wa, wb)
+    if swap is not None:
+        Q = np.where(swap[groups, :, :, None, None], np.swapaxes(Q, -1, -2), Q)
+    mc, sa, sb, wa, wb = Q.shape
+    return Q.transpose(0, 1, 3, 2, 4).reshape(mc, sa * wa, sb * wb)
 
 
 def set_blocks(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
@@ -194,10 +201,7 @@ def set_blocks(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: S
         for b in range(a, len(parts)):
             Pb = parts[b]
             table, index, swap = store.blocks(entries, Pa, Pb, same=a == b)
-            Q = table[index]  # (m, sa, sb, wa, wb)
-            if swap is not None:
-                Q = np.where(swap[:, :, :, None, None], np.swapaxes(Q, -1, -2), Q)
-            Q = Q.transpose(0, 1, 3, 2, 4).reshape(m, sizes[a], sizes[b])
+            Q = _set_pair_block(table, index, swap, slice(None))
             out[:, starts[a]:starts[a + 1], starts[b]:starts[b + 1]] = Q
             if a != b:
                 out[:, starts[b]:starts[b + 1], starts[a]:starts[a + 1]] = np.swapaxes(Q, 1, 2)
