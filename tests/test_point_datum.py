@@ -621,6 +621,18 @@ def test_command_line_bad_datum_points(noisy, folder, tmp_path, given, words):
     proc = run("adjust", folder, "--out", tmp_path / "o", "--datum", "inner-points", "--datum-points", ",".join(ids))
     message = assert_clean_failure(proc, 2)
     assert words in message and "command line" in message
+    assert "('" not in message  # the ids as given, not a Python tuple
+    assert not (tmp_path / "o").exists()
+
+
+def test_sequential_with_a_free_network_names_the_datum(folder, tmp_path):
+    """The project asks for the point datum, the command line for the sequential method: the message
+    names the datum the project gave (not a --datum the user did not type)."""
+    copy = tmp_path / "p"
+    shutil.copytree(folder, copy)
+    _toml(copy, '\n[datum]\nmode = "inner-points"\n')
+    message = assert_clean_failure(run("adjust", copy, "--out", tmp_path / "o", "--method", "sequential"), 2)
+    assert "datum 'inner-points'" in message and "--method sequential" in message
     assert not (tmp_path / "o").exists()
 
 

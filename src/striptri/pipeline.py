@@ -78,7 +78,8 @@ def options_for(project: Project, **overrides) -> AdjustmentOptions:
     try:
         return AdjustmentOptions.of(**{**base, **given})
     except ValueError as exc:
-        flags = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in given.items())
+        flags = " ".join(f"--{k.replace('_', '-')} {','.join(v) if isinstance(v, (tuple, list)) else v}"
+                         for k, v in given.items())
         raise InputError("command line", None, f"{exc} (given: {flags or 'no options'})") from None
 
 

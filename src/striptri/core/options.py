@@ -142,12 +142,13 @@ class AdjustmentOptions:
         if self.datum not in DATUMS:
             raise ValueError(f"unknown datum {self.datum!r}; choose one of {', '.join(DATUMS)}")
         if self.method == "sequential" and self.datum != "control":
-            raise ValueError("the sequential method takes its datum from control; --datum inner is not for it")
+            raise ValueError(f"the sequential method takes its datum from control, not from a free network "
+                             f"(datum {self.datum!r})")
         if self.datum_points and self.datum != "inner-points":
             raise ValueError("datum points are for the point datum: give it as well (--datum inner-points, or "
                              "[datum] mode = \"inner-points\")")
         if self.datum_points and len(self.datum_points) < 3:
-            raise ValueError(f"the point datum needs at least three datum points (given: {', '.join(self.datum_points)})")
+            raise ValueError(f"the point datum needs at least three datum points, not {len(self.datum_points)}")
         if len(set(self.datum_points)) != len(self.datum_points):
             raise ValueError("a datum point is given twice")
         solvers.resolve_solver(self.solver, 0)
