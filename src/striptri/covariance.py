@@ -155,22 +155,28 @@ def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: 
     out = np.zeros((m, r, r))
     if m == 0:
         return out
+    for a, b, table, index, swap in _set_pairs(entries, parts, store):
+        Pa, Pb = parts[a], parts[b]
+        sa, wa = Pa.G.shape[2:]
+        sb, wb = Pb.G.shape[2:]
+        step = max(1, block_chunk // max(sa * sb * wa * wb, 1))
+        for c0 in range(0, m, step):
+            c1 = min(c0 + step, m)
+            Q = _set_pair_block(table, index, swap, slice(c0, c1))
+            Ga = Pa.G[c0:c1].reshape(c1 - c0, r, sa * wa)
+            Gb = Pb.G[c0:c1].reshape(c1 - c0, r, sb * wb)
+            T = (Ga @ Q) @ np.swapaxes(Gb, 1, 2)
+            out[c0:c1] += T if a == b else T + np.swapaxes(T, 1, 2)
+    return out
+
+
+def _set_pairs(entries, parts: Sequence["Slots"], store: "BlockStore | None"):
+    """(a, b, table, index, swap) for every pair a <= b of a batch's slots, the blocks of Q between
+    their unknown sets read once through ``store`` (BlockStore.blocks)."""
     store = BlockStore() if store is None else store
     for a, Pa in enumerate(parts):
         for b in range(a, len(parts)):
-            Pb = parts[b]
-            table, index, swap = store.blocks(entries, Pa, Pb, same=a == b)
-            sa, wa = Pa.G.shape[2:]
-            sb, wb = Pb.G.shape[2:]
-            step = max(1, block_chunk // max(sa * sb * wa * wb, 1))
-            for c0 in range(0, m, step):
-                c1 = min(c0 + step, m)
-                Q = _set_pair_block(table, index, swap, slice(c0, c1))
-                Ga = Pa.G[c0:c1].reshape(c1 - c0, r, sa * wa)
-                Gb = Pb.G[c0:c1].reshape(c1 - c0, r, sb * wb)
-                T = (Ga @ Q) @ np.swapaxes(Gb, 1, 2)
-                out[c0:c1] += T if a == b else T + np.swapaxes(T, 1, 2)
-    return out
+            yield (a, b, *store.blocks(entries, Pa, parts[b], same=a == b))
 
 
 def _set_pair_block(table: np.ndarray, index: np.ndarray, swap: np.ndarray | None, groups: slice) -> np.ndarray:
@@ -196,15 +202,11 @@ def set_blocks(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: S
     out = np.zeros((m, starts[-1], starts[-1]))
     if m == 0:
         return out
-    store = BlockStore() if store is None else store
-    for a, Pa in enumerate(parts):
-        for b in range(a, len(parts)):
-            Pb = parts[b]
-            table, index, swap = store.blocks(entries, Pa, Pb, same=a == b)
-            Q = _set_pair_block(table, index, swap, slice(None))
-            out[:, starts[a]:starts[a + 1], starts[b]:starts[b + 1]] = Q
-            if a != b:
-                out[:, starts[b]:starts[b + 1], starts[a]:starts[a + 1]] = np.swapaxes(Q, 1, 2)
+    for a, b, table, index, swap in _set_pairs(entries, parts, store):
+        Q = _set_pair_block(table, index, swap, slice(None))
+        out[:, starts[a]:starts[a + 1], starts[b]:starts[b + 1]] = Q
+        if a != b:
+            out[:, starts[b]:starts[b + 1], starts[a]:starts[a + 1]] = np.swapaxes(Q, 1, 2)
     return out
 
 
