@@ -1784,3 +1784,30 @@ def test_a_signal_swallowed_by_a_weakref_callback_is_delivered_again(what):
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == ("interrupted 15" if what == "Interrupted" else "keyboard interrupt")
     assert "Traceback" not in proc.stderr and "ignored" not in proc.stderr
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 128 + signal.SIGTERM), (signal.SIGINT, 128 + signal.SIGINT)])
+def test_a_signal_turned_into_another_error_by_compiled_code_is_still_an_interruption(sig, status):
+    """matplotlib's Agg renderer calls back into Python while it draws; a signal handled there has its
+    Interrupted (or KeyboardInterrupt) turned into "ValueError: Invalid bounding box" (seen in
+    test_signals_at_random_moments). The command must still end as interrupted (128 + the signal),
+    not as an internal error."""
+    script = textwrap.dedent(f"""
+        import os, signal, time
+        from striptri.cli import reports_errors
+
+        @reports_errors
+        def command():
+            try:
+                os.kill(os.getpid(), {int(sig)})
+                time.sleep(5)
+            except BaseException:
+                raise ValueError("Invalid bounding box")  # what the extension makes of it
+            print("not interrupted")
+
+        command()
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == status, (proc.returncode, proc.stderr)
+    assert f"interrupted ({signal.Signals(sig).name})" in proc.stderr
+    assert "internal error" not in proc.stderr and "Traceback" not in proc.stderr

@@ -33,7 +33,8 @@ def reports_errors(command):
     * NumericalFailure (a datum defect, divergence, no convergence) -> exit status 1;
     * MemoryError -> exit status 1, saying so;
     * SIGINT, SIGTERM, SIGHUP -> the output reservation cleans up, then exit 128 + the signal's
-      number, as a shell reports a killed program;
+      number, as a shell reports a killed program (also when compiled code that called back into
+      Python turned the interruption into an error of its own);
     * anything else is a defect of striptri: one line naming it, exit status 1 (the traceback only
       with STRIPTRI_DEBUG=1).
     """
@@ -61,6 +62,9 @@ def reports_errors(command):
         except (click.ClickException, click.exceptions.Exit, click.Abort):
             raise  # click's own usage errors (exit status 2) and exits
         except Exception as exc:  # noqa: BLE001 - the last line of defence: one message, no traceback
+            signum = _interrupted_inside_an_extension()
+            if signum is not None:  # the interruption, turned into another error by compiled code
+                _fail(f"interrupted ({signal.Signals(signum).name}); no output was left half-written", 128 + signum)
             if os.environ.get("STRIPTRI_DEBUG"):
                 raise
             _fail(f"internal error ({type(exc).__name__}: {exc}). This is a defect of striptri; please report it "
@@ -71,8 +75,25 @@ def reports_errors(command):
     return wrapper
 
 
+_RECEIVED: list[int] = []  # the termination signals received while the command runs
+
+
 def _raise_interrupted(signum, frame):
+    _RECEIVED.append(signum)
     raise Interrupted(signum)
+
+
+def _raise_keyboard_interrupt(signum, frame):
+    _RECEIVED.append(signum)
+    raise KeyboardInterrupt
+
+
+def _interrupted_inside_an_extension() -> int | None:
+    """The signal, when one was received during the command: a compiled extension that calls back
+    into Python (matplotlib's Agg renderer) may turn the Interrupted or KeyboardInterrupt its
+    callback raised into an error of its own ("ValueError: Invalid bounding box"); the run was
+    interrupted all the same."""
+    return _RECEIVED[-1] if _RECEIVED else None
 
 
 def _raise_on_signals() -> dict:
@@ -85,7 +106,8 @@ def _raise_on_signals() -> dict:
     (sys.unraisablehook while the command runs) catches exactly that case, prints nothing and sends
     the signal again a moment later, when the main thread is back in ordinary code."""
     previous = {}
-    handlers = {**{sig: _raise_interrupted for sig in TERMINATION_SIGNALS}, signal.SIGINT: signal.default_int_handler}
+    _RECEIVED.clear()
+    handlers = {**{sig: _raise_interrupted for sig in TERMINATION_SIGNALS}, signal.SIGINT: _raise_keyboard_interrupt}
     for sig, handler in handlers.items():
         try:
             previous[sig] = signal.signal(sig, handler)
