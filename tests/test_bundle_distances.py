@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from striptri import model
-from striptri import simulate as sim
 from striptri.bundle import solve_bundle
 from striptri.bundle.adjust import _Problem
 from striptri.bundle.distances import Distances, linearise_distances
 from striptri.core.options import AdjustmentOptions
+
+from distance_support import strip_with_truth
 
 
 def test_distance_jacobian_matches_central_differences():
@@ -33,16 +34,7 @@ def test_distance_jacobian_matches_central_differences():
                 assert J[r, i] == pytest.approx(expected, rel=1e-7, abs=1e-9)
 
 
-def _strip(sigma_image, seed=3):
-    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=5), control=sim.ControlDesign(layout="ends"),
-                                 points=sim.PointDesign(extra_ties_per_model=2))
-    truth = sim.make_truth(design, np.random.default_rng(seed))
-    project = sim.perturb(truth, sim.NoiseOptions(sigma_image=sigma_image, approx_position_error=1.0,
-                                                  approx_angle_error=0.1), np.random.default_rng(seed + 1))
-    rays = np.bincount(project.image_points.point_index, minlength=len(project.points))
-    usable = np.flatnonzero(rays >= 2)
-    true_xyz = np.array([truth.xyz_ground[truth.point_ids.index(pid)] for pid in project.points.ids])
-    return project, usable, true_xyz
+_strip = strip_with_truth
 
 
 def _datum(project, true_xyz, held: dict[int, int]):

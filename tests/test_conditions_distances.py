@@ -9,7 +9,6 @@ import pytest
 
 from striptri import covariance_export as ce
 from striptri import model
-from striptri import simulate as sim
 from striptri.adjusted_points import triangulate_adjusted
 from striptri.bundle import solve_bundle
 from striptri.bundle.distances import Distances
@@ -26,19 +25,12 @@ from striptri.reliability.distances import distance_table
 from striptri.reliability.outcome import subset
 from striptri.reliability.snooping import STOPPED_DISTANCE
 
+from distance_support import strip_with_truth
+
 OPTIONS = AdjustmentOptions(tolerance=1e-10, max_iterations=30)
 
 
-def _strip(sigma_image, seed=3, n_photos=5):
-    design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=n_photos), control=sim.ControlDesign(layout="ends"),
-                                 points=sim.PointDesign(extra_ties_per_model=2))
-    truth = sim.make_truth(design, np.random.default_rng(seed))
-    project = sim.perturb(truth, sim.NoiseOptions(sigma_image=sigma_image, approx_position_error=1.0,
-                                                  approx_angle_error=0.1), np.random.default_rng(seed + 1))
-    rays = np.bincount(project.image_points.point_index, minlength=len(project.points))
-    usable = np.flatnonzero(rays >= 2)
-    true_xyz = np.array([truth.xyz_ground[truth.point_ids.index(pid)] for pid in project.points.ids])
-    return project, usable, true_xyz
+_strip = strip_with_truth
 
 
 def _with(project, true_xyz, held: dict, pairs, sigma, offsets=None, held_angles=True):

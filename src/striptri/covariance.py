@@ -139,6 +139,21 @@ def ray_slots(G: np.ndarray, photo: np.ndarray, photo_cols: np.ndarray, camera: 
     return out + [Slots(Gc, camera, camera_cols)]
 
 
+def strongest_correlations(correlations: np.ndarray, width: int) -> list[tuple[int, int, float]]:
+    """For each row of ``correlations`` (m, n_blocks * width) of an element with the elements of a
+    group of blocks (photos: width 6; centres: width 3), the largest in magnitude as (block, element,
+    correlation); (-1, -1, nan) for a row without a finite correlation."""
+    out = []
+    for row in correlations:
+        finite = np.isfinite(row)
+        if not finite.any():
+            out.append((-1, -1, float("nan")))
+            continue
+        k = int(np.nanargmax(np.where(finite, np.abs(row), -1.0)))
+        out.append((k // width, k % width, float(row[k])))
+    return out
+
+
 def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
                 block_chunk: int = BLOCK_CHUNK, store: "BlockStore | None" = None) -> np.ndarray:
     """``G Q G^T`` (m, r, r) for every group of a batch, G the derivatives of the slots ``parts``

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .covariance import strongest_correlations
 from .gnss_unknowns import GROUPS
 from .rotations import log_so3
 
@@ -71,14 +72,7 @@ def gnss_precision(result, camera_ids, strip_ids) -> GnssPrecision | None:
         s_c = np.sqrt(np.maximum(np.where(centre_cols >= 0, q_c, np.nan), 0.0))
         with np.errstate(invalid="ignore", divide="ignore"):
             ext = cov.entries(cols[:, None], centre_cols[None, :]) / (s[:, None] * s_c[None, :])
-        centre = []
-        for row in ext:
-            finite = np.isfinite(row)
-            if not finite.any():
-                centre.append((-1, -1, float("nan")))
-                continue
-            k = int(np.nanargmax(np.where(finite, np.abs(row), -1.0)))
-            centre.append((k // 3, k % 3, float(row[k])))
+        centre = strongest_correlations(ext, 3)
     return GnssPrecision(values, sigma, labels, corr, centre)
 
 

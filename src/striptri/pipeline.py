@@ -304,7 +304,7 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
     html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
-                              flags=det.flag[det.rows], figures={"structure": structure})
+                              flags=det.flag[det.rows], figures={"structure": structure}, distances=distance_cols)
     summary["timings_s"]["report"] = round(time.perf_counter() - t0, 6)
     progress.phase("report", summary["timings_s"]["report"])
     files = {**tables, "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n", "report.html": html}

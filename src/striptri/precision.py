@@ -26,7 +26,7 @@ from .bundle import precision as collinearity_form
 from .core.observations import observations_of
 from .core.options import AdjustmentOptions
 from .core.result import AdjustmentResult
-from .covariance import ray_slots
+from .covariance import ray_slots, strongest_correlations
 from .errors import NumericalFailure
 from .groups import build_batches
 from .joint_groups import JointGroups, has_distances, joint_intersections
@@ -373,13 +373,6 @@ def camera_correlations(result) -> list[dict]:
         with np.errstate(invalid="ignore", divide="ignore"):
             matrix = Q / np.outer(s, s)
             ext = cov.entries(c[:, None], photo_cols[None, :]) / (s[:, None] * s_photo[None, :])
-        exterior = []
-        for row in ext:
-            finite = np.isfinite(row)
-            if not finite.any():
-                exterior.append((-1, -1, float("nan")))
-                continue
-            k = int(np.nanargmax(np.where(finite, np.abs(row), -1.0)))
-            exterior.append((k // 6, k % 6, float(row[k])))
-        out.append({"camera": j, "elements": est, "sigma": s0 * s, "matrix": matrix, "exterior": exterior})
+        out.append({"camera": j, "elements": est, "sigma": s0 * s, "matrix": matrix,
+                    "exterior": strongest_correlations(ext, 6)})
     return out

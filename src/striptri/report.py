@@ -413,12 +413,16 @@ def _corrections_section(summary: dict) -> list[str]:
                     "direction", "formula and source"], rows, left=1)]
 
 
-def _distances_section(project: Project, result: AdjustmentResult, summary: dict, points) -> list[str]:
+def _distances_section(project: Project, result: AdjustmentResult, summary: dict, points,
+                       cols: dict | None = None) -> list[str]:
     """The observed distances, their residuals and tests (bundle.distances.report_parts,
-    reliability.distances); nothing without."""
+    reliability.distances); nothing without. cols: distances.csv's columns when the caller has them
+    (pipeline), else they are formed here."""
     if project.distances is None or points is None:
         return []
-    cols = distance_table(project, result, points.xyz, critical=(summary.get("blunders") or {}).get("critical_value"))
+    if cols is None:
+        cols = distance_table(project, result, points.xyz,
+                              critical=(summary.get("blunders") or {}).get("critical_value"))
     return [_section("distances")] + [p if isinstance(p, str) else _table(*p) for p in
                                       distance_report_parts(project.points.ids, project.distances, points.xyz, cols)]
 
@@ -898,7 +902,8 @@ def _gnss_section(project: Project, result: AdjustmentResult) -> list[str]:
 
 
 def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np.ndarray,
-                points: Triangulated | None = None, flags=None, figures=None, timings: dict | None = None) -> str:
+                points: Triangulated | None = None, flags=None, figures=None, timings: dict | None = None,
+                distances: dict | None = None) -> str:
     """The report as one self-contained HTML text.
 
     summary: summary.json's dict; w: (m, 2) normalised residuals of the plate coordinates (nan where
@@ -907,6 +912,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     residuals.csv's "flag" strings); by default residuals.csv's rule |w| > 3.29. figures: optional
     name -> PNG bytes made elsewhere ("structure": the normal matrix pattern). timings: optional dict
     that receives the seconds each section took (section id -> s; "total" for the whole report).
+    distances: distances.csv's columns (reliability.distances.distance_table) when the caller formed
+    them; formed here otherwise.
     """
     t0 = time.perf_counter()
     figures = figures or {}
@@ -941,7 +948,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     body += [timed("flagged", lambda: _flagged_section(project, result, w, absw, flagged, flag_text)),
              timed("rejected", lambda: _rejected_section(summary)),
              _inactive_section(summary, residual_unit(project)),
-             _distances_section(project, result, summary, points),
+             _distances_section(project, result, summary, points, distances),
              timed("largest", lambda: _largest_section(project, result, w, absw)),
              timed("photos", lambda: _photos_section(project, result, stats)),
              timed("camera", lambda: _camera_section(project, result))]
