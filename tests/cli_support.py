@@ -77,6 +77,6 @@ def stray_siblings(out: Path) -> list[str]:
     parent = Path(out).parent
     if not parent.exists():
         return []
-    pattern = re.compile(r"^\.striptri-(tmp|old)-[0-9a-f]{12}(\.[A-Za-z0-9]+)?$")
+    pattern = re.compile(r"^\.striptri-(tmp|old|swap)-[0-9a-f]{12}(\.[A-Za-z0-9]+)?$")
     return sorted(p.name for p in parent.iterdir()
                   if pattern.match(p.name) or p.name.startswith(f".{Path(out).name}."))

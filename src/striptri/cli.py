@@ -19,6 +19,7 @@ import click
 from striptri import __version__
 from striptri.core.options import DATUMS, METHODS
 from striptri.errors import InputError, Interrupted, NumericalFailure
+from striptri.io.output import committed_outputs
 from striptri.solvers import SOLVERS
 
 EXIT_INPUT, EXIT_NUMERICAL = 2, 1
@@ -53,10 +54,9 @@ def reports_errors(command):
             _fail("not enough memory for this project on this machine (the arrays of the adjustment did not fit); "
                   "nothing was written", EXIT_NUMERICAL)
         except KeyboardInterrupt:
-            _fail("interrupted (SIGINT); no output was left half-written", 128 + signal.SIGINT)
+            _interrupted(signal.SIGINT)
         except Interrupted as exc:
-            name = signal.Signals(exc.signum).name
-            _fail(f"interrupted ({name}); no output was left half-written", 128 + exc.signum)
+            _interrupted(exc.signum)
         except BrokenPipeError:
             _quiet_broken_pipe()
         except (click.ClickException, click.exceptions.Exit, click.Abort):
@@ -64,7 +64,7 @@ def reports_errors(command):
         except Exception as exc:  # noqa: BLE001 - the last line of defence: one message, no traceback
             signum = _interrupted_inside_an_extension()
             if signum is not None:  # the interruption, turned into another error by compiled code
-                _fail(f"interrupted ({signal.Signals(signum).name}); no output was left half-written", 128 + signum)
+                _interrupted(signum)
             if os.environ.get("STRIPTRI_DEBUG"):
                 raise
             _fail(f"internal error ({type(exc).__name__}: {exc}). This is a defect of striptri; please report it "
@@ -76,6 +76,16 @@ def reports_errors(command):
 
 
 _RECEIVED: list[int] = []  # the termination signals received while the command runs
+
+
+def _interrupted(signum: int):
+    """Exit 128 + signum with a message that says what state the output is in."""
+    name = signal.Signals(signum).name
+    written = committed_outputs()
+    if written:
+        _fail(f"interrupted ({name}) after the output was complete: {written[-1]} holds this run's whole "
+              "result", 128 + signum)
+    _fail(f"interrupted ({name}); no output was left half-written", 128 + signum)
 
 
 def _raise_interrupted(signum, frame):

@@ -39,11 +39,11 @@ from striptri.formats.conversions import (
     project_to_bal,
     project_to_colmap,
 )
-from striptri.formats.dbat import dbat_files, dbat_to_project, read_dbat
+from striptri.formats.dbat import dbat_files, dbat_to_project, read_dbat, script_inputs
 from striptri.formats.scene import Scene
 from striptri.io.csvtable import format_csv, input_present, read_csv
 from striptri.io.output import OutputReservation, check_output_location
-from striptri.io.project_reader import parse_project, read_project
+from striptri.io.project_reader import FILE_NAMES as PROJECT_FILE_NAMES, parse_project, read_project
 from striptri.io.project_writer import project_files
 
 SOURCE_FORMATS = ("bal", "colmap", "dbat", "project")
@@ -96,6 +96,17 @@ def read_scene(src: str | Path, source_format: str | None = None, pixel_size: fl
                           notes=[str(note) for note in project.notes])
     raise ValueError(f"unknown source format {fmt!r}; one of {SOURCE_FORMATS}")
 
+def source_inputs(src: str | Path, source_format: str | None = None) -> list[Path]:
+    """Every file and folder converting src reads: the source itself and, for a DBAT script, each file
+    its <input> names (they may lie anywhere base_dir points, the output folder included)."""
+    src = Path(src)
+    if input_present(src) and not src.is_dir() and (source_format or detect_format(src)) == "dbat":
+        return script_inputs(src)
+    if src.is_dir() and (source_format or "") in ("", "project") and input_present(src / "cameras.csv"):
+        return [src, *(src / name for name in PROJECT_FILE_NAMES)]
+    return [src]
+
+
 def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | None = None,
             pixel_size: float | None = None, drop_distortion: bool = False,
             on_warning: Callable[[str], None] | None = None) -> ConvertResult:
@@ -108,9 +119,10 @@ def convert(src: str | Path, out_dir: str | Path, to: str, source_format: str | 
     the user even when the conversion then fails."""
     if to not in TARGET_FORMATS:
         raise ValueError(f"unknown target format {to!r}; one of {TARGET_FORMATS}")
-    check_output_location(out_dir, [src])  # before reading: never the source, never inside it
+    inputs = source_inputs(src, source_format)
+    check_output_location(out_dir, inputs)  # before reading: never a file it reads, never around one
     notes = _Notes(on_warning)
-    with OutputReservation(out_dir, [src]) as reservation:
+    with OutputReservation(out_dir, inputs) as reservation:
         return _convert(reservation, src, to, source_format, pixel_size, drop_distortion, notes)
 
 

@@ -8,14 +8,16 @@ A run that writes ``OUT`` goes through four steps:
    it may be replaced (below). Every command calls this before reading or computing anything.
 2. :class:`OutputReservation` (entered before the computation): missing parent folders are made,
    stale temporary entries of earlier runs killed outright (SIGKILL, power loss) are removed from
-   the parent, and a temporary sibling ``.striptri-tmp-<hex>`` is created and locked (``flock``:
-   the kernel drops the lock when the process dies, which is how the next run tells a stale
-   temporary from one a live run is writing). An unwritable folder fails here, before computing.
+   the parent (only what striptri marked: :func:`remove_stale_temporaries`), and a temporary
+   sibling folder ``.striptri-tmp-<hex>`` is created, locked (``flock``: the kernel drops the lock
+   when the process dies, which is how the next run tells a stale temporary from one a live run is
+   writing) and marked with ``.striptri-partial``. An unwritable folder fails here, before computing.
 3. :meth:`OutputReservation.commit`: the files are written into the temporary folder together with
    the marker ``.striptri-output``, which lists every file with its size and SHA-256; then, with
-   SIGINT/SIGTERM/SIGHUP held back and the parent folder locked against other striptri runs, an
-   existing OUT is renamed aside (``.striptri-old-<hex>``), the new folder renamed to OUT and the
-   old one deleted.
+   SIGINT/SIGTERM/SIGHUP held back in every thread and the parent folder locked against other
+   striptri runs, the new folder and an existing OUT exchange names atomically (``renameat2``
+   RENAME_EXCHANGE; a journalled pair of renames where the file system cannot), and the old one
+   is deleted. At no instant is OUT missing or partial.
 4. On any failure or signal (:meth:`OutputReservation.abandon`): the temporary entry and the
    parent folders made in step 2 are removed; an existing OUT is left exactly as it was.
 
@@ -29,13 +31,17 @@ replaces an existing file only when the caller's ``owned`` test recognises it as
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
 import fcntl
+import functools
 import hashlib
 import os
 import re
 import shutil
 import signal
+import sys
+import threading
 import uuid
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path, PurePosixPath
@@ -44,16 +50,29 @@ from striptri.errors import InputError
 
 MARKER = ".striptri-output"
 PARTIAL = ".striptri-partial"  # inside a temporary folder until its files are complete
+PARTIAL_TEXT = b"striptri: the temporary folder of a run that is writing its output\n"
+PAYLOAD = "output"  # a single-file output, inside its temporary folder until it is renamed into place
 TMP_PREFIX = ".striptri-tmp-"
 OLD_PREFIX = ".striptri-old-"
-_STALE_NAME = re.compile(r"^\.striptri-(tmp|old)-[0-9a-f]{12}(\.[A-Za-z0-9]+)?$")
+SWAP_PREFIX = ".striptri-swap-"
+JOURNAL_TEXT = b"striptri: swap journal; the old output waits beside it to go back to the name below\n"
+NO_EXCHANGE_VARIABLE = "STRIPTRI_NO_RENAME_EXCHANGE"  # tests: take the journalled swap
+_TEMP_NAME = re.compile(r"^\.striptri-(tmp|old)-[0-9a-f]{12}$")
+_JOURNAL_NAME = re.compile(r"^\.striptri-swap-([0-9a-f]{12})$")
 _MARKER_HEAD = (
     "Written by striptri. The next striptri run with this folder as output replaces it whole, but only\n"
     "while every file in it is one listed below, unchanged (size and SHA-256).\n"
 )
 _MANIFEST_LINE = re.compile(r"^([0-9a-f]{64}) (\d+) (.+)$")
-_HELD_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+_HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 OUTPUT_OPTION = "--out"
+_COMMITTED: list[Path] = []  # the outputs this process put in place
+STEP_HOOK: Callable[[str], None] | None = None  # tests: called at each named step of reserve and commit
+
+
+def _step(name: str) -> None:
+    if STEP_HOOK is not None:
+        STEP_HOOK(name)
 
 
 # --------------------------------------------------------------------------- step 1: the checks
@@ -259,7 +278,11 @@ class OutputReservation:
         self.committed = False
 
     def __enter__(self) -> "OutputReservation":
-        self.reserve()
+        try:
+            self.reserve()
+        except BaseException:  # a signal held back during reserve() is raised at its end
+            self.abandon()
+            raise
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -267,26 +290,29 @@ class OutputReservation:
             self.abandon()
 
     def reserve(self) -> None:
-        """Make the parent folders, remove stale temporaries of dead runs, create and lock the
-        temporary entry. OSError -> InputError (exit status 2), nothing left behind."""
+        """Make the parent folders, remove stale temporaries of dead runs, create, lock and mark the
+        temporary folder. OSError -> InputError (exit status 2), nothing left behind."""
         parent = self.path.parent
         with _signals_held():
             try:
                 self._created = _make_parents(parent)
+                _step("reserve:parents")
                 with _folder_lock(parent):
                     remove_stale_temporaries(parent)
-                    self._tmp = parent / f"{TMP_PREFIX}{uuid.uuid4().hex[:12]}"
-                    if self.kind == "folder":
-                        self._tmp.mkdir()  # not mkdtemp: its mode 0700 would become the output folder's
-                        self._fd = os.open(self._tmp, os.O_RDONLY | os.O_DIRECTORY)
-                        _lock(self._fd)
-                        (self._tmp / PARTIAL).write_bytes(b"")
-                    else:
-                        self._fd = os.open(self._tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
-                        _lock(self._fd)
+                    tmp = parent / f"{TMP_PREFIX}{uuid.uuid4().hex[:12]}"
+                    tmp.mkdir()  # not mkdtemp: its mode 0700 would become the output folder's
+                    self._tmp = tmp
+                    _step("reserve:made")
+                    self._fd = os.open(tmp, os.O_RDONLY | os.O_DIRECTORY)
+                    _lock(self._fd)
+                    write_file(tmp / PARTIAL, PARTIAL_TEXT)
+                    _step("reserve:marked")
             except OSError as exc:
                 self._cleanup()
                 raise _output_error(exc, parent) from None
+            except BaseException:
+                self._cleanup()
+                raise
 
     def commit(self, files: Mapping[str, str | bytes] | bytes) -> Path:
         """Write the files (folder: relative POSIX path -> text or bytes; file: bytes), then swap
@@ -297,11 +323,12 @@ class OutputReservation:
             if self.kind == "folder":
                 relative = {_safe_relative(name): content for name, content in files.items()}
                 _write_files(self._tmp, relative)
-                os.unlink(self._tmp / PARTIAL)
+                os.unlink(self._tmp / PARTIAL)  # the marker with its manifest now says whose it is
             else:
-                _write_fd(self._fd, bytes(files))
+                write_file(self._tmp / PAYLOAD, bytes(files))
         except OSError as exc:
             raise _output_error(exc, self.path) from None
+        _step("commit:written")
         parent = self.path.parent
         with _signals_held():
             with _folder_lock(parent):
@@ -312,39 +339,50 @@ class OutputReservation:
                             _check_replaceable_folder(self.path)
                         else:
                             _check_replaceable_file(self.path, self.owned)
+                    _step("swap:checked")
                     old = self._swap_in()
                 except OSError as exc:
                     raise _output_error(exc, self.path) from None
             self.committed = True
+            _COMMITTED.append(self.path)
             tmp_fd, self._tmp, self._fd = self._fd, None, None
             if old is not None:
-                old_path, old_fd = old
+                old_path, old_fd, journal = old
                 _remove(old_path)
+                _step("swap:old-removed")
+                if journal is not None:
+                    _remove(journal)
                 _close(old_fd)
             _close(tmp_fd)
             _sync_folder(parent)
+            _step("commit:done")
         return self.path
 
     def _swap_in(self):
-        """Rename OUT aside (locked, so no other run takes it for stale), the temporary in.
-        -> (aside path, its lock fd) or None."""
+        """Put the new output at OUT so that at every instant OUT is either the old output, whole, or
+        the new one, whole (module doc). -> (what to delete, its lock fd, the swap journal) or None."""
+        if self.kind == "file":
+            # rename(2) replaces a file atomically; the temporary folder keeps only its mark
+            os.rename(self._tmp / PAYLOAD, self.path)
+            _step("swap:renamed")
+            return self._tmp, None, None
         if not (self.path.exists() or self.path.is_symlink()):
             os.rename(self._tmp, self.path)
+            _step("swap:renamed")
             return None
-        old = self.path.with_name(f"{OLD_PREFIX}{uuid.uuid4().hex[:12]}")
         old_fd = None
-        with contextlib.suppress(OSError):
-            old_fd = os.open(self.path, os.O_RDONLY | (os.O_DIRECTORY if self.kind == "folder" else 0))
+        with contextlib.suppress(OSError):  # locked, so that no other run takes the old one for stale
+            old_fd = os.open(self.path, os.O_RDONLY | os.O_DIRECTORY)
             with contextlib.suppress(OSError):
                 fcntl.flock(old_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        os.rename(self.path, old)
         try:
-            os.rename(self._tmp, self.path)
+            if _exchange(self._tmp, self.path):
+                _step("swap:exchanged")
+                return self._tmp, old_fd, None
+            return _journalled_swap(self._tmp, self.path, old_fd)
         except BaseException:
-            os.rename(old, self.path)
             _close(old_fd)
             raise
-        return old, old_fd
 
     def abandon(self) -> None:
         """Remove the temporary entry and the parent folders this run made (if still empty)."""
@@ -365,30 +403,96 @@ class OutputReservation:
         self._created = []
 
 
+def _exchange(a: Path, b: Path) -> bool:
+    """Exchange two paths atomically (Linux renameat2 RENAME_EXCHANGE). -> False where the system or
+    the file system cannot (the caller then swaps with a journal); other OSErrors are raised."""
+    call = _renameat2()
+    if call is None:
+        return False
+    if call(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+_AT_FDCWD, _RENAME_EXCHANGE = -100, 2
+
+
+@functools.lru_cache(maxsize=1)
+def _renameat2():
+    if not sys.platform.startswith("linux") or os.environ.get(NO_EXCHANGE_VARIABLE):
+        return None
+    try:
+        call = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return None
+    call.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    call.restype = ctypes.c_int
+    return call
+
+
+def _journalled_swap(tmp: Path, out: Path, old_fd):
+    """The swap where no atomic exchange exists: a journal naming OUT is written first, then OUT is
+    renamed aside and the new folder renamed in. A run killed between the two renames leaves OUT
+    missing for an instant; the next run's sweep reads the journal and renames the old output back
+    (remove_stale_temporaries), so the old output is never lost. -> (aside path, its lock fd, journal)."""
+    token = uuid.uuid4().hex[:12]
+    journal = out.parent / f"{SWAP_PREFIX}{token}"
+    old = out.parent / f"{OLD_PREFIX}{token}"
+    write_file(journal, JOURNAL_TEXT + os.fsencode(out.name) + b"\n")
+    _step("swap:journal")
+    os.rename(out, old)
+    _step("swap:aside")
+    try:
+        os.rename(tmp, out)
+    except BaseException:
+        os.rename(old, out)
+        _remove(journal)
+        raise
+    _step("swap:renamed")
+    return old, old_fd, journal
+
+
 def write_output_folder(out_dir, files: Mapping[str, str | bytes], inputs: Iterable = ()) -> Path:
     """Check, reserve and write ``files`` as the folder out_dir in one go (module doc)."""
     with OutputReservation(out_dir, inputs) as reservation:
         return reservation.commit(files)
 
 
+def committed_outputs() -> list[Path]:
+    """The outputs this process has put in place (for the message of a signal that arrives after)."""
+    return list(_COMMITTED)
+
+
 def remove_stale_temporaries(folder: Path) -> list[str]:
-    """Remove the ``.striptri-tmp-*`` / ``.striptri-old-*`` entries of ``folder`` that no live process
-    holds locked (left by a run killed outright). Only entries striptri made are touched: the
-    name pattern, and for a folder its marker (or nothing at all inside). -> the names removed."""
+    """Clean up after runs killed outright (SIGKILL, power loss) in ``folder``: -> the names removed.
+
+    * A swap journal ``.striptri-swap-<hex>`` (recognised by its first line) whose run died between
+      its two renames: the old output ``.striptri-old-<hex>`` goes back to the name the journal gives
+      when nothing is there, and is deleted only when the new output stands in its place.
+    * A ``.striptri-tmp-*`` / ``.striptri-old-*`` folder that no live process holds locked (the kernel
+      drops a dead process's locks) and that striptri made, as its marker shows: the partial marker
+      with striptri's text, or an output marker with its manifest head; or an empty folder (rmdir,
+      which cannot delete anything). A file, a link or a folder with anything else in it is never
+      touched, whatever its name.
+    """
     removed = []
     try:
         entries = list(os.scandir(folder))
     except OSError:
         return removed
     for entry in entries:
-        if not _STALE_NAME.match(entry.name):
+        match = _JOURNAL_NAME.match(entry.name)
+        if match and entry.is_file(follow_symlinks=False) and _is_journal(Path(entry.path)):
+            removed += _recover_swap(Path(folder), Path(entry.path), match.group(1))
+    for entry in entries:
+        if not _TEMP_NAME.match(entry.name) or not os.path.isdir(entry.path) or os.path.islink(entry.path):
             continue
         path = Path(entry.path)
         try:
-            is_dir = entry.is_dir(follow_symlinks=False)
-            if not is_dir and not entry.is_file(follow_symlinks=False):
-                continue
-            fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if is_dir else 0) | os.O_NOFOLLOW)
+            fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
         except OSError:
             continue
         try:
@@ -397,8 +501,13 @@ def remove_stale_temporaries(folder: Path) -> list[str]:
             except OSError as exc:
                 if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
                     continue  # a live run holds it
-            if is_dir and not _made_by_striptri(path):
+            if not _made_by_striptri(path):
+                with contextlib.suppress(OSError):  # a run killed between mkdir and its mark: rmdir
+                    os.rmdir(path)                  # takes an empty folder only, so it loses nothing
+                    removed.append(entry.name)
                 continue
+            if entry.name.startswith(OLD_PREFIX) and (folder / f"{SWAP_PREFIX}{entry.name[len(OLD_PREFIX):]}").exists():
+                continue  # its journal still names where it belongs
             _remove(path)
             removed.append(entry.name)
         finally:
@@ -406,12 +515,60 @@ def remove_stale_temporaries(folder: Path) -> list[str]:
     return removed
 
 
-def _made_by_striptri(folder: Path) -> bool:
+def _is_journal(path: Path) -> bool:
     try:
-        names = os.listdir(folder)
+        with open(path, "rb") as f:
+            return f.read(len(JOURNAL_TEXT)) == JOURNAL_TEXT
     except OSError:
         return False
-    return not names or PARTIAL in names or MARKER in names
+
+
+def _recover_swap(folder: Path, journal: Path, token: str) -> list[str]:
+    """Finish or undo the swap of a run that died between its renames (remove_stale_temporaries)."""
+    try:
+        name = os.fsdecode(journal.read_bytes()[len(JOURNAL_TEXT):].rstrip(b"\n"))
+    except OSError:
+        return []
+    if not name or "/" in name or name in (".", ".."):
+        return []
+    old, target = folder / f"{OLD_PREFIX}{token}", folder / name
+    fd = None
+    with contextlib.suppress(OSError):
+        fd = os.open(old, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    try:
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
+                    return []  # the run is alive and finishing its swap
+            if not _made_by_striptri(old):
+                return []
+            if os.path.lexists(target):
+                _remove(old)  # the new output is in place: the old one may go
+            else:
+                os.rename(old, target)  # the run died between the renames: the old output comes back
+        _remove(journal)
+        return [journal.name]
+    except OSError:
+        return []
+    finally:
+        _close(fd)
+
+
+def _made_by_striptri(folder: Path) -> bool:
+    """A folder striptri made: its partial marker with striptri's text, or an output marker."""
+    for name, head in ((PARTIAL, PARTIAL_TEXT), (MARKER, _MARKER_HEAD.encode())):
+        path = folder / name
+        try:
+            if path.is_symlink() or not path.is_file():
+                continue
+            with open(path, "rb") as f:
+                if f.read(len(head)) == head:
+                    return True
+        except OSError:
+            continue
+    return False
 
 
 # --------------------------------------------------------------------------- helpers
@@ -536,13 +693,32 @@ def _folder_lock(folder: Path):
 @contextlib.contextmanager
 def _signals_held():
     """Hold SIGINT, SIGTERM and SIGHUP back while the file system is between two consistent states;
-    they are delivered when the block ends."""
+    they take effect when the block ends, in the order they came.
+
+    A signal sent to the process goes to any thread that does not block it: BLAS, tqdm and executor
+    threads, not only the main one. So the block masks the signals in this thread and, in the main
+    thread, puts a handler in place for the whole process (signal dispositions are per process)
+    that only notes them; that handler runs in the main thread, which is inside this block."""
+    noted: list[int] = []
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in _HELD_SIGNALS:
+            handler = signal.getsignal(sig)
+            if handler is None or handler is signal.SIG_IGN:
+                continue  # installed outside Python, or ignored: leave it
+            with contextlib.suppress(OSError, ValueError):
+                signal.signal(sig, lambda signum, frame: noted.append(signum))
+                previous[sig] = handler
     try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD_SIGNALS)
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD_SIGNALS)
     except (OSError, ValueError):  # pragma: no cover - platforms without pthread_sigmask
-        old = None
+        mask = None
     try:
         yield
     finally:
-        if old is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        if mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # pending ones now reach the noting handler
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for sig in noted:
+            signal.raise_signal(sig)

@@ -14,6 +14,7 @@ from striptri.formats.dbat.reader import (
     DbatProject,
     read_dbat,
     read_dbat_camera,
+    script_inputs,
 )
 from striptri.formats.dbat.to_project import (
     ELEMENT_OF,
@@ -28,5 +29,6 @@ from striptri.formats.scene import photo_datum
 __all__ = [
     "DISTORTION_NAMES", "ELEMENT_OF", "IO_NAMES", "SCRIPT_FILE", "DbatCamera", "DbatProject", "dbat_files",
     "dbat_to_project", "photo_datum", "pixels_to_plate", "plate_origin", "read_dbat", "read_dbat_camera",
+    "script_inputs",
     "striptri_camera",
 ]

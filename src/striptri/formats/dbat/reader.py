@@ -330,6 +330,24 @@ def read_dbat_camera(camera_xml_path: str | Path) -> DbatCamera:
 # --------------------------------------------------------------------------- reader
 
 
+def script_inputs(script_xml_path: str | Path) -> list[Path]:
+    """Every file a DBAT script makes the reader open: the script and each ``<file>`` of its
+    ``<input>`` sections, resolved from ``base_dir`` as :func:`read_dbat` does. A command that writes
+    an output checks it against all of them, so that it never replaces what it reads (a script whose
+    base_dir points into the output folder). Raises InputError for a script that cannot be read."""
+    path = Path(script_xml_path)
+    here = path.resolve().parent
+    root = parse_xml(path)
+    inp = root.find("input") if root.tag == "document" else None
+    if inp is None:
+        return [path]
+    base = _base_dir(inp, here, path)
+    found = [path]
+    for section in inp.children:
+        found += [_resolve(base, here, f.value) for f in section.findall("file") if f.value]
+    return found
+
+
 def read_dbat(script_xml_path: str | Path) -> DbatProject:
     """Read a DBAT script project (module doc). Raises InputError(file, line, reason)."""
     path = Path(script_xml_path)
