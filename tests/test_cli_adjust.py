@@ -31,7 +31,7 @@ COLUMNS = {
     "photos.csv": ["photo_id", "X0", "Y0", "Z0", "omega", "phi", "kappa",
                    "sigma_X0", "sigma_Y0", "sigma_Z0", "sigma_omega", "sigma_phi", "sigma_kappa"],
     "cameras.csv": ["camera_id", "c", "xp", "yp", "k1", "k2"],  # "and their sigmas (when estimated)"
-    "points.csv": ["point_id", "kind", "X", "Y", "Z", "sigma_X", "sigma_Y", "sigma_Z", "rays"],
+    "points.csv": ["point_id", "kind", "X", "Y", "Z", "sigma_X", "sigma_Y", "sigma_Z", "rays", "flag"],
     "residuals.csv": ["photo_id", "point_id", "vx", "vy", "w", "flag"],
 }
 SUMMARY_KEYS = ["method", "solver", "sigma0", "redundancy", "vtpv", "iterations", "converged",

@@ -15,7 +15,8 @@ import numpy as np
 from .core.observations import observations_of
 from .core.result import AdjustmentResult
 from .joint_groups import joint_point_blocks
-from .model import Project
+from .groups import rays_per_point
+from .model import CHECK, Project
 from .point_datum import JointBlock, points_correction
 from .triangulation import GivenCoordinates, RayObservations, Triangulated, triangulate
 
@@ -53,3 +54,17 @@ def triangulate_adjusted(project: Project, result: AdjustmentResult, *, orientat
         tri = replace(tri, cov_orientation=tri.cov_orientation
                       + points_correction(fn.points, tri.cov_measurement, groups))
     return tri
+
+
+UNDETERMINED = "undetermined"  # points.csv's flag (DESIGN, third wave)
+
+
+def undetermined_points(project: Project, tri: Triangulated) -> np.ndarray:
+    """(n_pt,) the points that have coordinates to determine and whose rays and given coordinates do
+    not determine them at the adjusted values (triangulation.Triangulated.undetermined: a singular
+    or nearly singular normal matrix): measured points, and check points even without rays. Held
+    control has nothing to determine."""
+    pts = project.points
+    held = pts.given_axes.all(axis=1) & np.isnan(pts.sigma_given).all(axis=1)
+    measured = (rays_per_point(project) > 0) | (pts.kind == CHECK)
+    return tri.undetermined & measured & ~held

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import balanced, covariance_export, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
-from .adjusted_points import triangulate_adjusted
+from .adjusted_points import UNDETERMINED, triangulate_adjusted, undetermined_points
 from .bundle import precision as collinearity_form
 from .bundle.distances import summary_entry as distances_summary
 from .crs import project as map_coordinates
@@ -254,6 +254,9 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
                 points = _replace(points, cov_measurement=joint, cov_orientation=np.zeros_like(joint))
             phases["point_precision"] = time.perf_counter() - t0
             progress.phase("point precision", phases["point_precision"])
+            weak = undetermined_warning(adjusted, points)
+            if weak is not None:
+                warn(weak)
         finally:
             for w in caught:
                 warn(str(w.message))
@@ -454,7 +457,23 @@ def point_table(project: Project, result: AdjustmentResult, tri: Triangulated) -
     for a, name in enumerate("XYZ"):
         cols[f"sigma_{name}"] = sig[:, a]
     cols["rays"] = rays_per_point(project)
+    cols["flag"] = np.where(undetermined_points(project, tri), UNDETERMINED, "").tolist()
     return cols
+
+
+def undetermined_warning(project: Project, tri: Triangulated) -> str | None:
+    """The summary.json warning that names the undetermined points (None without any)."""
+    idx = np.flatnonzero(undetermined_points(project, tri))
+    if not len(idx):
+        return None
+    names = ", ".join(project.points.ids[i] for i in idx[:10]) + (" ..." if len(idx) > 10 else "")
+    n_check = int(np.sum(project.points.kind[idx] == CHECK))
+    checks = (f"; {n_check} check point{'s are' if n_check > 1 else ' is'} left out of the check-point statistics"
+              if n_check else "")
+    return (f"{len(idx)} point{'s are' if len(idx) > 1 else ' is'} not determined by {'their' if len(idx) > 1 else 'its'} "
+            f"rays at the adjusted values ({names}): rays nearly parallel, one ray left, or a coordinate lost to "
+            "rejected measurements. They are flagged 'undetermined' in points.csv, with their mean errors where "
+            f"defined{checks}.")
 
 
 def residual_table(project: Project, det) -> dict:
@@ -476,14 +495,19 @@ def residual_table(project: Project, det) -> dict:
 
 
 def check_point_statistics(project: Project, result: AdjustmentResult, tri: Triangulated) -> dict:
-    """Differences adjusted - given at check points and their RMS per axis (None without any)."""
-    sel = (project.points.kind == CHECK) & tri.determined
+    """Differences adjusted - given at check points and their RMS per axis (None without any), over
+    the check points the adjustment determines; ``n_left_out`` counts the undetermined ones
+    (undetermined_points), which the report names."""
+    check = project.points.kind == CHECK
+    left_out = check & undetermined_points(project, tri)
+    sel = check & ~left_out & tri.determined
     n = int(sel.sum())
     if n == 0:
-        return {"n": 0, "rms_X": None, "rms_Y": None, "rms_Z": None}
+        return {"n": 0, "rms_X": None, "rms_Y": None, "rms_Z": None, "n_left_out": int(left_out.sum())}
     diff = tri.xyz[sel] + result.offset - project.points.xyz_given[sel]
     rms = np.sqrt(np.mean(diff**2, axis=0))
-    return {"n": n, "rms_X": float(rms[0]), "rms_Y": float(rms[1]), "rms_Z": float(rms[2])}
+    return {"n": n, "rms_X": float(rms[0]), "rms_Y": float(rms[1]), "rms_Z": float(rms[2]),
+            "n_left_out": int(left_out.sum())}
 
 
 def _finite_or_none(x):

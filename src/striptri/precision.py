@@ -27,7 +27,6 @@ from .core.observations import observations_of
 from .core.options import AdjustmentOptions
 from .core.result import AdjustmentResult
 from .covariance import ray_slots, strongest_correlations
-from .errors import NumericalFailure
 from .groups import build_batches
 from .joint_groups import JointGroups, has_distances, joint_intersections
 from .model import Project
@@ -49,6 +48,9 @@ class ResidualCofactors:
     distances: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (r,) qvv of distances.csv's rows (m^2)
     # (r,) |X_a - X_b| of the points as their groups define them at the result (m, reduced frame)
     distance_adjusted: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # (n_pt,) points whose conditions are degenerate at the adjusted values (singular A Q A^T): their
+    # qvv are nan, so nothing tests their measurements
+    undetermined: np.ndarray | None = None
 
     def redundancy_numbers(self, project: Project, result: AdjustmentResult) -> dict:
         obs = observations_of(project, result.offset)
@@ -78,9 +80,11 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
         raise ValueError(f"unknown form {form!r}")
     if form == "collinearity" or (form == "auto" and collinearity_form.applies(project, result)):
         return _collinearity_cofactors(project, result, options, plate_blocks)
-    q_plate, q_control, blocks, q_distance, d_adjusted = _conditions_cofactors(project, result, options, plate_blocks)
+    q_plate, q_control, blocks, q_distance, d_adjusted, undetermined = _conditions_cofactors(
+        project, result, options, plate_blocks)
     return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
-                             plate_blocks=blocks, distances=q_distance, distance_adjusted=d_adjusted)
+                             plate_blocks=blocks, distances=q_distance, distance_adjusted=d_adjusted,
+                             undetermined=undetermined)
 
 
 def _collinearity_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
@@ -90,8 +94,10 @@ def _collinearity_cofactors(project: Project, result: AdjustmentResult, options:
     the conditions form, which forms their qvv without it."""
     c = collinearity_form.residual_cofactors(project, result, plate_blocks)
     q_plate, q_control, blocks = c.plate, c.control, c.plate_blocks
+    undetermined = np.zeros(len(project.points), dtype=bool)
     if c.imprecise.any():
-        q_p, q_c, b, _, _ = _conditions_cofactors(project, result, options, plate_blocks, points=c.imprecise)
+        q_p, q_c, b, _, _, undetermined = _conditions_cofactors(project, result, options, plate_blocks,
+                                                                points=c.imprecise)
         rows = c.imprecise[project.image_points.point_index]
         q_plate[rows] = q_p[rows]
         q_control[c.imprecise] = q_c[c.imprecise]
@@ -104,14 +110,17 @@ def _collinearity_cofactors(project: Project, result: AdjustmentResult, options:
                     kept.append((r[keep], q[keep]))
             blocks = kept + b
     return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
-                             plate_blocks=blocks)
+                             plate_blocks=blocks, undetermined=undetermined)
 
 
 def _conditions_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
                           plate_blocks: bool, points: np.ndarray | None = None):
     """The conditions form (residual_cofactors' doc) of every group, or of the groups of the points
     ``points`` (n_pt,) bool (a project without distances). -> (q_plate (m_ip, 2), q_control (n_pt, 3),
-    blocks or None, the distances' qvv (r,), their adjusted values (r,); joint_groups)."""
+    blocks or None, the distances' qvv (r,), their adjusted values (r,); joint_groups, and the
+    points left untested (n_pt,): those whose conditions are degenerate at the adjusted values
+    (singular A Q A^T); their qvv are nan and they have no block)."""
+    undetermined = np.zeros(len(project.points), dtype=bool)
     obs = observations_of(project, result.offset)
     joint = None
     if points is None:
@@ -132,19 +141,23 @@ def _conditions_cofactors(project: Project, result: AdjustmentResult, options: A
     for chunk, s in sweep.systems():
         AQ = s.A * s.Q[:, None, :]  # (m, nc, no): A Q
         M = AQ @ np.swapaxes(s.A, 1, 2)
-        Minv = _group_inverse(M, chunk, project)
+        Minv, bad = _group_inverse(M, chunk)
         K = Minv @ (M - cov.group_forms(_group_slots(s.B, chunk, result))) @ Minv
         KAQ = K @ AQ
         qvv = np.einsum("mco,mco->mo", KAQ, AQ)
+        qvv[bad] = np.nan
+        undetermined[chunk.point_index[bad]] = True
         m, k = chunk.image_rows.shape
-        if blocks is not None:
-            blocks.append((chunk.image_rows, np.swapaxes(AQ[:, :, : 2 * k], 1, 2) @ KAQ[:, :, : 2 * k]))
+        if blocks is not None and not bad.all():
+            good = ~bad
+            blocks.append((chunk.image_rows[good],
+                           np.swapaxes(AQ[good, :, : 2 * k], 1, 2) @ KAQ[good, :, : 2 * k]))
         q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
         if chunk.has_control:
-            q_control[chunk.point_index] = qvv[:, 2 * k :]
+            q_control[chunk.point_index] = np.where(s.Q[:, 2 * k:] > 0, qvv[:, 2 * k:], 0.0)
     q_distance, d_adjusted = _joint_residual_cofactors(sweep.joint_systems(), result, project, q_plate, q_control,
-                                                       blocks)
-    return q_plate, q_control, blocks, q_distance, d_adjusted
+                                                       blocks, undetermined)
+    return q_plate, q_control, blocks, q_distance, d_adjusted, undetermined
 
 
 def _parameter_cofactors(project: Project, result: AdjustmentResult) -> np.ndarray:
@@ -170,7 +183,8 @@ def distance_cofactors(project: Project, result: AdjustmentResult,
 
 
 def _joint_residual_cofactors(systems: list, result: AdjustmentResult, project: Project, q_plate: np.ndarray,
-                              q_control: np.ndarray, blocks: list | None) -> np.ndarray:
+                              q_control: np.ndarray, blocks: list | None,
+                              undetermined: np.ndarray | None = None) -> np.ndarray:
     """Qvv of the joint groups (joint_groups.JointSystem, one at a time: few) into q_plate (m_ip, 2)
     and q_control (n_pt, 3), each group's plate block appended to blocks (image rows (1, K) of all
     its rays, Qvv (1, 2K, 2K)); returns the distances' qvv (r,) and their adjusted values (r,) (m),
@@ -184,16 +198,21 @@ def _joint_residual_cofactors(systems: list, result: AdjustmentResult, project: 
         AQ = js.A * js.Q[None, :]
         M = AQ @ js.A.T
         chunk = _JointChunk(js.photo_index[None], js.point_index)
-        Minv = _group_inverse(M[None], chunk, project)[0]
+        Minv, bad = _group_inverse(M[None], chunk)
+        Minv = Minv[0]
         K = Minv @ (M - cov.group_forms(_group_slots(js.B[None], chunk, result))[0]) @ Minv
         KAQ = K @ AQ
         qvv = np.einsum("co,co->o", KAQ, AQ)
+        if bad[0]:  # the joint group's conditions are degenerate: none of its observations is tested
+            qvv[:] = np.nan
+            if undetermined is not None:
+                undetermined[js.point_index] = True
         q_plate.reshape(-1)[js.plate_target] = qvv[js.plate_pos]
         q_control.reshape(-1)[js.control_target] = qvv[js.control_pos]
         q_distance[js.component.distances] = qvv[js.distance_pos]
         ends = js.component.ends
         adjusted[js.component.distances] = np.linalg.norm(js.xyz[ends[:, 0]] - js.xyz[ends[:, 1]], axis=1)
-        if blocks is not None:
+        if blocks is not None and not bad[0]:
             p = js.plate_pos
             blocks.append((np.concatenate(js.member_rays)[None], (AQ[:, p].T @ KAQ[:, p])[None]))
     return q_distance, adjusted
@@ -218,27 +237,20 @@ def _group_slots(G: np.ndarray, chunk, result: AdjustmentResult) -> list:
     return ray_slots(G, chunk.photo_index, lay.photo_cols, camera, lay.camera_cols[:, lay.camera_elements])
 
 
-def _group_inverse(M: np.ndarray, chunk, project: Project) -> np.ndarray:
-    """M^-1 of every group of a chunk (M = A Q A^T); a group whose M is singular or not finite
-    (its conditions degenerate at the adjusted values) is a NumericalFailure that names its points."""
-    try:
-        with np.errstate(all="ignore"):
-            Minv = np.linalg.inv(M)
-        bad = ~np.isfinite(Minv).all(axis=(1, 2))
-    except np.linalg.LinAlgError:
+def _group_inverse(M: np.ndarray, chunk) -> tuple[np.ndarray, np.ndarray]:
+    """M^-1 (m, nc, nc) of every group of a chunk (M = A Q A^T) and which are degenerate (m,): a group
+    whose M is singular or not finite (its conditions degenerate at the adjusted values: rays along
+    the base, standard deviations of zero or beyond double precision) gets nan; its point is not
+    determined by its rays, and the caller leaves it untested (docs/decisions.md "Undetermined
+    points")."""
+    with np.errstate(all="ignore"):
         finite = np.isfinite(M).all(axis=(1, 2))
-        ev = np.linalg.eigvalsh(np.where(finite[:, None, None], M, np.eye(M.shape[1])))
+        safe = np.where(finite[:, None, None], M, np.eye(M.shape[1]))
+        ev = np.linalg.eigvalsh(safe)
         bad = ~finite | ~(ev[:, 0] > 1e-14 * ev[:, -1])
-        Minv = None
-    if Minv is not None and not bad.any():
-        return Minv
-    names = [project.points.ids[i] for i in chunk.point_index[bad][:8]]
-    raise NumericalFailure(
-        "the cofactors of the residuals cannot be computed: the conditions of point"
-        f"{'s' if bad.sum() > 1 else ''} {', '.join(names)}{' ...' if bad.sum() > len(names) else ''} are degenerate "
-        "at the adjusted values (their matrix A Q A^T is singular or not finite: rays along the base, or "
-        "standard deviations of zero or beyond double precision)."
-    )
+        Minv = np.linalg.inv(np.where(bad[:, None, None], np.eye(M.shape[1]), safe))
+    Minv[bad] = np.nan
+    return Minv, bad
 
 
 def normalised_residuals(v: np.ndarray, qvv: np.ndarray) -> np.ndarray:
@@ -270,7 +282,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         m, k = chunk.image_rows.shape
         AQ = s.A * s.Q[:, None, :]
         M = AQ @ np.swapaxes(s.A, 1, 2)
-        Minv = _group_inverse(M, chunk, project)
+        Minv, bad = _group_inverse(M, chunk)  # a degenerate group keeps its (90) cofactors, nan where undefined
         # the intersection's derivatives, rays in the group's chain order
         ph = chunk.photo_index
         params, conv = state.camera_terms(ph)
@@ -316,7 +328,8 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         # Cov(x^, l^) = -Qxx B^T M^-1 A Q, so G Cov(x^, l^) F^T = -(G Qxx B^T) M^-1 A Q F^T
         Ft = np.swapaxes(F, 1, 2)
         cross = -(GQB @ (MAQ @ Ft))
-        out[chunk.point_index] = GQG + F @ Qll @ Ft + cross + np.swapaxes(cross, 1, 2)
+        good = ~bad
+        out[chunk.point_index[good]] = (GQG + F @ Qll @ Ft + cross + np.swapaxes(cross, 1, 2))[good]
     if has_distances(project):  # the points joined by distances: one joint intersection per joint group
         _joint_groups_92(project, result, tri, options, out)
     return out
@@ -335,7 +348,10 @@ def _joint_groups_92(project: Project, result: AdjustmentResult, tri, options: A
         AQ = js.A * js.Q[None, :]
         M = AQ @ js.A.T
         chunk = _JointChunk(js.photo_index[None], js.point_index)
-        Minv = _group_inverse(M[None], chunk, project)[0]
+        Minv, bad = _group_inverse(M[None], chunk)
+        if bad[0]:  # degenerate: the members keep their (90) cofactors
+            continue
+        Minv = Minv[0]
         HQH = cov.group_forms(_group_slots(np.concatenate([inter.G, js.B], 0)[None], chunk, result))[0]
         GQG, GQB, BQB = HQH[:n3, :n3], HQH[:n3, n3:], HQH[n3:, n3:]
         MAQ = Minv @ AQ

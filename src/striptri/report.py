@@ -36,6 +36,7 @@ from .model import CHECK, KIND_NAMES, Project
 from .precision import PHOTO_ELEMENTS, W_CRITICAL, camera_correlations
 from .rotations import angles_from_R
 from .triangulation import Triangulated
+from .adjusted_points import undetermined_points
 
 MAX_PHOTO_PANELS = 24  # all photos get a residual panel up to this many; beyond, the worst WORST_PANELS
 WORST_PANELS = 12
@@ -111,7 +112,7 @@ td.l, th.l { text-align: left } td.wrap { white-space: normal; text-align: left;
 tr.sep td { border-top: 2px solid #aab7c4 } tr.total td { font-weight: bold; background: #f6f8fa }
 table.photos td, table.photos th { padding: 0.18em 0.45em; font-size: 0.92em }
 .ok { color: var(--good); font-weight: 600 } .no { color: var(--bad); font-weight: 600 }
-.flag { color: var(--bad) }
+.flag { color: var(--bad) } .warn { color: var(--bad) }
 figure { margin: 0.6em 0 1.4em } figure img { max-width: 100%; height: auto; display: block }
 figcaption { color: var(--muted); font-size: 0.88em; margin-top: 0.3em; max-width: 62em }
 .note { color: var(--muted); font-size: 0.88em }
@@ -702,10 +703,14 @@ def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, 
 def _check_points_section(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
                           summary: dict) -> list[str]:
     pts = project.points
-    sel = np.flatnonzero((pts.kind == CHECK) & points.determined)
+    flagged = undetermined_points(project, points)
+    sel = np.flatnonzero((pts.kind == CHECK) & points.determined & ~flagged)
+    out = np.flatnonzero((pts.kind == CHECK) & flagged)
     parts = [_section("check-points")]
+    left_out = _left_out_check_points(project, result, points, sig, out)
     if len(sel) == 0:
-        return parts + ["<p>The project has no check points.</p>"]
+        return parts + ["<p>The project has no check points.</p>" if not len(out) else
+                        "<p>No check point is determined by its rays.</p>"] + left_out
     d = points.xyz[sel] + result.offset - pts.xyz_given[sel]
     rows = [[html.escape(pts.ids[i])] + [_fmt(x, ".3f") for x in d[j]] + [_fmt(x, ".3f") for x in sig[i]]
             for j, i in enumerate(sel[:MAX_TABLE_ROWS])]
@@ -725,6 +730,25 @@ def _check_points_section(project: Project, result: AdjustmentResult, points: Tr
         "&sigma; is the quadratic mean of the mean errors, to compare with the RMS of d.</p>",
         _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1, row_classes=classes),
         note,
+    ] + left_out
+
+
+def _left_out_check_points(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
+                           idx: np.ndarray) -> list[str]:
+    """The check points left out of the statistics because their rays do not determine them."""
+    if not len(idx):
+        return []
+    pts = project.points
+    d = points.xyz[idx] + result.offset - pts.xyz_given[idx]
+    rows = [[html.escape(pts.ids[i])] + [_fmt(x, ".3f") for x in d[j]] + [_fmt(x, ".3f") for x in sig[i]]
+            for j, i in enumerate(idx[:MAX_TABLE_ROWS])]
+    return [
+        f"<p class='warn'>{len(idx)} check point{'s were' if len(idx) > 1 else ' was'} left out of the statistics: "
+        f"the measurements left to {'them' if len(idx) > 1 else 'it'} do not determine "
+        f"{'them' if len(idx) > 1 else 'it'} (rays nearly parallel, one ray left, or coordinates lost to rejected "
+        "measurements; flag <i>undetermined</i> in points.csv). Their differences say nothing of the block's "
+        "accuracy:</p>",
+        _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1),
     ]
 
 

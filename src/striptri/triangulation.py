@@ -114,12 +114,27 @@ def independent_pair_triangulation(R1_ground_from_cam, xyz_centre1, int1, xy1, R
 @dataclass
 class Triangulated:
     """Coordinates (n_pt, 3) (nan where undetermined) and their covariance split (Schmid 90):
-    cov_measurement and cov_orientation (n_pt, 3, 3), both in units of the a-priori variances."""
+    cov_measurement and cov_orientation (n_pt, 3, 3), both in units of the a-priori variances.
+
+    determined (n_pt,): the point's normal matrix is regular (coordinates and cofactors exist);
+    weak (n_pt,): regular, but its rays and given coordinates determine it only in name: the
+    smallest eigenvalue of its normal matrix is below WEAK_RCOND times the largest (its weakest
+    direction's mean error more than 100 times its best one's: rays within about half a degree of
+    one another, or a point left with the y coordinates of a strip's photos only), or its rays give
+    it a mean error more than WEAK_FACTOR times the block's median (far_weaker_than_the_rest).
+    :attr:`undetermined` is either (docs/decisions.md "Undetermined points")."""
 
     xyz: np.ndarray
     cov_measurement: np.ndarray
     cov_orientation: np.ndarray
     determined: np.ndarray
+    weak: np.ndarray | None = None
+
+    @property
+    def undetermined(self) -> np.ndarray:
+        """(n_pt,) bool: not determined, or weakly determined (class doc)."""
+        weak = np.zeros_like(self.determined) if self.weak is None else self.weak
+        return ~self.determined | weak
 
 
 def ray_terms(R_ground_from_cam, xyz_centre, params, convention, xyz_ground, xy_obs, xy_measured=None,
@@ -207,6 +222,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
     cov_m = np.zeros((n_points, 3, 3))
     cov_o = np.zeros((n_points, 3, 3))
     determined = np.zeros(n_points, dtype=bool)
+    weak = np.zeros(n_points, dtype=bool)
     order = np.lexsort((photo_index, point_index))
     counts = np.bincount(point_index, minlength=n_points)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -253,6 +269,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
                 _, dX, dO, drot, dint = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs,
                                                   meas, with_lens)
                 Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+                weak[sel] = conditioning(Nx, free) < WEAK_RCOND
                 Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
                 # a point whose rays are parallel (or numbers not finite) is not determined: left out
                 Qm, ok = safe_inverse(Nx)
@@ -272,7 +289,33 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
                 parts = ray_slots(G, ph, photo_cols, camera_of_photo[ph], camera_cols[:, estimated])
                 Qo = forms(parts)
                 cov_o[sel[ok]] = Qo[ok]
-    return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined)
+    weak |= far_weaker_than_the_rest(cov_m, determined & (counts > 0))
+    return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined,
+                        weak=weak & determined)
+
+
+WEAK_FACTOR = 20.0  # a point whose rays give it a mean error this many times the block's median is weak
+WEAK_MIN_POINTS = 10  # the comparison with the block needs at least this many determined points
+
+
+def far_weaker_than_the_rest(cov_measurement: np.ndarray, determined: np.ndarray) -> np.ndarray:
+    """(n_pt,) the determined points whose rays give them a mean error (the measurement part, largest
+    direction) more than WEAK_FACTOR times the median of the determined points': a point that has
+    lost the coordinates that fixed it (the three x of a three-ray point rejected leave the y
+    coordinates, which fix it only through small differences of the photos' attitudes) without its
+    normal matrix becoming nearly singular. The measurement part alone: the block's own weakness
+    (a strip bending between control) is no concern of the point's rays."""
+    idx = np.flatnonzero(determined)
+    out = np.zeros(len(determined), dtype=bool)
+    if len(idx) < WEAK_MIN_POINTS:
+        return out
+    with np.errstate(all="ignore"):
+        largest = np.linalg.eigvalsh(cov_measurement[idx])[:, -1]
+    median = np.median(largest)
+    if not np.isfinite(median) or median <= 0:
+        return out
+    out[idx] = largest > WEAK_FACTOR**2 * median
+    return out
 
 
 POINT_CHUNK = 4096  # points triangulated at once (as AdjustmentOptions.chunk_size groups)
@@ -317,6 +360,26 @@ def _dense_forms(Qxx: np.ndarray):
     Qext = np.zeros((Qxx.shape[0] + 1, Qxx.shape[0] + 1))
     Qext[:-1, :-1] = Qxx
     return lambda parts: group_forms(lambda r, c: Qext[r, c], parts)
+
+
+WEAK_RCOND = 1e-4  # a point's normal matrix whose eigenvalues span more than 1e4 determines it only weakly
+
+
+def conditioning(Nx: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Smallest over largest eigenvalue (m,) of the normal matrices Nx (m, 3, 3) of points over their
+    free coordinates ``free`` (m, 3) (1 where none is free, 0 where not finite). Scale-free: the
+    square of the ratio of the best to the weakest direction's mean error."""
+    keep = free[:, :, None] & free[:, None, :]
+    n_free = free.sum(axis=1)
+    diag = np.einsum("mii->mi", Nx)
+    with np.errstate(all="ignore"):
+        fill = np.where(free, diag, 0.0).sum(axis=1) / np.maximum(n_free, 1)
+        # a held coordinate's row becomes the mean free eigenvalue: between the free block's extremes
+        M = np.where(keep, Nx, 0.0) + (~free)[:, :, None] * np.eye(3) * np.where(n_free > 0, fill, 1.0)[:, None, None]
+        finite = np.isfinite(M).all(axis=(1, 2))
+        ev = np.linalg.eigvalsh(np.where(finite[:, None, None], M, np.eye(3)))
+        ratio = np.where(ev[:, -1] > 0, ev[:, 0] / np.where(ev[:, -1] > 0, ev[:, -1], 1.0), 0.0)
+    return np.where(finite, ratio, 0.0)
 
 
 def _hold(Nx, gx, free):

@@ -47,7 +47,6 @@ from ..adjusted_points import triangulate_adjusted
 from ..core.observations import observations_of
 from ..core.result import AdjustmentResult
 from ..covariance import ray_slots
-from ..errors import NumericalFailure
 from ..groups import points_with_conditions
 from ..model import Project
 from ..triangulation import Triangulated, ray_terms
@@ -82,7 +81,9 @@ class CollinearityCofactors:
     control: np.ndarray
     plate_blocks: list | None
     points: Triangulated
-    imprecise: np.ndarray  # (n_pt,) bool: points with a plate or weighted control r below R_SUBTRACTION
+    # (n_pt,) bool: points with a plate or weighted control r below R_SUBTRACTION, and points with
+    # conditions that their rays do not determine, or only weakly (Triangulated.undetermined)
+    imprecise: np.ndarray
 
 
 _last: tuple = ()  # (weak references to the project and the result, their Triangulated) of the last pass
@@ -91,8 +92,10 @@ _last: tuple = ()  # (weak references to the project and the result, their Trian
 def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks: bool = False,
                        residuals: bool = True) -> CollinearityCofactors:
     """Residual cofactors of the plate and control observations and the points' cofactors of a
-    bundle result by the collinearity form (module doc). Raises NumericalFailure naming the points
-    with conditions whose rays do not determine them at the adjusted values. The points are kept
+    bundle result by the collinearity form (module doc). Points with conditions whose rays do not
+    determine them at the adjusted values, or only weakly (triangulation.Triangulated.undetermined),
+    are left to the conditions form (``imprecise``), which needs no N_pp^-1 (docs/decisions.md
+    "Undetermined points"). The points are kept
     for :func:`points_of` (weakly: the last pass only). residuals=False: the points only (plate
     and control zero)."""
     global _last
@@ -116,8 +119,10 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     q_control = np.zeros_like(obs.control)
     cov_orientation = np.zeros((n_points, 3, 3))
     blocks = [] if plate_blocks else None
-    if residuals:
-        _check_determined(project, with_conditions & ~tri.determined)
+    # points whose rays do not determine them (or only weakly) at the adjusted values: N_pp^-1 does
+    # not exist or loses digits, so their qvv come from the conditions form, which does not need it
+    # (nan there only where their conditions degenerate); their (90) cofactors as they are
+    undetermined = with_conditions & tri.undetermined
     wanted = tri.determined  # with the points with conditions; one without: its (90) only
     for k in np.unique(counts[wanted]):
         k = int(k)
@@ -139,7 +144,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
             cov_orientation[sel] = chunk.orientation
             if not residuals:
                 continue
-            cond = with_conditions[sel]
+            cond = with_conditions[sel] & ~undetermined[sel]
             q_plate[rows[cond]] = chunk.diagonal[cond]
             q_control[sel] = np.where(weighted[sel] & cond[:, None],
                                       obs.q_control[sel] - np.diagonal(chunk.Q_pp, axis1=1, axis2=2), 0.0)
@@ -147,13 +152,13 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
                 blocks.append((rows[cond], chunk.block[cond]))
     points = Triangulated(xyz=tri.xyz, cov_measurement=tri.cov_measurement,
                           cov_orientation=np.where(tri.determined[:, None, None], cov_orientation, 0.0),
-                          determined=tri.determined)
+                          determined=tri.determined, weak=tri.weak)
     _last = (weakref.ref(project), weakref.ref(result), points)
     small = np.zeros(n_points, dtype=bool)
     if residuals:
         np.logical_or.at(small, ip.point_index, (q_plate < R_SUBTRACTION * obs.q_plate).any(axis=1))
         small |= (weighted & (q_control < R_SUBTRACTION * obs.q_control)).any(axis=1)
-    return CollinearityCofactors(q_plate, q_control, blocks, points, small & with_conditions)
+    return CollinearityCofactors(q_plate, q_control, blocks, points, (small & with_conditions) | undetermined)
 
 
 def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
@@ -164,20 +169,6 @@ def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
     if _last and _last[0]() is project and _last[1]() is result:
         return _last[2]
     return residual_cofactors(project, result, residuals=False).points
-
-
-def _check_determined(project: Project, bad: np.ndarray) -> None:
-    """A NumericalFailure naming the points ``bad`` (n_pt,) bool: points with conditions that their
-    rays do not determine at the adjusted values (the conditions form fails on them too)."""
-    if not bad.any():
-        return
-    bad = np.flatnonzero(bad)
-    names = [project.points.ids[i] for i in bad[:8]]
-    raise NumericalFailure(
-        "the cofactors of the residuals cannot be computed: the rays of point"
-        f"{'s' if len(bad) > 1 else ''} {', '.join(names)}{' ...' if len(bad) > len(names) else ''} do not "
-        "determine it at the adjusted values (rays along one line, or standard deviations of zero or beyond "
-        "double precision).")
 
 
 @dataclass

@@ -28,7 +28,7 @@ import numpy as np
 from striptri import lens, model, rotations
 from striptri.camera import ray_ground
 from striptri.errors import InputError
-from striptri.formats.bal import BalProblem
+from striptri.formats.bal import BalProblem, behind_camera
 from striptri.formats.colmap import ColmapModel, R_from_quaternion, quaternion_from_R
 from striptri.formats.scene import Scene, photo_datum
 
@@ -121,6 +121,18 @@ def bal_to_project(bal: BalProblem, drop_distortion: bool = False) -> Scene:
         source=bal.path,
     )
     project = replace(project, points=replace(project.points, xyz_approx=bal.xyz_world.copy()))
+    behind = behind_camera(bal)
+    if behind.any():  # kept as inactive rows (image_points.csv active = 0), as COLMAP gives them no residual
+        ip = project.image_points
+        rows = np.flatnonzero(behind)
+        keep = np.flatnonzero(~behind)
+        pick = lambda r: model.ImagePoints(photo_index=ip.photo_index[r], point_index=ip.point_index[r],  # noqa: E731
+                                           xy=ip.xy[r], sigma_xy=ip.sigma_xy[r])
+        project = replace(project, image_points=pick(keep), inactive_image_points=pick(rows))
+        notes.append(f"{len(rows)} observations whose point lies behind its camera at the problem's values written "
+                     "inactive (image_points.csv active = 0): a camera cannot image a point behind it, and COLMAP's "
+                     "cost leaves them out too; their residuals are reported after the adjustment (set active = 1 "
+                     "to adjust them)")
     return Scene(project=project, xyz_ground=bal.xyz_world.copy(), plate_units_per_pixel=1.0, notes=notes)
 
 

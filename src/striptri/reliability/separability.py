@@ -53,9 +53,11 @@ def plate_cofactor_blocks(project: Project, result: AdjustmentResult,
         AQ = s.A[:, :, : 2 * k] * s.Q[:, None, : 2 * k]
         AQfull = s.A * s.Q[:, None, :]
         M = AQfull @ np.swapaxes(s.A, 1, 2)
-        Minv = _group_inverse(M, chunk, project)
+        Minv, bad = _group_inverse(M, chunk)  # degenerate groups: untested, no block
         K = Minv @ (M - result.covariance.group_forms(_group_slots(s.B, chunk, result))) @ Minv
-        out.append((chunk.image_rows, np.swapaxes(AQ, 1, 2) @ K @ AQ))
+        good = ~bad
+        if good.any():
+            out.append((chunk.image_rows[good], np.swapaxes(AQ[good], 1, 2) @ K[good] @ AQ[good]))
     return out
 
 
