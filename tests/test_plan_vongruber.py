@@ -229,3 +229,23 @@ def test_single_strip_lateral_points_at_the_classical_position(tmp_path):
     np.testing.assert_allclose(np.abs(ip.xy[np.isin(ip.point_index, lateral), 1]), 92.0, rtol=0, atol=1e-9)
     narrow = von_gruber_project(project, np.array([230.0, 180.0]), 0.0)[0]  # 1800 m across: |y| 920 > 900
     assert sorted(set(np.round(narrow.points.xyz_approx[narrow.points.kind == TIE, 1], 6))) == [-720.0, 0.0, 720.0]
+
+
+SHIPPED = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
+
+
+@pytest.mark.parametrize("name", ["pair", "strip8", "strip_2_3", "block_3x6", "schmid_fig8"])
+def test_overlap_whatif_on_every_shipped_project(tmp_path, name):
+    """Before: `striptri plan data/synthetic_strips/block_3x6 --out p --overlap 0.8 --format 230`
+    said "a plan without image_points.csv needs its planned X, Y" though image_points.csv is there:
+    the height points' X, Y now come from their measured rays (plan.design.planned_points)."""
+    products = run_plan(SHIPPED / name, tmp_path / "p", overlap=(0.8,), plate_format="230")
+    assert any("overlap 0.8" in case for case in products.files["summary.json"].split('"'))
+
+
+def test_von_gruber_on_a_simulated_project(tmp_path):
+    """Before: --von-gruber failed the same way on simulate's output (height points without X, Y)."""
+    proc = run("simulate", "block", "--out", tmp_path / "sim", "--seed", "3")
+    assert proc.returncode == 0, proc.stderr
+    products = run_plan(tmp_path / "sim", tmp_path / "p", von_gruber=True, plate_format="230")
+    assert (tmp_path / "p" / "points.csv").is_file() and products.files["points.csv"]

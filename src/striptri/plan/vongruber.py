@@ -46,7 +46,8 @@ from scipy.spatial import cKDTree
 from ..collinearity import camera_from_ground, plate_from_ground
 from ..errors import InputError
 from ..lens import observed_from_ideal
-from ..model import TIE, ImagePoints, ObjectPoints, Project
+from ..model import KIND_NAMES, TIE, ImagePoints, ObjectPoints, Project
+from .design import planned_points
 
 LATERAL_FRACTION = 0.4  # the lateral offset as a fraction of the footprint across track (y = +-b at 60 %)
 MERGE_FRACTION = 0.2  # candidates closer than this fraction of the median base merge
@@ -213,17 +214,20 @@ def sightings(project: Project, xyz: np.ndarray, fmt: np.ndarray) -> tuple[np.nd
     return photo_index[order], point_index[order], xy[order]
 
 
-def control_positions(project: Project, z_t: float) -> np.ndarray:
-    """The planned positions of the points of control.csv (given X, Y, Z, else approx_points.csv, a
+def control_positions(project: Project, z_t: float, measured: np.ndarray | None = None) -> np.ndarray:
+    """The planned positions of the points of control.csv (given X, Y, Z, else approx_points.csv,
+    else ``measured``, the intersection of their planned rays in image_points.csv (plan.design), a
     missing Z at Z_t): (np, 3); InputError for one without a planimetric position."""
     pts = project.points
     xyz = np.where(np.isfinite(pts.xyz_given), pts.xyz_given,
                    np.nan if pts.xyz_approx is None else pts.xyz_approx)
+    if measured is not None:
+        xyz = np.where(np.isfinite(xyz), xyz, measured)
     xyz[:, 2] = np.where(np.isfinite(xyz[:, 2]), xyz[:, 2], z_t)
     for i in np.flatnonzero(~np.isfinite(xyz[:, :2]).all(axis=1))[:1]:
         raise InputError(Path(project.source or ".") / "control.csv", None,
-                         f"point '{pts.ids[i]}': a plan without image_points.csv needs its planned X, Y "
-                         "(a Z point: give them in approx_points.csv)")
+                         f"point '{pts.ids[i]}' ({KIND_NAMES[int(pts.kind[i])]}): the plan needs its planned X, Y; "
+                         "give them in approx_points.csv, or measure the point on two photos in image_points.csv")
     return xyz
 
 
@@ -237,7 +241,8 @@ def von_gruber_project(project: Project, fmt: np.ndarray, z_t: float) -> tuple[P
     control = ObjectPoints(ids=[pts.ids[i] for i in keep], kind=pts.kind[keep], xyz_given=pts.xyz_given[keep],
                            sigma_given=pts.sigma_given[keep],
                            xyz_approx=None if pts.xyz_approx is None else pts.xyz_approx[keep])
-    xyz_control = control_positions(replace(project, points=control), z_t)
+    measured = planned_points(project)[keep] if len(project.image_points) else None
+    xyz_control = control_positions(replace(project, points=control), z_t, measured)
     ids, xyz = merged(*candidates(project, fmt, z_t))
     clash = set(ids) & set(control.ids)
     if clash:
