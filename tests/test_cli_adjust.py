@@ -211,6 +211,15 @@ def test_strip8_summary_keys_and_consistency(strip8_run):
     assert s["method"] == "conditions"
     assert isinstance(s["solver"], str) and s["solver"]
     assert s["converged"] is True
+    # what made the result (DESIGN, third wave): striptri's version and the time the run started
+    from datetime import datetime
+
+    from striptri import __version__
+
+    assert s["version"] == __version__
+    started = datetime.fromisoformat(s["started"])
+    assert started.tzinfo is not None and abs((datetime.now(started.tzinfo) - started).total_seconds()) < 3600
+    assert s["options"]["method"] == "conditions" and s["project"].endswith("strip8")
     assert 1 <= s["iterations"] <= 30
 
     _, photos_in = read_table(DATA / "strip8" / "photos.csv")

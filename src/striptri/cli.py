@@ -17,6 +17,7 @@ import sys
 import click
 
 from striptri import __version__
+from striptri.solvers import threads
 from striptri.core.options import DATUMS, METHODS
 from striptri.errors import InputError, Interrupted, NumericalFailure
 from striptri.io.output import committed_outputs
@@ -44,7 +45,8 @@ def reports_errors(command):
     def wrapper(*args, **kwargs):
         previous = _raise_on_signals()
         try:
-            return command(*args, **kwargs)
+            with threads.single_threaded():  # BLAS threads set here, not by the environment
+                return command(*args, **kwargs)
         except InputError as exc:
             _fail(exc, EXIT_INPUT)
         except NumericalFailure as exc:

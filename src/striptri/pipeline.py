@@ -30,6 +30,7 @@ from .film import report as film_report
 from .groups import rays_per_point
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
+from .solvers.threads import single_threaded
 from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
 from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
@@ -210,8 +211,37 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
     frame: the crs.frame.LocalFrame of a project in map coordinates (``project`` is then in that
     frame): photos.csv and points.csv are written back in the project's CRS, summary.json and the
     report name the frame; check-point differences stay those of the local frame (metres)."""
-    from dataclasses import replace as _replace
+    started = run_started()
+    with single_threaded():  # BLAS threads set by striptri (solvers.threads), also for API callers
+        products = _adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning,
+                                    seconds_reading, frame, started)
+    return products
 
+
+def run_started() -> str:
+    """The time a run started, ISO 8601 with the local offset, to the second (summary.json ``started``)."""
+    from datetime import datetime
+
+    return datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+def run_metadata(project: Project, options: AdjustmentOptions, started: str, **more) -> dict:
+    """summary.json's ``version``, ``started``, ``project`` (the folder read, when known) and ``options``
+    (what decided the result besides the input: method, solver, datum, iteration limit, gross errors,
+    point precision), in the report's "Run" block."""
+    from . import __version__
+
+    chosen = {"method": options.method, "solver": options.solver, "datum": options.datum,
+              "max_iterations": options.max_iterations, "tolerance": options.tolerance, **more}
+    if options.datum_points:
+        chosen["datum_points"] = list(options.datum_points)
+    return {"version": __version__, "started": started,
+            "project": None if project.source is None else str(project.source), "options": chosen}
+
+
+def _adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning, seconds_reading,
+                     frame, started) -> AdjustmentProducts:
+    from dataclasses import replace as _replace
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)
@@ -287,7 +317,9 @@ def adjust_products(project: Project, options: AdjustmentOptions, point_precisio
         tables["fiducial_residuals.csv"] = format_csv(film_report.residual_columns(adjusted.film))
     phases["tables"] = time.perf_counter() - t0
     progress.phase("tables (CSV)", phases["tables"])
-    summary = summary_of(adjusted, result, points)
+    summary = {**summary_of(adjusted, result, points),  # the contract's keys first, in DESIGN's order
+               **run_metadata(given, options, started, blunders=blunders, point_precision=point_precision,
+                              keep_unconverged=keep_unconverged)}
     summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
     summary["blunders"] = blunder_summary(det)
     summary["blunders"]["groups"] = rejection_groups(project, det)

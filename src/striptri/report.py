@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import base64
 import html
+import re
 import time
+from pathlib import Path
 from dataclasses import dataclass
 import numpy as np
 
@@ -108,7 +110,8 @@ nav a { color: var(--accent); text-decoration: none; margin-right: 0.4em; paddin
 table { border-collapse: collapse; margin: 0.4em 0 1.2em; font-size: 0.88em; font-variant-numeric: tabular-nums }
 td, th { border-bottom: 1px solid var(--rule); padding: 0.22em 0.7em; text-align: right; white-space: nowrap }
 th { background: var(--head); font-weight: 600; border-bottom: 1px solid #aab7c4 }
-td.l, th.l { text-align: left } td.wrap { white-space: normal; text-align: left; max-width: 34em }
+td.l, th.l { text-align: left } td.wrap { white-space: normal; text-align: left; max-width: 34em;
+                                         overflow-wrap: anywhere }
 tr.sep td { border-top: 2px solid #aab7c4 } tr.total td { font-weight: bold; background: #f6f8fa }
 table.photos td, table.photos th { padding: 0.18em 0.45em; font-size: 0.92em }
 .ok { color: var(--good); font-weight: 600 } .no { color: var(--bad); font-weight: 600 }
@@ -147,16 +150,17 @@ def _cell(text, cls: str = "", title: str = "") -> tuple:
     return (text, cls, title)
 
 
-def _table(header, rows, cls: str = "", left: int = 0, row_classes=None) -> str:
+def _table(header, rows, cls: str = "", left: int = 0, row_classes=None, wrap: tuple = ()) -> str:
     """header: list of column names (HTML); rows: cells as HTML text or (text, class, title);
-    the first ``left`` columns are left-aligned."""
+    the first ``left`` columns are left-aligned; the columns in ``wrap`` wrap their text (long
+    values: a table must fit the page)."""
     head = "".join(f"<th{' class=l' if j < left else ''}>{h}</th>" for j, h in enumerate(header))
     body = []
     for i, row in enumerate(rows):
         cells = []
         for j, c in enumerate(row):
             text, ccls, title = c if isinstance(c, tuple) else (c, "", "")
-            classes = " ".join(x for x in (("l" if j < left else ""), ccls) if x)
+            classes = " ".join(x for x in (("l" if j < left else ""), ("wrap" if j in wrap else ""), ccls) if x)
             attrs = (f" class='{classes}'" if classes else "") + (f" title='{html.escape(title)}'" if title else "")
             cells.append(f"<td{attrs}>{text}</td>")
         rc = row_classes[i] if row_classes else ""
@@ -311,7 +315,7 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         ("method", _fmt(method.get(summary["method"], summary["method"]))),
         ("solver", _fmt(summary["solver"])),
         ("factorisation of the normal equations", _fmt(summary.get("factorisation"))),
-        ("BLAS it ran on", _fmt(summary.get("blas"))),
+        ("BLAS it ran on", _without_folders(summary.get("blas"))),
         ("&sigma;<sub>0</sub> a posteriori (unit: the a-priori &sigma;)", _fmt(s0, ".4f")),
         ("v<sup>T</sup>P v", _fmt(summary["vtpv"])),
         ("redundancy r", _fmt(r)),
@@ -353,11 +357,50 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         _section("summary"),
         "<div class='cards'>" + "".join(cards) + "</div>",
         "<div class='cols'>",
-        "<div><h3>Adjustment</h3>" + _table(["quantity", "value"], rows, left=1) + "</div>",
-        "<div><h3>Size</h3>" + _table(["quantity", "value"], sizes, left=1) + "</div>",
+        "<div><h3>Adjustment</h3>" + _table(["quantity", "value"], rows, left=1, wrap=(0, 1)) + "</div>",
+        "<div><h3>Size</h3>" + _table(["quantity", "value"], sizes, left=1, wrap=(0, 1)) + "</div>",
         "<div><h3>Timings (s)</h3>" + _table(["step", "seconds"], timings, left=1) + "</div>",
         "</div>",
     ]
+
+
+def run_block(summary: dict) -> str:
+    """The run's metadata (summary.json ``version``, ``started``, ``project``, ``options``): which
+    striptri made the result, when, from what, with which options. Empty without them."""
+    if "version" not in summary:
+        return ""
+    options = summary.get("options") or {}
+    chosen = "; ".join(f"{html.escape(str(k).replace('_', ' '))} {html.escape(_option_text(v))}"
+                       for k, v in options.items())
+    project = summary.get("project")
+    cells = [f"striptri {html.escape(str(summary['version']))}",
+             f"started {html.escape(str(summary.get('started')))}"]
+    if project:
+        name = html.escape(Path(project).name or project)
+        cells.append(f"project <span title='{html.escape(project)}'>{name}</span>")
+    return (f"<p class='sub run'>{' &middot; '.join(cells)}</p>"
+            + (f"<p class='note run'>Options: {chosen}</p>" if chosen else ""))
+
+
+def _option_text(value) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(map(str, value))
+    return str(value)
+
+
+_PATH = re.compile(r"(/[^\s,;()]+)+/([^\s,;()/]+)")
+
+
+def _without_folders(text) -> tuple | str:
+    """A value that names files (the BLAS library) by their names alone, the full text as the cell's
+    title: folders (a user's venv) make a line too long for the page and say nothing to the reader."""
+    if text is None:
+        return _fmt(None)
+    full = str(text)
+    short = _PATH.sub(lambda m: m.group(2), full)
+    return (html.escape(short), "", full) if short != full else html.escape(full)
 
 
 TERMINATION_WORDS = {
@@ -1009,6 +1052,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
         f"{summary['n_points']} points &middot; method {html.escape(summary['method'])}, solver "
         f"{html.escape(summary['solver'])}</p>",
         f"<nav>{nav}</nav>",
+        run_block(summary),
     ]
     for section in body:
         parts += [p for p in section if p]

@@ -28,6 +28,7 @@ import scipy.sparse as sp
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
 from .info import SolverInfo
+from .threads import factorisation_threads
 
 INSTALL_HINT = (
     "the 'cvxopt' solver needs cvxopt (binary wheels, no compiler needed): "
@@ -122,7 +123,7 @@ class CvxoptSolver(NormalSolver):
         else:
             self._matrix.V = cvx.matrix(values)
         try:
-            with _cholmod_options(self._cholmod):
+            with _cholmod_options(self._cholmod), factorisation_threads():
                 self._cholmod.numeric(self._matrix, self._factor)
         except ArithmeticError as exc:
             k = exc.args[0] if exc.args and isinstance(exc.args[0], int) else None

@@ -37,6 +37,7 @@ import scipy.sparse as sp
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
 from .info import SolverInfo
+from .threads import factorisation_threads
 
 MODES = ("supernodal", "simplicial")
 ORDERINGS = ("nesdis", "metis", "amd", "colamd", "best", "default", "natural")
@@ -130,7 +131,8 @@ class CholmodSolver(NormalSolver):
         try:
             # a new numeric factor from the kept analysis (symbolic only), dropped after the solve:
             # the factor's memory is not held while the next iteration assembles
-            factor = self._factor.cholesky(A)
+            with factorisation_threads():
+                factor = self._factor.cholesky(A)
         except self._cholmod.CholmodNotPositiveDefiniteError as exc:
             col = getattr(exc, "column", None)
             raise SingularNormalMatrix(int(perm[col]) if col is not None and 0 <= col < n else None) from exc

@@ -1,0 +1,71 @@
+"""BLAS threads in a user's environment (issue 26): the whole ``striptri adjust`` of a block, run
+interleaved in three environments, medians of the repeats.
+
+* ``plain``: the environment as a user has it (no OPENBLAS_NUM_THREADS, no STRIPTRI_THREADS);
+  striptri sets the BLAS threads itself (solvers.threads);
+* ``OPENBLAS_NUM_THREADS=1``: what .ci/run and the other benchmarks set;
+* ``STRIPTRI_THREADS=2``: the sparse factorisation on two threads, the rest on one.
+
+    python scripts/bench/bench_threads.py [--photos 100 --strips 50] [--repeats 3] [--solver cholmod]
+
+Prints one table: the whole command (wall clock), the solve phase and the gross-error phase
+(summary.json timings_s), median over the repeats.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+ENVIRONMENTS = {
+    "plain": {},
+    "OPENBLAS_NUM_THREADS=1": {"OPENBLAS_NUM_THREADS": "1"},
+    "STRIPTRI_THREADS=2": {"STRIPTRI_THREADS": "2"},
+}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--photos", type=int, default=100)
+    ap.add_argument("--strips", type=int, default=50)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--solver", default="cholmod")
+    args = ap.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="bench-threads-"))
+    project = work / "block"
+    subprocess.run(["striptri", "simulate", "block", "--photos", str(args.photos), "--strips", str(args.strips),
+                    "--extra-ties", "6", "--control", "perimeter", "--seed", "11", "--out", str(project)],
+                   check=True, capture_output=True)
+    base = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "STRIPTRI_THREADS",
+                                                             "OMP_NUM_THREADS")}
+    times: dict[str, list] = {name: [] for name in ENVIRONMENTS}
+    for _ in range(args.repeats):
+        for name, extra in ENVIRONMENTS.items():
+            out = work / "out"
+            shutil.rmtree(out, ignore_errors=True)
+            t0 = time.perf_counter()
+            subprocess.run(["striptri", "adjust", str(project), "--out", str(out), "--solver", args.solver, "--quiet"],
+                           check=True, env={**base, **extra}, capture_output=True)
+            whole = time.perf_counter() - t0
+            t = json.loads((out / "summary.json").read_text())["timings_s"]
+            times[name].append((whole, t["solve"], t["gross_errors"]))
+    n = args.photos * args.strips
+    print(f"{n:,}-photo block, solver {args.solver}, median of {args.repeats} interleaved runs, "
+          f"load {os.getloadavg()[0]:.2f}")
+    print(f"| environment | whole command (s) | solve (s) | gross errors (s) |")
+    print("| --- | --- | --- | --- |")
+    for name, rows in times.items():
+        med = [statistics.median(r[i] for r in rows) for i in range(3)]
+        print(f"| {name} | {med[0]:.2f} | {med[1]:.2f} | {med[2]:.2f} |")
+    shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
