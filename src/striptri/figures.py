@@ -195,6 +195,18 @@ KIND_STYLE = {  # kind name -> (marker, colour, label)
 }
 FIELD_COLOURS = "YlGnBu"  # colour map of the rasters (residual field, precision map): light = small
 MAP_FLIGHT_LINES = 30  # the precision map draws the flight lines of at most this many strips (more hide the raster)
+NADIR_DEGREES = 30.0  # photos whose axes are this close to the vertical (median) fly strips: flight lines are drawn
+
+
+def flies_strips(R_ground_from_cam: np.ndarray) -> bool:
+    """Whether the photos look down like an aerial block (the median angle between the camera axis
+    and the plumb line below NADIR_DEGREES), so that joining their centres strip by strip draws
+    flight lines; convergent close-range stations fly none."""
+    if not len(R_ground_from_cam):
+        return True
+    axis = -np.asarray(R_ground_from_cam)[:, :, 2]  # the viewing direction (-z of the camera) on the ground
+    cos = np.clip(-axis[:, 2] / np.maximum(np.linalg.norm(axis, axis=1), 1e-300), -1.0, 1.0)
+    return bool(np.degrees(np.median(np.arccos(cos))) < NADIR_DEGREES)
 
 
 def nice_number(x: float) -> float:
@@ -451,7 +463,7 @@ def _plan_frame(ax, bar_length: float, magnification: float, bar_label: str, bar
 
 
 def error_ellipses(xy_centres, strip_of_photo, xy_points, kind_names, cov_xy, magnification: float,
-                   bar_length: float, bar_label: str, labels=None) -> bytes:
+                   bar_length: float, bar_label: str, labels=None, flight_lines: bool = True) -> bytes:
     """Plan view of the block: projection centres joined along their strips, the ground points
     coloured by kind (control as triangles) and the horizontal standard error ellipse of each point
     magnified by ``magnification``, with a scale bar of bar_length (m) labelled bar_label.
@@ -459,15 +471,18 @@ def error_ellipses(xy_centres, strip_of_photo, xy_points, kind_names, cov_xy, ma
     xy_centres: (n_ph, 2) ground X, Y of the projection centres, in flight order within a strip;
     strip_of_photo: (n_ph,) strip labels; xy_points: (n_pt, 2); kind_names: (n_pt,) names of
     KIND_STYLE; cov_xy: (n_pt, 2, 2) covariance of X, Y in m^2 (nan where undetermined);
-    labels: optional (n_pt,) strings, drawn beside control and check points.
+    labels: optional (n_pt,) strings, drawn beside control and check points; flight_lines: join
+    the centres of each strip (False for convergent close range, whose stations fly no line).
     """
     kind_names = np.asarray(kind_names)
     many = len(xy_points) > 2000
     fig = _figure(figsize=(8.6, 0.9 + 6.3 * _block_axes_size(xy_centres, xy_points)))
     ax = fig.subplots()
-    _flight_lines(ax, xy_centres, strip_of_photo)
+    if flight_lines:
+        _flight_lines(ax, xy_centres, strip_of_photo)
     ax.scatter(xy_centres[:, 0], xy_centres[:, 1], marker="+", s=18, color="#2c3e50", linewidths=0.7,
-               zorder=2, label="projection centre", rasterized=len(xy_centres) > 2000)
+               zorder=2, label="projection centre" if flight_lines else "camera station",
+               rasterized=len(xy_centres) > 2000)
     colours = np.array([KIND_STYLE.get(k, KIND_STYLE["tie"])[1] for k in kind_names] or ["#000000"])[:len(kind_names)]
     _ellipse_collection(ax, xy_points, cov_xy, magnification, colours, rasterized=many)
     _kind_markers(ax, xy_points, kind_names, rasterized=many)
@@ -499,7 +514,7 @@ def _kind_markers(ax, xy_points, kind_names, rasterized=False, kinds=None, small
 
 
 def precision_map(xy_centres, strip_of_photo, xy_points, kind_names, extent, grids, worst, cov_xy,
-                  magnification: float, bar_length: float, bar_label: str) -> bytes:
+                  magnification: float, bar_length: float, bar_label: str, flight_lines: bool = True) -> bytes:
     """Plan view of a large block as two rasters side by side: the RMS of the points' horizontal
     standard error (semi-major axis of the ellipse) and of their sigma Z, per cell of a grid over
     the block, with the flight lines (up to MAP_FLIGHT_LINES strips), the control points (small
@@ -527,7 +542,7 @@ def precision_map(xy_centres, strip_of_photo, xy_points, kind_names, extent, gri
         bar = fig.colorbar(image, ax=ax, orientation="horizontal", fraction=0.05, pad=0.1, extend="both")
         bar.set_label(f"RMS per cell ({unit_label})", fontsize=7)
         bar.ax.tick_params(labelsize=6.5)
-        if len(set(np.asarray(strip_of_photo).tolist())) <= MAP_FLIGHT_LINES:
+        if flight_lines and len(set(np.asarray(strip_of_photo).tolist())) <= MAP_FLIGHT_LINES:
             _flight_lines(ax, xy_centres, strip_of_photo, arrows=False)
         _kind_markers(ax, xy_points, kind_names, kinds=control, small=True)
         ax.set_title(title, fontsize=9)

@@ -113,7 +113,8 @@ th { background: var(--head); font-weight: 600; border-bottom: 1px solid #aab7c4
 td.l, th.l { text-align: left } td.wrap { white-space: normal; text-align: left; max-width: 34em;
                                          overflow-wrap: anywhere }
 tr.sep td { border-top: 2px solid #aab7c4 } tr.total td { font-weight: bold; background: #f6f8fa }
-table.photos td, table.photos th { padding: 0.18em 0.45em; font-size: 0.92em }
+table.photos td, table.photos th { padding: 0.15em 0.32em; font-size: 0.86em }
+@media (max-width: 1100px) { main { padding: 1em 1em 2em } }
 .ok { color: var(--good); font-weight: 600 } .no { color: var(--bad); font-weight: 600 }
 .flag { color: var(--bad) } .warn { color: var(--bad) }
 figure { margin: 0.6em 0 1.4em } figure img { max-width: 100%; height: auto; display: block }
@@ -123,6 +124,9 @@ footer { margin-top: 3em; color: var(--muted); font-size: 0.8em; border-top: 1px
 @media print { main { max-width: none; padding: 0 } nav { display: none } h2 { break-after: avoid }
                figure { break-inside: avoid } }
 """
+
+
+STYLE = _STYLE  # the look of every striptri report (plan, compare)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -154,7 +158,7 @@ def _table(header, rows, cls: str = "", left: int = 0, row_classes=None, wrap: t
     """header: list of column names (HTML); rows: cells as HTML text or (text, class, title);
     the first ``left`` columns are left-aligned; the columns in ``wrap`` wrap their text (long
     values: a table must fit the page)."""
-    head = "".join(f"<th{' class=l' if j < left else ''}>{h}</th>" for j, h in enumerate(header))
+    head = "".join(f"<th{' class=l' if j < left or j in wrap else ''}>{h}</th>" for j, h in enumerate(header))
     body = []
     for i, row in enumerate(rows):
         cells = []
@@ -362,6 +366,16 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         "<div><h3>Timings (s)</h3>" + _table(["step", "seconds"], timings, left=1) + "</div>",
         "</div>",
     ]
+
+
+def length_unit(values) -> tuple[float, str]:
+    """The unit that shows mean errors and differences ``values`` (metres) with three decimals:
+    (factor, name), mm where metres would print 0.000 for most of them (close range), else m."""
+    a = np.abs(np.asarray(values, dtype=float)).ravel()
+    a = a[np.isfinite(a) & (a > 0)]
+    if len(a) and np.median(a) < 0.01:
+        return 1000.0, "mm"
+    return 1.0, "m"
 
 
 def run_block(summary: dict) -> str:
@@ -653,11 +667,14 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
     bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
     worst_table = ""
     if n_determined <= MAX_ELLIPSES:
+        strips = fig.flies_strips(result.state.R_ground_from_cam)
         png = fig.error_ellipses(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, cov[:, :2, :2],
-                                 mag, bar, bar_label, labels=pts.ids)
+                                 mag, bar, bar_label, labels=pts.ids, flight_lines=strips)
+        stations = ("projection centres (+) along their flight lines (arrow: direction of flight)" if strips else
+                    "camera stations (+; convergent photographs, no flight lines)")
         figure = _img(png, "error ellipses of the ground points",
-                      f"Plan view of the block: projection centres (+) along their flight lines (arrow: direction of "
-                      f"flight), ground points coloured by kind, control as triangles. Around every point its "
+                      f"Plan view of the block: {stations}, ground points coloured by kind, control as triangles. "
+                      f"Around every point its "
                       f"horizontal standard error ellipse (1 &sigma;, from the X, Y part of its covariance), "
                       f"magnified <b>{mag:g} times</b>; the bar is {bar_label} of error. Fixed control has no "
                       f"ellipse.")
@@ -665,18 +682,19 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
         figure, worst_table = _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every,
                                              extent, spacing)
     rows = []
+    factor, unit = length_unit(sig[points.determined])
     for k in sorted(KIND_NAMES):
         sel = (pts.kind == k) & points.determined
         if not sel.any():
             continue
-        s = sig[sel]
+        s = sig[sel] * factor
         rows.append([KIND_NAMES[k], str(int(sel.sum()))] + [_fmt(x, ".3f") for x in np.nanmean(s, axis=0)]
                     + [_fmt(x, ".3f") for x in np.nanmax(s, axis=0)])
     n_undet = int((~points.determined).sum())
     return [
         _section("points"),
         figure,
-        "<h3>Mean errors by kind (m)</h3>",
+        f"<h3>Mean errors by kind ({unit})</h3>",
         _table(["kind", "points", "mean &sigma;X", "mean &sigma;Y", "mean &sigma;Z", "max &sigma;X", "max &sigma;Y",
                 "max &sigma;Z"], rows, left=1),
         f"<p class='note'>{n_undet} points could not be determined.</p>" if n_undet else "",
@@ -713,12 +731,13 @@ def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, 
     bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
     finite = np.concatenate([grid_h[np.isfinite(grid_h)], grid_z[np.isfinite(grid_z)]])
     unit, scale = ("cm", 100.0) if len(finite) == 0 or np.percentile(finite, 99) < 1.0 else ("m", 1.0)
+    strips = fig.flies_strips(project.photos.R_ground_from_cam)
     png = fig.precision_map(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names,
                             grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
-                            mag, bar, bar_label)
+                            mag, bar, bar_label, flight_lines=strips)
     n_shown = int(pos.sum())
     n_strips = len(set(project.photos.strip_ids))
-    lines = " with its flight lines" if n_strips <= fig.MAP_FLIGHT_LINES else ""
+    lines = " with its flight lines" if strips and n_strips <= fig.MAP_FLIGHT_LINES else ""
     figure = _img(png, "precision of the ground points over the block",
                   f"Plan view of the block{lines} and control (full control: red triangles, plan: orange, height: "
                   f"green, check points: purple diamonds). With {n_shown} error ellipses too many to draw one by "
@@ -733,11 +752,13 @@ def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, 
     finite_total = np.flatnonzero(np.isfinite(total))
     worst = finite_total[np.argsort(-total[finite_total], kind="stable")[:WORST_POINT_ROWS]]
     rays = np.bincount(project.image_points.point_index, minlength=len(pts))
+    factor, unit = length_unit(sig[worst])
     rows = [[html.escape(pts.ids[i]), kind_names[i], str(rays[i])] + [_fmt(x, ".2f") for x in xyz[i]]
-            + [_fmt(x, ".3f") for x in sig[i]] + [_fmt(a[i], ".3f")] for i in worst]
+            + [_fmt(x * factor, ".3f") for x in sig[i]] + [_fmt(a[i] * factor, ".3f")] for i in worst]
     table = (f"<h3>The {len(worst)} points with the largest mean error</h3>"
              f"<p class='note'>Sorted by &radic;(&sigma;X&sup2; + &sigma;Y&sup2; + &sigma;Z&sup2;), of "
-             f"{len(finite_total)} determined points (m); points.csv lists all.</p>"
+             f"{len(finite_total)} determined points (coordinates in m, mean errors in {unit}); points.csv lists "
+             "all.</p>"
              + _table(["point", "kind", "rays", "X", "Y", "Z", "&sigma;X", "&sigma;Y", "&sigma;Z",
                        "semi-major axis"], rows, left=2))
     return figure, table
@@ -755,21 +776,22 @@ def _check_points_section(project: Project, result: AdjustmentResult, points: Tr
         return parts + ["<p>The project has no check points.</p>" if not len(out) else
                         "<p>No check point is determined by its rays.</p>"] + left_out
     d = points.xyz[sel] + result.offset - pts.xyz_given[sel]
-    rows = [[html.escape(pts.ids[i])] + [_fmt(x, ".3f") for x in d[j]] + [_fmt(x, ".3f") for x in sig[i]]
+    f, unit = length_unit(np.concatenate([d.ravel(), sig[sel].ravel()]))
+    rows = [[html.escape(pts.ids[i])] + [_fmt(x * f, ".3f") for x in d[j]] + [_fmt(x * f, ".3f") for x in sig[i]]
             for j, i in enumerate(sel[:MAX_TABLE_ROWS])]
     classes = [""] * len(rows)
     mean = d.mean(axis=0)
-    rows.append(["mean"] + [_fmt(x, ".3f") for x in mean] + ["", "", ""])
+    rows.append(["mean"] + [_fmt(x * f, ".3f") for x in mean] + ["", "", ""])
     cp = summary["check_points"]
-    rms = [cp["rms_X"], cp["rms_Y"], cp["rms_Z"]]  # summary.json's values, shown as they are
-    rows.append(["RMS"] + [_cell(_fmt(x, ".3f"), "", repr(float(x))) for x in rms]
-                + [_fmt(x, ".3f") for x in np.sqrt(np.nanmean(sig[sel] ** 2, axis=0))])
+    rms = [cp["rms_X"], cp["rms_Y"], cp["rms_Z"]]  # summary.json's values (m), in full in the cell's title
+    rows.append(["RMS"] + [_cell(_fmt(x * f, ".3f"), "", repr(float(x))) for x in rms]
+                + [_fmt(x * f, ".3f") for x in np.sqrt(np.nanmean(sig[sel] ** 2, axis=0))])
     classes += ["sep", "total"]
     note = (f"<p class='note'>The first {MAX_TABLE_ROWS} of {len(sel)} check points; points.csv lists all.</p>"
             if len(sel) > MAX_TABLE_ROWS else "")
     return parts + [
         f"<p>{len(sel)} check points were adjusted as tie points and compared with their given coordinates "
-        "afterwards: d = adjusted &minus; given (m), beside the mean error of the adjusted point. The RMS row of "
+        f"afterwards: d = adjusted &minus; given ({unit}), beside the mean error of the adjusted point. The RMS row of "
         "&sigma; is the quadratic mean of the mean errors, to compare with the RMS of d.</p>",
         _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1, row_classes=classes),
         note,
@@ -897,11 +919,12 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
                 f"{len(worst)} others with the largest mean error of the projection centre, of {n}; "
                 "photos.csv lists all.</p>")
     rows = []
+    factor, length = length_unit(sig_xyz[shown])
     for p in shown:
         rows.append([html.escape(project.photos.ids[p]), html.escape(project.photos.strip_ids[p]),
                      str(stats["count"][p])]
                     + [_fmt(x, ".2f") for x in xyz[p]] + [_fmt(x, f".{digits - 1}f") for x in opk[p]]
-                    + [_fmt(x, ".3f") for x in sig_xyz[p]] + [_fmt(x, f".{digits}f") for x in sig_ang[p]]
+                    + [_fmt(x * factor, ".3f") for x in sig_xyz[p]] + [_fmt(x, f".{digits}f") for x in sig_ang[p]]
                     + [plate(x) for x in stats["rms"][p]] + [_fmt(stats["wmax"][p], ".2f"),
                        _cell(str(stats["flagged"][p]), "flag" if stats["flagged"][p] else "")])
     header = ["photo", "strip", "pts", "X0", "Y0", "Z0", "&omega;", "&phi;", "&kappa;", "&sigma;X0", "&sigma;Y0",
@@ -910,7 +933,8 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
     return [
         _section("photos"),
         f"<p>Adjusted exterior orientation (centres in m, angles &omega;, &phi;, &kappa; in {unit}) with their "
-        "mean errors &sigma;<sub>0</sub>&radic;Q<sub>ii</sub>, and the residuals of each photograph (RMS in "
+        f"mean errors &sigma;<sub>0</sub>&radic;Q<sub>ii</sub> (of the centres in {length}), and the residuals of "
+        "each photograph (RMS in "
         f"{plate.label}).</p>",
         _table(header, rows, cls="photos", left=2, row_classes=classes),
         note,

@@ -21,7 +21,8 @@ from ..io.csvtable import format_csv
 from ..io.output import OutputReservation, check_output_location
 from ..io.project_reader import read_project
 from ..model import CHECK, Project
-from ..pipeline import camera_table, input_paths, options_for, photo_table, point_table, summary_of
+from ..pipeline import (camera_table, input_paths, options_for, photo_table, point_table, run_metadata, run_started,
+                        summary_of)
 from ..solvers import SolverUnavailable
 from . import ranking as fast_ranking
 from . import report, vongruber, whatif
@@ -99,6 +100,7 @@ def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_
     warnings so far (the project's notes), summary.json "warnings"; rank_control as run_plan's;
     tie_points: where the sightings come from (summary.json plan.tie_points)."""
     said = list(said)
+    started = run_started()
     t0 = time.perf_counter()
     a = analyse(project, options, xyz)
     seconds_analysis = time.perf_counter() - t0
@@ -129,6 +131,7 @@ def plan_products(project: Project, options, xyz: np.ndarray, cases: list, rank_
     summary["plan"]["external_method"] = a.external_method
     summary["plan"]["tie_points"] = tie_points
     summary["warnings"] = list(said)
+    summary.update(run_metadata(project, options, started, rank_control=bool(rank_control)))
     plate_unit = project.settings.plate_unit
     files = {
         "photos.csv": format_csv(photo_table(a.project, a.result)),

@@ -10,11 +10,9 @@ import io
 
 import numpy as np
 
+from ..figures import KIND_STYLE
 from ..model import KIND_NAMES, TIE
-
-STYLE = ("body{font-family:sans-serif;margin:2em;max-width:75em} table{border-collapse:collapse;margin:0.5em 0} "
-         "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right} td.l,th.l{text-align:left} "
-         "figure{margin:1em 0} img{max-width:100%}")
+from ..report import STYLE, run_block  # the adjust report's style: one look for every striptri report
 
 
 def _fmt(x, spec: str = ".4g") -> str:
@@ -31,24 +29,35 @@ def _table(header: list[str], rows: list[list], left: int = 1) -> str:
     head = "".join(f"<th{' class=l' if j < left else ''}>{html.escape(h)}</th>" for j, h in enumerate(header))
     body = "".join("<tr>" + "".join(f"<td{' class=l' if j < left else ''}>{_fmt(c)}</td>" for j, c in enumerate(r))
                    + "</tr>" for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+    return f"<div class='scroll'><table><tr>{head}</tr>{body}</table></div>"
 
 
-def _map(xy_centres, xy_points, values, unchecked, title: str, label: str, log: bool = False) -> bytes:
+def _map(xy_centres, xy_points, kinds, values, unchecked, title: str, label: str, log: bool = False) -> bytes:
     """The block seen from above: photo centres (grey), points coloured by ``values`` (nan: not
     drawn; a logarithmic scale when ``log``: a few nearly unchecked coordinates have MDBs hundreds
-    of times the others), points in ``unchecked`` marked with a red cross."""
-    from matplotlib.colors import LogNorm
+    of times the others), each kind with its own marker (figures.KIND_STYLE: control as triangles),
+    points in ``unchecked`` marked with a red cross. The legend stands right of the map, clear of
+    its axis labels."""
+    from matplotlib.colors import LogNorm, Normalize
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(7.5, 5.5))
+    fig = Figure(figsize=(8.5, 5.5))
     ax = fig.add_subplot()
     ax.plot(xy_centres[:, 0], xy_centres[:, 1], ".", color="0.6", ms=3, label="photo centres")
     ok = np.isfinite(values) & ((values > 0) if log else True)
     if ok.any():
-        norm = LogNorm(vmin=values[ok].min(), vmax=max(values[ok].max(), values[ok].min() * 1.01)) if log else None
-        sc = ax.scatter(xy_points[ok, 0], xy_points[ok, 1], c=values[ok], s=14, cmap="viridis", norm=norm)
-        fig.colorbar(sc, ax=ax, label=label)
+        lo, hi = values[ok].min(), max(values[ok].max(), values[ok].min() * 1.01)
+        norm = LogNorm(vmin=lo, vmax=hi) if log else Normalize(vmin=lo, vmax=hi if hi > lo else lo + 1.0)
+        sc = None
+        for name, (marker, _, text) in KIND_STYLE.items():
+            sel = ok & (kinds == name)
+            if sel.any():
+                sc = ax.scatter(xy_points[sel, 0], xy_points[sel, 1], c=values[sel], s=14 if name == "tie" else 40,
+                                marker="o" if name == "tie" else marker, cmap="viridis", norm=norm,
+                                edgecolors="none" if name == "tie" else "black", linewidths=0.5,
+                                label=f"{text} ({int(sel.sum())})")
+        if sc is not None:
+            fig.colorbar(sc, ax=ax, label=label, pad=0.02)
     if unchecked.any():
         ax.plot(xy_points[unchecked, 0], xy_points[unchecked, 1], "x", color="red", ms=6,
                 label="a measurement not checked (r = 0)")
@@ -56,7 +65,7 @@ def _map(xy_centres, xy_points, values, unchecked, title: str, label: str, log: 
     ax.set_xlabel("X (m)")
     ax.set_ylabel("Y (m)")
     ax.set_title(title)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, fontsize="small")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.25, 1.0), fontsize="small", frameon=False)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
     return buf.getvalue()
@@ -81,8 +90,12 @@ def html_report(analysis, summary: dict, whatifs: list[dict], ranking: list[dict
     sxy = np.hypot(a.sigma_points[:, 0], a.sigma_points[:, 1])
     ext = np.max(a.external, axis=1)
     plan = summary["plan"]
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>striptri plan</title><style>{STYLE}</style>"
-             "</head><body><h1>Pre-analysis of a planned block</h1>",
+    kinds = np.array([KIND_NAMES[int(k)] for k in pts.kind])
+    parts = [f"<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+             "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+             f"<title>striptri plan</title><style>{STYLE}</style></head><body><main>"
+             "<h1>Pre-analysis of a planned block</h1>",
+             run_block(summary),
              "<p>Mean errors a priori (sigma0 = 1): the precision the simultaneous adjustment of this design "
              "will give when the measurements have the planned sigmas. No measurement was used.</p>",
              _table(["", "value"], [
@@ -109,12 +122,12 @@ def html_report(analysis, summary: dict, whatifs: list[dict], ranking: list[dict
                          [[r["rank"], r["point_id"], r["kind"], r["status"], r["worst_sigma_P"], r["loss_sigma_P"]]
                           for r in ranking], left=4)]
     parts += ["<h2>Maps</h2>",
-              _img(_map(centres, xyz, sxy, np.zeros(n, bool), "A-priori planimetric precision of the points",
+              _img(_map(centres, xyz, kinds, sxy, np.zeros(n, bool), "A-priori planimetric precision of the points",
                         "sigma_XY (m)"), "precision map"),
-              _img(_map(centres, xyz, np.where(np.isfinite(max_mdb) & (max_mdb > 0), max_mdb, np.nan), unchecked,
+              _img(_map(centres, xyz, kinds, np.where(np.isfinite(max_mdb) & (max_mdb > 0), max_mdb, np.nan), unchecked,
                         "Internal reliability: largest MDB of a point's measurements",
                         f"MDB ({plate_unit})", log=True), "internal reliability map"),
-              _img(_map(centres, xyz, np.where(np.isfinite(ext), ext, np.nan), unchecked,
+              _img(_map(centres, xyz, kinds, np.where(np.isfinite(ext), ext, np.nan), unchecked,
                         "External reliability: a point's shift by an undetected blunder",
                         f"largest |dX|, |dY|, |dZ| (m, {a.external_method})", log=True), "external reliability map"),
               "<h2>Points</h2>",
@@ -123,5 +136,5 @@ def html_report(analysis, summary: dict, whatifs: list[dict], ranking: list[dict
                      [[pts.ids[i], KIND_NAMES[int(pts.kind[i])], *a.sigma_points[i], max_mdb[i], ext[i]]
                       for i in np.argsort(-np.nan_to_num(sxy, nan=-1.0))[:50]], left=2),
               "<p>The 50 points of largest sigma_XY; points.csv has all.</p>" if n > 50 else "",
-              f"<p>{int(np.sum(pts.kind == TIE))} tie points.</p></body></html>"]
+              f"<p>{int(np.sum(pts.kind == TIE))} tie points.</p></main></body></html>"]
     return "\n".join(parts)
