@@ -194,6 +194,14 @@ _DEFAULT_OVERLAP = 0.6
 class _Finite(click.FloatRange):
     """A finite number (nan and inf are refused) within the given range."""
 
+    name = "float"
+
+    def _describe_range(self) -> str:
+        """The range for --help ("x>=0"); nothing without bounds (click would print "x<=None")."""
+        if self.min is None and self.max is None:
+            return ""
+        return super()._describe_range()
+
     def convert(self, value, param, ctx):
         number = super().convert(value, param, ctx)
         if not math.isfinite(number):
@@ -406,7 +414,8 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
 @click.option("--blunders", type=click.Choice(["off", "snoop", "snoop-classic", "robust"]), default="off",
               show_default=True,
               help="Gross errors: off (flag |w| > 3.29 only), snoop (Baarda data snooping: inseparable groups rejected "
-                   "together, rejections re-tested), snoop-classic (the snooping before issue 18) "
+                   "together, rejections re-tested), snoop-classic (only rows of equal |w| "
+                   "rejected together, no re-test) "
                    "or robust (re-weighting, then least squares of the survivors).")
 @click.option("--covariance", "covariance_groups", default=None, metavar="GROUPS",
               help="Also write covariance.npz: the full covariance of these groups, comma-separated from photos, "
@@ -622,7 +631,8 @@ class _ManyValues(click.Option):
                    "replaces the plan's plate sigmas) [invented strips].")
 @reports_errors
 def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every_k, workers, scheduler, project_dir):
-    """Method-comparison study (DESIGN section 9; docs/study.md) written to --out."""
+    """Method-comparison study: the sequential, conditions and bundle methods on simulated strips or
+    your own block, Monte Carlo trials (docs/study.md), written to --out."""
     from striptri.study import StudyOptions, run_compare
     from striptri.study.progress import StderrProgress
 

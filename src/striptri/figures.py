@@ -91,14 +91,17 @@ STRUCTURE_CELLS = 1500  # blocks drawn one cell each up to this many; beyond, on
 STRUCTURE_PIXELS = 750
 
 
-def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, title: str = "") -> bytes:
+def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, title: str = "",
+                            labels=None) -> bytes:
     """The nonzero pattern of the normal matrix (Schmid Fig. 10): one mark per nonzero 6x6 photo
     block (camera columns last), with the block grid for small projects. Beyond STRUCTURE_CELLS
     blocks the pattern is drawn as an image of STRUCTURE_PIXELS pixels a side, a pixel coloured when
     any block it covers is nonzero (camera blocks on top).
 
     N: (n, n) sparse; block_starts: first column of each photo and camera block (UnknownLayout.
-    block_starts); n_photo_blocks: how many of the blocks are photos.
+    block_starts); n_photo_blocks: how many of the blocks are photos; labels: the ids of the blocks
+    (photo ids, then camera ids), shown on the axes where they fit (at most STRUCTURE_LABELS blocks;
+    beyond, the axes count the blocks from 1).
     """
     n = N.shape[0]
     if n == 0:
@@ -131,12 +134,28 @@ def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, ti
         ax.set_yticks(np.arange(nb) - 0.5, minor=True)
         ax.grid(True, which="minor", linewidth=0.4, color="#999999")
         ax.tick_params(labelsize=6)
-    ax.set_xlabel("block (photos in order, then cameras in orange)" if is_cam.any() else "photo block")
-    ax.set_ylabel("block")
+    if labels is not None and len(labels) == nb and nb <= STRUCTURE_LABELS:
+        ax.set_xticks(np.arange(nb), [str(x) for x in labels], rotation=90)
+        ax.set_yticks(np.arange(nb), [str(x) for x in labels])
+        ax.tick_params(labelsize=6 if nb <= 20 else 4.5)
+        what = "photo id"
+    else:  # too many to name: the blocks counted from 1, as a user counts photos
+        ax.xaxis.set_major_formatter(_count_from_one)
+        ax.yaxis.set_major_formatter(_count_from_one)
+        what = "photo number"
+    ax.set_xlabel(f"{what} (photos in order, then cameras in orange)" if is_cam.any() else what)
+    ax.set_ylabel(what)
     fill = pattern.nnz / max(nb * nb, 1)
     ax.set_title(title or f"normal matrix: {n} unknowns, {nb} blocks, {fill:.1%} of blocks filled, "
                           f"block bandwidth {bandwidth}", fontsize=9)
     return _png(fig)
+
+
+STRUCTURE_LABELS = 40  # photo ids on the axes of the normal matrix's structure up to this many blocks
+
+
+def _count_from_one(value, position) -> str:
+    return f"{int(round(value)) + 1}" if abs(value - round(value)) < 1e-9 and value >= 0 else ""
 
 
 def block_pattern(N, block_starts: np.ndarray):

@@ -134,7 +134,7 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
                 products = _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unconverged,
                                                   on_warning, seconds_reading)
         except SolverUnavailable as exc:
-            raise InputError(project_dir / "project.toml", None, str(exc)) from exc
+            raise InputError(solver_source(project_dir, overrides), None, str(exc)) from exc
         if covariance is not None:
             try:
                 products.files["covariance.npz"] = covariance_export.covariance_file(
@@ -143,6 +143,11 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
                 raise InputError("command line", None, str(exc)) from None
         reservation.commit(products.files)
     return products
+
+
+def solver_source(project_dir: Path, overrides: dict) -> str | Path:
+    """Where the solver that could not be had was chosen: the command line (--solver) or project.toml."""
+    return "command line (--solver)" if overrides.get("solver") is not None else Path(project_dir) / "project.toml"
 
 
 MAX_REFINEMENTS = 4
@@ -171,6 +176,16 @@ def _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unco
     return products
 
 
+def structure_labels(project: Project, layout) -> list[str] | None:
+    """The ids of the normal matrix's blocks: photo ids, then the ids of the cameras with unknowns
+    (None where the blocks are not those)."""
+    n_blocks = len(layout.block_starts())
+    ids = list(project.photos.ids)
+    cameras = [cid for cid, cols in zip(project.cameras.ids, np.asarray(layout.camera_cols)) if (cols >= 0).any()]
+    labels = ids + cameras
+    return labels if len(labels) == n_blocks else None
+
+
 STRUCTURE_SOFTWARE = "striptri structure"
 
 
@@ -192,7 +207,8 @@ def structure_figure(project_dir, out_png, on_warning: Callable[[str], None] | N
             on_warning(str(note))
     with OutputReservation(out_png, inputs, kind="file", owned=owned) as reservation:
         N, layout = normal_matrix_at_approximations(project)
-        png = normal_matrix_structure(N, layout.block_starts(), len(project.photos))
+        png = normal_matrix_structure(N, layout.block_starts(), len(project.photos),
+                                      labels=structure_labels(project, layout))
         return reservation.commit(with_software(png, STRUCTURE_SOFTWARE))
 
 
@@ -337,7 +353,8 @@ def _adjust_products(project, options, point_precision, blunders, keep_unconverg
         summary["frame"] = frame.summary()
 
     t0 = time.perf_counter()
-    structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos))
+    structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos),
+                                        labels=structure_labels(adjusted, result.layout))
     html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
                               flags=det.flag[det.rows], figures={"structure": structure}, distances=distance_cols)
     summary["timings_s"]["report"] = round(time.perf_counter() - t0, 6)

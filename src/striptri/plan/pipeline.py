@@ -22,7 +22,7 @@ from ..io.output import OutputReservation, check_output_location
 from ..io.project_reader import read_project
 from ..model import CHECK, Project
 from ..pipeline import (camera_table, input_paths, options_for, photo_table, point_table, run_metadata, run_started,
-                        summary_of)
+                        solver_source, summary_of)
 from ..solvers import SolverUnavailable
 from . import ranking as fast_ranking
 from . import report, vongruber, whatif
@@ -89,7 +89,7 @@ def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=
         try:
             products = plan_products(project, options, xyz, cases, rank_control, said, on_warning, tie_points)
         except SolverUnavailable as exc:
-            raise InputError(project_dir / "project.toml", None, str(exc)) from exc
+            raise InputError(solver_source(project_dir, overrides), None, str(exc)) from exc
         reservation.commit(products.files)
     return products
 

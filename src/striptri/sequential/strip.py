@@ -27,12 +27,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+from pathlib import Path
+
 import numpy as np
 
 from ..camera import plate_vector
 from ..conditions import closest_scales
 from ..core.options import DIRECTIONS, PROCEDURES, SequentialOptions  # noqa: F401  (re-exported)
-from ..errors import NumericalFailure
+from ..errors import InputError, NumericalFailure
 from ..lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
 from ..model import CHECK, Project
 from ..parameters import reduction_offset
@@ -101,12 +103,16 @@ class SequentialSolution:
 
 
 def _single_strip(project: Project) -> None:
+    """The sequential method refused for a project it cannot take: bad input for this method (exit
+    status 2, naming photos.csv), not numerical trouble."""
     strips = set(project.photos.strip_ids)
+    photos_csv = Path(project.source or ".") / "photos.csv"
     if len(strips) > 1:
-        raise NumericalFailure(f"the sequential method triangulates one strip; this project has {len(strips)} "
-                               "strips. Adjust a block with the simultaneous method.")
+        raise InputError(photos_csv, None, f"the sequential method (--method sequential) triangulates one strip; this "
+                         f"project has {len(strips)} strips (column strip_id). Adjust a block with the simultaneous "
+                         "methods (conditions, bundle).")
     if len(project.photos) < 2:
-        raise NumericalFailure("the sequential method needs at least two photographs")
+        raise InputError(photos_csv, None, "the sequential method (--method sequential) needs at least two photographs")
 
 
 def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_xy, cop_sig, kw, names) -> PhotoStep:
@@ -191,8 +197,9 @@ def distortion_free(project: Project) -> Project:
     cams, ip = project.cameras, project.image_points
     free = ~np.isnan(cams.sigma_interior[:, DISTORTION_ELEMENTS]) & (cams.sigma_interior[:, DISTORTION_ELEMENTS] != 0)
     if free.any():
-        raise NumericalFailure("the sequential method holds the camera; it cannot estimate lens distortion. "
-                               "Use the conditions or bundle method for self-calibration.")
+        raise InputError(Path(project.source or ".") / "cameras.csv", None,
+                         "the sequential method (--method sequential) holds the camera; it cannot estimate lens "
+                         "distortion. Use the conditions or bundle method for self-calibration.")
     if not has_distortion(cams.interior):
         return project
     cam = project.photos.camera_index[ip.photo_index]

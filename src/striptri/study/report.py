@@ -129,7 +129,7 @@ def report_html(options, rows, growth: dict, precision: dict, along: dict) -> st
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>striptri method comparison</title>",
         "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse;"
         "font-size:12px}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}img{max-width:100%}</style>",
-        "</head><body><h1>Method comparison (DESIGN section 9)</h1>",
+        "</head><body><h1>Method comparison</h1>",
         f"<p>methods {', '.join(options.methods)}; photos {', '.join(map(str, options.photos))}; layouts "
         f"{', '.join(options.layouts)}; sigma_image {', '.join(f'{s:g}' for s in options.sigma_images)}; "
         f"{options.trials} trials; seed {options.seed}; {len(rows)} adjustments, {failed} failed.</p>",
