@@ -56,7 +56,9 @@ class NormalAccumulator:
         self.gPg += float(np.sum(gw * gw))
         if Bw.shape[-1] == 0 or self.n == 0:
             return
-        Nloc = np.einsum("mca,mcb->mab", Bw, Bw)
+        if Bw.shape[0] == 1:  # one large group (a joint group of points joined by distances)
+            Bw, cols = _columns_summed(Bw, cols)
+        Nloc = np.swapaxes(Bw, 1, 2) @ Bw  # batched BLAS products
         uloc = np.einsum("mca,mc->ma", Bw, ww)
         valid = cols >= 0
         self.u += np.bincount(cols[valid], weights=uloc[valid], minlength=self.n)
@@ -73,6 +75,18 @@ class NormalAccumulator:
         Bw = (-grad / sigma[:, None])[:, None, :]
         ww = (misclosure / sigma)[:, None]
         self.add(Bw, ww, cols, np.zeros_like(ww))
+
+
+def _columns_summed(Bw: np.ndarray, cols: np.ndarray):
+    """One group's Bw (1, nc, nu) with the columns of the same unknown summed (they are one unknown:
+    the rays of a joint group share their photos, 573 rays of 24 photos in a close range with a
+    distance between every pair of targets), so that its product is over the distinct unknowns.
+    -> (Bw (1, nc, nu'), cols (1, nu')); fixed columns (-1) stay one column, dropped as before."""
+    unique, inverse = np.unique(cols[0], return_inverse=True)
+    if len(unique) == cols.shape[1]:
+        return Bw, cols
+    S = sp.csr_matrix((np.ones(len(inverse)), (np.arange(len(inverse)), inverse)), shape=(len(inverse), len(unique)))
+    return (S.T @ Bw[0].T).T[None], unique[None]
 
 
 class ChunkScatter:

@@ -17,7 +17,8 @@ and the points' share of the reduced sum of squares grows by
 ``2 q^T e_d + e_d^T G e_d - (q + G e_d)^T M^-1 (q + G e_d)``. The correction enters the reduced
 normals as r rows ``L^-1 U^T`` with misclosures ``L^-1 (q - e_d)`` (M = L L^T), in the columns of
 the photos (and cameras) that see the distance points. Only the distance points' blocks are
-touched: the loops run over them (a few scale bars), not over all points.
+touched, batched by chunk; Jd is sparse (two points a row), so thousands of distances among
+hundreds of points cost one dense Cholesky of M (r x r).
 """
 
 from __future__ import annotations
@@ -78,22 +79,23 @@ def locate_points(chunk_point_index: list[np.ndarray], points: np.ndarray) -> tu
 @dataclass
 class Coupling:
     """The Woodbury correction of one assembly (module doc). points (nD,) distance points;
-    JD (r, nD, 3); P (nD, 3, 3); M (r, r); e (r,) whitened misclosures."""
+    J (r, 3 nD) sparse: the whitened distance rows over the points' coordinates (two points a row);
+    P (nD, 3, 3); M (r, r); e (r,) whitened misclosures."""
 
     points: np.ndarray
-    JD: np.ndarray
+    J: object
     P: np.ndarray
     M: np.ndarray
     e: np.ndarray
 
     def point_shift(self, dX_points: np.ndarray) -> np.ndarray:
         """dX' - dX (nD, 3) for the point-by-point corrections dX_points (nD, 3) of the distance points."""
-        w = np.linalg.solve(self.M, self.e - np.einsum("rpi,pi->r", self.JD, dX_points))
-        return np.einsum("pij,rpj,r->pi", self.P, self.JD, w)
+        w = np.linalg.solve(self.M, self.e - self.J @ dX_points.reshape(-1))
+        return np.einsum("pij,pj->pi", self.P, (self.J.T @ w).reshape(-1, 3))
 
     def residuals(self, dX_points: np.ndarray) -> np.ndarray:
         """Whitened linearised residuals (r,) ``Jd dX' - e`` for the corrected dX_points (nD, 3)."""
-        return np.einsum("rpi,pi->r", self.JD, dX_points) - self.e
+        return self.J @ dX_points.reshape(-1) - self.e
 
 
 def couple(dist: Distances, kept: list, where: tuple[np.ndarray, np.ndarray], points: np.ndarray,
@@ -103,35 +105,57 @@ def couple(dist: Distances, kept: list, where: tuple[np.ndarray, np.ndarray], po
 
     where: locate_points of ``points`` (nD,), the distance points; n: the number of unknowns of
     the reduced system. Returns (Coupling, rows J (r, w), cols (r, w), f (r,), e_d^T e_d, the
-    growth of the reduced sum of squares)."""
+    growth of the reduced sum of squares).
+
+    Batched over the chunks (a few), never over points or distances: a distance row touches two
+    points, so Jd is a sparse (r, 3 nD) matrix and ``G = Jd P Jd^T`` a sparse product; only M (r, r)
+    is dense (its Cholesky factor, for thousands of distances among hundreds of points)."""
+    import scipy.sparse as sp
+
     e, Ja, Jb = linearise_distances(dist, xyz, free)
     r, nD = len(dist), len(points)
-    slot = {int(p): i for i, p in enumerate(points)}
-    ia = np.array([slot[int(p)] for p in dist.point_from])
-    ib = np.array([slot[int(p)] for p in dist.point_to])
-    JD = np.zeros((r, nD, 3))
-    JD[np.arange(r), ia] += Ja
-    JD[np.arange(r), ib] += Jb
+    slot = np.full(int(points.max()) + 1 if nD else 0, -1)
+    slot[points] = np.arange(nD)
+    ia, ib = slot[dist.point_from], slot[dist.point_to]
+    rows = np.repeat(np.arange(r), 6)
+    cols = (3 * np.stack([ia, ia, ia, ib, ib, ib], axis=1) + np.tile(np.arange(3), 2)).ravel()
+    J = sp.csr_matrix((np.concatenate([Ja, Jb], axis=1).ravel(), (rows, cols)), shape=(r, 3 * nD))
     P = np.zeros((nD, 3, 3))
     bP = np.zeros((nD, 3))
     U = np.zeros((n + 1, r))  # row n collects the held columns (-1)
-    for i, (c, row) in enumerate(zip(*where)):
-        chunk = kept[c]
-        P[i] = np.linalg.inv(chunk.N_pp[row])
-        bP[i] = P[i] @ chunk.b_p[row]
-        Y = chunk.N_cp[row] @ P[i]  # (k w, 3)
-        np.add.at(U, chunk.cols[row].ravel(), Y @ JD[:, i].T)
+    chunk_of, row_of = where
+    for c in np.unique(chunk_of):  # a loop over the chunks that hold distance points (a few)
+        mine = np.flatnonzero(chunk_of == c)
+        chunk, rr = kept[int(c)], row_of[mine]
+        P[mine] = np.linalg.inv(chunk.N_pp[rr])
+        bP[mine] = np.einsum("mij,mj->mi", P[mine], chunk.b_p[rr])
+        Y = chunk.N_cp[rr] @ P[mine]  # (m, k w, 3)
+        # U[:, d] += Y_p J_{d,p}^T for the point p of each distance end in this chunk
+        for end, J_end in ((ia, Ja), (ib, Jb)):
+            pos = np.full(nD, -1)
+            pos[mine] = np.arange(len(mine))
+            d = np.flatnonzero(pos[end] >= 0)
+            if not len(d):
+                continue
+            m_of = pos[end[d]]
+            values = np.einsum("dki,di->dk", Y[m_of], J_end[d])  # (nd, k w)
+            target = chunk.cols[rr][m_of].reshape(len(d), -1)
+            np.add.at(U, (target, np.broadcast_to(d[:, None], target.shape)), values)
     U = U[:n]
-    G = np.einsum("rpi,pij,spj->rs", JD, P, JD)
-    q = np.einsum("rpi,pi->r", JD, bP)
+    i3, base = np.arange(3), 3 * np.arange(nD)
+    p_rows = np.broadcast_to(base[:, None, None] + i3[None, :, None], P.shape).ravel()
+    p_cols = np.broadcast_to(base[:, None, None] + i3[None, None, :], P.shape).ravel()
+    Pblock = sp.csr_matrix((P.ravel(), (p_rows, p_cols)), shape=(3 * nD, 3 * nD))
+    G = (J @ Pblock @ J.T).toarray()
+    q = J @ bP.reshape(-1)
     M = np.eye(r) + G
     L = np.linalg.cholesky(M)
-    cols = np.flatnonzero(np.any(U != 0.0, axis=1))
-    R = np.linalg.solve(L, U[cols].T)  # (r, w)
+    nz = np.flatnonzero(np.any(U != 0.0, axis=1))
+    R = np.linalg.solve(L, U[nz].T)  # (r, w)
     f = np.linalg.solve(L, q - e)
     h = q + G @ e
     growth = float(2 * q @ e + e @ G @ e - h @ np.linalg.solve(M, h))
-    return (Coupling(points, JD, P, M, e), R, np.broadcast_to(cols, R.shape).copy(), f, float(e @ e), growth)
+    return (Coupling(points, J, P, M, e), R, np.broadcast_to(nz, R.shape).copy(), f, float(e @ e), growth)
 
 
 def distance_columns(point_ids: list[str], dist: Distances, xyz: np.ndarray, tests=None, sigma0: float = 1.0,

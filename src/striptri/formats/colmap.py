@@ -249,7 +249,10 @@ def _read_cameras(path: Path) -> dict:
         out["index"][cid] = len(out["ids"])
         out["ids"].append(cid)
         out["models"].append(model)
-        out["wh"].append((_int(path, n, "WIDTH", tokens[2]), _int(path, n, "HEIGHT", tokens[3])))
+        width, height = _int(path, n, "WIDTH", tokens[2]), _int(path, n, "HEIGHT", tokens[3])
+        if width <= 0 or height <= 0:
+            raise InputError(path, n, f"image size WIDTH HEIGHT must be positive pixels, found {tokens[2]} {tokens[3]}")
+        out["wh"].append((width, height))
         out["focal"].append(f)
         out["principal"].append((params[icx], params[icy]))
         out["distortion"].append(tuple(0.0 if i is None else params[i] for i in idist))
@@ -260,6 +263,7 @@ def _read_images(path: Path, camera_index: dict) -> dict:
     out = {"ids": [], "names": [], "camera": [], "q": [], "t": [], "index": {}, "lines": [],
            "obs_image": [], "obs_xy": [], "obs_point3d_id": [], "obs_lines": []}
     lines = _lines(path)
+    names: dict[str, int] = {}  # image NAME -> its IMAGE_ID
     i = 0
     while i < len(lines):
         n, text = lines[i]
@@ -279,6 +283,10 @@ def _read_images(path: Path, camera_index: dict) -> dict:
         cid = _int(path, n, "CAMERA_ID", tokens[8])
         if cid not in camera_index:
             raise InputError(path, n, f"CAMERA_ID {cid} is not in cameras.txt")
+        if tokens[9] in names:
+            raise InputError(path, n, f"image NAME '{tokens[9]}' occurs twice (also IMAGE_ID {names[tokens[9]]}): "
+                                      "two images would become one photo")
+        names[tokens[9]] = iid
         k = len(out["ids"])
         out["index"][iid] = k
         out["ids"].append(iid)
@@ -295,10 +303,16 @@ def _read_images(path: Path, camera_index: dict) -> dict:
         values = text2.split()
         if len(values) % 3:
             raise InputError(path, n2, "POINTS2D line must hold triples 'X Y POINT3D_ID'")
+        here: set[int] = set()
         for j in range(0, len(values), 3):
+            pid = _int(path, n2, "POINT3D_ID", values[j + 2])
+            if pid != -1 and pid in here:
+                raise InputError(path, n2, f"POINT3D_ID {pid} is observed twice in image {iid}: one image measures "
+                                           "a point once")
+            here.add(pid)
             out["obs_image"].append(k)
             out["obs_xy"].append((_float(path, n2, "X", values[j]), _float(path, n2, "Y", values[j + 1])))
-            out["obs_point3d_id"].append(_int(path, n2, "POINT3D_ID", values[j + 2]))
+            out["obs_point3d_id"].append(pid)
             out["obs_lines"].append(n2)
     return out
 

@@ -246,11 +246,22 @@ def _read_names(folder: Path) -> ColmapNames:
     names = table.strings("striptri_id", allow_empty=True)
     strips = table.optional_strings("strip_id")
     out = ColmapNames()
+    first_of: dict[tuple, int] = {}  # (table, colmap_id) -> row; (table, striptri_id) -> row
     for i, (kind, cid, name, strip) in enumerate(zip(kinds, ids, names, strips)):
         try:
             key = int(cid)
         except ValueError:
             raise table.error(i, f"colmap_id '{cid}' is not an integer") from None
+        if (kind, key) in first_of:
+            raise table.error(i, f"{kind} {key} is listed twice (also on line {table.lines[first_of[kind, key]]}); "
+                                 "one COLMAP id has one striptri id")
+        first_of[kind, key] = i
+        if name and kind in ("camera", "point"):
+            if (kind, "name", name) in first_of:
+                other = first_of[kind, "name", name]
+                raise table.error(i, f"striptri_id '{name}' is given to {kind} {key} and to {kind} {ids[other]} "
+                                     f"(line {table.lines[other]}): two {kind}s would become one")
+            first_of[kind, "name", name] = i
         if kind == "camera":
             out.cameras[key] = name
         elif kind == "point":

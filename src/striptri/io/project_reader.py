@@ -188,6 +188,8 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
         points = replace(points, xyz_approx=_read_approx_points(table("approx_points.csv"), points))
     gnss = _read_gnss(files, tables, cameras, photos, settings)
     distances = read_distances(table(DISTANCES_FILE), points) if files.present(DISTANCES_FILE) else None
+    if distances is not None and not len(distances):
+        distances = None  # a header without rows: no distances (as every other optional file)
     notes = (project_notes(tables, cameras, photos, image_points, points, len(control.ids), active)
              if "image_points.csv" in tables else []) + film_notes + files.unread_notes()
     inactive = None if active.all() else _rows(image_points, ~active)

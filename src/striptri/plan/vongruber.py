@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 
 from ..collinearity import camera_from_ground, plate_from_ground
 from ..errors import InputError
+from ..io import plausibility as limits
 from ..lens import observed_from_ideal
 from ..model import KIND_NAMES, TIE, ImagePoints, ObjectPoints, Project
 from .design import planned_points
@@ -86,6 +87,9 @@ def format_of(option: str | None, settings: dict, project_dir: Path) -> np.ndarr
         wh = wh * 2
     if len(wh) != 2 or len(parts) != len(wh) and len(parts) != 1 or not all(np.isfinite(wh)) or min(wh) <= 0:
         raise InputError(where, None, f"{what}: give the format as W or WxH, positive numbers in plate units")
+    if max(wh) > limits.PLATE_LIMIT:
+        raise InputError(where, None, f"{what}: beyond the plausible {limits.number_text(limits.PLATE_LIMIT)} plate "
+                                      "units (docs/file-formats.md, Limits)")
     return np.array(wh)
 
 
@@ -104,6 +108,9 @@ def terrain_height(option: float | None, settings: dict, project: Project, proje
         return float(np.mean(z))
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
         raise InputError(where, None, f"terrain height {value!r}: a number (ground metres)")
+    if abs(value) > limits.GROUND_LIMIT_M:
+        raise InputError(where, None, f"terrain height {value!r}: beyond the plausible "
+                                      f"{limits.number_text(limits.GROUND_LIMIT_M)} m (docs/file-formats.md, Limits)")
     return float(value)
 
 

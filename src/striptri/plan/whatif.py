@@ -142,6 +142,10 @@ def every_kth_photo(project: Project, k: int) -> WhatIf:
     return WhatIf(f"every {int(k)}-th photo", replace(project, photos=photos, image_points=image_points))
 
 
+RESPACED_PHOTO_FACTOR = 20  # a re-spaced plan may have at most this many times the plan's photos
+RESPACED_MIN_LIMIT = 1000  # (or this many, for small plans)
+
+
 def respaced(project: Project, overlap: float, fmt: np.ndarray, z_t: float) -> WhatIf:
     """The overlap what-if for any overlap (module doc): each strip re-spaced along its flight line
     with base (1 - overlap) x its first photo's ground footprint along the line, from the same first
@@ -154,7 +158,18 @@ def respaced(project: Project, overlap: float, fmt: np.ndarray, z_t: float) -> W
                          "(bases.csv) or a GNSS model tied to its photos; re-space the photos by hand instead")
     ph = project.photos
     take, xyz0, sids, ids = [], [], [], []
-    for members in strips_of(project):  # a loop over strips, not photos
+    planned = []
+    for members in strips_of(project):  # a loop over strips, not photos: the sizes first
+        u = flight_direction(project, members)
+        along = (ph.xyz0[members] - ph.xyz0[members[0]]) @ u
+        base = (1.0 - overlap) * float(footprint(project, members[:1], u, fmt, z_t)[0])
+        planned.append(max(2, int(min(np.ceil(float(along[-1]) / base - 1e-9), 1e12)) + 1) if base > 0 else None)
+    if any(n is None for n in planned) or sum(planned) > max(RESPACED_PHOTO_FACTOR * len(ph), RESPACED_MIN_LIMIT):
+        total = "too many" if any(n is None for n in planned) else f"{sum(planned):,}"
+        raise InputError("command line", None, f"--overlap {overlap:g}: the re-spaced plan would have {total} "
+                         f"photographs, more than {RESPACED_PHOTO_FACTOR} times the plan's {len(ph)}; give a "
+                         "forward overlap a camera can fly (0.6 to 0.9)")
+    for members in strips_of(project):
         u = flight_direction(project, members)
         first, last = ph.xyz0[members[0]], ph.xyz0[members[-1]]
         along = (ph.xyz0[members] - first) @ u
