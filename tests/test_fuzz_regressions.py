@@ -153,3 +153,27 @@ def test_a_distance_between_every_pair_of_targets(tmp_path):
     results = {m: adjust(p, options_for(p, method=m)) for m in ("conditions", "bundle")}
     assert all(r.converged for r in results.values())
     assert results["conditions"].vtpv == pytest.approx(results["bundle"].vtpv, rel=1e-7)
+
+
+# --------------------------------------------------------------------------- sigmas beyond any meaning
+
+
+def test_gnss_shift_sigma_beyond_the_limits_is_refused(tmp_path):
+    """Before: [gnss] sigma_shift = 1e300 was accepted without a word."""
+    project = tmp_path / "g"
+    proc = run("simulate", "block", "--out", project, "--gnss-sigma", "0.05", "--gnss-lever", "0,0,1", "--seed", "2")
+    assert proc.returncode == 0, proc.stderr
+    toml = project / "project.toml"
+    toml.write_text(toml.read_text().replace('shift = "free"', 'shift = "observed"\nsigma_shift = 1e300'))
+    err = assert_clean_failure(run("adjust", project, "--out", tmp_path / "o"), 2)
+    assert "project.toml" in err and "sigma_shift" in err and "plausible" in err, err
+
+
+def test_film_sigma_beyond_the_limits_is_refused(tmp_path):
+    """Before: [film] sigma_px = 1e300 was accepted without a word."""
+    project = tmp_path / "film"
+    shutil.copytree(REPO / "data" / "film_strip", project, ignore=shutil.ignore_patterns("truth"))
+    toml = project / "project.toml"
+    toml.write_text(toml.read_text().replace("sigma_px = 0.5", "sigma_px = 1e300"))
+    err = assert_clean_failure(run("adjust", project, "--out", tmp_path / "o"), 2)
+    assert "project.toml" in err and "sigma_px" in err and "plausible" in err, err

@@ -20,6 +20,7 @@ docs/decisions.md says what remains.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
@@ -309,3 +310,28 @@ def test_command_line_bad_heights_exit_2_and_write_nothing(block, tmp_path):
     assert "project.toml" in result.output and "not above the height" in result.output
     assert "Traceback" not in result.output
     assert not (tmp_path / "out").exists()
+
+
+
+MOP_1980 = (Path(__file__).resolve().parents[2] / "shared" / "data" / "reference" / "refraction_mop1980"
+            / "mop1980_p487_source3_refraction_45deg.csv")
+
+
+@pytest.mark.skipif(not MOP_1980.exists(), reason="../shared/data/reference is not beside the repository")
+def test_refraction_equals_the_manual_of_photogrammetry_table_to_its_printed_digits():
+    """Manual of Photogrammetry, 4th ed. (1980), p. 487, "source 3": the refraction angle at 45
+    degrees off nadir, ground at sea level, flying heights 0.5 to 10 km, printed to 0.1 urad. A ray
+    at off-nadir angle beta is bent by K tan(beta), so at 45 degrees the table gives K itself; on
+    the plate that ray lies at r = c, where the displacement K (r + r^3 / c^2) is 2 K c. The table
+    covers no ground height above sea level, no other angle and no Earth curvature
+    (docs/decisions.md)."""
+    import csv
+
+    rows = list(csv.DictReader(MOP_1980.open()))
+    assert len(rows) == 20
+    for row in rows:
+        assert row["ground_height_km"] == "0" and row["off_nadir_deg"] == "45"
+        K = float(pc.refraction_constant(float(row["sensor_height_km"]) * 1000.0, 0.0))
+        assert f"{K * 1e6:.1f}" == row["refraction_urad"], row
+        c = 152.4
+        assert float(pc.refraction_displacement(c, c, K)) == pytest.approx(2 * K * c, rel=1e-12)

@@ -1,5 +1,5 @@
-"""Weak points never fail a converged adjustment, and never hide (issue 26; docs/decisions.md
-"Undetermined points"): a point whose rays do not determine it at the adjusted values (nearly
+"""Weak points never fail a converged adjustment, and never hide; real data through the command
+(issue 26; docs/decisions.md "Undetermined points"): a point whose rays do not determine it at the adjusted values (nearly
 parallel rays, one ray left, coordinates lost to rejected measurements) is flagged
 ``undetermined`` in points.csv, named in summary.json's warnings and the report, left out of the
 check-point statistics (which count it), and everything else is computed."""
@@ -142,3 +142,33 @@ def test_ladybug_through_the_command_reaches_ceres_cost(tmp_path, blunders):
     assert {"7070", "7076", "7099", "7125", "7126"} <= set(flagged) and len(flagged) < 0.03 * len(points)
     assert any(f"{len(flagged)} points are not determined by" in w and flagged[0] in w for w in summary["warnings"])
     assert summary["inactive"]["n"] == 31
+
+
+ROMA = SHARED_DATA / "dbat_roma" / "script" / "romabundledemo.xml"
+CAMCAL = SHARED_DATA / "dbat_camcal" / "script" / "camcaldemo.xml"
+
+
+@pytest.mark.skipif(not ROMA.exists(), reason="../shared/data/real is not beside the repository")
+def test_roma_through_the_command_reproduces_dbat(tmp_path):
+    """DBAT's 60-image block through the real command with the defaults: sigma0 0.582769 px and
+    redundancy 101,801 of DBAT's report (script/result/report.txt); a few far points flagged."""
+    proc = run("convert", ROMA, "--to", "project", "--out", tmp_path / "roma")
+    assert proc.returncode == 0, proc.stderr
+    proc = run("adjust", tmp_path / "roma", "--out", tmp_path / "out", timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["converged"] is True and summary["redundancy"] == 101801
+    assert f"{summary['sigma0']:.6f}" == "0.582769"
+
+
+@pytest.mark.skipif(not CAMCAL.exists(), reason="../shared/data/real is not beside the repository")
+def test_camcal_through_the_command_reproduces_dbat(tmp_path):
+    """DBAT's camera calibration through the real command (a subprocess) with the defaults: sigma0
+    1.6148 and redundancy 3725 of DBAT's report."""
+    proc = run("convert", CAMCAL, "--to", "project", "--out", tmp_path / "cc")
+    assert proc.returncode == 0, proc.stderr
+    proc = run("adjust", tmp_path / "cc", "--out", tmp_path / "out")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["converged"] is True and summary["redundancy"] == 3725
+    assert f"{summary['sigma0']:.4f}" == "1.6148"

@@ -19,6 +19,7 @@ import numpy as np
 
 from striptri import model
 from striptri.errors import InputError, Note
+from striptri.io import plausibility as limits
 from striptri.film import calibration as calib
 from striptri.film import fiducials as fid
 from striptri.film import transform
@@ -65,6 +66,9 @@ def read_film(files, toml_path, toml_text: str, toml_data: dict, line_of, image_
     if isinstance(sigma_px, bool) or not isinstance(sigma_px, (int, float)) or not (
             math.isfinite(sigma_px) and sigma_px > 0):
         raise fail("sigma_px", f"{sigma_px!r} is not a positive number (scan pixels)")
+    if not limits.SIGMA_MIN <= sigma_px <= limits.SIGMA_MAX:
+        raise fail("sigma_px", f"{sigma_px!r} is outside the plausible range [{limits.number_text(limits.SIGMA_MIN)}, "
+                               f"{limits.number_text(limits.SIGMA_MAX)}] scan pixels (docs/file-formats.md, Limits)")
     notes = []
     calibrations = ()
     if has_calibration:
@@ -153,6 +157,10 @@ def _read_measurements(table: CsvTable, photos: model.Photos, fiducial_xy: dict,
     sig = table.optional_floats("sigma")
     for i in np.flatnonzero(sig <= 0):
         raise table.error(i, f"column 'sigma': must be > 0 (got {table.text(i, 'sigma')})")
+    i = limits.first_sigma_out_of_range(sig)
+    if i is not None:
+        raise table.error(i, f"column 'sigma': {table.text(i, 'sigma')} scan pixels is outside the plausible range "
+                             f"[{limits.number_text(limits.SIGMA_MIN)}, {limits.number_text(limits.SIGMA_MAX)}]")
     sig = np.where(np.isnan(sig), sigma_px, sig)
     seen: dict = {}
     for i, (p, f) in enumerate(zip(pids, fids)):

@@ -70,6 +70,11 @@ def read_gnss(cameras_table: CsvTable, photos_table: CsvTable, cameras, photos, 
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
                 raise InputError(where.path, where.line or toml_line(TOML_SECTION, key),
                                  f"[gnss] {key} = \"observed\" needs {name} = a positive number ({unit}), got {value!r}")
+            if not limits.SIGMA_MIN <= value <= limits.SIGMA_MAX:
+                raise InputError(where.path, where.line, f"[gnss] {name} = {value!r} is outside the plausible range "
+                                 f"[{limits.number_text(limits.SIGMA_MIN)}, {limits.number_text(limits.SIGMA_MAX)}] "
+                                 f"{unit} (docs/file-formats.md, Limits); for a {key} that is not observed use "
+                                 f"{key} = \"free\"")
             sigmas[key] = float(value)
         elif value is not None:
             raise InputError(where.path, where.line, f"[gnss] {name} is only used with {key} = \"observed\" "
