@@ -855,6 +855,7 @@ def test_sequential_method_and_init_from_the_command_line(tmp_path):
     b = np.array([[num(r[c]) for c in ("X0", "Y0", "Z0")] for r in read_table(tmp_path / "init" / "photos.csv")[1]])
     np.testing.assert_allclose(b, a, atol=1e-6)
     block = run("adjust", DATA / "block_3x6", "--out", tmp_path / "block", "--method", "sequential")
-    assert block.returncode == 1 and "one strip" in block.stderr and "Traceback" not in block.stderr
+    # the method refused for this input is bad input (issue 26: it was exit status 1)
+    assert block.returncode == 2 and "one strip" in block.stderr and "Traceback" not in block.stderr
     snoop = run("adjust", DATA / "strip8", "--out", tmp_path / "s", "--method", "sequential", "--blunders", "snoop")
     assert snoop.returncode == 2 and "simultaneous" in snoop.stderr

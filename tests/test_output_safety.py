@@ -33,7 +33,6 @@ FOLDER_STEPS = ("reserve:parents", "reserve:made", "reserve:marked", "commit:wri
                 "swap:exchanged", "swap:old-removed", "commit:done")
 JOURNAL_STEPS = ("swap:journal", "swap:aside", "swap:renamed")
 AFTER_THE_SWAP = {"swap:exchanged", "swap:renamed", "swap:old-removed", "commit:done"}
-SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGKILL)
 
 
 def striptri_with_signal_at(step: str, sig: int, *args, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -89,8 +88,13 @@ def _new_outcome(proc, sig, step, out) -> str:
     return outcome
 
 
-@pytest.mark.parametrize("sig", SIGNALS, ids=lambda s: signal.Signals(s).name)
-@pytest.mark.parametrize("step", FOLDER_STEPS)
+# every step with a signal that can be held back (SIGTERM) and one that cannot (SIGKILL); SIGINT and
+# SIGHUP, held back the same way, at the two steps inside the swap
+STEP_SIGNALS = ([(step, sig) for step in FOLDER_STEPS for sig in (signal.SIGTERM, signal.SIGKILL)]
+                + [(step, sig) for step in ("swap:checked", "swap:exchanged") for sig in (signal.SIGINT, signal.SIGHUP)])
+
+
+@pytest.mark.parametrize("step, sig", STEP_SIGNALS, ids=[f"{st}-{signal.Signals(sg).name}" for st, sg in STEP_SIGNALS])
 def test_a_signal_at_any_step_of_the_swap_loses_nothing(tmp_path, earlier, step, sig):
     """Before: a signal between the two renames of the swap (received by a worker thread while the
     main thread held it back) left --out missing, the earlier output aside, deleted by the next run."""

@@ -16,7 +16,7 @@ import pytest
 
 from striptri.adjustment import METHODS, AdjustmentOptions, SequentialOptions, adjust
 from striptri.core.result import SUCCESSFUL_TERMINATIONS, TERMINATIONS
-from striptri.errors import NumericalFailure
+from striptri.errors import InputError, NumericalFailure
 from striptri.io import read_project
 from striptri.model import CHECK, TIE
 from striptri.rotations import R_from_opk
@@ -86,10 +86,14 @@ def test_divergence(method):
     conditions diverges (its corrections double for four iterations in a row: the divergence rule,
     core.convergence.stop_if_diverging). The bundle's Levenberg-Marquardt damping recovers from
     the same start and converges. The sequential method triangulates single strips and refuses
-    the block before iterating ("failed", not a termination of an iteration)."""
+    the block before iterating: bad input for that method (an InputError, exit status 2; issue 26),
+    not a termination of an iteration."""
     block = turned(read_project(DATA / "block_3x6"), "2003", 90.0)
-    expected = {"conditions": "diverged", "bundle": "converged", "sequential": "failed"}[method]
-    if expected in SUCCESSFUL_TERMINATIONS:
+    expected = {"conditions": "diverged", "bundle": "converged", "sequential": "refused"}[method]
+    if expected == "refused":
+        with pytest.raises(InputError, match="one strip"):
+            adjust(block, AdjustmentOptions(method=method))
+    elif expected in SUCCESSFUL_TERMINATIONS:
         assert adjust(block, AdjustmentOptions(method=method)).termination == expected
     else:
         exc = failure(block, AdjustmentOptions(method=method))

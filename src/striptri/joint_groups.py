@@ -64,7 +64,8 @@ def check_distance_points(project: Project) -> None:
     rays = rays_per_point(project)
     full = adjusted_kind(project.points.kind) == FULL
     ok = (rays >= 2) | (full & (rays >= 1))
-    for i in range(len(dist)):
+    bad = np.flatnonzero(~ok[dist.point_from] | ~ok[dist.point_to])  # the first one is named
+    for i in bad[:1]:
         for p in (dist.point_from[i], dist.point_to[i]):
             if ok[p]:
                 continue
