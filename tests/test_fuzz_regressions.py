@@ -177,3 +177,28 @@ def test_film_sigma_beyond_the_limits_is_refused(tmp_path):
     toml.write_text(toml.read_text().replace("sigma_px = 0.5", "sigma_px = 1e300"))
     err = assert_clean_failure(run("adjust", project, "--out", tmp_path / "o"), 2)
     assert "project.toml" in err and "sigma_px" in err and "plausible" in err, err
+
+
+# --------------------------------------------------------------------------- the right cause named
+
+
+def test_an_affinity_that_makes_x_vanish_is_named_in_cameras_csv(tmp_path):
+    """Before: b1 = -1 (c (1 + b1) = 0, no x scale) ended in "give better k1..k3", exit 1."""
+    project = tmp_path / "p"
+    shutil.copytree(DATA / "pair", project, ignore=shutil.ignore_patterns("truth"))
+    lines = (project / "cameras.csv").read_text().splitlines()
+    lines[0] += ",b1"
+    lines[1] += ",-1"
+    (project / "cameras.csv").write_text("\n".join(lines) + "\n")
+    err = assert_clean_failure(run("adjust", project, "--out", tmp_path / "o"), 2)
+    assert f"{project}/cameras.csv, line 2" in err and "b1" in err and "scale of x" in err, err
+
+
+def test_a_calibration_focal_length_beyond_the_limits_is_named_in_calibration_toml(tmp_path):
+    """Before: a calibration.toml focal length of 1e12 was reported against cameras.csv."""
+    project = tmp_path / "film"
+    shutil.copytree(REPO / "data" / "film_strip", project, ignore=shutil.ignore_patterns("truth"))
+    toml = project / "calibration.toml"
+    toml.write_text(toml.read_text().replace("focal_length_mm = 152.847", "focal_length_mm = 1e12"))
+    err = assert_clean_failure(run("adjust", project, "--out", tmp_path / "o"), 2)
+    assert "calibration.toml" in err and "focal_length_mm" in err and "cameras.csv" not in err, err

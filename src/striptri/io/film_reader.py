@@ -246,12 +246,16 @@ def _read_calibration(files, cameras: model.Cameras) -> tuple:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or (
                     positive and value <= 0):
                 raise fail(key, f"{value!r} is not a {'positive ' if positive else ''}number")
+            if abs(value) > limits.PLATE_LIMIT:  # named here, not later against cameras.csv
+                raise fail(key, f"{value!r} exceeds the plausibility limit of "
+                                f"{limits.number_text(limits.PLATE_LIMIT)} mm (docs/file-formats.md, Limits)")
             return float(value)
 
         def vector(key, length=None):
             value = table.get(key)
             ok = isinstance(value, list) and value and all(
-                not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in value)
+                not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+                and abs(v) <= limits.PLATE_LIMIT for v in value)
             if not ok or (length is not None and len(value) != length):
                 raise fail(key, f"{value!r} is not a list of {length or 'some'} numbers")
             return np.array(value, dtype=float)

@@ -403,6 +403,9 @@ def _toml_line(text: str, section: str, key: str) -> int | None:
 # cameras.csv
 
 
+AFFINITY_LIMIT = 0.5  # |b1|, |b2| at or beyond this: no camera's affinity or shear (b1 = -1 makes x vanish)
+
+
 def _read_cameras(table: CsvTable) -> model.Cameras:
     """cameras.csv: camera_id, c, xp, yp[, k1, k2, k3, p1, p2, b1, b2][, distortion]
     [, sigma_<element> ...] (docs/camera-model.md). Additional parameters default to 0, held."""
@@ -417,6 +420,12 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
     _check_limit(table, ("c", "xp", "yp"), interior[:, :3], limits.PLATE_LIMIT, "plate units")
     for j, name in enumerate(CAMERA_ELEMENTS[3:], start=3):
         interior[:, j] = np.nan_to_num(table.optional_floats(name), nan=0.0)
+    for name in ("b1", "b2"):  # affinity and shear: c (1 + b1) is the x scale, c b2 the shear
+        j = CAMERA_ELEMENTS.index(name)
+        for i in np.flatnonzero(~(np.abs(interior[:, j]) < AFFINITY_LIMIT))[:1]:
+            raise table.error(i, f"column '{name}': {table.text(i, name)} is no affinity or shear of a camera "
+                                 f"(|{name}| must be below {AFFINITY_LIMIT:g}; a real camera's is below 1e-3): "
+                                 f"{'c (1 + b1) is the scale of x' if name == 'b1' else 'c b2 shears x by y'}")
     sigma = np.column_stack(
         [_sigma_column(table, f"sigma_{name}", zero_means_fixed=True, free_word=True) for name in CAMERA_ELEMENTS]
     ).reshape(-1, NCP)
