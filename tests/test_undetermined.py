@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_support import SHARED_DATA, run
+from cli_support import DATA, SHARED_DATA, run
 from striptri.triangulation import (WEAK_FACTOR, WEAK_RCOND, conditioning, far_weaker_than_the_rest)
 
 LADYBUG = SHARED_DATA / "bal_ladybug49" / "problem-49-7776-pre.txt"
@@ -170,3 +170,26 @@ def test_camcal_through_the_command_reproduces_dbat(tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["converged"] is True and summary["redundancy"] == 3725
     assert f"{summary['sigma0']:.4f}" == "1.6148"
+
+
+def test_a_tie_point_left_undetermined_in_a_strip_is_flagged():
+    """Before: in a copy of strip8 with one 0.1 mm y-error (tie point 1001C on photo 1002) snooping
+    rejected the point's y coordinates, leaving it with a sigma_Y of 30 m, unflagged."""
+    from dataclasses import replace
+
+    from striptri.io import read_project
+    from striptri.pipeline import adjust_products, options_for
+
+    project = read_project(DATA / "strip8")
+    ip = project.image_points
+    row = next(i for i in range(len(ip)) if project.photos.ids[ip.photo_index[i]] == "1002"
+               and project.points.ids[ip.point_index[i]] == "1001C")
+    xy = ip.xy.copy()
+    xy[row, 1] += 0.1
+    project = replace(project, image_points=replace(ip, xy=xy))
+    products = adjust_products(project, options_for(project), blunders="snoop")
+    rows = {r["point_id"]: r for r in csv.DictReader(products.files["points.csv"].splitlines())}
+    assert rows["1001C"]["flag"] == "undetermined"
+    assert float(rows["1001C"]["sigma_Y"]) > 1.0  # metres: its rays no longer fix it in Y
+    assert any("1001C" in w and "not determined by" in w for w in products.summary["warnings"])
+    assert sum(r["flag"] == "undetermined" for r in rows.values()) == 1  # the others stay as they were

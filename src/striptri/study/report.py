@@ -9,7 +9,9 @@ import math
 
 import numpy as np
 
+from striptri import __version__
 from striptri.figures import _png, plt
+from striptri.report import STYLE as REPORT_STYLE
 from striptri.study.growth import GROWTH_COLUMNS, PRECISION_COLUMNS, end_errors
 from striptri.study.options import METHOD_LABELS, METHOD_SPECS
 
@@ -115,7 +117,7 @@ def _table(cols: dict, names) -> str:
     n = len(cols[names[0]]) if names else 0
     head = "".join(f"<th>{html.escape(c)}</th>" for c in names)
     body = "".join("<tr>" + "".join(f"<td>{cell(cols[c][i])}</td>" for c in names) + "</tr>" for i in range(n))
-    return f"<table><tr>{head}</tr>{body}</table>"
+    return f"<div class='scroll'><table><tr>{head}</tr>{body}</table></div>"
 
 
 def report_html(options, rows, growth: dict, precision: dict, along: dict) -> str:
@@ -126,10 +128,11 @@ def report_html(options, rows, growth: dict, precision: dict, along: dict) -> st
         ("Forward against backward", forward_against_backward(rows)),
     ]
     parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>striptri method comparison</title>",
-        "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse;"
-        "font-size:12px}td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}img{max-width:100%}</style>",
-        "</head><body><h1>Method comparison</h1>",
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>striptri method comparison</title><style>{REPORT_STYLE}</style>",  # the adjust report's look
+        "</head><body><main><h1>Method comparison</h1>",
+        f"<p class='sub run'>striptri {html.escape(__version__)}</p>",
         f"<p>methods {', '.join(options.methods)}; photos {', '.join(map(str, options.photos))}; layouts "
         f"{', '.join(options.layouts)}; sigma_image {', '.join(f'{s:g}' for s in options.sigma_images)}; "
         f"{options.trials} trials; seed {options.seed}; {len(rows)} adjustments, {failed} failed.</p>",
@@ -141,5 +144,5 @@ def report_html(options, rows, growth: dict, precision: dict, along: dict) -> st
     parts.append(_table(growth, GROWTH_COLUMNS))
     parts.append("<h2>Predicted (N<sup>-1</sup>, a priori) against empirical error of the last centre</h2>")
     parts.append(_table(precision, PRECISION_COLUMNS))
-    parts.append("</body></html>")
+    parts.append("</main></body></html>")
     return "\n".join(parts)
