@@ -257,6 +257,7 @@ def run_metadata(project: Project, options: AdjustmentOptions, started: str, **m
 
 def _adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning, seconds_reading,
                      frame, started) -> AdjustmentProducts:
+    """adjust_products' work, with the BLAS threads already set; started: run_started()'s time."""
     from dataclasses import replace as _replace
 
     check_products_options(options, point_precision, blunders)
