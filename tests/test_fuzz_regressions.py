@@ -202,3 +202,17 @@ def test_a_calibration_focal_length_beyond_the_limits_is_named_in_calibration_to
     toml.write_text(toml.read_text().replace("focal_length_mm = 152.847", "focal_length_mm = 1e12"))
     err = assert_clean_failure(run("adjust", project, "--out", tmp_path / "o"), 2)
     assert "calibration.toml" in err and "focal_length_mm" in err and "cameras.csv" not in err, err
+
+
+def test_a_distance_in_the_wrong_unit_is_named_as_the_likely_cause(tmp_path):
+    """Before: a 1e9 m distance (a scale bar typed in nanometres, say) was reported only as an
+    undetermined datum."""
+    project = tmp_path / "cr"
+    shutil.copytree(CLOSE_RANGE, project, ignore=shutil.ignore_patterns("truth"))
+    lines = (project / "distances.csv").read_text().splitlines()
+    fields = lines[1].split(",")
+    fields[2] = "1e9"
+    lines[1] = ",".join(fields)
+    (project / "distances.csv").write_text("\n".join(lines) + "\n")
+    err = assert_clean_failure(run("adjust", project, "--out", tmp_path / "o"), 1)
+    assert "Likely cause: distances.csv, line 2" in err and "check the value and its unit" in err, err

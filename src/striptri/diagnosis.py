@@ -91,17 +91,49 @@ def likely_causes(project: Project, failure: str) -> list[str]:
     """
     with np.errstate(all="ignore"):
         if failure == "iteration":
-            checks = (implausible_values, extreme_weights, camera_units, wrong_orientations)
+            checks = (distance_scale, implausible_values, extreme_weights, camera_units, wrong_orientations)
         elif failure == "singular":
-            checks = (extreme_weights, lambda p: photo_groups(p).explain(), implausible_values, camera_units)
+            checks = (distance_scale, extreme_weights, lambda p: photo_groups(p).explain(), implausible_values,
+                      camera_units)
         elif failure == "overflow":
-            checks = (implausible_values, camera_units, extreme_weights)
+            checks = (distance_scale, implausible_values, camera_units, extreme_weights)
         else:
             raise ValueError(f"unknown failure kind {failure!r}")
         causes: list[str] = []
         for check in checks:
             causes += check(project)
         return causes
+
+
+# ------------------------------------------------------------------------------------------ distances
+
+DISTANCE_RATIO = 1e3  # an observed distance this many times longer or shorter than in the approximations
+
+
+def distance_scale(project: Project) -> list[str]:
+    """The rows of distances.csv whose distance is more than DISTANCE_RATIO times longer or shorter
+    than the distance of its two points in the approximations (plan.design.planned_points: given
+    coordinates, approx_points.csv, or the intersection of their rays): a wrong value or unit, which
+    the adjustment meets as a scale it cannot reach (before, a 1e9 m distance was reported as an
+    undetermined datum). Approximations are never off in scale by a factor of a thousand."""
+    dist = getattr(project, "distances", None)
+    if dist is None or not len(dist):
+        return []
+    from .plan.design import planned_points
+
+    xyz = planned_points(project)
+    approx = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1)
+    ratio = dist.distance / approx
+    bad = np.flatnonzero(np.isfinite(ratio) & (approx > 0)
+                         & ((ratio > DISTANCE_RATIO) | (ratio < 1.0 / DISTANCE_RATIO)))
+    out = []
+    for i in bad[:LIST_MAX]:
+        line = "" if dist.line is None else f", line {int(dist.line[i])}"
+        a, b = project.points.ids[dist.point_from[i]], project.points.ids[dist.point_to[i]]
+        out.append(f"distances.csv{line}: the distance {float(dist.distance[i]):.6g} m between {a} and {b} is "
+                   f"{float(ratio[i]):.3g} times their distance in the approximations ({float(approx[i]):.6g} m): "
+                   "check the value and its unit")
+    return out
 
 
 # ------------------------------------------------------------------------------------------ weights
