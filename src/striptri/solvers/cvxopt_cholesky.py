@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
 from .info import SolverInfo
-from .threads import factorisation_threads
+from .threads import factorisation_threads, limit_new_libraries
 
 INSTALL_HINT = (
     "the 'cvxopt' solver needs cvxopt (binary wheels, no compiler needed): "
@@ -43,6 +43,7 @@ def cvxopt_modules():
         from cvxopt import cholmod
     except ImportError as exc:
         raise SolverUnavailable(INSTALL_HINT) from exc
+    limit_new_libraries()  # its OpenBLAS under striptri's thread limit (solvers.threads)
     return cvxopt, cholmod
 
 

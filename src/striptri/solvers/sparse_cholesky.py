@@ -37,7 +37,7 @@ import scipy.sparse as sp
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
 from .info import SolverInfo
-from .threads import factorisation_threads
+from .threads import factorisation_threads, limit_new_libraries
 
 MODES = ("supernodal", "simplicial")
 ORDERINGS = ("nesdis", "metis", "amd", "colamd", "best", "default", "natural")
@@ -75,6 +75,7 @@ def cholmod_module():
     except ImportError as exc:
         raise SolverUnavailable(INSTALL_HINT) from exc
     _tame_openmp(cholmod)
+    limit_new_libraries()  # its OpenBLAS under striptri's thread limit (solvers.threads)
     return cholmod
 
 
