@@ -128,3 +128,59 @@ def test_each_datum_defect_is_named_and_the_free_network_solves_it(case, free_co
     r = adjust(q, AdjustmentOptions(datum="inner"))
     assert r.converged and len(r.free_network) == free_count
     assert r.checks.max_condition_misclosure_sigma < 1e-7
+
+
+def _shipped_pair_without_control(tmp_path):
+    """The shipped pair with a header-only control.csv: nothing but the rays fixes the datum."""
+    import shutil
+    from pathlib import Path
+    source = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "pair"
+    folder = tmp_path / "pair"
+    shutil.copytree(source, folder)
+    header = (source / "control.csv").read_text().splitlines()[0]
+    (folder / "control.csv").write_text(header + "\n")
+    return folder
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_pair_without_control_meets_its_datum_in_a_handful_of_iterations(tmp_path, method):
+    """Issue 26's regression: the pair without control took 31 iterations (the datum's metric diag N
+    turns with the block, and the linear datum move slid back by half each time), and the bundle
+    took two free directions for determined (their Rayleigh quotients against the reduced diagonal
+    reached 2e-12). At the result the inner constraints hold at the adjusted state itself:
+    H^T diag(N) (x^ - x0) = 0, H the seven similarity directions there."""
+    from striptri import datum
+    from striptri.io import read_project
+    from striptri.parameters import initial_state
+    r = adjust(read_project(_shipped_pair_without_control(tmp_path)),
+               AdjustmentOptions(datum="inner", method=method))
+    assert r.converged and len(r.free_network) == 7
+    assert r.iterations <= 10
+    x0 = initial_state(read_project(_shipped_pair_without_control(tmp_path / "again")), r.offset)
+    H = r.free_network.H
+    D = r.N.diagonal()
+    delta = datum.displacement(x0, r.state, r.layout)
+    G = H.T @ (D[:, None] * H)
+    # the datum's remaining move, in the correction test's units (sd of the elements)
+    move = np.linalg.solve(G, H.T @ (D * delta))
+    assert np.sqrt(move @ G @ move) < 1e-6
+
+
+def test_pair_without_control_the_two_methods_agree(tmp_path):
+    from striptri.io import read_project
+    project = read_project(_shipped_pair_without_control(tmp_path))
+    a = adjust(project, AdjustmentOptions(datum="inner"))
+    b = adjust(project, AdjustmentOptions(datum="inner", method="bundle"))
+    assert b.vtpv == pytest.approx(a.vtpv, rel=1e-9)
+    np.testing.assert_allclose(b.state.xyz0, a.state.xyz0, atol=1e-6)
+    np.testing.assert_allclose(b.state.R_ground_from_cam, a.state.R_ground_from_cam, atol=1e-9)
+
+
+def test_command_line_pair_without_control_datum_inner(tmp_path):
+    folder = _shipped_pair_without_control(tmp_path)
+    for method in ("conditions", "bundle"):
+        out = tmp_path / f"out-{method}"
+        run = subprocess.run(["striptri", "adjust", str(folder), "--datum", "inner", "--method", method,
+                              "--out", str(out)], capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+        assert json.loads((out / "summary.json").read_text())["converged"]

@@ -12,14 +12,14 @@ datum defect, and its eigenvector says in words which translation, rotation or s
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
 from .parameters import State, UnknownLayout
-from .rotations import angles_from_R, angles_jacobian, log_so3
+from .rotations import angles_from_R, angles_jacobian, exp_so3, log_so3
 
 DIRECTION_NAMES = (
     "translation in X",
@@ -83,6 +83,16 @@ def diagnose(acc, state: State, layout: UnknownLayout, tolerance: float = STRICT
     return describe(free.coefficients, free.extent, centroid)
 
 
+def _metric(acc) -> np.ndarray:
+    """The diagonal the Rayleigh quotients are taken against: diag N, or for the bundle's reduced
+    camera system the diagonal before the points' reduction (``datum_metric``). The reduction
+    cancels most of a free direction's diagonal, and its rounding is of the order of the unreduced
+    one: measured against the reduced diagonal, a free direction of a pair without control reached
+    2e-12 and was taken for determined."""
+    metric = getattr(acc, "datum_metric", None)
+    return acc.N.diagonal() if metric is None else metric
+
+
 def free_directions(acc, state: State, layout: UnknownLayout, tolerance: float = STRICT_TOLERANCE) -> FreeDirections:
     """The similarity directions left free by the control: those whose Rayleigh quotient
     h^T N h / h^T diag(N) h is below ``tolerance``.
@@ -108,7 +118,7 @@ def free_directions(acc, state: State, layout: UnknownLayout, tolerance: float =
     K7[6, 6] += acc.gPg * units[6] ** 2
     Hz = H @ Z
     K = Z.T @ K7 @ Z
-    D = Hz.T @ (N.diagonal()[:, None] * Hz)
+    D = Hz.T @ (_metric(acc)[:, None] * Hz)
     keep = np.diag(D) > 0
     if not keep.any():
         return none
@@ -157,16 +167,24 @@ class FreeNetwork:
         _, _, piv = la.qr(scaled.T, pivoting=True, mode="economic")
         return FreeNetwork(free.H, C, np.sort(piv[: free.H.shape[1]]), free)
 
-    def at(self, state: State, layout: UnknownLayout, N, initial: State | None = None) -> "FreeNetwork":
+    def at(self, state: State, layout: UnknownLayout, N, initial: State | None = None,
+           exact: bool = True) -> "FreeNetwork":
         """The same free directions at another state (the similarity directions move with the
         photos): H, C recomputed, the held unknowns kept. initial: the approximations; given, the
-        constraint gets the right-hand side ``t = -C^T delta`` (delta = displacement(initial, state)),
-        so that the adjusted unknowns satisfy ``C^T (x^ - x0) = 0`` whatever the iteration's path."""
+        step gets the right-hand side ``t = C^T H c`` that moves the photos by the similarity ``c``
+        onto the datum ``C(x^)^T (x^ - x0) = 0`` (:func:`datum_move`), so that the adjusted unknowns
+        meet it whatever the iteration's path. exact: False takes the linear move
+        ``c = -(C^T H)^-1 C^T (x - x0)`` (a damped step, whose N is not that of the datum)."""
         H = similarity_matrix(state, layout, self.free.extent)[0] @ self.free.coefficients
         free = FreeDirections(H, self.free.coefficients, self.free.extent)
         C = inner_constraints(free, N)
-        target = None if initial is None else -C.T @ displacement(initial, state, layout)
-        return FreeNetwork(H, C, self.held, free, target, misclosure=None if target is None else -target)
+        if initial is None:
+            return FreeNetwork(H, C, self.held, free)
+        if exact:
+            target = C.T @ (H @ datum_move(free, state, layout, N, initial))
+        else:
+            target = -C.T @ displacement(initial, state, layout)
+        return FreeNetwork(H, C, self.held, free, target, misclosure=target)
 
     def minimum_constraint_system(self, N):
         """N with the held unknowns replaced by identity rows and columns (scaled by N_ii)."""
@@ -237,6 +255,123 @@ def displacement(initial: State, state: State, layout: UnknownLayout) -> np.ndar
     return delta[:n]
 
 
+def datum_move(free: FreeDirections, state: State, layout: UnknownLayout, N, initial: State,
+               max_steps: int = 12) -> np.ndarray:
+    """The similarity ``c`` (d,) of the free directions that moves the photos of ``state`` onto the
+    photo datum: ``H'^T D' (x' - x0) = 0`` at the moved state x' (H' its similarity directions, D'
+    its diag N, x0 the approximations; the inner constraints ``C^T (x - x0) = 0`` of the class doc).
+
+    The fit does not change along the similarity, but D does: a similarity turns and scales each
+    photo's centre block of N, ``N'_cc = Q N_cc Q^T / s^2`` (rotation vectors in the camera frame
+    and the camera elements do not change). The linear move ``-(C^T H)^-1 C^T (x - x0)`` ignores
+    that, and the datum then slides back by about half its move every iteration (31 iterations on
+    a pair without control); solving the d equations by Newton with D moved along converges in
+    the usual handful. Photos with held angles, tied centres and GNSS shifts keep their D (their
+    blocks do not transform this simply): the result is then approximate, and the next iteration,
+    which recomputes D, finishes it."""
+    d = free.H.shape[1]
+    extent, coefficients = free.extent, free.coefficients
+    owners = _column_owners(layout)
+    blocks = _centre_blocks(N, layout, owners)
+    diag = np.asarray(N.diagonal(), dtype=float)
+    g = state.xyz0.mean(axis=0)
+
+    def equations(c: np.ndarray) -> np.ndarray:
+        moved, Q, s = _moved(state, layout, coefficients @ c, extent, g)
+        D = diag.copy()
+        if blocks is not None:
+            cols, Ncc = blocks
+            D[cols] = np.einsum("ij,njk,ik->ni", Q, Ncc, Q) / s**2
+        H = _similarity_columns(moved, layout, extent, owners) @ coefficients
+        return H.T @ (D * displacement(initial, moved, layout))
+
+    c = np.zeros(d)
+    f = equations(c)
+    G = free.H.T @ (diag[:, None] * free.H)
+    if not np.any(f):
+        return c
+    step = 1e-3  # a millimetre of motion across the block
+    J = np.empty((d, d))
+    for j in range(d):
+        e = np.zeros(d)
+        e[j] = step
+        J[:, j] = (equations(e) - f) / step
+    try:
+        last = np.inf
+        for _ in range(max_steps):
+            dc = -np.linalg.solve(J, f)
+            c = c + dc
+            size = np.sqrt(abs(dc @ G @ dc))  # in sd of the elements, as the correction test
+            if size < 1e-11 or size > 0.5 * last:  # done, or at the rounding floor
+                break
+            last = size
+            f = equations(c)
+    except np.linalg.LinAlgError:
+        c = np.zeros(d)
+    if not np.all(np.isfinite(c)):
+        c = np.zeros(d)
+    if not c.any():  # the linear move (the iteration's fixed point is the same, only slower)
+        c = -np.linalg.solve(G, equations(c))
+    return c
+
+
+def _column_owners(layout: UnknownLayout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The photo elements that own their unknown column (the first of tied elements), as flat
+    indices into ``photo_cols`` (n*6,), their columns, and the tied elements after the first."""
+    flat = layout.photo_cols.ravel()
+    free_el = np.flatnonzero(flat >= 0)
+    cols, first = np.unique(flat[free_el], return_index=True)
+    owner = free_el[first]
+    tied = np.setdiff1d(free_el, owner, assume_unique=True)
+    return owner, cols, tied
+
+
+def _centre_blocks(N, layout: UnknownLayout, owners) -> tuple[np.ndarray, np.ndarray] | None:
+    """The 3x3 centre blocks of N (m, 3, 3) and their columns (m, 3) of the photos whose three
+    centre elements are their own unknowns (free, not tied to another photo's); None when none."""
+    cols = layout.photo_cols[:, :3]
+    owns = np.zeros(layout.photo_cols.size, dtype=bool)
+    owns[owners[0]] = True
+    shared = np.isin(cols, layout.photo_cols.ravel()[owners[2]])  # a column another photo's element ties to
+    own = (owns.reshape(-1, 6)[:, :3] & ~shared).all(axis=1)
+    if not own.any():
+        return None
+    c = cols[own]
+    rows = np.broadcast_to(c[:, :, None], (len(c), 3, 3))
+    columns = np.broadcast_to(c[:, None, :], (len(c), 3, 3))
+    values = np.asarray(N[rows.ravel(), columns.ravel()], dtype=float).reshape(len(c), 3, 3)
+    return c, values
+
+
+def _moved(state: State, layout: UnknownLayout, p: np.ndarray, extent: float, centroid: np.ndarray):
+    """``state`` moved by the finite similarity ``p`` (7,) in the scaled basis of
+    similarity_matrix (translation in m, rotation and scale in m across the block), turning and
+    scaling about ``centroid``; the GNSS shifts move back with the translation. Returns the moved
+    state, its rotation Q and its scale s."""
+    t, w, s = p[:3], p[3:6] / extent, 1.0 + p[6] / extent
+    Q = exp_so3(w)
+    xyz0 = centroid + s * (state.xyz0 - centroid) @ Q.T + t
+    R = layout.restore_fixed_angles(Q @ state.R_ground_from_cam)
+    gnss = state.gnss
+    if gnss is not None and layout.gnss_cols is not None:
+        free_shift = layout.gnss_cols.shift >= 0
+        gnss = replace(gnss, shift=np.where(free_shift, gnss.shift - t, gnss.shift))
+    return replace(state, R_ground_from_cam=R, xyz0=xyz0, gnss=gnss), Q, s
+
+
+def _similarity_columns(state: State, layout: UnknownLayout, extent: float, owners) -> np.ndarray:
+    """H (n_unknowns, 7) of similarity_matrix, without its constraint rows."""
+    H_el = (similarity_changes(state, layout) * _units(extent)).reshape(-1, 7)
+    owner, cols, _ = owners
+    H = np.zeros((layout.n_unknowns, 7))
+    H[cols] = H_el[owner]
+    if layout.gnss_cols is not None:
+        shift = layout.gnss_cols.shift
+        for a in range(3):
+            H[shift[:, a][shift[:, a] >= 0], a] = -_units(extent)[a]
+    return H
+
+
 def inner_constraints(free: FreeDirections, N) -> np.ndarray:
     """Constraint matrix C (n_unknowns, d) of the free network: ``C^T dx = 0`` makes the corrections
     D-orthogonal (D = diag N) to the free similarity directions, the minimum-norm solution in the
@@ -261,18 +396,14 @@ def similarity_matrix(state: State, layout: UnknownLayout, extent: float, centro
     and tied elements put on the similarity coefficients."""
     H_el = similarity_changes(state, layout, centroid) * _units(extent)  # (n, 6, 7)
     cols = layout.photo_cols
-    constraints = [H_el[cols < 0]]  # fixed elements must not move
-    first_at_col: dict[int, tuple[int, int]] = {}
-    for i, e in zip(*np.nonzero(cols >= 0)):
-        c = int(cols[i, e])
-        if c in first_at_col:  # tied elements (enforced base) must move together
-            i0, e0 = first_at_col[c]
-            constraints.append((H_el[i, e] - H_el[i0, e0])[None])
-        else:
-            first_at_col[c] = (i, e)
+    owner, owned, tied = _column_owners(layout)
+    flat = H_el.reshape(-1, 7)
+    first = np.zeros(layout.n_unknowns, dtype=int)
+    first[owned] = owner
+    constraints = [H_el[cols < 0],  # fixed elements must not move
+                   flat[tied] - flat[first[cols.ravel()[tied]]]]  # tied elements (enforced base) move together
     H = np.zeros((layout.n_unknowns, 7))
-    for c, (i, e) in first_at_col.items():
-        H[c] = H_el[i, e]
+    H[owned] = flat[owner]
     if layout.gnss_cols is not None:  # a translation moves the GNSS shifts back (A = O + ... + shift)
         shift = layout.gnss_cols.shift
         for a in range(3):

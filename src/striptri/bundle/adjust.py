@@ -136,12 +136,15 @@ class _Problem:
             point_datum.check_directions(self.point_datum, self.free_network, self.initial_state)
         self.redundancy += len(free)
 
-    def datum_at(self, state: State, xyz: np.ndarray, N, at_solution: bool = False) -> datum.FreeNetwork:
+    def datum_at(self, state: State, xyz: np.ndarray, N, at_solution: bool = False,
+                 exact: bool = True) -> datum.FreeNetwork:
         """The free network's constraints at (state, xyz), N the undamped reduced camera system
         there: on the photos (datum.FreeNetwork.at) or on the datum points (point_datum), each with
-        the right-hand side that makes the datum independent of the iteration's path."""
+        the right-hand side that makes the datum independent of the iteration's path. exact: False
+        for a damped step, whose N (its points' blocks damped) does not turn with the block as the
+        datum's does: the photo datum's linear move (datum.FreeNetwork.at)."""
         if self.point_datum is None:
-            return self.free_network.at(state, self.layout, N, self.initial_state)
+            return self.free_network.at(state, self.layout, N, self.initial_state, exact)
         return self.point_datum.free_network(self.free_network, state, self.layout, self.obs,
                                              xyz[self.point_datum.index], at_solution)
 
@@ -174,7 +177,8 @@ class _Problem:
             if not explain:
                 return solver.solve(normals.N, normals.b)
             return _solve_or_explain(normals, solver, state, self)
-        fn = self.datum_at(state, xyz, (undamped or normals).N)
+        undamped = undamped or normals
+        fn = self.datum_at(state, xyz, undamped.N, exact=normals is undamped and not undamped.damped)
         fn = fn if target else replace(fn, target=None)
         self.network = fn  # the constraints of this solve (the convergence test reads their datum move)
         try:
@@ -232,6 +236,7 @@ class _Problem:
         """The reduced normals at (state, xyz), with the linearised chunks kept (normals.kept) for
         the back substitution of the step they give."""
         normals = self.normals()
+        normals.damped = damping > 0
         for chunk, scatters in zip(self.chunks(state, xyz, damping), self.scatters):
             normals.add_points(chunk, state.camera_of_photo, scatters)
         if len(self.pobs):

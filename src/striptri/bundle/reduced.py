@@ -269,6 +269,13 @@ class ReducedNormals:
         self.reduced = 0.0
         self.N: sp.csr_matrix | None = None
         self.b: np.ndarray | None = None
+        self.damped = False  # the points' blocks carry Levenberg-Marquardt damping
+
+    @property
+    def datum_metric(self) -> np.ndarray:
+        """The diagonal of the camera normals before the points' reduction, in the unknowns
+        (datum.free_directions measures the free directions against it)."""
+        return self.d
 
     def add_points(self, chunk: PointChunk, camera_of_photo: np.ndarray, scatters=None, keep: bool = True) -> None:
         """Add a linearised chunk; scatters: its BlockPattern.scatters when worked out before;
