@@ -55,6 +55,7 @@ EXTENT_QUANTILE = 0.95  # the extent of a camera's plate coordinates (robust to 
 
 # -- implausible values -------------------------------------------------------------------------------
 FAR = 1000.0  # a value this many times farther out than the typical one is a typo or another unit
+OUTSIDE_IMAGE = 2.0  # a plate coordinate this many times beyond the camera's EXTENT_QUANTILE lies off the image
 
 # -- turned photos -------------------------------------------------------------------------------------
 TURNS_DEG = (90, 180, 270)
@@ -91,12 +92,14 @@ def likely_causes(project: Project, failure: str) -> list[str]:
     """
     with np.errstate(all="ignore"):
         if failure == "iteration":
-            checks = (distance_scale, implausible_values, extreme_weights, camera_units, wrong_orientations)
+            checks = (distance_scale, implausible_values, extreme_weights, absolute_extremes, camera_units,
+                      principal_points, wrong_orientations)
         elif failure == "singular":
-            checks = (distance_scale, extreme_weights, lambda p: photo_groups(p).explain(), implausible_values,
-                      camera_units)
+            checks = (distance_scale, extreme_weights, absolute_extremes, lambda p: photo_groups(p).explain(),
+                      implausible_values, camera_units, principal_points)
         elif failure == "overflow":
-            checks = (distance_scale, implausible_values, camera_units, extreme_weights)
+            checks = (distance_scale, implausible_values, camera_units, principal_points, extreme_weights,
+                      absolute_extremes)
         else:
             raise ValueError(f"unknown failure kind {failure!r}")
         causes: list[str] = []
@@ -182,6 +185,93 @@ def extreme_weights(project: Project) -> list[str]:
     return out
 
 
+# A standard deviation this far below or above the block's extent (coordinates, m) or a radian
+# (angles) cannot be a statement about a measurement: it is a typo or another unit, and its weight
+# leaves double precision (a sigma_X0 of 1e-20 m makes N singular; a control sigma of 1e12 m
+# overflows). Used where the median of the others says nothing (one weighted value of its kind).
+ABSOLUTE_SMALL = 1e-9
+ABSOLUTE_LARGE = 1e6
+
+
+def absolute_extremes(project: Project) -> list[str]:
+    """Weighted control coordinates and observed elements whose standard deviation is below
+    ABSOLUTE_SMALL or above ABSOLUTE_LARGE times their scale (the block's extent in metres, one
+    radian for angles), whatever the others have."""
+    out = []
+    ph, pts = project.photos, project.points
+    extent = float(np.ptp(ph.xyz0, axis=0).max()) if len(ph) > 1 else 1.0
+    extent = max(extent, 1.0)
+
+    def extreme(s, scale):
+        s = np.where(np.isfinite(s) & (s > 0), s, np.nan)
+        return np.nan_to_num((s < ABSOLUTE_SMALL * scale) | (s > ABSOLUTE_LARGE * scale)).astype(bool)
+
+    sg = np.where(np.isfinite(pts.xyz_given), pts.sigma_given, np.nan)
+    bad = np.flatnonzero(extreme(sg, extent).any(axis=1))
+    if len(bad):
+        items = [f"point {pts.ids[i]} (sigma {', '.join(f'{x:.3g}' for x in sg[i] if np.isfinite(x) and x > 0)} m)"
+                 for i in bad[:LIST_MAX]]
+        out.append(_absolute_sentence("control coordinate", items, len(bad), f"{extent:.4g} m", "control.csv"))
+    for name, sig, elements, scale, unit in (("observed centre", ph.sigma_xyz0, ("X0", "Y0", "Z0"), extent, "m"),
+                                             ("observed angle", ph.sigma_angles, ("omega", "phi", "kappa"), 1.0,
+                                              "rad")):
+        bad = np.argwhere(extreme(sig, scale))
+        if len(bad):
+            items = [f"photo {ph.ids[i]} (sigma_{elements[a]} = {sig[i, a]:.3g} {unit})" for i, a in bad[:LIST_MAX]]
+            out.append(_absolute_sentence(name, items, len(bad), f"{scale:.4g} {unit}", "photos.csv"))
+    return out
+
+
+def _absolute_sentence(kind: str, items: list[str], n: int, scale: str, file: str) -> str:
+    listed = ", ".join(items) + (_more(n - len(items)) if n > len(items) else "")
+    return (f"the standard deviation of {n} {kind}{'s' if n != 1 else ''} in {file} is more than "
+            f"{1 / ABSOLUTE_SMALL:.0e} times smaller or {ABSOLUTE_LARGE:.0e} times larger than {scale} "
+            f"(the block's extent, or a radian for angles): {listed}. No measurement is that exact or that "
+            f"vague, and its weight leaves double precision: give its real standard deviation (or hold the "
+            f"value fixed: {HOLD_EXACTLY[file]}; or leave it out).")
+
+
+# A settled iteration with sigma0 above this (v^T P v steady to 1e-3) points at gross errors.
+GROSS_SIGMA0 = 10.0
+STEADY = 1e-3
+
+
+def gross_residuals(project: Project, history, redundancy: int, plate_residuals: np.ndarray) -> list[str]:
+    """A gross error, when the iteration has settled (v^T P v steady) far above sigma0 = 1: the
+    plate measurements with the largest residuals in units of their standard deviation.
+    plate_residuals (m_ip, 2): v = l^ - l of the last estimate, in the rows of image_points."""
+    if redundancy <= 0 or len(history) < 2:
+        return []
+    vtpv, last = history[-1].vtpv, history[-2].vtpv
+    if not (np.isfinite(vtpv) and np.isfinite(last)) or abs(vtpv - last) > STEADY * vtpv:
+        return []
+    sigma0 = float(np.sqrt(vtpv / redundancy))
+    ip = project.image_points
+    if sigma0 < GROSS_SIGMA0 or len(ip) != len(plate_residuals):
+        return []
+    with np.errstate(all="ignore"):
+        w = np.abs(plate_residuals) / ip.sigma_xy
+    w = np.where(np.isfinite(w), w, 0.0)
+    worst = np.argsort(-w.max(axis=1))[:3]
+    unit = project.settings.plate_unit
+    items = []
+    control = sorted({str(project.points.ids[ip.point_index[row]]) for row in worst
+                      if np.isfinite(project.points.xyz_given[ip.point_index[row]]).any()})
+    for row in worst:
+        axis = int(np.argmax(w[row]))
+        items.append(f"point {project.points.ids[ip.point_index[row]]} on photo "
+                     f"{project.photos.ids[ip.photo_index[row]]} ({'xy'[axis]} {plate_residuals[row, axis]:+.4g} {unit}, "
+                     f"{w[row, axis]:.3g} sigma)")
+    return [f"a gross error in the measurements: the iteration has settled at sigma0 = {sigma0:.4g}, where about 1 "
+            f"is expected, and a settled iteration converges slowly when its residuals are that large. The largest "
+            f"residuals: {'; '.join(items)}."
+            + (f" {', '.join(control)} {'is a control point' if len(control) == 1 else 'are control points'}: "
+               "check the given coordinates in control.csv too." if control else "")
+            + " Check these measurements (a wrong point id, a typo, another unit); "
+            f"correct them or set active = 0 on their rows in image_points.csv. --blunders snoop finds gross "
+            f"errors once the adjustment converges (raise --max-iterations for that run)."]
+
+
 HOLD_EXACTLY = {
     "image_points.csv": "a plate measurement is never exact",
     "control.csv": "an empty sigma holds a control coordinate fixed",
@@ -249,6 +339,31 @@ def camera_units(project: Project) -> list[str]:
     return out
 
 
+def principal_points(project: Project) -> list[str]:
+    """Cameras whose principal point (xp, yp) lies outside the box of their photos' plate
+    coordinates: a frame camera's principal point lies inside its image."""
+    cams, ip = project.cameras, project.image_points
+    if not len(ip):
+        return []
+    cam = project.photos.camera_index[ip.photo_index]
+    n = len(cams)
+    low = np.full((n, 2), np.inf)
+    high = np.full((n, 2), -np.inf)
+    np.minimum.at(low, cam, ip.xy)
+    np.maximum.at(high, cam, ip.xy)
+    pp = cams.interior[:, 1:3]
+    out = []
+    with np.errstate(invalid="ignore"):
+        outside = ((pp < low) | (pp > high)).any(axis=1) & np.isfinite(low).all(axis=1)
+    for j in np.flatnonzero(outside)[:LIST_MAX]:
+        out.append(f"camera {cams.ids[j]}: its principal point (xp, yp) = ({pp[j, 0]:.6g}, {pp[j, 1]:.6g}) lies "
+                   f"outside the area its photos' plate coordinates cover (x {low[j, 0]:.6g} to {high[j, 0]:.6g}, "
+                   f"y {low[j, 1]:.6g} to {high[j, 1]:.6g}), where a frame camera's principal point lies inside its "
+                   "image: check xp, yp in cameras.csv (a typo, another unit, or another origin than the plate "
+                   "coordinates).")
+    return out
+
+
 # ------------------------------------------------------------------------------- implausible values
 
 
@@ -287,6 +402,14 @@ def implausible_values(project: Project) -> list[str]:
             out.append(f"the plate coordinates of {'; '.join(items)}{_more(len(bad))} lie more than {FAR:.0f} times "
                        "farther from the principal point than the other measurements of the camera: check "
                        "image_points.csv (a typo, or another unit).")
+        extent = _plate_extent(project)[0][cam]
+        off = np.flatnonzero((r <= FAR * np.maximum(typical_r, 1e-300)) & (r > OUTSIDE_IMAGE * extent))
+        if len(off):
+            items = [f"point {pts.ids[ip.point_index[i]]} on photo {ph.ids[ip.photo_index[i]]} "
+                     f"({ip.xy[i, 0]:.6g}, {ip.xy[i, 1]:.6g})" for i in off[:LIST_MAX]]
+            out.append(f"the plate coordinates of {'; '.join(items)}{_more(len(off))} lie outside the image: more than "
+                       f"{OUTSIDE_IMAGE:g} times as far from the principal point as {EXTENT_QUANTILE:.0%} of the "
+                       "camera's measurements: check image_points.csv (a typo, or another unit).")
     return out
 
 

@@ -271,7 +271,9 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     if problem.redundancy < 0:
         _explain_too_few(problem, now.state, now.xyz)
     solver = solver_for(options, problem.layout, project)
-    causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
+    # only after a failure; large residuals of a settled iteration are named when nothing in the input is
+    causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
+                      or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     status = "iteration_limit"
     while len(history) < options.max_iterations:
         accepted, normals = _step(problem, solver, now, normals, damping, history, timings, causes)

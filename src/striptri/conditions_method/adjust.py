@@ -328,7 +328,9 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     now = _Estimate(problem.initial_state, obs.plate.copy(), obs.control.copy(), np.zeros(len(problem.pobs)))
     history: list[Iteration] = []
     converged = False
-    causes = lambda: diagnosis.likely_causes(project, "iteration")  # noqa: E731  (only after a failure)
+    # only after a failure; large residuals of a settled iteration are named when nothing in the input is
+    causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
+                      or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     no_unknowns = problem.layout.n_unknowns == 0
     for _ in range(options.max_iterations):
         now, floor = _iteration(problem, solver, now, history, timings)
