@@ -3,7 +3,7 @@ fiducials, scan pixels, a calibration report and 4 control points at one end.
 
     python scripts/make_film_strip.py [--out data/film_strip] [--seed 16]
 
-The files come from striptri.film.simulate (truth in <out>/truth/). Re-running with the same seed
+The files come from striptri.simulate.film (truth in <out>/truth/). Re-running with the same seed
 writes the same files.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from striptri.film.simulate import FilmOptions, film_project_files
+from striptri.simulate.film import FilmOptions, film_project_files
 from striptri.io.csvtable import format_csv
 
 

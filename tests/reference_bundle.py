@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from striptri import model
-from striptri.camera import project
-from striptri.rotations import R_from_opk
+from striptri.geometry.camera import project
+from striptri.geometry.rotations import R_from_opk
 
 
 @dataclass(frozen=True)

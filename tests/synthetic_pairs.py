@@ -2,7 +2,7 @@
 
 Not a test file: a helper the tests import. Deliberately explicit and independent of
 ``striptri.simulate`` (which is itself under test elsewhere); it uses only the data model, the
-collinearity projection ``striptri.camera.project`` and ``striptri.rotations.R_from_opk``.
+collinearity projection ``striptri.geometry.camera.project`` and ``striptri.geometry.rotations.R_from_opk``.
 
 Truth apart from noise (STYLE.md):
 
@@ -31,8 +31,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from striptri import model
-from striptri.camera import project
-from striptri.rotations import R_from_opk, opk_from_R
+from striptri.geometry.camera import project
+from striptri.geometry.rotations import R_from_opk, opk_from_R
 
 FORMAT_MM = 230.0
 NATIONAL_GRID = (500_000.0, 5_000_000.0, 0.0)

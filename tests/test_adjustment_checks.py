@@ -8,7 +8,7 @@ import pytest
 
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.io import read_project
-from striptri.precision import normalised_residuals, residual_cofactors
+from striptri.precision.residuals import normalised_residuals, residual_cofactors
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
 

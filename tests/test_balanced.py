@@ -1,4 +1,4 @@
-"""Balanced radial distortion with a zero-crossing radius r0 (issue 17, striptri.balanced).
+"""Balanced radial distortion with a zero-crossing radius r0 (issue 17, striptri.geometry.balanced).
 
 Evidence: conversions both ways to 1e-12; the rays of the balanced and the Gaussian form written out
 by hand agree; dr(r0) = 0; the Jacobian against central differences; cameras.csv's r0 read and
@@ -12,12 +12,13 @@ import pytest
 from test_jacobians import assert_jacobian
 from test_self_calibration import calibration_project
 
-from striptri import balanced, lens, model
+from striptri.geometry import balanced, lens
+from striptri import model
 from striptri import simulate as sim
 from striptri.errors import InputError
 from striptri.io import read_project, write_project
 from striptri.io.csvtable import read_csv
-from striptri.lens import IMAGE, NCP, PLATE
+from striptri.geometry.lens import IMAGE, NCP, PLATE
 from striptri.pipeline import adjust_products, options_for
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri import lens
+from striptri.geometry import lens
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.io import read_project
 

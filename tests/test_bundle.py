@@ -20,10 +20,10 @@ from striptri import model, solvers
 from striptri import simulate as sim
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.bundle import adjust_bundle, solve_bundle
-from striptri.camera import project as camera_project
+from striptri.geometry.camera import project as camera_project
 from striptri.errors import NumericalFailure
 from striptri.io import read_project
-from striptri.parameter_observations import build_parameter_observations
+from striptri.equations.parameter_observations import build_parameter_observations
 from striptri.pipeline import triangulate_result
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"

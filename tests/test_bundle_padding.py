@@ -16,7 +16,7 @@ from striptri.adjustment import adjust
 from striptri.bundle import adjust as bundle_adjust
 from striptri.bundle import padding
 from striptri.core.options import AdjustmentOptions
-from striptri.groups import build_batches, merge_layouts
+from striptri.equations.groups import build_batches, merge_layouts
 from striptri.io import read_project
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 
 from striptri import simulate as sim
-from striptri.adjusted_points import triangulate_adjusted
+from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.adjustment import AdjustmentOptions, adjust
-from striptri.bundle import precision as collinearity_form
+from striptri.precision import collinearity_form
 from striptri.io import read_project
-from striptri.lens import IMAGE, PLATE
+from striptri.geometry.lens import IMAGE, PLATE
 from striptri.pipeline import adjust_products
-from striptri.precision import residual_cofactors
+from striptri.precision.residuals import residual_cofactors
 from striptri.reliability import plate_reliability
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
@@ -98,7 +98,7 @@ def _block_entries(blocks, n_rows):
 
 def result_cofactors(project, result) -> dict:
     """The a-priori cofactors q of the plate (m, 2) and control (n, 3) observations."""
-    from striptri.core.observations import observations_of
+    from striptri.equations.observations import observations_of
 
     obs = observations_of(project, result.offset)
     return {"plate": obs.q_plate, "control": obs.q_control}
@@ -309,7 +309,7 @@ def test_a_free_network_keeps_the_conditions_form():
 @pytest.mark.parametrize("name", ["strip, held control, single-photo and check points",
                                   "pair, one-photo points of every kind", "close range"])
 def test_points_with_conditions_are_those_build_batches_batches(solved, name):
-    from striptri.groups import build_batches, points_with_conditions
+    from striptri.equations.groups import build_batches, points_with_conditions
 
     project, _ = solved(name)
     batched = np.zeros(len(project.points), dtype=bool)
@@ -323,7 +323,7 @@ def test_points_with_conditions_are_those_build_batches_batches(solved, name):
 def test_covariance_read_whole_by_solves_equals_its_entries(solved):
     """Covariance.dense_solved (n solves with the factor) and Covariance.set_blocks (blocks of set
     pairs) read the same Qxx as Covariance.entries."""
-    from striptri.covariance import Slots
+    from striptri.selected_inverse.covariance import Slots
 
     _, result = solved("close range, two cameras")
     cov = result.covariance

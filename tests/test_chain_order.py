@@ -7,10 +7,10 @@ from dataclasses import replace
 
 from striptri import model
 from striptri import simulate as sim
-from striptri.camera import project as proj
-from striptri.rotations import R_from_opk, opk_from_R
+from striptri.geometry.camera import project as proj
+from striptri.geometry.rotations import R_from_opk, opk_from_R
 from striptri.adjustment import adjust, AdjustmentOptions
-import striptri.groups as G
+import striptri.equations.groups as G
 
 def duplicated_strip(seed=0, shift=(0.3, 0.2, 0.1)):
     d = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=6), control=sim.ControlDesign(layout="ends"),

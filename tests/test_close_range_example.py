@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri.covariance_export import CovarianceRequest
+from striptri.precision.export import CovarianceRequest
 from striptri.pipeline import run_adjust
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,5 +1,5 @@
 """Observed distances in the method of conditions and in precision and reliability (issue 17;
-striptri.joint_groups): the distance condition on the groups' intersections, the joint groups,
+striptri.equations.joint_groups): the distance condition on the groups' intersections, the joint groups,
 their agreement with the bundle, the redundancy numbers and w-tests of the distances."""
 
 from dataclasses import replace
@@ -7,18 +7,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from striptri import covariance_export as ce
+from striptri.precision import export as ce
 from striptri import model
-from striptri.adjusted_points import triangulate_adjusted
+from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.bundle import solve_bundle
-from striptri.bundle.distances import Distances
-from striptri.collinearity import collinearity_jacobians
+from striptri.model import Distances
+from striptri.geometry.collinearity import collinearity_jacobians
 from striptri.conditions_method import adjust_conditions
 from striptri.conditions_method.adjust import _Problem
 from striptri.core.options import AdjustmentOptions, ConditionsOptions
 from striptri.errors import InputError
-from striptri.joint_groups import joint_point_precision
-from striptri.precision import joint_point_covariance, residual_cofactors
+from striptri.equations.joint_groups import joint_point_precision
+from striptri.precision.residuals import joint_point_covariance, residual_cofactors
 from striptri.adjustment import adjust
 from striptri.reliability import ALPHA0, blunder_options, critical_value, detect_blunders
 from striptri.reliability.distances import distance_table

@@ -34,7 +34,7 @@ from synthetic_pairs import (
 from striptri import model
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.errors import NumericalFailure
-from striptri.rotations import opk_from_R
+from striptri.geometry.rotations import opk_from_R
 
 H = 1500.0  # flying height of the synthetic pairs (m)
 STAT = 1e-6  # agreement between two converged solutions, in standard deviations
@@ -284,7 +284,7 @@ def test_point_precision_equals_the_bundle(solved, name):
     """The ground points' cofactors, Schmid's split (90) and the rigorous joint form (92), equal the
     point blocks of the independent bundle's (J^T J)^-1 (points as unknowns there)."""
     from striptri.pipeline import triangulate_result
-    from striptri.precision import joint_point_covariance
+    from striptri.precision.residuals import joint_point_covariance
 
     _, project, res, ref = solved[name]
     tri = triangulate_result(project, res)

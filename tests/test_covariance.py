@@ -9,7 +9,7 @@ import pytest
 
 from striptri import model
 from striptri.adjustment import AdjustmentOptions, adjust
-from striptri.covariance import Covariance
+from striptri.selected_inverse.covariance import Covariance
 from striptri.io import read_project
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"

@@ -14,8 +14,8 @@ import pytest
 from click.testing import CliRunner
 
 from striptri.cli import main
-from striptri.covariance_export import CovarianceRequest, in_grid, joint_covariance, s_transform
-from striptri.adjusted_points import triangulate_adjusted
+from striptri.precision.export import CovarianceRequest, in_grid, joint_covariance, s_transform
+from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.crs.frame import LocalFrame
 from striptri.crs.project import in_local_frame
 from striptri.core.options import AdjustmentOptions
@@ -24,7 +24,7 @@ from striptri.io.csvtable import read_csv
 from striptri.io.project_reader import read_project
 from striptri.model import CoordinateSettings
 from striptri.pipeline import run_adjust
-from striptri.rotations import R_from_angles, angles_from_R
+from striptri.geometry.rotations import R_from_angles, angles_from_R
 
 UTM33 = "EPSG:32633"
 CENTRE = np.array([736000.0, 5320000.0, 0.0])

@@ -1,4 +1,4 @@
-"""The covariance of chosen groups and its S-transformation (issue 17, striptri.covariance_export).
+"""The covariance of chosen groups and its S-transformation (issue 17, striptri.precision.export).
 
 Evidence: the diagonal blocks equal the mean errors the adjustment reports elsewhere (photos.csv,
 cameras.csv, points.csv: a second way through result.photo_mean_errors and the triangulation's
@@ -9,7 +9,7 @@ and leaves the mean errors of distances between points unchanged (1e-9 relative)
 import numpy as np
 import pytest
 
-from striptri import covariance_export as ce
+from striptri.precision import export as ce
 from striptri.adjustment import adjust
 from striptri.pipeline import options_for, triangulate_result
 

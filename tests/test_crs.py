@@ -22,7 +22,7 @@ from striptri.io.project_reader import parse_settings, read_project
 from striptri.io.project_writer import write_project
 from striptri.model import CoordinateSettings
 from striptri.pipeline import run_adjust
-from striptri.rotations import R_from_opk, angles_jacobian, exp_so3
+from striptri.geometry.rotations import R_from_opk, angles_jacobian, exp_so3
 from striptri.simulate.map_coordinates import central_meridian, to_map_coordinates
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
@@ -115,7 +115,7 @@ def test_angle_sigmas_against_central_differences():
     R_to = C @ R_from
     sig = np.full((6, 3), 1e-4)
     # d angles_to / d angles_from by central differences in angle space
-    from striptri.rotations import opk_from_R
+    from striptri.geometry.rotations import opk_from_R
     a = opk_from_R(R_from)
     h = 1e-6
     J = np.stack([(opk_from_R(C @ R_from_opk(a + h * e)) - opk_from_R(C @ R_from_opk(a - h * e))) / (2 * h)

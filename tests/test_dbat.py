@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri import lens, model
+from striptri.geometry import lens
+from striptri import model
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.errors import InputError
 from striptri.formats.dbat import (
@@ -192,7 +193,7 @@ def test_pixel_convention_reproduces_dbat_result():
     measured pixels through pixels_to_plate (no half-pixel shift), striptri_camera (DBAT's
     parameters in the plate convention) and R_from_opk without bias; the alternatives leave one:
     a 0.5 px shift, a sign change of P2, the aspect applied before the principal point."""
-    from striptri.rotations import R_from_opk
+    from striptri.geometry.rotations import R_from_opk
 
     d = read_dbat(CAMCAL / "camcaldemo.xml")
     cam = read_dbat_camera(CAMCAL / "result" / "c4040z.xml")
@@ -281,7 +282,7 @@ def test_camcal_reproduces_dbat(method):
         assert abs(got[name] - value) <= max(0.01 * deviation, printed), (name, got[name], value, deviation)
         assert sig_of[name] == pytest.approx(deviation, rel=0.01), name
     # DBAT's report: "K2 ... Correlations over 95%: K3:-97.9%", the only pair over 95 %
-    from striptri.precision import camera_correlations
+    from striptri.precision.residuals import camera_correlations
 
     (block,) = camera_correlations(result)
     names = [lens.CAMERA_ELEMENTS[e] for e in block["elements"]]

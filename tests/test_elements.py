@@ -15,7 +15,7 @@ from striptri import simulate as sim
 from striptri.adjustment import adjust
 from striptri.model import BaseComponents
 from striptri.pipeline import photo_table
-from striptri.rotations import angles_from_R, angles_jacobian
+from striptri.geometry.rotations import angles_from_R, angles_jacobian
 
 
 def _pair(seed, sigma_image=0.005, relief=50.0, single=0, extra=6, layout="corners"):
@@ -110,7 +110,7 @@ def test_partially_fixed_angles_are_held_and_match_the_heavy_weight_limit(conven
     angles = p.photos.angles.copy()
     angles = angles_from_R(p.photos.R_ground_from_cam, convention)
     angles[1, 2] = true_angles[1, 2]
-    from striptri.rotations import R_from_angles
+    from striptri.geometry.rotations import R_from_angles
 
     R = R_from_angles(angles, convention)
     sig = np.full((2, 3), np.nan)

@@ -1,4 +1,4 @@
-"""figures._png (issue 11): a figure is drawn once and trimmed to its drawn pixels plus PAD_INCHES,
+"""figures.png_of (issue 11): a figure is drawn once and trimmed to its drawn pixels plus PAD_INCHES,
 which gives the picture savefig(bbox_inches="tight") gives after two draws; content reaching past
 the figure's edge, which trimming cannot bring back, goes through savefig."""
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from striptri import figures
+from striptri.report import figures
 
 mpl_figure = pytest.importorskip("matplotlib.figure")
 
@@ -52,7 +52,7 @@ def _draws(monkeypatch) -> list:
 
 def test_one_draw_and_the_picture_of_savefig_tight(monkeypatch):
     draws = _draws(monkeypatch)
-    ours = _pixels(figures._png(_plot()))
+    ours = _pixels(figures.png_of(_plot()))
     assert len(draws) == 1
     theirs = _pixels(_savefig_png(_plot()))
     # the same content in the same margin: sizes agree to the rounding of the two boxes
@@ -71,7 +71,7 @@ def test_one_draw_and_the_picture_of_savefig_tight(monkeypatch):
 def test_content_past_the_edge_goes_through_savefig(monkeypatch):
     """Text placed beyond the right edge of the figure is kept: the picture grows as savefig's."""
     draws = _draws(monkeypatch)
-    ours = _pixels(figures._png(_plot(text_x=1.1)))
+    ours = _pixels(figures.png_of(_plot(text_x=1.1)))
     assert len(draws) > 1  # drawn once, found to touch the edge, drawn again by savefig
     theirs = _pixels(_savefig_png(_plot(text_x=1.1)))
     assert ours.shape == theirs.shape
@@ -79,5 +79,5 @@ def test_content_past_the_edge_goes_through_savefig(monkeypatch):
 
 
 def test_untrimmed_keeps_the_figure_size():
-    png = figures._png(_plot(), tight=False)
+    png = figures.png_of(_plot(), tight=False)
     assert _pixels(png).shape == (round(3.0 * figures.DPI), round(4.0 * figures.DPI), 3)

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from striptri.film import calibration as calib
-from striptri.lens import PLATE, ideal_from_observed
+from striptri.geometry.lens import PLATE, ideal_from_observed
 
 ANGLES = np.array([7.5, 15.0, 22.7, 30.0, 35.0, 40.0])
 # report: (CFL mm, printed distortion um, K0, K1, K2, (xp, yp) mm)
@@ -74,7 +74,7 @@ def test_diagonals_are_averaged():
 
 def test_k0_folded_into_c_gives_the_same_rays():
     """x (1 + K0 + K1 r^2 + K2 r^4) + decentring with c gives the ray of the folded model
-    (c / (1 + K0), k / (1 + K0)) through striptri.lens: the two directions are parallel."""
+    (c / (1 + K0), k / (1 + K0)) through striptri.geometry.lens: the two directions are parallel."""
     rng = np.random.default_rng(7)
     k0, k, p1, p2, c, pp = 6e-5, np.array([-3.6e-9, -9.8e-14, 0.0]), -5.8e-8, 1.9e-8, 153.527, (-0.013, 0.008)
     fit = calib.RadialFit(np.zeros(0), np.zeros(0), k, np.zeros(0), np.zeros(0), 0.0, 2, k0)

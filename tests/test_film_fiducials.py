@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from striptri.film import fiducials, transform
-from striptri.film.simulate import FIDUCIALS_MM
+from striptri.simulate.film import FIDUCIALS_MM
 
 SIGMA_PX = 0.5
 

@@ -11,7 +11,7 @@ import pytest
 from cli_support import assert_clean_failure, run
 
 from striptri.errors import InputError
-from striptri.film.simulate import FilmOptions, film_project_files
+from striptri.simulate.film import FilmOptions, film_project_files
 from striptri.io.csvtable import format_csv
 from striptri.io.project_reader import parse_project, read_project
 from striptri.pipeline import run_adjust

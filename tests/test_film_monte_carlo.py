@@ -1,7 +1,7 @@
 """Monte Carlo: fiducial and image point noise in scan pixels, through the fiducial transformation
 and the adjustment, against the orientations' reported mean errors (issue 16).
 
-One true film strip of 5 photographs (striptri.film.simulate: affine scans at 50 px/mm, 8
+One true film strip of 5 photographs (striptri.simulate.film: affine scans at 50 px/mm, 8
 fiducials, 4 control points at the start), T = 200 noise realisations (fixed seeds), adjusted by
 the method of conditions. For each orientation element i (6 per photo) the error e = estimate -
 truth and the a priori mean error sigma_i = photo_mean_errors / sigma0 (sqrt of Qxx_ii). If the
@@ -29,10 +29,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from striptri.adjustment import adjust
-from striptri.film.simulate import FilmOptions, film_project_files
+from striptri.simulate.film import FilmOptions, film_project_files
 from striptri.io.project_reader import parse_project
 from striptri.pipeline import options_for
-from striptri.rotations import angles_from_R
+from striptri.geometry.rotations import angles_from_R
 
 T = 200
 N_PHOTOS = 5

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from striptri import lens, model
-from striptri.camera import project as striptri_project
+from striptri.geometry import lens
+from striptri import model
+from striptri.geometry.camera import project as striptri_project
 from striptri.cli import main
 from striptri.errors import InputError
 from striptri.formats import (
@@ -29,7 +30,7 @@ from striptri.formats import (
 )
 from striptri.formats.colmap import R_from_quaternion, quaternion_from_R
 from striptri.io import read_project
-from striptri.rotations import exp_so3
+from striptri.geometry.rotations import exp_so3
 
 REPO = Path(__file__).resolve().parents[1]
 STRIP8 = REPO / "data" / "synthetic_strips" / "strip8"

@@ -149,9 +149,9 @@ def test_pair_without_control_meets_its_datum_in_a_handful_of_iterations(tmp_pat
     took two free directions for determined (their Rayleigh quotients against the reduced diagonal
     reached 2e-12). At the result the inner constraints hold at the adjusted state itself:
     H^T diag(N) (x^ - x0) = 0, H the seven similarity directions there."""
-    from striptri import datum
+    from striptri.equations import datum
     from striptri.io import read_project
-    from striptri.parameters import initial_state
+    from striptri.equations.parameters import initial_state
     r = adjust(read_project(_shipped_pair_without_control(tmp_path)),
                AdjustmentOptions(datum="inner", method=method))
     assert r.converged and len(r.free_network) == 7

@@ -1,4 +1,4 @@
-"""GNSS-supported triangulation (striptri.gnss_model): lever arm, boresight, per-strip shift and
+"""GNSS-supported triangulation (striptri.model (GnssModel)): lever arm, boresight, per-strip shift and
 drift in both methods.
 
 * the observation equations' gradients against central differences of f(x (+) dx);
@@ -22,11 +22,11 @@ import pytest
 from scipy import stats
 
 from striptri.adjustment import AdjustmentOptions, adjust
-from striptri.gnss_model import default_gnss
-from striptri.gnss_precision import gnss_precision
-from striptri.parameter_observations import ANGLE, CENTRE, GNSS_ELEMENT, build_parameter_observations
-from striptri.parameters import build_layout, initial_state, reduction_offset
-from striptri.rotations import exp_so3
+from striptri.model import default_gnss
+from striptri.precision.gnss import gnss_precision
+from striptri.equations.parameter_observations import ANGLE, CENTRE, GNSS_ELEMENT, build_parameter_observations
+from striptri.equations.parameters import build_layout, initial_state, reduction_offset
+from striptri.geometry.rotations import exp_so3
 from striptri.simulate.design import ControlDesign, FlightDesign, SyntheticDesign
 from striptri.simulate.gnss import GnssOptions
 from striptri.simulate.noise import NoiseOptions
@@ -254,7 +254,7 @@ def test_sequential_method_refuses_the_gnss_model():
 def test_redundancy_numbers_add_up_with_gnss_unknowns():
     """sum r_i = redundancy (trace of the projector I - A N^-1 A^T P): checks the 9-wide rows'
     Qxx terms in the residual cofactors (precision.residual_cofactors)."""
-    from striptri.precision import residual_cofactors
+    from striptri.precision.residuals import residual_cofactors
     project, _ = gnss_block(5, ALL_OBSERVED)
     result = adjust(project, AdjustmentOptions())
     r = residual_cofactors(project, result).redundancy_numbers(project, result)

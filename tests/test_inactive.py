@@ -1,4 +1,4 @@
-"""Inactive image points (issue 17, striptri.inactive): image_points.csv's ``active`` column.
+"""Inactive image points (issue 17, striptri.report.inactive): image_points.csv's ``active`` column.
 
 Evidence: inactive rows leave the adjustment identical to one without them (both methods), and
 their residuals equal those computed by hand from the adjusted result (collinearity written out,
@@ -14,7 +14,7 @@ from striptri import model
 from striptri import simulate as sim
 from striptri.adjustment import adjust
 from striptri.bundle.adjust import solve_bundle
-from striptri.camera import ray_ground
+from striptri.geometry.camera import ray_ground
 from striptri.errors import InputError
 from striptri.io import read_project, write_project
 from striptri.io.csvtable import read_csv

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri import model, rotations
+from striptri import model
+from striptri.geometry import rotations
 from striptri.errors import InputError
 from striptri.io import (
     format_csv,

@@ -17,13 +17,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 from synthetic_pairs import NoiseOptions, PairOptions, make_pair, strip_points
 
-from striptri import collinearity, conditions, model
+from striptri.geometry import collinearity
+from striptri.equations import conditions
+from striptri import model
 from striptri.adjustment import observations_of
-from striptri.groups import build_batches
-from striptri.linearise import evaluate, linearise
-from striptri.parameter_observations import build_parameter_observations
-from striptri.parameters import build_layout, initial_state, reduction_offset
-from striptri.rotations import angles_from_R, angles_jacobian
+from striptri.equations.groups import build_batches
+from striptri.equations.linearise import evaluate, linearise
+from striptri.equations.parameter_observations import build_parameter_observations
+from striptri.equations.parameters import build_layout, initial_state, reduction_offset
+from striptri.geometry.rotations import angles_from_R, angles_jacobian
 
 RTOL = 1e-6
 
@@ -279,7 +281,7 @@ def test_collinearity(k, rotate):
 @pytest.mark.parametrize("k", [1, 3])
 @pytest.mark.parametrize("rotate", [False, True], ids=["near-vertical", "steep"])
 def test_collinearity_jacobians(k, rotate):
-    """striptri.collinearity, the one collinearity (Schmid 14) of the conditions, the bundle, the
+    """striptri.geometry.collinearity, the one collinearity (Schmid 14) of the conditions, the bundle, the
     triangulation and the resection: its plate coordinates against the formula written out here,
     its derivatives with respect to the point, the centre, the rotation vector of R <- R Exp(d) and
     (c, xp, yp) against central differences. Called batched over (m, k) rays with each point

@@ -1,4 +1,4 @@
-"""The camera model (striptri.lens): Brown's polynomial, both conventions, every Jacobian against
+"""The camera model (striptri.geometry.lens): Brown's polynomial, both conventions, every Jacobian against
 central differences (tolerance as in test_jacobians: h = 1e-6 of the scale, rtol 1e-6), and the
 two conventions against each other (the image convention's undistortion inverts its distortion)."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from test_jacobians import assert_jacobian, numeric_jacobian
 
-from striptri import lens
-from striptri.lens import IMAGE, NCP, PLATE, brown, ideal_from_observed, projection_terms
+from striptri.geometry import lens
+from striptri.geometry.lens import IMAGE, NCP, PLATE, brown, ideal_from_observed, projection_terms
 
 
 def plate_camera(rng, m):

@@ -28,7 +28,7 @@ from synthetic_pairs import NoiseOptions, PairOptions, PointSpec, make_truth, ob
 
 from striptri import model
 from striptri.adjustment import adjust
-from striptri.rotations import angles_from_R
+from striptri.geometry.rotations import angles_from_R
 
 TRIALS = 200
 OPK = "omega-phi-kappa"

@@ -1,6 +1,6 @@
 """Monte Carlo of distances between adjusted points (issue 17): over many noise realisations of one
 strip, the error of the distance between two tie points scatters as the exported covariance says
-(striptri.covariance_export: f^T C f with the cross-covariance of the two points), which is not what
+(striptri.precision.export: f^T C f with the cross-covariance of the two points), which is not what
 their 3x3 blocks alone say.
 
 T s^2 / sigma^2 ~ chi^2(T) with s^2 the mean squared error over T trials and sigma^2 from the
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from striptri import covariance_export as ce
+from striptri.precision import export as ce
 from striptri import model
 from striptri import simulate as sim
 from striptri.adjustment import adjust

@@ -1,7 +1,7 @@
 """Monte Carlo with a scale bar in the method of conditions (issue 17): over many noise realisations
 of a strip whose scale comes from one observed distance alone, the errors of the adjusted distances
 scatter as their mean errors say: the distance between two other adjusted points (mean error from
-the exported covariance, striptri.covariance_export: f^T C f with the two points' cross-covariance,
+the exported covariance, striptri.precision.export: f^T C f with the two points' cross-covariance,
 the scale bar's information coming in through Qxx) and the scale bar's own adjusted distance (mean
 error sqrt(sigma^2 - qvv) of distances.csv's sigma_adjusted, joint_groups).
 
@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from striptri import covariance_export as ce
+from striptri.precision import export as ce
 from striptri import model
 from striptri import simulate as sim
-from striptri.adjusted_points import triangulate_adjusted
+from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.adjustment import adjust
 from striptri.bundle.distances import Distances
 from striptri.core.options import AdjustmentOptions

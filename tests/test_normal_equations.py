@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from striptri.normal_equations import BlockPattern, ReducedPattern
+from striptri.equations.normal_equations import BlockPattern, ReducedPattern
 
 
 def _pattern(rng, n_photos=9, n_cameras=2, with_cameras=True, elements=(0, 1, 2, 5)):
@@ -99,7 +99,7 @@ def test_long_track_products_equal_the_ray_pair_products(monkeypatch, one_camera
     """Groups of FULL_PRODUCT_RAYS or more rays take the whole product Bw^T Bw (with the camera
     columns summed first when all rays of each group have one camera): the same N and u as the
     ray-pair products of short tracks."""
-    from striptri import normal_equations as ne
+    from striptri.equations import normal_equations as ne
 
     rng = np.random.default_rng(8 + one_camera)
     m, k, n_photos, n_cameras, elements = 3, 14, 20, 3, np.array([0, 1, 2, 4])
@@ -241,7 +241,7 @@ def test_dense_scatters_worked_out_once_equal_those_of_each_chunk(tmp_path):
     from striptri.bundle.points import initial_points
     from striptri.core.options import AdjustmentOptions
     from striptri.io import read_project
-    from striptri.normal_equations import ray_columns
+    from striptri.equations.normal_equations import ray_columns
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
     import close_range
@@ -292,7 +292,7 @@ def _conditions_normals(monkeypatch, project, full_product_rays, chunk_size=5):
     full_product_rays rays or more taking the whole products (normal_equations.add_groups); returns
     the accumulator and, per chunk, whether it summed its camera columns (and so has camera-summed
     scatters: one photo-camera block per ray)."""
-    from striptri import normal_equations as ne
+    from striptri.equations import normal_equations as ne
     from striptri.conditions_method.adjust import _Problem
     from striptri.core.options import AdjustmentOptions
 

@@ -24,7 +24,7 @@ from scipy import stats
 
 from cli_support import assert_clean_failure, run, snapshot
 from striptri.adjustment import AdjustmentOptions, adjust
-from striptri.adjusted_points import triangulate_adjusted
+from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.io.project_writer import write_project
 from striptri.model import CHECK, FULL, HEIGHT, PLAN, TIE
 from striptri.pipeline import run_adjust

@@ -18,7 +18,7 @@ import pytest
 from cli_support import assert_clean_failure, run
 from dataclasses import replace
 
-from striptri.adjusted_points import triangulate_adjusted
+from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.io.project_reader import read_project
 from striptri.model import TIE

@@ -1,4 +1,4 @@
-"""Earth curvature and atmospheric refraction of the plate coordinates (striptri.plate_corrections,
+"""Earth curvature and atmospheric refraction of the plate coordinates (striptri.equations.plate_corrections,
 docs/decisions.md "Earth curvature and refraction of the plate coordinates").
 
 What is shown here:
@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from striptri import plate_corrections as pc
+from striptri.equations import plate_corrections as pc
 from striptri.cli import main
 from striptri.errors import InputError
 from striptri.io.project_reader import parse_settings, read_project

@@ -1,4 +1,4 @@
-"""A free network whose inner constraints act on object points (issue 17, striptri.point_datum), in
+"""A free network whose inner constraints act on object points (issue 17, striptri.equations.point_datum), in
 both methods, against the photo datum after an S-transformation (covariance_export.s_transform)."""
 
 import io
@@ -13,16 +13,16 @@ import pytest
 
 from striptri import model
 from striptri import simulate as sim
-from striptri.adjusted_points import triangulate_adjusted
+from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.bundle import solve_bundle
-from striptri.bundle.distances import Distances
-from striptri.covariance_export import CovarianceRequest, covariance_file, joint_covariance, s_transform
+from striptri.model import Distances
+from striptri.precision.export import CovarianceRequest, covariance_file, joint_covariance, s_transform
 from striptri.errors import NumericalFailure
 from striptri.io import read_project, write_project
 from striptri.pipeline import triangulate_result
-from striptri.point_datum import JointBlock, export_correction, points_correction
-from striptri.rotations import R_from_angles, angles_jacobian
+from striptri.equations.point_datum import JointBlock, export_correction, points_correction
+from striptri.geometry.rotations import R_from_angles, angles_jacobian
 
 from cli_support import assert_clean_failure, run
 

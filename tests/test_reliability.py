@@ -28,7 +28,7 @@ from scipy.stats import chi2, norm
 from striptri import simulate as sim
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.model import CHECK, HEIGHT, TIE
-from striptri.precision import W_CRITICAL, residual_cofactors
+from striptri.precision.residuals import W_CRITICAL, residual_cofactors
 from striptri.reliability import (
     FLAG_DROPPED,
     FLAG_INSEPARABLE,

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri import pipeline, report
+from striptri import pipeline
+from striptri.report import html as report
 from striptri.io.project_reader import read_project
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
@@ -45,7 +46,7 @@ def _products(name: str):
 @functools.lru_cache(maxsize=None)
 def _normalised(name: str) -> np.ndarray:
     """The normalised residuals w that adjust_products gave the report (it does not keep them)."""
-    from striptri.precision import normalised_residuals, residual_cofactors
+    from striptri.precision.residuals import normalised_residuals, residual_cofactors
 
     products = _products(name)
     cof = residual_cofactors(products.project, products.result, pipeline.options_for(products.project))
@@ -278,7 +279,7 @@ def test_large_normal_matrix_is_drawn_as_an_image(monkeypatch):
     """Beyond STRUCTURE_CELLS blocks the pattern is an image of STRUCTURE_PIXELS a side (a valid PNG)."""
     from PIL import Image
 
-    from striptri import figures
+    from striptri.report import figures
 
     products = _products("block_3x6")
     n_photos = len(products.project.photos)
@@ -295,7 +296,7 @@ def test_block_pattern_equals_a_dense_computation():
     (explicit zeros do not count), for the normal matrix of block_3x6 and random matrices."""
     import scipy.sparse as sp
 
-    from striptri.figures import block_pattern
+    from striptri.report.figures import block_pattern
 
     def dense(N, starts):
         A = np.abs(N.toarray()) > 0

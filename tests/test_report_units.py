@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from striptri import figures, pipeline, report
+from striptri.report import figures, html as report
+from striptri import pipeline
 from striptri.cli import main
 from striptri.formats import convert
 from striptri.io import read_project

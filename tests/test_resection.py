@@ -1,4 +1,4 @@
-"""Spatial resection (striptri.resection): exact orientations from exact plates, for coplanar
+"""Spatial resection (striptri.equations.resection): exact orientations from exact plates, for coplanar
 points (calibration sheet, homography start) and points in general position (DLT start), in
 any attitude, with the centre far from the origin."""
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from striptri.camera import project
-from striptri.resection import resect
+from striptri.geometry.camera import project
+from striptri.equations.resection import resect
 
 
 def _case(rng, planar: bool, n: int):

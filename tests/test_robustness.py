@@ -43,17 +43,17 @@ from click.testing import CliRunner
 from scipy.stats import chi2
 
 from cli_support import DATA, assert_clean_failure, command, copy_project, run, snapshot, stray_siblings
-from striptri import diagnosis, termination
+from striptri.core import diagnosis, termination
 from striptri.adjustment import (SUCCESSFUL_TERMINATIONS, TERMINATIONS, AdjustmentOptions, Iteration, adjust,
                                  stop_if_diverging)
 from striptri.cli import main
 from striptri.errors import InputError, Note, NumericalFailure
-from striptri.figures import normal_matrix_structure
+from striptri.report.figures import normal_matrix_structure
 from striptri.formats.bal import read_bal
 from striptri.formats.dbat import read_dbat
 from striptri.io import parse_project, project_files, read_project, read_settings
 from striptri.io.output import MARKER, foreign_content
-from striptri.rotations import R_from_opk
+from striptri.geometry.rotations import R_from_opk
 
 
 # #####################################################################################
@@ -1604,9 +1604,9 @@ def test_case4_precision_reliability_and_points_of_a_singular_result(strip8):
     emptied): precision, selected inversion, reliability and the joint (92) point precision say so
     as NumericalFailure with the adjustment's own failure; nothing escapes."""
     from striptri.pipeline import triangulate_result
-    from striptri.precision import joint_point_covariance, residual_cofactors
+    from striptri.precision.residuals import joint_point_covariance, residual_cofactors
     from striptri.reliability import plate_reliability
-    from striptri.triangulation import Triangulated
+    from striptri.equations.triangulation import Triangulated
 
     project = strip8
     kept = adjust(project, AdjustmentOptions(max_iterations=1, keep_unconverged=True))
@@ -1629,7 +1629,7 @@ def test_case4_precision_reliability_and_points_of_a_singular_result(strip8):
 
 
 def test_case4_parallel_rays_leave_a_point_undetermined():
-    from striptri.triangulation import intersect_rays, safe_inverse
+    from striptri.equations.triangulation import intersect_rays, safe_inverse
 
     O = np.array([[[0.0, 0, 0], [1.0, 0, 0]], [[0.0, 0, 0], [1.0, 0, 0]]])
     r = np.array([[[0.0, 0, -1], [0.0, 0, -1]], [[0.1, 0, -1], [-0.1, 0, -1]]])

@@ -4,8 +4,8 @@ and rays (11), and the rotation vector."""
 import numpy as np
 import pytest
 
-from striptri.camera import project, ray_ground
-from striptri.rotations import (
+from striptri.geometry.camera import project, ray_ground
+from striptri.geometry.rotations import (
     R_from_aoc,
     R_from_opk,
     R_from_pok,
@@ -38,7 +38,7 @@ def test_conversions_both_ways_for_any_rotation(convention):
     rng = np.random.default_rng(0)
     R = _random_rotations(rng, 500)
     angles = angles_from_R(R, convention)
-    from striptri.rotations import R_from_angles
+    from striptri.geometry.rotations import R_from_angles
 
     np.testing.assert_allclose(R_from_angles(angles, convention), R, atol=1e-13)
     np.testing.assert_allclose(angles_from_R(R_from_angles(angles, convention), convention), angles, atol=1e-12)
@@ -131,7 +131,7 @@ def test_pok_round_trips_to_1e12_rad_and_describes_the_same_rotation_as_opk():
 def test_gimbal_lock_angles_reproduce_the_matrix(convention):
     """At the lock of the middle angle (+-90 deg) the angles are not unique; the conversion must
     still give angles whose matrix is the given one (the same behaviour for every convention)."""
-    from striptri.rotations import R_from_angles
+    from striptri.geometry.rotations import R_from_angles
 
     for first in (0.3, -1.2, 2.9):
         for middle in (np.pi / 2, -np.pi / 2):

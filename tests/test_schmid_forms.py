@@ -5,10 +5,10 @@ observation equation (70)/(71), the pair intersection (72-74), the independent t
 import numpy as np
 import pytest
 
-from striptri.camera import plate_vector
-from striptri.conditions import RayConditions, coplanarity, closest_scales, ray_chain
-from striptri.rotations import R_from_aoc, angles_jacobian
-from striptri.triangulation import independent_pair_triangulation, intersect_rays, schmid_pair_intersection
+from striptri.geometry.camera import plate_vector
+from striptri.equations.conditions import RayConditions, coplanarity, closest_scales, ray_chain
+from striptri.geometry.rotations import R_from_aoc, angles_jacobian
+from striptri.equations.triangulation import independent_pair_triangulation, intersect_rays, schmid_pair_intersection
 
 
 def _normal_case_coefficients(xy1, xy2, c):
@@ -84,8 +84,8 @@ def test_independent_triangulation_75_80():
     rng = np.random.default_rng(4)
     m = 30
     c = 152.0
-    from striptri.camera import project
-    from striptri.rotations import R_from_opk
+    from striptri.geometry.camera import project
+    from striptri.geometry.rotations import R_from_opk
 
     R1 = R_from_opk(rng.normal(0, 0.03, (m, 3)))
     R2 = R_from_opk(rng.normal(0, 0.03, (m, 3)))

@@ -18,9 +18,9 @@ from click.testing import CliRunner
 from striptri import model
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.cli import main
-from striptri.groups import build_batches, rays_per_point
+from striptri.equations.groups import build_batches, rays_per_point
 from striptri.io import read_project
-from striptri.rotations import R_from_opk
+from striptri.geometry.rotations import R_from_opk
 from striptri.simulate import ControlDesign, FlightDesign, NoiseOptions, SimulateOptions, SyntheticDesign, simulate_project
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "schmid_fig8"

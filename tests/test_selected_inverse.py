@@ -18,7 +18,7 @@ import scipy.sparse as sp
 
 from striptri.adjustment import adjust
 from striptri.io import read_project
-from striptri.parameters import UnknownLayout
+from striptri.equations.parameters import UnknownLayout
 from striptri.selected_inverse import METHODS, for_layout, photo_blocks, selected_inverse
 from striptri.solvers import SingularNormalMatrix, cholmod_available
 

@@ -1,4 +1,4 @@
-"""Self-calibration with the camera model of striptri.lens, in both distortion conventions.
+"""Self-calibration with the camera model of striptri.geometry.lens, in both distortion conventions.
 
 * the linearised conditions (B with respect to all ten camera elements, A with respect to the
   observations) against central differences, as test_jacobians does for the exterior elements;
@@ -16,13 +16,14 @@ import numpy as np
 import pytest
 from test_jacobians import assert_jacobian
 
-from striptri import lens, model
+from striptri.geometry import lens
+from striptri import model
 from striptri import simulate as sim
 from striptri.adjustment import AdjustmentOptions, adjust, observations_of
-from striptri.groups import build_batches
-from striptri.lens import IMAGE, NCP, PLATE
-from striptri.linearise import evaluate, linearise
-from striptri.parameters import build_layout, initial_state, reduction_offset
+from striptri.equations.groups import build_batches
+from striptri.geometry.lens import IMAGE, NCP, PLATE
+from striptri.equations.linearise import evaluate, linearise
+from striptri.equations.parameters import build_layout, initial_state, reduction_offset
 
 H = 1500.0
 FREE = ("k1", "k2", "p1", "p2")
@@ -156,7 +157,7 @@ def test_conditions_equal_bundle_with_self_calibration(convention):
 def test_camera_correlations_equal_the_dense_inverse():
     """precision.camera_correlations against Qxx = N^-1 formed densely: the correlations among the
     camera elements and, for each, its largest correlation with an exterior element."""
-    from striptri.precision import camera_correlations
+    from striptri.precision.residuals import camera_correlations
 
     project, _, _ = calibration_project(PLATE, sim.NoiseOptions(), seed=7)
     result = adjust(project)

@@ -20,7 +20,7 @@ import pytest
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.model import TIE
 from striptri.pipeline import adjust_products
-from striptri.precision import residual_cofactors
+from striptri.precision.residuals import residual_cofactors
 from striptri.reliability import FLAG_INSEPARABLE, FLAG_REJECTED, BlunderOptions, detect_blunders
 from striptri.reliability.rejections import rejection_groups
 from striptri.reliability.snooping import RETEST_SIGMA_FACTOR

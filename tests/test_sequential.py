@@ -11,7 +11,7 @@ from striptri import simulate as sim
 from striptri.adjustment import adjust
 from striptri.errors import InputError, NumericalFailure
 from striptri.pipeline import triangulate_result
-from striptri.rotations import R_from_opk, log_so3, opk_from_R
+from striptri.geometry.rotations import R_from_opk, log_so3, opk_from_R
 from striptri.sequential import (
     SequentialOptions,
     adjust_sequential,

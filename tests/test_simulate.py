@@ -13,11 +13,11 @@ import pytest
 from click.testing import CliRunner
 
 from striptri import model
-from striptri.camera import project, ray_ground
+from striptri.geometry.camera import project, ray_ground
 from striptri.cli import main, reports_errors
 from striptri.errors import InputError, NumericalFailure
 from striptri.io import read_project
-from striptri.rotations import R_from_opk, exp_so3
+from striptri.geometry.rotations import R_from_opk, exp_so3
 from striptri.simulate import (
     BLOCK_LAYOUTS,
     ControlDesign,

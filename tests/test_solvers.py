@@ -32,7 +32,7 @@ from striptri.solvers import (
     Structure,
     make_solver,
 )
-from striptri.parameters import build_layout
+from striptri.equations.parameters import build_layout
 from striptri.solvers import memory, selection, strips
 from striptri.solvers.synthetic import block_normal_matrix, strip_normal_matrix
 

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from striptri import simulate as sim
-from striptri.adjustment import AdjustmentOptions, Assembly, Sweep, _assemble, adjust, observations_of
+from striptri.adjustment import AdjustmentOptions, Assembly, Sweep, assemble_normals, adjust, observations_of
 from striptri.errors import NumericalFailure
-from striptri.groups import build_batches
+from striptri.equations.groups import build_batches
 from striptri.io import read_project
-from striptri.parameter_observations import build_parameter_observations
-from striptri.parameters import build_layout, initial_state, reduction_offset
-from striptri.rotations import R_from_opk
+from striptri.equations.parameter_observations import build_parameter_observations
+from striptri.equations.parameters import build_layout, initial_state, reduction_offset
+from striptri.geometry.rotations import R_from_opk
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
 
@@ -81,11 +81,11 @@ def _assembly_peak_bytes(project, chunk_size):
     options = AdjustmentOptions(chunk_size=chunk_size)
     assembly = Assembly.of(batches, state, layout, chunk_size)
     sweep = Sweep(batches, state, layout, obs, obs.plate.copy(), obs.control.copy(), options)
-    _assemble(sweep, pobs, assembly)  # warm up (imports, caches)
+    assemble_normals(sweep, pobs, assembly)  # warm up (imports, caches)
     tracemalloc.start()
     tracemalloc.reset_peak()
     base, _ = tracemalloc.get_traced_memory()
-    _assemble(sweep, pobs, assembly)
+    assemble_normals(sweep, pobs, assembly)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     return peak - base

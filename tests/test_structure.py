@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from striptri.adjustment import normal_matrix_at_approximations
-from striptri.figures import normal_matrix_structure
+from striptri.report.figures import normal_matrix_structure
 from striptri.io import read_project
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"

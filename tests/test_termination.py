@@ -19,7 +19,7 @@ from striptri.core.result import SUCCESSFUL_TERMINATIONS, TERMINATIONS
 from striptri.errors import InputError, NumericalFailure
 from striptri.io import read_project
 from striptri.model import CHECK, TIE
-from striptri.rotations import R_from_opk
+from striptri.geometry.rotations import R_from_opk
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
 

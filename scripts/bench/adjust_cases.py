@@ -31,8 +31,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from striptri import model
-from striptri.camera import in_front
-from striptri.camera import project as project_plate
+from striptri.geometry.camera import in_front
+from striptri.geometry.camera import project as project_plate
 from striptri.simulate import (
     CameraDesign,
     ControlDesign,

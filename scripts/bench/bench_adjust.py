@@ -47,7 +47,7 @@ sys.path.insert(0, str(HERE))
 import adjust_cases as bench_cases  # noqa: E402
 import colmap_ba  # noqa: E402
 from striptri import adjustment, solvers  # noqa: E402
-from striptri.parameters import build_layout  # noqa: E402
+from striptri.equations.parameters import build_layout  # noqa: E402
 
 DENSE_MAX_UNKNOWNS = 3000
 # How a run's time grows with the number of photos, for the extrapolation that decides a skip:

@@ -88,7 +88,8 @@ def worker(phase: str, arg: str) -> dict:
             out["sha256"][name] = hashlib.sha256(data).hexdigest()
             out[f"{name} cpu"] = cpu
         return out
-    from striptri import figures, pipeline, report
+    from striptri.report import figures, html as report
+    from striptri import pipeline
 
     # matplotlib loaded before the clock starts, in both trees (the phase "import" counts it)
     import matplotlib.backends.backend_agg  # noqa: F401

@@ -42,10 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
-from striptri import lens
-from striptri.camera import in_front
-from striptri.camera import project as project_plate
-from striptri.rotations import R_from_opk, opk_from_R
+from striptri.geometry import lens
+from striptri.geometry.camera import in_front
+from striptri.geometry.camera import project as project_plate
+from striptri.geometry.rotations import R_from_opk, opk_from_R
 
 C_TRUE, XP_TRUE, YP_TRUE, K1_TRUE, K2_TRUE = 24.2, 0.12, -0.08, -0.06, 0.015
 C_APPROX = 24.0

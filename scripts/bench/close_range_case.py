@@ -25,11 +25,12 @@ import argparse
 
 import numpy as np
 
-from striptri import lens, model
-from striptri.camera import in_front
-from striptri.camera import project as project_plate
+from striptri.geometry import lens
+from striptri import model
+from striptri.geometry.camera import in_front
+from striptri.geometry.camera import project as project_plate
 from striptri.io import write_project
-from striptri.rotations import R_from_opk, opk_from_R
+from striptri.geometry.rotations import R_from_opk, opk_from_R
 
 C_TRUE = 24.0  # mm
 FORMAT = (36.0, 24.0)  # mm

@@ -95,12 +95,12 @@ def load(path) -> ColmapData:
 def prepare(project, format_mm=230.0, pixel_size: float = PIXEL_SIZE) -> ColmapData:
     """Pixels, start points, camera and datum of a project with one camera and full (fixed)
     control only. format_mm: the image size, square (a number) or (width, height)."""
-    from striptri import lens
-    from striptri.camera import ray_ground
-    from striptri.groups import build_batches
+    from striptri.geometry import lens
+    from striptri.geometry.camera import ray_ground
+    from striptri.equations.groups import build_batches
     from striptri.model import FULL
-    from striptri.parameters import reduction_offset
-    from striptri.triangulation import intersect_rays
+    from striptri.equations.parameters import reduction_offset
+    from striptri.equations.triangulation import intersect_rays
 
     if len(project.cameras) != 1:
         raise ValueError("the pycolmap comparison handles one camera")

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import diagnosis, solvers, termination
+from .core import diagnosis, termination
+from . import solvers
 from .bundle import adjust_bundle
 from .conditions_method import adjust_conditions
-from .conditions_method.adjust import Assembly, Sweep, _assemble, normal_matrix_at_approximations  # noqa: F401
+from .conditions_method.adjust import Assembly, assemble_normals, normal_matrix_at_approximations  # noqa: F401
+from .equations.linearise import Sweep  # noqa: F401
 from .core.convergence import (  # noqa: F401  (re-exported)
     CONTRACTION_MAX,
     ROUND_OFF_PER_UNKNOWN,
@@ -31,7 +33,7 @@ from .core.convergence import (  # noqa: F401  (re-exported)
     stop_if_diverging,
 )
 from .core.explain import datum_defect_message, not_finite_message, singular_message  # noqa: F401
-from .core.observations import Observations, observations_of  # noqa: F401
+from .equations.observations import Observations, observations_of  # noqa: F401
 from .core.options import (  # noqa: F401  (re-exported)
     DATUMS,
     INITS,
@@ -52,9 +54,9 @@ from .core.result import (  # noqa: F401  (re-exported)
     Timings,
 )
 from .errors import NumericalFailure
-from .joint_groups import check_distance_points, has_distances
+from .equations.joint_groups import check_distance_points, has_distances
 from .model import Project
-from .parameters import uses_gnss
+from .equations.parameters import uses_gnss
 from .sequential import adjust_sequential, sequential_approximations
 
 ADJUST = {"conditions": adjust_conditions, "bundle": adjust_bundle, "sequential": adjust_sequential}

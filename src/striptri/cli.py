@@ -678,7 +678,7 @@ def _datum_points(text):
 def _covariance_request(groups, datum, rigid):
     """--covariance, --covariance-datum, --covariance-rigid -> covariance_export.CovarianceRequest or
     None; a bad combination is an InputError (exit status 2)."""
-    from striptri.covariance_export import CovarianceRequest
+    from striptri.precision.export import CovarianceRequest
 
     if groups is None:
         if datum is not None or rigid:

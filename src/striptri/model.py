@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .gnss_model import GnssModel
-from .lens import NCP, PLATE
+from .geometry.lens import NCP, PLATE
 
 # Object point kinds (column `kind` of control.csv; TIE for points only measured on the plates).
 TIE, HEIGHT, PLAN, FULL, CHECK = 0, 1, 2, 3, 4
@@ -74,13 +73,13 @@ PLATE_UNITS = ("mm", "px")
 
 @dataclass(frozen=True)
 class Cameras:
-    """Interior orientation and additional parameters per camera (striptri.lens).
+    """Interior orientation and additional parameters per camera (striptri.geometry.lens).
 
     interior: (ncam, NCP) columns lens.CAMERA_ELEMENTS (c, xp, yp, k1, k2, k3, p1, p2, b1, b2);
     sigma_interior: (ncam, NCP), nan = held fixed, > 0 = observed, inf = free;
     convention: (ncam,) lens.PLATE or lens.IMAGE, where the distortion acts.
     r0: (ncam,) the zero-crossing radius of cameras given with balanced radial distortion
-    (striptri.balanced; nan = none, None = no camera): ``interior`` always holds the Gaussian form,
+    (striptri.geometry.balanced; nan = none, None = no camera): ``interior`` always holds the Gaussian form,
     r0 only says how to write the camera back.
     Tables with only the first columns (c, xp, yp) are padded: distortion 0 and held fixed.
     """
@@ -207,6 +206,21 @@ class CoordinateSettings:
 
 
 @dataclass(frozen=True)
+class Distances:
+    """Observed distances between object points (distances.csv). point_from, point_to: (r,) indices into Project.points; distance (r,) m; sigma (r,) m (> 0);
+    line: (r,) line numbers in distances.csv (for messages), or None."""
+
+    point_from: np.ndarray
+    point_to: np.ndarray
+    distance: np.ndarray
+    sigma: np.ndarray
+    line: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.distance)
+
+
+@dataclass(frozen=True)
 class ProjectSettings:
     """What project.toml says (all optional)."""
 
@@ -220,7 +234,7 @@ class ProjectSettings:
     datum_points: tuple = ()  # [datum] points: the datum points of mode "inner-points" (empty: all)
     cost_tolerance: float = 0.0  # bundle method: AdjustmentOptions.cost_tolerance (0 = off)
     plate_unit: str = "mm"  # PLATE_UNITS: mm of the plate (film, sensor) or px (pixels of the image)
-    # [corrections] (striptri.plate_corrections): classical corrections of the plate coordinates
+    # [corrections] (striptri.equations.plate_corrections): classical corrections of the plate coordinates
     earth_curvature: bool = False
     refraction: bool = False
     earth_radius: float = 6_371_000.0  # m, the sphere of the Earth curvature correction
@@ -239,16 +253,99 @@ class Project:
     # what the reader did not use or had to interpret (striptri.errors.Note): printed as warnings,
     # listed in report.html and summary.json "warnings"; nothing in the input is ignored silently
     notes: tuple = ()
-    # GNSS lever arm, boresight, shift and drift (striptri.gnss_model); None: plain observed
+    # GNSS lever arm, boresight, shift and drift (GnssModel below); None: plain observed
     # centres and angles
     gnss: GnssModel | None = None
-    # scanned film (striptri.film.reading.FilmData): the fiducial fit and the calibration report,
+    # scanned film (striptri.film.data.FilmData): the fiducial fit and the calibration report,
     # for the report and output tables; None: plate coordinates given in plate units
     film: object | None = None
-    # image_points.csv rows with active = 0 (striptri.inactive): kept, written back, given residuals
+    # image_points.csv rows with active = 0 (striptri.report.inactive): kept, written back, given residuals
     # against the adjusted result and reported, but never adjusted; None: every row is active.
     # Their point_index refers to ``points`` like image_points' (a point may have inactive rows only).
     inactive_image_points: ImagePoints | None = None
-    # distances.csv (striptri.bundle.distances.Distances): observed distances between object
-    # points (methods conditions and bundle, striptri.joint_groups); None: none
+    # distances.csv (Distances): observed distances between object
+    # points (methods conditions and bundle, striptri.equations.joint_groups); None: none
     distances: object | None = None
+
+
+# ------------------------------------------------------------------- GNSS and IMU
+# GNSS-supported triangulation: what the project says about the GNSS antenna and the IMU
+# (docs/decisions.md "GNSS-supported triangulation").
+#
+# Observation equations (parameter_observations, rows of the observed centres and angles):
+#
+# * antenna position of photo i (camera c, strip s, time t_i), the photos.csv centre with a sigma:
+#   ``A_i = O_i + R_ground_from_cam_i e_c + s_s + d_s (t_i - t0_s)``: e_c the lever arm of camera c
+#   (metres, camera frame: x, y on the plate axes, z along the viewing direction's opposite, the
+#   frame of DESIGN section 1), s_s the shift and d_s the drift of the strip (ground frame, m and
+#   m/s), t0_s the earliest time of the strip's photos;
+# * IMU angles of photo i, the photos.csv angles with a sigma: ``angles(R_ground_from_cam_i Exp(b_c))``
+#   with b_c the boresight rotation vector of camera c (radians, camera frame):
+#   ``R_cam_from_imu = Exp(b_c)``, so ``R_ground_from_imu = R_ground_from_cam R_cam_from_imu``.
+#
+# Every element is held (sigma nan, the default; a lever arm and boresight of 0 held is the model
+# without them), observed (sigma > 0, an observation of the element with the given value) or free
+# (sigma inf), as the camera elements (model.Cameras). Shift and drift are "none" (not in the
+# model), "free" or "observed" (an observation of 0 with the sigma of the project).
+
+
+GNSS_MODES = ("none", "free", "observed")  # of the shift and the drift
+
+
+@dataclass(frozen=True)
+class GnssModel:
+    """lever (ncam, 3) m, sigma_lever (ncam, 3) (nan held, > 0 observed, inf free); boresight
+    (ncam, 3) rotation vector in radians, sigma_boresight (ncam, 3) radians; time (n_photos,)
+    seconds (nan: not given); strip (n_photos,) index of the photo's strip (-1: empty strip_id:
+    no shift or drift), strip_ids (n_strips,); shift / drift modes (GNSS_MODES) with their sigmas
+    (m, m/s; used when "observed")."""
+
+    lever: np.ndarray
+    sigma_lever: np.ndarray
+    boresight: np.ndarray
+    sigma_boresight: np.ndarray
+    time: np.ndarray
+    strip: np.ndarray
+    strip_ids: tuple
+    shift: str = "none"
+    drift: str = "none"
+    sigma_shift: float = float("nan")
+    sigma_drift: float = float("nan")
+
+    @property
+    def n_strips(self) -> int:
+        return len(self.strip_ids)
+
+    @property
+    def t0(self) -> np.ndarray:
+        """(n_strips,) the earliest time of each strip's photos (0 where no time is given)."""
+        t0 = np.full(self.n_strips, np.inf)
+        ok = (self.strip >= 0) & np.isfinite(self.time)
+        np.minimum.at(t0, self.strip[ok], self.time[ok])
+        return np.where(np.isfinite(t0), t0, 0.0)
+
+    @property
+    def dt(self) -> np.ndarray:
+        """(n_photos,) t_i - t0 of the photo's strip (0 without a strip or a time)."""
+        ok = (self.strip >= 0) & np.isfinite(self.time)
+        out = np.zeros(len(self.time))
+        out[ok] = self.time[ok] - self.t0[self.strip[ok]]
+        return out
+
+    @property
+    def in_play(self) -> bool:
+        """True when the model differs from plain observed centres and angles."""
+        return bool(np.any(self.lever != 0) or np.any(self.boresight != 0) or np.any(~np.isnan(self.sigma_lever))
+                    or np.any(~np.isnan(self.sigma_boresight)) or self.shift != "none" or self.drift != "none")
+
+
+def default_gnss(n_cameras: int, strip_ids: list[str]) -> GnssModel:
+    """The model of a project without GNSS columns: lever arm and boresight 0, held; no shift or
+    drift (today's observed centres and angles)."""
+    names = [s for s in dict.fromkeys(strip_ids) if s != ""]
+    index = {s: k for k, s in enumerate(names)}
+    strip = np.array([index.get(s, -1) for s in strip_ids], dtype=int)
+    z = np.zeros((n_cameras, 3))
+    nan = np.full((n_cameras, 3), np.nan)
+    return GnssModel(lever=z, sigma_lever=nan, boresight=z.copy(), sigma_boresight=nan.copy(),
+                     time=np.full(len(strip_ids), np.nan), strip=strip, strip_ids=tuple(names))

@@ -18,31 +18,37 @@ from pathlib import Path
 
 import numpy as np
 
-from . import balanced, covariance_export, diagnosis, gnss_output, inactive, plate_corrections, progress, report, solvers, termination
-from .adjusted_points import UNDETERMINED, triangulate_adjusted, undetermined_points
-from .bundle import precision as collinearity_form
+from .geometry import balanced
+from .precision import export as covariance_export
+from .core import diagnosis, termination
+from .report import gnss as gnss_output, inactive, html as report
+from .equations import plate_corrections
+from . import progress, solvers
+from .core.adjusted_points import UNDETERMINED, triangulate_adjusted, undetermined_points
+from .precision import collinearity_form
 from .bundle.distances import summary_entry as distances_summary
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
-from .figures import normal_matrix_structure
-from .film import report as film_report
-from .groups import rays_per_point
+from .report.figures import normal_matrix_structure
+from .report import film as film_report
+from .equations.groups import rays_per_point
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
 from .solvers.threads import single_threaded
 from .io.png import software_of, with_software
-from .io.project_reader import FILE_NAMES, RADIANS_PER_UNIT, read_project
-from .lens import CAMERA_ELEMENTS, CONVENTION_NAMES
+from .geometry.rotations import RADIANS_PER_UNIT
+from .io.project_reader import FILE_NAMES, read_project
+from .geometry.lens import CAMERA_ELEMENTS, CONVENTION_NAMES
 from .model import CHECK, KIND_NAMES, ROTATION_OUTPUT_NAMES, Project
-from .precision import joint_point_covariance
+from .precision.residuals import joint_point_covariance
 from .reliability import blunder_options, detect_blunders
 from .reliability.distances import distance_table
 from .reliability.rejections import rejection_groups
 from .reliability.outcome import without_tests
-from .rotations import angles_from_R
+from .geometry.rotations import angles_from_R
 from .solvers import SolverUnavailable
-from .triangulation import Triangulated
+from .equations.triangulation import Triangulated
 
 
 @dataclass
@@ -468,7 +474,7 @@ def camera_table(project: Project, result: AdjustmentResult) -> dict:
             cols["distortion"] = [CONVENTION_NAMES[int(c)] for c in result.state.convention]
         for e in range(first, last):
             cols[f"sigma_{CAMERA_ELEMENTS[e]}"] = np.where(estimated[:, e], sig[:, e], np.nan)
-    if cams.r0 is not None and np.isfinite(cams.r0).any():  # cameras given balanced (striptri.balanced)
+    if cams.r0 is not None and np.isfinite(cams.r0).any():  # cameras given balanced (striptri.geometry.balanced)
         idx = result.layout.camera_cols[:, list(balanced.CHANGED)]
         Q = result.covariance.entries(idx[:, :, None], idx[:, None, :])
         cols.update(balanced.output_columns(cams.r0, result.state.interior, result.state.convention, Q,

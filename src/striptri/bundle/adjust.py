@@ -32,17 +32,19 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from .. import datum, diagnosis, point_datum, progress, solvers, termination
+from ..equations import datum, point_datum
+from ..core import diagnosis, termination
+from .. import progress, solvers
 from ..core.convergence import energy_floor, has_converged, largest_correction, round_off_floor, stop_if_diverging
 from ..core.explain import datum_defect_failure, reduction_check, singular_message, solve_or_explain, solver_for
-from ..core.observations import Observations, observations_of
+from ..equations.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
 from ..errors import NumericalFailure
-from ..groups import GroupBatch, build_batches, merge_layouts
+from ..equations.groups import GroupBatch, build_batches, merge_layouts
 from ..model import Project
-from ..parameter_observations import ParameterObservations, build_parameter_observations
-from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
+from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
+from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
 from .dense import DenseSchur, dense_scatters
 from .distances import couple, distance_cost, linearise_distances, locate_points
@@ -457,7 +459,7 @@ def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
 
 def _not_formed_message(problem: "_Problem", where: str = "at the approximate values") -> str:
     """Why the normal equations cannot be formed (``where``): numbers that overflow
-    (wild values, c in another unit: striptri.diagnosis) or, failing those, a point in the plane
+    (wild values, c in another unit: striptri.core.diagnosis) or, failing those, a point in the plane
     of a camera."""
     with np.errstate(all="ignore"):
         causes = diagnosis.likely_causes(problem.project, "overflow")

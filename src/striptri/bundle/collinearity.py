@@ -1,10 +1,10 @@
-"""The bundle's observation equations are the collinearity of :mod:`striptri.collinearity` (Schmid 14
+"""The bundle's observation equations are the collinearity of :mod:`striptri.geometry.collinearity` (Schmid 14
 and its analytic Jacobians, written once for the conditions, the bundle, the triangulation and the
 resection). The names stay importable from here."""
 
 from __future__ import annotations
 
-from ..collinearity import CollinearityJacobians, collinearity_jacobians
+from ..geometry.collinearity import CollinearityJacobians, collinearity_jacobians
 
 RayJacobians = CollinearityJacobians  # the earlier name
 

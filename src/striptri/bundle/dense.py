@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..normal_equations import BlockPattern, ray_columns
+from ..equations.normal_equations import BlockPattern, ray_columns
 
 # Dense when the product's work, n_full^2 per point, is at most this many times the ray pairs'
 # (6k)^2 per point: BLAS does the one product so much faster than numpy the small blocks and their

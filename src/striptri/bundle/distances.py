@@ -28,20 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-@dataclass(frozen=True)
-class Distances:
-    """point_from, point_to: (r,) indices into Project.points; distance (r,) m; sigma (r,) m (> 0);
-    line: (r,) line numbers in distances.csv (for messages), or None."""
-
-    point_from: np.ndarray
-    point_to: np.ndarray
-    distance: np.ndarray
-    sigma: np.ndarray
-    line: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.distance)
+from ..model import Distances  # noqa: F401  (the observations these functions take)
 
 
 def linearise_distances(dist: Distances, xyz: np.ndarray, free: np.ndarray):

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..groups import GroupBatch
+from ..equations.groups import GroupBatch
 
 MAX_PADDING = 0.1  # padded rays at most this fraction of the real rays of a joined batch (0.1: measured best at close range)
 SMALL_BATCH = 64  # batches of fewer points are joined; a larger one pays its call overhead already

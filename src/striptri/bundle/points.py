@@ -20,13 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import ray_ground
-from ..lens import ideal_from_observed
-from ..groups import GroupBatch
-from ..linearise import Observations
+from ..geometry.camera import ray_ground
+from ..geometry.lens import ideal_from_observed
+from ..equations.groups import GroupBatch
+from ..equations.linearise import Observations
 from ..model import Project
-from ..parameters import State
-from ..triangulation import intersect_rays
+from ..equations.parameters import State
+from ..equations.triangulation import intersect_rays
 
 # A single ray closer to the vertical than this (|r_xy| / |r|) cannot place a plan point's height.
 _STEEP_RAY = 1e-3

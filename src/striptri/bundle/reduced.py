@@ -30,13 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..collinearity import plate_from_ground
-from ..groups import GroupBatch
-from ..lens import NCP, projection_terms
-from ..linearise import Observations
-from ..normal_equations import BlockPattern, ray_columns, selection_matrix
-from ..parameters import State, UnknownLayout
-from ..triangulation import ray_terms
+from ..geometry.collinearity import plate_from_ground
+from ..equations.groups import GroupBatch
+from ..geometry.lens import NCP, projection_terms
+from ..equations.linearise import Observations
+from ..equations.normal_equations import BlockPattern, ray_columns, selection_matrix
+from ..equations.parameters import State, UnknownLayout
+from ..equations.triangulation import ray_terms
 from .dense import DenseSchur, dense_pays
 from .points import PointUnknowns
 

@@ -19,60 +19,26 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from .. import datum, diagnosis, point_datum, progress, solvers, termination
+from ..equations import datum, point_datum
+from ..core import diagnosis, termination
+from .. import progress, solvers
 from ..core.convergence import (ROUNDING_FLOOR, correction_in_sigma, energy_floor, has_converged, largest_correction,
                                 round_off_floor, stop_if_diverging)
 from ..core.explain import (datum_defect_failure, not_finite_message, reduction_check, singular_message,
                             solve_or_explain, solver_for)
-from ..core.observations import Observations, observations_of
+from ..equations.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
 from ..errors import NumericalFailure
-from ..groups import build_batches
-from ..joint_groups import JointGroups, whiten_joint
-from ..linearise import linearise
+from ..equations.groups import build_batches
+from ..equations.joint_groups import JointGroups, whiten_joint
+from ..equations.linearise import Sweep
 from ..model import Project
-from ..normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix,
-                                sums_camera_columns, whiten)
-from ..parameter_observations import ParameterObservations, build_parameter_observations
-from ..parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
+from ..equations.normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, sums_camera_columns, whiten
+from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
+from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 
 METHOD = "conditions"
-
-
-class Sweep:
-    """One sweep over all groups at a fixed (x^, l^)."""
-
-    def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options, joint=None, distance_hat=None):
-        self.batches, self.state, self.layout = batches, state, layout
-        self.obs, self.plate_hat, self.control_hat, self.options = obs, plate_hat, control_hat, options
-        self.T = layout.rotation_maps(state)
-        self.seconds = 0.0  # time spent evaluating and linearising the conditions
-        # the joint groups of the points joined by distances (joint_groups; None without) and the
-        # adjusted distances d + v_d (the observed ones when None)
-        self.joint, self.distance_hat = joint, distance_hat
-
-    def joint_systems(self) -> list:
-        """The linearised joint groups (joint_groups.JointSystem) of this sweep; none without distances."""
-        if self.joint is None:
-            return []
-        t0 = time.perf_counter()
-        d_hat = self.joint.project.distances.distance if self.distance_hat is None else self.distance_hat
-        out = self.joint.systems(self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat, d_hat,
-                                 self.options.conditions.scale_form, self.options.conditions.condition_transform)
-        self.seconds += time.perf_counter() - t0
-        return out
-
-    def systems(self):
-        for batch in self.batches:
-            for chunk in batch.chunks(self.options.chunk_size):
-                t0 = time.perf_counter()
-                system = linearise(
-                    chunk, self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat,
-                    self.options.conditions.scale_form, self.options.conditions.condition_transform,
-                )
-                self.seconds += time.perf_counter() - t0
-                yield chunk, system
 
 
 @dataclass
@@ -88,7 +54,7 @@ class _WhitenedChunk:
     Gt: np.ndarray
 
 
-def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool = False):
+def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool = False):
     """N and u of one sweep: point groups into the block pattern, then the observed elements.
     keep: also keep each chunk's whitened system for the back substitution (acc.kept), so that an
     iteration linearises its conditions once. acc.max_misclosure: the largest |g| of a condition
@@ -121,11 +87,11 @@ def _assemble(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", k
 
 def _assemble_checked(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", project: Project,
                       iteration: int, keep: bool = False):
-    """_assemble, with numbers that are not finite (an overflow: wild values, c in another unit)
+    """assemble_normals, with numbers that are not finite (an overflow: wild values, c in another unit)
     explained as a NumericalFailure naming the points whose conditions fail and the likely cause."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            acc = _assemble(sweep, pobs, assembly, keep)
+            acc = assemble_normals(sweep, pobs, assembly, keep)
     except np.linalg.LinAlgError:
         acc = None
     if acc is not None and np.isfinite(acc.u).all() and np.isfinite(acc.N.data).all() and np.isfinite(acc.wPw):
@@ -477,7 +443,7 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
     when it is a direct one (its analysis of the pattern is reused), else ``auto``: a direct one,
     or ``strip-pcg`` where a direct factor would not fit in memory (docs/solvers.md).
     """
-    max_g = acc.max_misclosure  # formed with N in the same sweep (_assemble)
+    max_g = acc.max_misclosure  # formed with N in the same sweep (assemble_normals)
     if len(pobs):
         f, _, _ = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         max_g = max(max_g, float(np.max(np.abs((pobs.misclosure(f) + v_par) / pobs.sigma))))

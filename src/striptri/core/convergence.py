@@ -14,9 +14,9 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
-from .. import termination
+from . import termination
 from ..errors import NumericalFailure
-from ..parameters import State, UnknownLayout
+from ..equations.parameters import State, UnknownLayout
 from .result import Iteration
 
 ROUNDING_FLOOR = 1e-6  # corrections below this (in standard deviations) that stop shrinking are round-off

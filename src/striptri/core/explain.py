@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import datum, diagnosis, solvers, termination
+from ..equations import datum
+from . import diagnosis, termination
+from .. import solvers
 from ..errors import NumericalFailure
 from ..model import Project
-from ..parameters import State, UnknownLayout
+from ..equations.parameters import State, UnknownLayout
 
 
 def solver_for(options, layout: UnknownLayout, project: Project) -> solvers.NormalSolver:
@@ -89,7 +91,7 @@ def datum_defect_message(project: Project, defects: list[str]) -> str:
 def singular_message(project: Project, layout: UnknownLayout, column: int | None, what: str,
                      datum_fixed: bool = True) -> str:
     """The NumericalFailure text of a singular normal matrix: where it broke down and the likely
-    cause (striptri.diagnosis: weights beyond double precision, photo groups without a datum,
+    cause (striptri.core.diagnosis: weights beyond double precision, photo groups without a datum,
     wild values, the unit of c); without one, the usual causes of an undetermined element."""
     labels = layout.column_labels(project.photos.ids, project.cameras.ids)
     where = f" (first at {labels[column]})" if column is not None and 0 <= column < len(labels) else ""

@@ -18,7 +18,7 @@ METHODS = ("conditions", "bundle", "sequential")
 INITS = ("given", "sequential")
 # "control": the datum comes from control and observed elements (a defect is an error);
 # "inner": a free network, the directions the control leaves free fixed by inner constraints on the
-# photos; "inner-points": by inner constraints on object points (striptri.point_datum).
+# photos; "inner-points": by inner constraints on object points (striptri.equations.point_datum).
 DATUMS = ("control", "inner", "inner-points")
 SCALE_FORMS = ("3d", "xz")
 PROCEDURES = (1, 2)

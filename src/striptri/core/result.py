@@ -9,12 +9,13 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 import scipy.sparse as sp
 
-from .. import datum, solvers
-from ..covariance import Covariance
+from ..equations import datum
+from .. import solvers
+from ..selected_inverse.covariance import Covariance
 from ..errors import NumericalFailure
-from ..parameters import State, UnknownLayout
-from ..rotations import angles_jacobian
-from .observations import Observations
+from ..equations.parameters import State, UnknownLayout
+from ..geometry.rotations import angles_jacobian
+from ..equations.observations import Observations
 
 DENSE_QXX_LIMIT = 5000  # unknowns up to which AdjustmentResult.Qxx forms the dense N^-1
 

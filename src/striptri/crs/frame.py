@@ -33,7 +33,7 @@ import numpy as np
 
 from striptri.errors import InputError
 from striptri.model import CoordinateSettings
-from striptri.rotations import angles_from_R, angles_jacobian
+from striptri.geometry.rotations import angles_from_R, angles_jacobian
 
 
 def _pyproj():

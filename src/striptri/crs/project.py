@@ -21,12 +21,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from striptri import model
-from striptri.camera import ray_ground
+from striptri.geometry.camera import ray_ground
 from striptri.crs.frame import LocalFrame, angle_sigmas
 from striptri.errors import InputError
-from striptri.io.project_reader import RADIANS_PER_UNIT
-from striptri.rotations import R_from_angles, angles_from_R
-from striptri.triangulation import intersect_rays
+from striptri.geometry.rotations import RADIANS_PER_UNIT
+from striptri.geometry.rotations import R_from_angles, angles_from_R
+from striptri.equations.triangulation import intersect_rays
 
 REFINE_TOLERANCE_M = 1e-4
 

@@ -5,7 +5,7 @@ autocollimation (PPA) and the calibrated principal point, or point of best symme
 the fiducial system, and the radial distortion ``dr`` (micrometres, positive outward) at radial
 distances r = 10, 20, ... mm, along each of the four semi-diagonals and averaged.
 
-The camera model (:mod:`striptri.lens`, plate convention) corrects a measured point at radius r
+The camera model (:mod:`striptri.geometry.lens`, plate convention) corrects a measured point at radius r
 from the principal point to ``r (1 + k1 r^2 + k2 r^4 + k3 r^6)``: the distortion it represents is
 ``dr(r) = -(k1 r^3 + k2 r^5 + k3 r^7)`` (plate units), with r the radius of the measured point, as
 the table's radial distances are. :func:`fit_radial_distortion` fits k1, k2 (and k3) to the table
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from striptri.lens import C, K1, K2, K3, NCP, P1, P2, XP, YP
+from striptri.geometry.lens import C, K1, K2, K3, NCP, P1, P2, XP, YP
 
 UM_PER_MM = 1000.0
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from striptri.errors import InputError
 from striptri.io.csvtable import read_input_bytes
-from striptri.rotations import exp_so3
+from striptri.geometry.rotations import exp_so3
 
 # the fewest bytes an observation line "c p x y\n" and a parameter "v\n" take in a BAL file, and
 # the margin below which a short file is read to its end (its last line named) rather than its header

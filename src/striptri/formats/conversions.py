@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from striptri import lens, model, rotations
-from striptri.camera import ray_ground
+from striptri.geometry import lens, rotations
+from striptri import model
+from striptri.geometry.camera import ray_ground
 from striptri.errors import InputError
 from striptri.formats.bal import BalProblem, behind_camera
 from striptri.formats.colmap import ColmapModel, R_from_quaternion, quaternion_from_R

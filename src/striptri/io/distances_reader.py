@@ -1,5 +1,5 @@
 """distances.csv: observed distances between object points (scale bars, taped distances), for
-the methods conditions and bundle (striptri.joint_groups, striptri.bundle.distances;
+the methods conditions and bundle (striptri.equations.joint_groups, striptri.bundle.distances;
 docs/file-formats.md).
 
 Columns point_from, point_to (point ids of image_points.csv or control.csv), distance (m, > 0),
@@ -12,7 +12,7 @@ import numpy as np
 
 from striptri import model
 from striptri.io import plausibility as limits
-from striptri.bundle.distances import Distances
+from striptri.model import Distances
 from striptri.io.csvtable import CsvTable
 
 FILE_NAME = "distances.csv"

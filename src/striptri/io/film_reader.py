@@ -25,7 +25,7 @@ from striptri.film import fiducials as fid
 from striptri.film import transform
 from striptri.film.data import CameraCalibration, FilmData
 from striptri.io.csvtable import CsvTable, decode_text, parse_csv
-from striptri.lens import PLATE
+from striptri.geometry.lens import PLATE
 
 try:  # Python >= 3.11
     import tomllib

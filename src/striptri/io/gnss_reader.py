@@ -1,4 +1,4 @@
-"""The GNSS/IMU model of a project (striptri.gnss_model) from its optional inputs
+"""The GNSS/IMU model of a project (striptri.model (GnssModel)) from its optional inputs
 (docs/file-formats.md):
 
 * cameras.csv: ``lever_x, lever_y, lever_z`` (m, camera frame; empty = 0), ``boresight_x,
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..gnss_model import MODES, default_gnss
+from ..model import GNSS_MODES, default_gnss
 from . import plausibility as limits
 from .csvtable import CsvTable
 
@@ -57,9 +57,9 @@ def read_gnss(cameras_table: CsvTable, photos_table: CsvTable, cameras, photos, 
     modes = {}
     for key in ("shift", "drift"):
         value = section.get(key, "none")
-        if not isinstance(value, str) or value not in MODES:
+        if not isinstance(value, str) or value not in GNSS_MODES:
             raise InputError(toml_path, toml_line(TOML_SECTION, key),
-                             f"[gnss] {key}: {value!r} is not one of {', '.join(repr(m) for m in MODES)}")
+                             f"[gnss] {key}: {value!r} is not one of {', '.join(repr(m) for m in GNSS_MODES)}")
         modes[key] = value
     sigmas = {}
     for key, unit in (("shift", "m"), ("drift", "m/s")):

@@ -41,9 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-from striptri import balanced, model, rotations
+from striptri.geometry import balanced, rotations
+from striptri import model
 from striptri.errors import InputError
-from striptri.lens import CAMERA_ELEMENTS, CONVENTIONS, NCP
+from striptri.geometry.lens import CAMERA_ELEMENTS, CONVENTIONS, NCP
+from striptri.geometry.rotations import RADIANS_PER_UNIT
 from striptri.core.options import DATUMS, METHODS
 from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
@@ -52,7 +54,7 @@ from striptri.io.distances_reader import FILE_NAME as DISTANCES_FILE, read_dista
 from striptri.io.film_reader import FILE_NAMES as FILM_FILES, TOML_KEYS as FILM_TOML_KEYS, read_film
 from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION, read_gnss
 from striptri.io.project_notes import project_notes, unread_files_note
-from striptri.plate_corrections import EARTH_RADIUS_RANGE_M
+from striptri.equations.plate_corrections import EARTH_RADIUS_RANGE_M
 from striptri.solvers import SOLVERS
 
 try:  # Python >= 3.11
@@ -63,8 +65,6 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10 with the tomli bac
     except ModuleNotFoundError:
         tomllib = None
 
-# Radians per unit of [units] angles.
-RADIANS_PER_UNIT = {"deg": math.pi / 180.0, "gon": math.pi / 200.0, "rad": 1.0}
 # Names of the three angle columns of photos.csv for each rotation convention.
 ANGLE_COLUMNS = {
     "omega-phi-kappa": ("omega", "phi", "kappa"),
@@ -83,7 +83,7 @@ TOML_KEYS = {
     GNSS_SECTION: GNSS_TOML_KEYS,  # GNSS shift and drift (io.gnss_reader)
     "coordinates": KEYS,  # striptri.crs.settings
     "plan": ("format", "terrain_height"),  # striptri plan only (striptri.plan.vongruber)
-    "film": FILM_TOML_KEYS,  # scanned film (striptri.film.reading)
+    "film": FILM_TOML_KEYS,  # scanned film (striptri.film.data)
 }
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
@@ -224,7 +224,7 @@ def _read_gnss(files, tables: dict, cameras: model.Cameras, photos: model.Photos
 
 
 def _read_film(files, tables: dict, cameras, photos, image_points):
-    """Scanned film (striptri.film.reading): fiducials to the plate, calibration.toml's cameras."""
+    """Scanned film (striptri.film.data): fiducials to the plate, calibration.toml's cameras."""
     toml = "project.toml"
     path, text, data = files.path(toml), "", {}
     if files.present(toml):
@@ -447,7 +447,7 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
 
 
 def _balanced_radius(table: CsvTable, sigma: np.ndarray) -> np.ndarray:
-    """cameras.csv's optional r0 (striptri.balanced): empty = Gaussian; otherwise > 0 (plate units,
+    """cameras.csv's optional r0 (striptri.geometry.balanced): empty = Gaussian; otherwise > 0 (plate units,
     or normalised for distortion = image), and c, k1-k3, p1, p2 held or free, not observed (their
     weights would not carry over exactly)."""
     r0 = table.optional_floats("r0")
@@ -610,7 +610,7 @@ ACTIVE_WORDS = {"1": True, "true": True, "0": False, "false": False}  # image_po
 
 def _active_column(table: CsvTable) -> np.ndarray:
     """image_points.csv's optional ``active`` column -> (m,) bool: 1/true (or empty) = adjusted,
-    0/false = kept and reported but not adjusted (striptri.inactive). Anything else: InputError."""
+    0/false = kept and reported but not adjusted (striptri.report.inactive). Anything else: InputError."""
     words = [w.lower() or "1" for w in table.optional_strings("active", "1")]
     for i, w in enumerate(words):
         if w not in ACTIVE_WORDS:

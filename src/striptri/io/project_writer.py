@@ -18,12 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from striptri import model
-from striptri.lens import CAMERA_ELEMENTS, CONVENTION_NAMES, has_distortion
+from striptri.geometry.lens import CAMERA_ELEMENTS, CONVENTION_NAMES, has_distortion
 from striptri.io.csvtable import format_csv
 from striptri.io.gnss_writer import gnss_camera_columns, gnss_photo_columns, gnss_toml
 from striptri.io.output import write_output_folder
-from striptri.balanced import balanced_from_gaussian
-from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES, RADIANS_PER_UNIT
+from striptri.geometry.balanced import balanced_from_gaussian
+from striptri.geometry.rotations import RADIANS_PER_UNIT
+from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES
 
 _AXIS_NAMES = {axis: name for name, axis in BASE_AXES.items()}
 
@@ -138,7 +139,7 @@ def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
     extended = has_distortion(cameras.interior, ~np.isnan(cameras.sigma_interior)) or bool(np.any(cameras.convention))
     names = CAMERA_ELEMENTS if extended else CAMERA_ELEMENTS[:3]
     r0 = cameras.r0 if cameras.r0 is not None and np.isfinite(cameras.r0).any() else None
-    # cameras given balanced are written balanced (striptri.balanced), with their r0
+    # cameras given balanced are written balanced (striptri.geometry.balanced), with their r0
     interior = cameras.interior if r0 is None else balanced_from_gaussian(cameras.interior, r0, cameras.convention)[0]
     for j, name in enumerate(names):
         columns[name] = interior[:, j]

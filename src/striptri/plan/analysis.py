@@ -24,11 +24,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..adjusted_points import triangulate_adjusted
+from ..core.adjusted_points import triangulate_adjusted
 from ..adjustment import AdjustmentOptions, AdjustmentResult, adjust
 from ..model import CHECK, TIE, Project
 from ..reliability import PlateReliability, plate_reliability
-from ..triangulation import Triangulated
+from ..equations.triangulation import Triangulated
 from .design import noise_free_project, planned_points
 from .external import external_exact, photos_bound
 from .ranking import applicable

@@ -24,68 +24,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..camera import ray_ground
-from ..collinearity import plate_from_ground
-from ..lens import observed_from_ideal, ideal_from_observed
+from ..geometry.collinearity import plate_from_ground
+from ..geometry.lens import observed_from_ideal
+from ..equations.triangulation import planned_points  # noqa: F401  (the plan's ground points)
 from ..model import CHECK, FULL, HEIGHT, PLAN, Project
 
 CONTROL_KINDS = {"XYZ": FULL, "XY": PLAN, "Z": HEIGHT}  # the kinds a control point has (what-ifs, ranking)
-_STEEP = 1e-3  # a ray with a horizontal part below this (relative) is taken as vertical
-
-
-def planned_points(project: Project) -> np.ndarray:
-    """The planned ground coordinates of every object point (module doc), ground metres: (np, 3).
-    nan where a point is on no photo and given by nothing."""
-    pts, ip, ph = project.points, project.image_points, project.photos
-    n = len(pts)
-    given = np.where(pts.given_axes | (pts.kind == CHECK)[:, None], pts.xyz_given, np.nan)
-    approx = np.full((n, 3), np.nan) if pts.xyz_approx is None else np.asarray(pts.xyz_approx, dtype=float)
-    origin = np.mean(ph.xyz0, axis=0) if len(ph) else np.zeros(3)
-    # rays of image_points.csv through the planned orientations, relative to origin
-    cam = ph.camera_index[ip.photo_index]
-    params, conv = project.cameras.interior[cam], project.cameras.convention[cam]
-    xy = ideal_from_observed(ip.xy, params, conv).xy
-    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], xy, params[:, :3])
-    r = r / np.linalg.norm(r, axis=1, keepdims=True)
-    o = ph.xyz0[ip.photo_index] - origin
-    # least-squares intersection: sum (I - r r^T) X = sum (I - r r^T) O, per point
-    P = np.eye(3) - r[:, :, None] * r[:, None, :]
-    A = np.zeros((n, 3, 3))
-    b = np.zeros((n, 3))
-    np.add.at(A, ip.point_index, P)
-    np.add.at(b, ip.point_index, np.einsum("mij,mj->mi", P, o))
-    rays = np.bincount(ip.point_index, minlength=n)
-    multi = rays >= 2
-    inter = np.full((n, 3), np.nan)
-    if multi.any():
-        inter[multi] = np.linalg.solve(A[multi], b[multi][..., None])[..., 0] + origin
-    xyz = np.where(np.isfinite(given), given, np.where(np.isfinite(approx), approx, inter))
-    single = (rays == 1) & ~np.isfinite(xyz).all(axis=1)
-    if single.any():
-        xyz[single] = _on_single_ray(xyz, single, ip.point_index, o + origin, r)
-    return xyz
-
-
-def _on_single_ray(xyz: np.ndarray, single: np.ndarray, point_index: np.ndarray, centre: np.ndarray,
-                   r: np.ndarray) -> np.ndarray:
-    """The points ``single`` (on one photo): the point of the ray nearest the vertical through the
-    known X, Y, else the ray at the known Z or the median height of the determined points."""
-    row = np.full(len(single), -1)
-    row[point_index] = np.arange(len(point_index))
-    rows = row[single]
-    O, d, known = centre[rows], r[rows], xyz[single]
-    z_known = xyz[:, 2][np.isfinite(xyz[:, 2]) & ~single]
-    z_fallback = float(np.median(z_known)) if len(z_known) else 0.0
-    h2 = np.sum(d[:, :2] ** 2, axis=1)
-    has_xy = np.isfinite(known[:, :2]).all(axis=1) & (h2 > _STEEP**2)
-    t_xy = np.einsum("mi,mi->m", np.nan_to_num(known[:, :2]) - O[:, :2], d[:, :2]) / np.where(h2 > 0, h2, 1.0)
-    z = np.where(np.isfinite(known[:, 2]), known[:, 2], z_fallback)
-    t_z = (z - O[:, 2]) / np.where(d[:, 2] != 0, d[:, 2], np.nan)
-    t = np.where(has_xy, t_xy, t_z)
-    out = O + t[:, None] * d
-    return np.where(np.isfinite(known), known, out)
-
-
 def predicted_plates(project: Project, xyz_ground: np.ndarray) -> np.ndarray:
     """The plate coordinates the planned photos see the ground points at: (m, 2) over the rows of
     image_points (plate units), with the camera's distortion."""

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..adjustment import AdjustmentResult
-from ..covariance import Slots
+from ..selected_inverse.covariance import Slots
 from ..model import Project
 from ..reliability import PlateReliability
 from .ranking import ray_jacobians

@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from ..adjustment import AdjustmentOptions, AdjustmentResult
-from ..collinearity import collinearity_jacobians
+from ..geometry.collinearity import collinearity_jacobians
 from ..model import CHECK, TIE, Project
 from .design import CONTROL_KINDS
 

@@ -10,9 +10,9 @@ import io
 
 import numpy as np
 
-from ..figures import KIND_STYLE
+from ..report.figures import KIND_STYLE
 from ..model import KIND_NAMES, TIE
-from ..report import STYLE, run_block  # the adjust report's style: one look for every striptri report
+from ..report.html import STYLE, run_block  # the adjust report's style: one look for every striptri report
 
 
 def _fmt(x, spec: str = ".4g") -> str:

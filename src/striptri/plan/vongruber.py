@@ -43,10 +43,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ..collinearity import camera_from_ground, plate_from_ground
+from ..geometry.collinearity import camera_from_ground, plate_from_ground
 from ..errors import InputError
 from ..io import plausibility as limits
-from ..lens import observed_from_ideal
+from ..geometry.lens import observed_from_ideal
 from ..model import KIND_NAMES, TIE, ImagePoints, ObjectPoints, Project
 from .design import planned_points
 

@@ -19,7 +19,7 @@ from ..bundle.distances import distance_columns
 from ..core.options import AdjustmentOptions
 from ..core.result import SUCCESSFUL_TERMINATIONS, AdjustmentResult
 from ..model import Project
-from ..precision import distance_cofactors
+from ..precision.residuals import distance_cofactors
 from .measures import ALPHA0, critical_value, distance_tests
 
 

@@ -33,7 +33,7 @@ from scipy.special import ndtri  # the normal quantile; scipy.stats would cost 0
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult
 from ..model import Project
-from ..precision import residual_cofactors
+from ..precision.residuals import residual_cofactors
 
 ALPHA0 = 0.001  # size of the w-test, two-sided (Baarda)
 BETA0 = 0.80  # its power against a gross error of the minimal detectable size

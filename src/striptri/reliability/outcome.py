@@ -7,12 +7,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..adjusted_points import triangulate_adjusted  # re-exported: the ground points of an adjustment
+from ..core.adjusted_points import triangulate_adjusted  # re-exported: the ground points of an adjustment
 from ..core.result import SUCCESSFUL_TERMINATIONS, AdjustmentResult
-from ..groups import points_with_conditions
+from ..equations.groups import points_with_conditions
 from ..model import Project
-from ..parameters import with_state
-from ..triangulation import ray_terms
+from ..equations.parameters import with_state
+from ..equations.triangulation import ray_terms
 from .measures import ALPHA0, BETA0, PlateReliability, critical_value, noncentrality, row_abs, row_statistic
 
 FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED = "", "suspect", "rejected", "dropped"

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.observations import observations_of
+from ..equations.observations import observations_of
 from ..model import Project
-from ..triangulation import GivenCoordinates, RayObservations, triangulate
+from ..equations.triangulation import GivenCoordinates, RayObservations, triangulate
 from .outcome import BlunderResult
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from ..adjustment import AdjustmentOptions, adjust
 from ..errors import NumericalFailure
 from ..model import Project
-from ..precision import residual_cofactors
+from ..precision.residuals import residual_cofactors
 from .measures import R_ZERO, critical_value, plate_reliability, row_abs
 from .outcome import (
     BlunderOptions,

@@ -30,13 +30,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..conditions_method.adjust import Sweep
-from ..core.observations import observations_of
+from ..equations.linearise import Sweep
+from ..equations.observations import observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult
-from ..groups import build_batches
+from ..equations.groups import build_batches
 from ..model import Project
-from ..precision import _group_inverse, _group_slots
+from ..precision.residuals import group_inverse, group_slots
 
 
 def plate_cofactor_blocks(project: Project, result: AdjustmentResult,
@@ -53,8 +53,8 @@ def plate_cofactor_blocks(project: Project, result: AdjustmentResult,
         AQ = s.A[:, :, : 2 * k] * s.Q[:, None, : 2 * k]
         AQfull = s.A * s.Q[:, None, :]
         M = AQfull @ np.swapaxes(s.A, 1, 2)
-        Minv, bad = _group_inverse(M, chunk)  # degenerate groups: untested, no block
-        K = Minv @ (M - result.covariance.group_forms(_group_slots(s.B, chunk, result))) @ Minv
+        Minv, bad = group_inverse(M, chunk)  # degenerate groups: untested, no block
+        K = Minv @ (M - result.covariance.group_forms(group_slots(s.B, chunk, result))) @ Minv
         good = ~bad
         if good.any():
             out.append((chunk.image_rows[good], np.swapaxes(AQ[good], 1, 2) @ K[good] @ AQ[good]))

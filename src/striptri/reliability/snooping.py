@@ -39,7 +39,7 @@ from ..adjustment import AdjustmentOptions, adjust
 from ..errors import InputError, NumericalFailure
 from ..model import Project
 from ..core.result import sigma0_of
-from ..precision import residual_cofactors
+from ..precision.residuals import residual_cofactors
 from .measures import critical_value, plate_reliability, row_abs
 from .robust import studentised_gross_errors
 from .separability import Correlations, inseparable_rows

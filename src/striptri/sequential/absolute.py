@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import NumericalFailure
-from ..rotations import exp_so3, skew
+from ..geometry.rotations import exp_so3, skew
 
 
 @dataclass(frozen=True)

@@ -27,12 +27,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..camera import plate_vector
-from ..conditions import RayConditions, collinearity, coplanarity, ray_chain
+from ..geometry.camera import plate_vector
+from ..equations.conditions import RayConditions, collinearity, coplanarity, ray_chain
 from ..core.convergence import has_converged
 from ..errors import NumericalFailure
-from ..rotations import exp_so3
-from ..termination import table
+from ..geometry.rotations import exp_so3
+from ..core.termination import table
 
 MODES = ("relative", "full")
 

@@ -34,16 +34,16 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from .. import diagnosis, termination
-from ..core.observations import observations_of
+from ..core import diagnosis, termination
+from ..equations.observations import observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Iteration, SequentialChecks, Timings
 from ..errors import NumericalFailure
-from ..camera import project as project_plate
-from ..conditions import collinearity
+from ..geometry.camera import project as project_plate
+from ..equations.conditions import collinearity
 from ..model import Project
-from ..parameter_observations import build_parameter_observations
-from ..parameters import State, build_layout, with_state
+from ..equations.parameter_observations import build_parameter_observations
+from ..equations.parameters import State, build_layout, with_state
 from .strip import SequentialOptions, SequentialSolution, distortion_free, triangulate_strip
 
 
@@ -62,7 +62,7 @@ def adjust_sequential(project: Project, options: AdjustmentOptions | SequentialO
 
 
 def _triangulate_explained(project: Project, options: SequentialOptions) -> SequentialSolution:
-    """triangulate_strip, with the likely cause (striptri.diagnosis) added to a failure's message."""
+    """triangulate_strip, with the likely cause (striptri.core.diagnosis) added to a failure's message."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return triangulate_strip(project, options)

@@ -31,15 +31,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import plate_vector
-from ..conditions import closest_scales
+from ..geometry.camera import plate_vector
+from ..equations.conditions import closest_scales
 from ..core.options import DIRECTIONS, PROCEDURES, SequentialOptions  # noqa: F401  (re-exported)
 from ..errors import InputError, NumericalFailure
-from ..lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
+from ..geometry.lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
 from ..model import CHECK, Project
-from ..parameters import reduction_offset
-from ..termination import table, trend
-from ..triangulation import intersect_rays
+from ..equations.parameters import reduction_offset
+from ..core.termination import table, trend
+from ..equations.triangulation import intersect_rays
 from .absolute import (
     Similarity,
     StripPolynomial,
@@ -191,7 +191,7 @@ def _in_front(R_i, O_i, ro: PhotoStep, interior_i, interior_j) -> bool:
 
 
 def distortion_free(project: Project) -> Project:
-    """The project with its measurements replaced by their ideal plate points (striptri.lens) and
+    """The project with its measurements replaced by their ideal plate points (striptri.geometry.lens) and
     the additional parameters set to 0: the sequential method holds the camera, so the camera
     model is applied once, before the strip is built (docs/camera-model.md)."""
     cams, ip = project.cameras, project.image_points

@@ -1,4 +1,4 @@
-"""A GNSS-supported block (striptri.gnss_model): the antenna positions of the true flight with a
+"""A GNSS-supported block (striptri.model (GnssModel)): the antenna positions of the true flight with a
 lever arm, per-strip shift and drift and noise; time stamps; optionally IMU angles with a
 boresight misalignment.
 
@@ -16,8 +16,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from striptri import model
-from striptri.gnss_model import default_gnss
-from striptri.rotations import R_from_opk, exp_so3, opk_from_R
+from striptri.model import default_gnss
+from striptri.geometry.rotations import R_from_opk, exp_so3, opk_from_R
 from striptri.simulate.truth import Truth
 
 
@@ -29,7 +29,7 @@ class GnssOptions:
     in degrees (camera frame); sigma_imu: deg, None = no IMU angles. lever_mode, boresight_mode:
     how the project states them ("held" at the true value, "free", or "observed" with
     sigma_lever m / sigma_boresight deg about the true value); shift_mode, drift_mode:
-    gnss_model.MODES."""
+    model.GNSS_MODES."""
 
     lever_arm: tuple = (0.1, -0.2, 1.5)
     shift_std: float = 0.3

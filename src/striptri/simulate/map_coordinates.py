@@ -18,7 +18,7 @@ import numpy as np
 
 from striptri import model
 from striptri.crs.frame import LocalFrame, angle_sigmas, parse_crs
-from striptri.rotations import R_from_opk, angles_from_R, opk_from_R
+from striptri.geometry.rotations import R_from_opk, angles_from_R, opk_from_R
 
 
 def central_meridian(crs_text: str) -> float | None:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from striptri import model
-from striptri.rotations import R_from_opk, opk_from_R
+from striptri.geometry.rotations import R_from_opk, opk_from_R
 from striptri.simulate.truth import Truth
 
 DEFAULT_STATED_SIGMA_IMAGE = model.ProjectSettings().sigma_image

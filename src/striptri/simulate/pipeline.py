@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from striptri import model
-from striptri.rotations import opk_from_R
+from striptri.geometry.rotations import opk_from_R
 from striptri.simulate.design import PAIR_LAYOUTS, SCHMID_FIG8, SyntheticDesign
 from striptri.simulate.gnss import GnssOptions, add_gnss, gnss_truth_tables
 from striptri.simulate.noise import NoiseOptions, perturb

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from striptri.camera import in_front, project
+from striptri.geometry.camera import in_front, project
 from striptri.model import CHECK, FULL, TIE
-from striptri.rotations import R_from_opk
+from striptri.geometry.rotations import R_from_opk
 from striptri.simulate import schmid_fig8
 from striptri.simulate.control import OMITTED, POSITIONS, pass_point_kinds
 from striptri.simulate.design import SCHMID_FIG8, SyntheticDesign
@@ -62,7 +62,7 @@ class Truth:
     Points: point_ids (np,); kind: (np,) codes of striptri.model (TIE, HEIGHT, PLAN, FULL, CHECK);
     xyz_ground: (np, 3) m.
     Observations, one row per visible (photo, point), photo-major: photo_index, point_index (m,);
-    xy_plate: (m, 2) exact plate coordinates (striptri.camera.project).
+    xy_plate: (m, 2) exact plate coordinates (striptri.geometry.camera.project).
     """
 
     design: SyntheticDesign

@@ -32,7 +32,7 @@ import numpy as np
 
 from striptri import model
 from striptri.simulate.noise import NoiseOptions
-from striptri.rotations import R_from_angles, angles_from_R
+from striptri.geometry.rotations import R_from_angles, angles_from_R
 from striptri.study.options import SIMULTANEOUS, trial_seed
 from striptri.study.trial import ROW_COLUMNS, adjust_by_methods
 

@@ -1,4 +1,4 @@
-"""Figures (PNG bytes, matplotlib Agg via striptri.figures) and the self-contained report.html of a
+"""Figures (PNG bytes, matplotlib Agg via striptri.report.figures) and the self-contained report.html of a
 study (figures as PNG data URIs)."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import math
 import numpy as np
 
 from striptri import __version__
-from striptri.figures import _png, plt
-from striptri.report import STYLE as REPORT_STYLE
+from striptri.report.figures import png_of, plt
+from striptri.report.html import STYLE as REPORT_STYLE
 from striptri.study.growth import GROWTH_COLUMNS, PRECISION_COLUMNS, end_errors
 from striptri.study.options import METHOD_LABELS, METHOD_SPECS
 
@@ -41,7 +41,7 @@ def error_along_strip(along: dict) -> bytes:
         ax.set_ylabel("RMS centre error (m)")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
-    return _png(fig)
+    return png_of(fig)
 
 
 def error_against_length(rows, growth: dict) -> bytes:
@@ -75,7 +75,7 @@ def error_against_length(rows, growth: dict) -> bytes:
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
-    return _png(fig)
+    return png_of(fig)
 
 
 def forward_against_backward(rows) -> bytes:
@@ -101,7 +101,7 @@ def forward_against_backward(rows) -> bytes:
     ax.set_ylabel("backward: RMS centre error (m)")
     ax.set_title("sequential: forward against backward")
     ax.grid(alpha=0.3, which="both")
-    return _png(fig)
+    return png_of(fig)
 
 
 def _img(png: bytes, alt: str) -> str:

@@ -18,12 +18,13 @@ import math
 
 import numpy as np
 
-from striptri import lens, model, rotations
+from striptri.geometry import lens, rotations
+from striptri import model
 from striptri.errors import InputError, NumericalFailure
 from striptri.formats.dbat.reader import DbatCamera, DbatProject
 from striptri.formats.scene import Scene, photo_datum
-from striptri.lens import NCP
-from striptri.resection import resect_missing
+from striptri.geometry.lens import NCP
+from striptri.equations.resection import resect_missing
 
 
 def plate_origin(camera: DbatCamera) -> tuple[float, float]:

@@ -12,13 +12,14 @@ from xml.sax.saxutils import escape as xml_escape
 
 import numpy as np
 
-from striptri import lens, model
+from striptri.geometry import lens
+from striptri import model
 from striptri.errors import InputError
 from striptri.formats.conversions import pixel_size_note
 from striptri.formats.dbat.to_project import ELEMENT_OF
 from striptri.formats.scene import photo_datum
-from striptri.lens import CAMERA_ELEMENTS, IMAGE, has_distortion
-from striptri.rotations import opk_from_R
+from striptri.geometry.lens import CAMERA_ELEMENTS, IMAGE, has_distortion
+from striptri.geometry.rotations import opk_from_R
 
 _DBAT_OF = {v: k for k, v in ELEMENT_OF.items()}  # striptri element -> DBAT name
 _IO_TAG = {"cc": "cc", "px": "px", "py": "py", "as": "aspect", "sk": "skew", "K1": "K1", "K2": "K2", "K3": "K3",

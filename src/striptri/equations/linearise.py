@@ -1,0 +1,197 @@
+"""Linearisation of the groups: the Gauss-Helmert blocks A, B, w and the cofactors Q.
+
+For every group j (DESIGN section 4), at the current estimates (l^, x^):
+``A = dg/dl``, ``B = dg/dx``, ``w = g(l^, x^) + A (l - l^)``, with Q the diagonal cofactors of the
+group's observations (plate coordinates, then, for control, X, Y, Z with cofactor 0 where the
+coordinate is held fixed). This module is the functional model's only contact with weights: it
+scales each condition to unit variance at l^ (a constant per iteration, which leaves the adjustment
+unchanged) so that the 2x2 ... blocks M = A Q A^T are well conditioned.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..geometry.camera import plate_vector
+from ..errors import NumericalFailure
+from ..geometry.lens import NCP, ideal_from_observed
+from .conditions import collinearity, ray_chain, ray_conditions
+from .groups import COLLINEARITY, GroupBatch
+from .observations import Observations  # noqa: F401  (re-exported: striptri.equations.linearise.Observations)
+from .parameters import State, UnknownLayout
+
+
+@dataclass
+class GroupSystem:
+    """Linearised groups of one chunk. A: (m, nc, no), B: (m, nc, nu), cols: (m, nu) global columns
+    (-1 = fixed), w: (m, nc), Q: (m, no), l, l_hat: (m, no) original and current observations."""
+
+    A: np.ndarray
+    B: np.ndarray
+    cols: np.ndarray
+    w: np.ndarray
+    Q: np.ndarray
+    l: np.ndarray
+    l_hat: np.ndarray
+    g: np.ndarray
+
+
+def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_hat):
+    """Original and current observation vectors of each group and their cofactors: (m, no)."""
+    m, k = batch.image_rows.shape
+    parts_l = [obs.plate[batch.image_rows].reshape(m, 2 * k)]
+    parts_h = [plate_hat[batch.image_rows].reshape(m, 2 * k)]
+    parts_q = [obs.q_plate[batch.image_rows].reshape(m, 2 * k)]
+    if batch.has_control:
+        parts_l.append(obs.control[batch.point_index])
+        parts_h.append(control_hat[batch.point_index])
+        parts_q.append(obs.q_control[batch.point_index])
+    return np.concatenate(parts_l, 1), np.concatenate(parts_h, 1), np.concatenate(parts_q, 1)
+
+
+def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d",
+             with_lens: bool = True, plate_measured=None, ray_function=None):
+    """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised, with
+    ``d_interior`` (m, nc, k, NCP) with respect to all camera elements (striptri.geometry.lens).
+
+    The conditions see the ideal plate points of the observations (lens.ideal_from_observed);
+    their derivatives are carried on to the observations and the camera elements by the chain
+    rule. with_lens=False skips the camera model (allowed only when no additional parameter is
+    nonzero or estimated: the ideal points are then the observations). plate_measured: the
+    measurements (all image rows) when plate_hat are adjusted observations (lens doc: the plate
+    convention corrects the measurement and adds the residual). ray_function: callable(r, O) ->
+    conditions.RayConditions evaluated instead of the group's ray conditions (e.g.
+    conditions.first_pair_intersection: the point as its group defines it).
+    """
+    xy = plate_hat[batch.image_rows]
+    R_ground_from_cam = state.R_ground_from_cam[batch.photo_index]
+    xyz_centre = state.xyz0[batch.photo_index]
+    params, conv = state.camera_terms(batch.photo_index)
+    xyz_control = control_hat[batch.point_index]
+    meas = None if plate_measured is None else plate_measured[batch.image_rows]
+    ideal = ideal_from_observed(xy, params, conv, meas) if with_lens else None
+    if ideal is not None:
+        if not ideal.converged.all():
+            raise NumericalFailure(
+                f"the lens distortion of {int((~ideal.converged).sum())} measurements cannot be inverted at the "
+                "current camera elements (the distortion polynomial of an image-convention camera folds back "
+                "inside the measured area). The method of conditions needs the rays of the measurements; the "
+                "bundle method projects forward and does not (--method bundle), or give better starting "
+                "values of k1, k2, k3")
+        xy = ideal.xy
+    if batch.family == COLLINEARITY:
+        lin = collinearity(xy, R_ground_from_cam, xyz_centre, params[..., :3], xyz_control)
+    else:
+        p = plate_vector(xy, params[..., :3])
+        r = np.einsum("mkij,mkj->mki", R_ground_from_cam, p)
+        rc = (ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star)
+              if ray_function is None else ray_function(r, xyz_centre))
+        lin = ray_chain(rc, R_ground_from_cam, p)
+    d_camera = np.zeros(lin.d_interior.shape[:-1] + (NCP,))
+    d_camera[..., :3] = lin.d_interior
+    if ideal is None:
+        return replace(lin, d_interior=d_camera)
+    # chain rule through the lens model, per condition and ray: row vectors (m, nc, k, 1, 2) times
+    # the ray's (2, NCP) and (2, 2) derivatives (batched matmul: einsum has no BLAS path here)
+    rows = lin.d_plate[..., None, :]
+    d_camera += np.matmul(rows, ideal.d_camera[:, None])[..., 0, :]
+    d_plate = np.matmul(rows, ideal.d_obs[:, None])[..., 0, :]
+    return replace(lin, d_plate=d_plate, d_interior=d_camera)
+
+
+def linearise(
+    batch: GroupBatch,
+    state: State,
+    layout: UnknownLayout,
+    rotation_maps: np.ndarray,
+    obs: Observations,
+    plate_hat: np.ndarray,
+    control_hat: np.ndarray,
+    scale_form: str = "3d",
+    transform=None,
+) -> GroupSystem:
+    """The Gauss-Helmert blocks of a chunk of groups (module doc).
+
+    rotation_maps: (n_photos, 3, 3) from UnknownLayout.rotation_maps. transform: optional
+    callable(batch) -> (m, nc, nc) invertible matrices that recombine each group's conditions
+    (used by the tests to show the result does not depend on it).
+    """
+    lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate)
+    m, nc = lin.g.shape
+    k = batch.k
+    l, l_hat, Q = group_observations(batch, obs, plate_hat, control_hat)
+    A_parts = [lin.d_plate.reshape(m, nc, 2 * k)]
+    if batch.has_control:
+        A_parts.append(lin.d_control)
+    A = np.concatenate(A_parts, 2)
+
+    B, cols = unknown_blocks(lin, batch, state, layout, rotation_maps)
+
+    g = lin.g
+    scale = 1.0 / np.sqrt(np.matmul(A * A, Q[..., None])[..., 0])  # 1 / sigma of each condition
+    A, B, g = A * scale[..., None], B * scale[..., None], g * scale
+    if transform is not None:
+        Tg = transform(batch)
+        A, B, g = Tg @ A, Tg @ B, np.einsum("mab,mb->ma", Tg, g)
+    w = g + np.einsum("mco,mo->mc", A, l - l_hat)
+    return GroupSystem(A=A, B=B, cols=cols, w=w, Q=Q, l=l, l_hat=l_hat, g=g)
+
+
+def unknown_blocks(lin, batch: GroupBatch, state: State, layout: UnknownLayout, rotation_maps: np.ndarray):
+    """B (m, nc, k (6 + camera_width)) and its global columns (m, k (6 + camera_width)), -1 fixed:
+    per ray its photo's centre and rotation unknowns, then its camera's estimated elements, from
+    the primitive derivatives lin (conditions.Linearised, nc rows) of a chunk."""
+    m, nc = lin.g.shape
+    k = batch.k
+    T = rotation_maps[batch.photo_index]  # (m, k, 3, 3)
+    d_rot = np.matmul(lin.d_rot[..., None, :], T[:, None])[..., 0, :]  # row vectors times T (m, nc, k, 3)
+    width = 6 + layout.camera_width
+    cam = state.camera_of_photo[batch.photo_index]
+    B_parts, col_parts = [lin.d_centre, d_rot], [layout.photo_cols[batch.photo_index]]
+    if layout.camera_width:
+        elements = layout.camera_elements
+        B_parts.append(lin.d_interior[..., elements])
+        col_parts.append(layout.camera_cols[cam][..., elements])
+    B = np.concatenate(B_parts, 3).reshape(m, nc, width * k)
+    cols = np.concatenate(col_parts, 2).reshape(m, width * k)
+    return B, cols
+
+
+class Sweep:
+    """One sweep over all groups at a fixed (x^, l^): their linearised systems chunk by chunk
+    (:meth:`systems`, :func:`linearise`) and those of the joint groups (:meth:`joint_systems`); the
+    conditions method iterates over it, the precision and separability rebuild it at the result."""
+
+    def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options, joint=None, distance_hat=None):
+        self.batches, self.state, self.layout = batches, state, layout
+        self.obs, self.plate_hat, self.control_hat, self.options = obs, plate_hat, control_hat, options
+        self.T = layout.rotation_maps(state)
+        self.seconds = 0.0  # time spent evaluating and linearising the conditions
+        # the joint groups of the points joined by distances (joint_groups; None without) and the
+        # adjusted distances d + v_d (the observed ones when None)
+        self.joint, self.distance_hat = joint, distance_hat
+
+    def joint_systems(self) -> list:
+        """The linearised joint groups (joint_groups.JointSystem) of this sweep; none without distances."""
+        if self.joint is None:
+            return []
+        t0 = time.perf_counter()
+        d_hat = self.joint.project.distances.distance if self.distance_hat is None else self.distance_hat
+        out = self.joint.systems(self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat, d_hat,
+                                 self.options.conditions.scale_form, self.options.conditions.condition_transform)
+        self.seconds += time.perf_counter() - t0
+        return out
+
+    def systems(self):
+        for batch in self.batches:
+            for chunk in batch.chunks(self.options.chunk_size):
+                t0 = time.perf_counter()
+                system = linearise(
+                    chunk, self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat,
+                    self.options.conditions.scale_form, self.options.conditions.condition_transform,
+                )
+                self.seconds += time.perf_counter() - t0
+                yield chunk, system

@@ -1,0 +1,301 @@
+"""The unknowns: current estimates, their columns in the normal matrix, and the update.
+
+Columns: per photo, in photo order, the corrections (dX0, dY0, dZ0, d1, d2, d3) where d is the
+rotation vector of ``R <- R Exp(d)`` (DESIGN section 1); then per camera (c, xp, yp), last.
+A column of -1 is an element held fixed. Two elements may share a column: a base component
+enforced exactly (Schmid 24) makes ``dO[to, axis]`` the same unknown as ``dO[from, axis]``.
+
+When only some of a photo's angles are held fixed, the photo's rotation unknowns are the
+corrections of its free angles, carried to the rotation vector by ``T = J^-1[:, free]``
+(J the angle Jacobian of rotations.angles_jacobian), and the fixed angles are restored exactly
+after each update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .gnss_unknowns import GROUPS as GNSS_GROUPS, GnssColumns, GnssState, gnss_columns, initial_gnss_state
+from ..geometry.lens import CAMERA_ELEMENTS, NCP, PLATE, has_distortion
+from ..model import Project
+from ..geometry.rotations import R_from_angles, angles_from_R, angles_jacobian, exp_so3
+
+ELEMENT_NAMES = ("X0", "Y0", "Z0", "rot1", "rot2", "rot3")
+
+
+@dataclass(frozen=True)
+class State:
+    """Current estimates: R_ground_from_cam (n, 3, 3) the rotation of each photo from its camera
+    frame to the ground frame; xyz0 (n, 3) its projection centre in the reduced ground frame (ground
+    minus ``offset``); interior (ncam, NCP) the camera elements."""
+
+    R_ground_from_cam: np.ndarray
+    xyz0: np.ndarray
+    interior: np.ndarray  # (ncam, NCP) lens.CAMERA_ELEMENTS
+    camera_of_photo: np.ndarray
+    convention: np.ndarray | None = None  # (ncam,) lens.PLATE / lens.IMAGE (None: all PLATE)
+    gnss: GnssState | None = None  # lever arms, boresights, shifts, drifts (None: not in the model)
+
+    def __post_init__(self):
+        if self.convention is None:
+            object.__setattr__(self, "convention", np.full(len(self.interior), PLATE, dtype=int))
+
+    def camera_terms(self, photo_index: np.ndarray):
+        """Camera elements (..., NCP) and conventions (...,) of the photos photo_index (...)."""
+        cam = self.camera_of_photo[photo_index]
+        return self.interior[cam], self.convention[cam]
+
+    def updated(self, layout: "UnknownLayout", dx: np.ndarray) -> "State":
+        """Apply a correction vector (DESIGN section 4: x <- x (+) dx)."""
+        dxp = np.concatenate([dx, [0.0]])  # column -1 reads a zero
+        d_photo = dxp[layout.photo_cols]  # (n, 6)
+        xyz0 = self.xyz0 + d_photo[:, :3]
+        T = layout.rotation_maps(self)
+        d_rot = np.einsum("nij,nj->ni", T, d_photo[:, 3:])
+        R = self.R_ground_from_cam @ exp_so3(d_rot)
+        R = layout.restore_fixed_angles(R)
+        interior = self.interior + dxp[layout.camera_cols]
+        gnss = self.gnss.updated(layout.gnss_cols, dxp) if self.gnss is not None else None
+        return State(R_ground_from_cam=R, xyz0=xyz0, interior=interior, camera_of_photo=self.camera_of_photo,
+                     convention=self.convention, gnss=gnss)
+
+
+@dataclass(frozen=True)
+class UnknownLayout:
+    photo_cols: np.ndarray  # (n, 6) int, -1 = fixed
+    camera_cols: np.ndarray  # (ncam, NCP) int, -1 = fixed
+    n_unknowns: int
+    convention: str
+    angle_fixed: np.ndarray  # (n, 3) bool
+    fixed_angles: np.ndarray  # (n, 3) radians (used where angle_fixed)
+    gnss_cols: GnssColumns | None = None  # after the camera columns (striptri.equations.gnss_unknowns)
+
+    def _column_sets(self) -> list:
+        """Rows of columns of every photo, camera and GNSS element set, in column order."""
+        extra = self.gnss_cols.blocks() if self.gnss_cols is not None else []
+        return list(self.photo_cols) + list(self.camera_cols) + extra
+
+    @property
+    def camera_elements(self) -> np.ndarray:
+        """Indices (lens.CAMERA_ELEMENTS) of the camera elements estimated in some camera: the
+        camera columns each ray carries in the linearised equations."""
+        return np.flatnonzero((self.camera_cols >= 0).any(axis=0))
+
+    @property
+    def camera_width(self) -> int:
+        """Camera columns per ray in the linearised equations (0: cameras held, the rays carry only
+        their photo's 6 columns)."""
+        return len(self.camera_elements)
+
+    def lens_in_play(self, state: "State") -> bool:
+        """True when some additional parameter (k, p, b) is nonzero or estimated."""
+        return has_distortion(state.interior, self.camera_cols >= 0)
+
+    @property
+    def partial_rotation(self) -> np.ndarray:
+        """Photos whose rotation is neither all free nor all fixed."""
+        nfix = self.angle_fixed.sum(axis=1)
+        return (nfix > 0) & (nfix < 3)
+
+    def rotation_maps(self, state: State) -> np.ndarray:
+        """T (n, 3, 3): rotation vector = T @ (rotation unknowns of the photo)."""
+        n = len(self.photo_cols)
+        T = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        part = self.partial_rotation
+        if part.any():
+            Jinv = np.linalg.inv(angles_jacobian(state.R_ground_from_cam[part], self.convention))
+            Jinv[np.broadcast_to(self.angle_fixed[part][:, None, :], Jinv.shape)] = 0.0
+            T[part] = Jinv
+        return T
+
+    def restore_fixed_angles(self, R: np.ndarray) -> np.ndarray:
+        part = self.partial_rotation
+        if not part.any():
+            return R
+        R = R.copy()
+        angles = angles_from_R(R[part], self.convention)
+        fixed = self.angle_fixed[part]
+        angles[fixed] = self.fixed_angles[part][fixed]
+        R[part] = R_from_angles(angles, self.convention)
+        return R
+
+    def block_starts(self) -> np.ndarray:
+        """First column of each photo's block of new columns, then of each camera's (columns are
+        numbered photo by photo, cameras last, so every block is a contiguous range)."""
+        starts = []
+        seen = -1
+        for cols in self._column_sets():
+            new = cols[cols > seen]
+            if len(new):
+                starts.append(int(new.min()))
+                seen = int(new.max())
+        return np.array(starts, dtype=int)
+
+    def block_groups(self, strip_ids) -> np.ndarray:
+        """For each block of :meth:`block_starts`, the index of its photo's strip (the strips
+        numbered in order of first appearance), -1 for a camera block. ``strip_ids``: (n_photos,)
+        strings; photos with an empty strip id form no strip (-1 as well): the solvers then group
+        them by themselves (solvers.strips)."""
+        ids = np.asarray(list(strip_ids), dtype=object)
+        photo_of_block = []
+        seen = -1
+        for i, cols in enumerate(self._column_sets()):
+            new = cols[cols > seen]
+            if len(new):
+                photo_of_block.append(i)
+                seen = int(new.max())
+        photo_of_block = np.array(photo_of_block, dtype=int)
+        n = len(self.photo_cols)
+        groups = np.full(len(photo_of_block), -1, dtype=int)
+        is_photo = photo_of_block < n
+        if len(ids) == n and is_photo.any():
+            names = ids[photo_of_block[is_photo]].astype(str)
+            _, first, inverse = np.unique(names, return_index=True, return_inverse=True)
+            rank = np.empty(len(first), dtype=int)
+            rank[np.argsort(first)] = np.arange(len(first))  # strips in order of first appearance
+            g = rank[inverse]
+            g[names == ""] = -1
+            groups[is_photo] = g
+        return groups
+
+    def column_labels(self, photo_ids, camera_ids) -> list[str]:
+        labels = [""] * self.n_unknowns
+        for i, pid in enumerate(photo_ids):
+            for e, col in enumerate(self.photo_cols[i]):
+                if col >= 0 and not labels[col]:
+                    labels[col] = f"photo {pid} {ELEMENT_NAMES[e]}"
+        for i, cid in enumerate(camera_ids):
+            for e, col in enumerate(self.camera_cols[i]):
+                if col >= 0:
+                    labels[col] = f"camera {cid} {CAMERA_ELEMENTS[e]}"
+        if self.gnss_cols is not None:
+            for name in GNSS_GROUPS:
+                for k, row in enumerate(self.gnss_cols.group(name)):
+                    for a, col in enumerate(row):
+                        if col >= 0:
+                            labels[col] = f"{name} {k} {'xyz'[a]}"
+        return labels
+
+
+def _enforced_base_aliases(project: Project) -> np.ndarray:
+    """For each photo element (n, 3) of the centre, the (photo, axis) it is tied to, by union-find."""
+    n = len(project.photos)
+    parent = np.arange(3 * n)
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    b = project.bases
+    enforced = ~(b.sigma > 0)
+    for f, t, ax in zip(b.photo_from[enforced], b.photo_to[enforced], b.axis[enforced]):
+        ra, rb = find(3 * f + ax), find(3 * t + ax)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    return np.array([find(a) for a in range(3 * n)]).reshape(n, 3)
+
+
+def apply_enforced_bases(project: Project, xyz0: np.ndarray) -> np.ndarray:
+    """Make the approximate centres satisfy the enforced base components exactly (Schmid 24)."""
+    xyz0 = xyz0.copy()
+    b = project.bases
+    enforced = ~(b.sigma > 0)
+    # propagate along the listed order; repeated so that chains given in any order settle
+    for _ in range(max(1, int(enforced.sum()))):
+        for f, t, ax, val in zip(b.photo_from[enforced], b.photo_to[enforced], b.axis[enforced], b.value[enforced]):
+            xyz0[t, ax] = xyz0[f, ax] + val
+    return xyz0
+
+
+def build_layout(project: Project) -> UnknownLayout:
+    """Columns of the unknowns, from the fixed/free/observed flags of the project."""
+    photos, cams = project.photos, project.cameras
+    n = len(photos)
+    fixed_pos = photos.sigma_xyz0 == 0
+    fixed_ang = photos.sigma_angles == 0
+    alias = _enforced_base_aliases(project)  # (n, 3) root element index 3*photo + axis
+    photo_cols = -np.ones((n, 6), dtype=int)
+    root_col: dict[int, int] = {}
+    # a group of tied elements is fixed if any member is fixed
+    fixed_roots = set(alias[fixed_pos].tolist())
+    col = 0
+    for i in range(n):
+        for ax in range(3):
+            root = int(alias[i, ax])
+            if root in fixed_roots:
+                continue
+            if root not in root_col:
+                root_col[root] = col
+                col += 1
+            photo_cols[i, ax] = root_col[root]
+        all_fixed = fixed_ang[i].all()
+        for a in range(3):
+            if not all_fixed and not fixed_ang[i, a]:
+                photo_cols[i, 3 + a] = col
+                col += 1
+    camera_cols = -np.ones((len(cams), NCP), dtype=int)
+    free_or_observed = ~np.isnan(cams.sigma_interior) & ~(cams.sigma_interior == 0)
+    for j in range(len(cams)):
+        for e in range(NCP):
+            if free_or_observed[j, e]:
+                camera_cols[j, e] = col
+                col += 1
+    gnss_cols = None
+    if uses_gnss(project):
+        gnss_cols, col = gnss_columns(project.gnss, col)
+    return UnknownLayout(
+        photo_cols=photo_cols,
+        camera_cols=camera_cols,
+        n_unknowns=col,
+        convention=project.settings.rotation,
+        angle_fixed=fixed_ang,
+        fixed_angles=photos.angles.copy(),
+        gnss_cols=gnss_cols,
+    )
+
+
+def uses_gnss(project: Project) -> bool:
+    """True when the project's GNSS model (lever arm, boresight, shift, drift) is in play."""
+    return project.gnss is not None and project.gnss.in_play
+
+
+def reduction_offset(project: Project) -> np.ndarray:
+    """A round offset near the middle of the project, subtracted from every ground coordinate
+    internally so that national-grid coordinates (~1e6 m) cost no precision."""
+    pts = [project.photos.xyz0]
+    given = project.points.xyz_given
+    if np.isfinite(given).any():
+        pts.append(np.where(np.isfinite(given), given, np.nan))
+    allp = np.concatenate(pts, axis=0)
+    centre = np.nanmean(allp, axis=0)
+    centre = np.where(np.isfinite(centre), centre, 0.0)
+    return np.round(centre, -3)
+
+
+def initial_state(project: Project, offset: np.ndarray) -> State:
+    xyz0 = apply_enforced_bases(project, project.photos.xyz0 - offset)
+    return State(
+        R_ground_from_cam=project.photos.R_ground_from_cam.copy(),
+        xyz0=xyz0,
+        interior=project.cameras.interior.copy(),
+        camera_of_photo=project.photos.camera_index.copy(),
+        convention=project.cameras.convention.copy(),
+        gnss=initial_gnss_state(project.gnss) if uses_gnss(project) else None,
+    )
+
+
+def with_state(project: Project, state: State, offset: np.ndarray) -> Project:
+    """The project with an adjusted state as its approximate values, so that a re-adjustment takes
+    few iterations: the free projection centres, every rotation (``R_ground_from_cam`` is only the
+    approximation; observed and fixed angles live in ``photos.angles``, which stays) and the free
+    camera elements. Observed elements (GNSS centres, observed camera elements) keep their observed
+    values and fixed ones their given values, so the adjusted values never become observations."""
+    ph, cams = project.photos, project.cameras
+    xyz0 = np.where(np.isnan(ph.sigma_xyz0), state.xyz0 + offset, ph.xyz0)
+    interior = np.where(np.isinf(cams.sigma_interior), state.interior, cams.interior)
+    return replace(project, photos=replace(ph, xyz0=xyz0, R_ground_from_cam=state.R_ground_from_cam.copy()),
+                   cameras=replace(cams, interior=interior))

@@ -1,0 +1,473 @@
+"""Triangulation of object points from oriented photographs (Schmid IV.B, DESIGN section 7).
+
+* :func:`intersect_rays` - least-squares intersection of k rays (minimum sum of squared
+  perpendicular distances), the start for everything else;
+* :func:`schmid_pair_intersection` - Schmid's closed form for a pair (72-74), with the
+  non-vanishing auxiliaries II, [2], [5] of the XZ projection;
+* :func:`independent_pair_triangulation` - the independent procedure after orientation (75-80):
+  one coplanarity condition adjusts the four plate coordinates, then (74) gives X, Y, Z;
+* :func:`triangulate` - coordinates of every point from its rays (:class:`RayObservations`) by
+  least squares on the collinearity equations, with given coordinates (:class:`GivenCoordinates`)
+  held or weighted, and their precision split into an orientation part and a measurement part
+  (Schmid 87-90). For an adjusted result, call ``adjusted_points.triangulate_adjusted``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry.camera import plate_vector, ray_ground
+from ..geometry.collinearity import collinearity_jacobians
+from ..selected_inverse.covariance import group_forms, ray_slots
+from .conditions import coplanarity, ray_chain, RayConditions
+from ..model import CHECK, Project
+from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
+from .parameters import State, UnknownLayout
+
+
+def intersect_rays(xyz_centre: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None,
+                   safe: bool = False) -> np.ndarray:
+    """Least-squares intersection of rays O_i + t r_i (ground frame). xyz_centre (the O_i), r:
+    (m, k, 3); mask: (m, k) -> (m, 3).
+
+    Minimises sum_i |(I - r^_i r^_i^T)(X - O_i)|^2 (r^ the unit direction). Parallel rays raise
+    numpy's LinAlgError, or with ``safe`` give nan for that point (safe_solve).
+    """
+    rh = r / np.linalg.norm(r, axis=-1, keepdims=True)
+    P = np.eye(3) - rh[..., :, None] * rh[..., None, :]
+    if mask is not None:
+        P = P * mask[..., None, None]
+    lhs = P.sum(axis=1)
+    rhs = np.einsum("mkij,mkj->mi", P, xyz_centre)
+    if safe:
+        return safe_solve(lhs, rhs)
+    return np.linalg.solve(lhs, rhs[..., None])[..., 0]
+
+
+def schmid_pair_intersection(xyz_centre1, r1, xyz_centre2, r2):
+    """Intersection of a pair by Schmid (72-74). Centres O', O'' and ground rays r', r'': all
+    (m, 3) -> X (m, 3), mu1, mu2 (m,).
+
+    ``II = u'' w' - u' w''``, ``[2] = bx w'' - bz u''``, ``[5] = bz u' - bx w'``,
+    ``mu' = -[2]/II``, ``mu'' = [5]/II`` (auxiliaries that do not vanish for a strip along X);
+    ``X = O' + mu' r'`` and ``O'' + mu'' r''`` agree for intersecting rays; the mean is returned.
+    """
+    b = xyz_centre2 - xyz_centre1
+    bx, bz = b[:, 0], b[:, 2]
+    u1, w1, u2, w2 = r1[:, 0], r1[:, 2], r2[:, 0], r2[:, 2]
+    II = u2 * w1 - u1 * w2
+    a2 = bx * w2 - bz * u2
+    a5 = bz * u1 - bx * w1
+    mu1, mu2 = -a2 / II, a5 / II
+    xyz_ground = 0.5 * ((xyz_centre1 + mu1[:, None] * r1) + (xyz_centre2 + mu2[:, None] * r2))
+    return xyz_ground, mu1, mu2
+
+
+@dataclass
+class PairTriangulation:
+    xyz: np.ndarray  # (m, 3)
+    v: np.ndarray  # (m, 4) residuals of x', y', x'', y''
+    vtpv: float | np.ndarray  # (m,) per point
+    k: np.ndarray  # (m,) correlates
+    w: np.ndarray  # (m,) absolute terms of the last linearisation
+    misclosure: np.ndarray  # (m,) coplanarity of the adjusted observations (final check)
+
+
+def independent_pair_triangulation(R1_ground_from_cam, xyz_centre1, int1, xy1, R2_ground_from_cam, xyz_centre2,
+                                   int2, xy2, sigma_xy, iterations: int = 5):
+    """Schmid's independent triangulation (75-80) with the orientation held.
+
+    R*_ground_from_cam: (m, 3, 3); xyz_centre*, int*: (m, 3); xy*: (m, 2); sigma_xy: (m, 4)
+    standard deviations of x', y', x'', y''. The single condition (20) ``{a} v + w = 0`` gives ``N = sum a^2/p`` (78),
+    ``k = -w / N`` (77), ``v = a k / p`` (79) and the check ``v^T P v = -w k`` (80), iterated at
+    the adjusted observations until the condition holds.
+    """
+    l = np.concatenate([xy1, xy2], axis=1)
+    q = sigma_xy**2
+    lhat = l.copy()
+    R_ground_from_cam = np.stack([R1_ground_from_cam, R2_ground_from_cam], 1)
+    xyz_centre = np.stack([xyz_centre1, xyz_centre2], 1)
+    interior = np.stack([int1, int2], 1)
+    for _ in range(iterations):
+        xy = lhat.reshape(-1, 2, 2)
+        p = plate_vector(xy, interior)
+        r = np.einsum("mkij,mkj->mki", R_ground_from_cam, p)
+        g, dg_b, dg_r1, dg_r2 = coplanarity(xyz_centre[:, 1] - xyz_centre[:, 0], r[:, 0], r[:, 1])
+        m = len(g)
+        d_r = np.stack([dg_r1, dg_r2], 1)[:, None]  # (m, 1, 2, 3)
+        lin = ray_chain(RayConditions(g[:, None], d_r, np.zeros_like(d_r), np.zeros((m, 1, 3))), R_ground_from_cam, p)
+        a = lin.d_plate.reshape(m, 4)
+        w = g + np.einsum("mi,mi->m", a, l - lhat)
+        N = np.einsum("mi,mi->m", a * q, a)
+        k = -w / N
+        v = q * a * k[:, None]
+        lhat = l + v
+    xy = lhat.reshape(-1, 2, 2)
+    r = ray_ground(R_ground_from_cam, xy, interior)
+    g_final, *_ = coplanarity(xyz_centre[:, 1] - xyz_centre[:, 0], r[:, 0], r[:, 1])
+    xyz_ground, _, _ = schmid_pair_intersection(xyz_centre[:, 0], r[:, 0], xyz_centre[:, 1], r[:, 1])
+    vtpv = np.sum(v * v / q, axis=1)
+    return PairTriangulation(xyz=xyz_ground, v=v, vtpv=vtpv, k=k, w=w, misclosure=g_final)
+
+
+@dataclass
+class Triangulated:
+    """Coordinates (n_pt, 3) (nan where undetermined) and their covariance split (Schmid 90):
+    cov_measurement and cov_orientation (n_pt, 3, 3), both in units of the a-priori variances.
+
+    determined (n_pt,): the point's normal matrix is regular (coordinates and cofactors exist);
+    weak (n_pt,): regular, but its rays and given coordinates determine it only in name: the
+    smallest eigenvalue of its normal matrix is below WEAK_RCOND times the largest (its weakest
+    direction's mean error more than 100 times its best one's: rays within about half a degree of
+    one another, or a point left with the y coordinates of a strip's photos only), or its rays give
+    it a mean error more than WEAK_FACTOR times the block's median (far_weaker_than_the_rest).
+    :attr:`undetermined` is either (docs/decisions.md "Undetermined points")."""
+
+    xyz: np.ndarray
+    cov_measurement: np.ndarray
+    cov_orientation: np.ndarray
+    determined: np.ndarray
+    weak: np.ndarray | None = None
+
+    @property
+    def undetermined(self) -> np.ndarray:
+        """(n_pt,) bool: not determined, or weakly determined (class doc)."""
+        weak = np.zeros_like(self.determined) if self.weak is None else self.weak
+        return ~self.determined | weak
+
+
+def ray_terms(R_ground_from_cam, xyz_centre, params, convention, xyz_ground, xy_obs, xy_measured=None,
+              with_lens: bool = True):
+    """Collinearity of rays (m, k) in the residual space of the camera model (striptri.geometry.lens):
+    residual ``obs - pred`` (m, k, 2) and the derivatives of the prediction with respect to the
+    point, the centre, the rotation vector (m, k, 2, 3) and the camera elements (m, k, 2, NCP).
+
+    R_ground_from_cam: (m, k, 3, 3); xyz_centre: (m, k, 3); params: (m, k, NCP); convention:
+    (m, k); xyz_ground: (m, 3) one point per row; xy_obs, xy_measured: as lens.projection_terms.
+    with_lens=False: no additional parameter is nonzero or estimated. The ideal projection and its
+    Jacobians are striptri.geometry.collinearity's."""
+    jac = collinearity_jacobians(R_ground_from_cam, xyz_centre, params[..., :3], xyz_ground[:, None, :])
+    if not with_lens:
+        d_camera = np.zeros(jac.d_interior.shape[:-1] + (NCP,))
+        d_camera[..., :3] = jac.d_interior
+        return xy_obs - jac.xy_plate, jac.d_ground, jac.d_centre, jac.d_rotation, d_camera
+    t = projection_terms(jac.xy_plate, xy_obs, params, convention, xy_measured)
+    return (t.obs - t.pred, t.d_ideal @ jac.d_ground, t.d_ideal @ jac.d_centre, t.d_ideal @ jac.d_rotation,
+            t.d_camera)
+
+
+@dataclass(frozen=True)
+class RayObservations:
+    """The image points whose rays are intersected, one row each (struct of arrays).
+
+    photo_index, point_index: (m,) int. xy_plate: (m, 2) plate coordinates of the rays (of an
+    adjustment: its adjusted observations); sigma_xy: (m, 2) their standard deviations (weights
+    1/sigma^2). xy_measured: (m, 2) the measurements when xy_plate are adjusted observations
+    (lens.ideal_from_observed), None when xy_plate are the measurements."""
+
+    photo_index: np.ndarray
+    point_index: np.ndarray
+    xy_plate: np.ndarray
+    sigma_xy: np.ndarray
+    xy_measured: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class GivenCoordinates:
+    """The given coordinates of all n points (control), reduced frame like the orientation.
+
+    xyz_ground: (n, 3), read only where ``given``; given: (n, 3) bool, which of X, Y, Z each point
+    gives (model.given_axes); q_given: (n, 3) variances, > 0 a weighted observation of the
+    coordinate, 0 held fixed."""
+
+    xyz_ground: np.ndarray
+    given: np.ndarray
+    q_given: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.given)
+
+
+def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: State, layout: UnknownLayout,
+                Qxx=None, iterations: int = 6) -> Triangulated:
+    """Least-squares coordinates of every point of ``control`` (n points) from its ``rays``, with
+    given coordinates held or weighted; the orientation (``state``: R_ground_from_cam, centres and
+    camera elements per photo) is held.
+
+    Per point: unknown = the coordinates that are neither given nor weighted-fixed; observations
+    = its plate coordinates (weights 1/sigma^2) and its weighted given coordinates (q_given > 0).
+    Fixed given coordinates (given and q_given == 0) are held. The covariance has a measurement
+    part ``(J^T P J + P_given)^-1`` and, when Qxx (N^-1 of the orientation unknowns in the columns
+    of ``layout``, a dense array or a covariance.Covariance) is given, an orientation part
+    ``G Qxx G^T`` with ``G = -(J^T P J + P_given)^-1 J^T P J_orient`` (Schmid 87-90), both without
+    the factor sigma0^2. The orientation part is formed per batch of points with k rays by
+    covariance.group_forms (Qxx read by blocks of the photo pairs that share a point, matrix
+    products).
+
+    Gauss-Newton from the rays' intersection, at most ``iterations`` steps: a batch stops when every
+    step is below CONVERGED times its point's size (from adjusted observations the rays meet, and
+    one step reaches the point to rounding). A point is determined when its rays and given
+    coordinates are at least three observations for its unknowns and its 3x3 normal matrix is
+    regular; the others are nan in ``xyz`` and False in ``determined``.
+    """
+    n_points = len(control)
+    camera_of_photo = state.camera_of_photo
+    interior_photo = state.interior[camera_of_photo]  # (n_photos, NCP)
+    convention_photo = state.convention[camera_of_photo]
+    photo_cols, camera_cols = layout.photo_cols, np.asarray(layout.camera_cols)
+    with_lens = has_distortion(interior_photo) or bool((camera_cols[..., DISTORTION_ELEMENTS] >= 0).any())
+    photo_index, point_index = rays.photo_index, rays.point_index
+    xyz = np.full((n_points, 3), np.nan)
+    cov_m = np.zeros((n_points, 3, 3))
+    cov_o = np.zeros((n_points, 3, 3))
+    determined = np.zeros(n_points, dtype=bool)
+    weak = np.zeros(n_points, dtype=bool)
+    order = np.lexsort((photo_index, point_index))
+    counts = np.bincount(point_index, minlength=n_points)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    given_mask, q_given = control.given, control.q_given
+    xyz_given = np.where(given_mask, control.xyz_ground, 0.0)
+    fixed = given_mask & ~(q_given > 0)
+    weighted = given_mask & (q_given > 0)
+    estimated = np.flatnonzero((camera_cols >= 0).any(axis=0))  # camera elements estimated anywhere
+    with_orientation = Qxx is not None and n_unknowns_of(Qxx) > 0
+    if with_orientation:
+        forms = Qxx.group_forms if hasattr(Qxx, "group_forms") else _dense_forms(Qxx)
+        rotation_maps = layout.rotation_maps(state)
+    for k in np.unique(counts[counts > 0]):
+        sel_k = np.flatnonzero(counts == k)
+        # determined when the rays and the given coordinates (held or weighted) are at least three
+        n_obs = 2 * k + weighted[sel_k].sum(axis=1)
+        sel_k = sel_k[(2 * k + given_mask[sel_k].sum(axis=1) >= 3) & ((~fixed[sel_k]).sum(axis=1) <= n_obs)]
+        for first in range(0, len(sel_k), POINT_CHUNK):  # chunks of points: memory bounded
+            sel = sel_k[first: first + POINT_CHUNK]
+            ok = np.ones(len(sel), dtype=bool)
+            rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+            ph = photo_index[rows]
+            R_ground_from_cam, xyz_centre = state.R_ground_from_cam[ph], state.xyz0[ph]
+            interior, conv = interior_photo[ph], convention_photo[ph]
+            xy_obs = rays.xy_plate[rows]
+            meas = None if rays.xy_measured is None else rays.xy_measured[rows]
+            free = ~fixed[sel]  # (m, 3)
+            xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
+            xyz_point = _initial_points(R_ground_from_cam, xyz_centre, interior[..., :3], xy_ray, xyz_given[sel],
+                                        given_mask[sel])
+            Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
+            wxy = 1.0 / rays.sigma_xy[rows] ** 2  # (m, k, 2)
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                for _ in range(iterations):
+                    res, dX, *_ = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs, meas,
+                                            with_lens)
+                    Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+                    gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - xyz_point)
+                    Nx, gx = _hold(Nx, gx, free)
+                    step = safe_solve(Nx, gx)
+                    xyz_point = xyz_point + step
+                    if _converged(step, xyz_point):
+                        break
+                _, dX, dO, drot, dint = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs,
+                                                  meas, with_lens)
+                Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+                weak[sel] = conditioning(Nx, free) < WEAK_RCOND
+                Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
+                # a point whose rays are parallel (or numbers not finite) is not determined: left out
+                Qm, ok = safe_inverse(Nx)
+                ok &= np.isfinite(xyz_point).all(axis=1)
+                Qm = Qm * (free[:, :, None] & free[:, None, :])
+            xyz[sel[ok]] = xyz_point[ok]
+            cov_m[sel[ok]] = Qm[ok]
+            determined[sel[ok]] = True
+            if with_orientation:
+                m = len(sel)
+                JX = dX.reshape(m, 2 * k, 3)
+                G_rows = -Qm @ np.swapaxes(JX * wxy.reshape(m, 2 * k, 1), 1, 2)  # (m, 3, 2k): dX/d(plate)
+                # rows 2j, 2j+1 of the plate coordinates depend on the unknowns of ray j only
+                drot_u = np.einsum("mkai,mkij->mkaj", drot, rotation_maps[ph])
+                J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
+                G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
+                parts = ray_slots(G, ph, photo_cols, camera_of_photo[ph], camera_cols[:, estimated])
+                Qo = forms(parts)
+                cov_o[sel[ok]] = Qo[ok]
+    weak |= far_weaker_than_the_rest(cov_m, determined & (counts > 0))
+    return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined,
+                        weak=weak & determined)
+
+
+WEAK_FACTOR = 20.0  # a point whose rays give it a mean error this many times the block's median is weak
+WEAK_MIN_POINTS = 10  # the comparison with the block needs at least this many determined points
+
+
+def far_weaker_than_the_rest(cov_measurement: np.ndarray, determined: np.ndarray) -> np.ndarray:
+    """(n_pt,) the determined points whose rays give them a mean error (the measurement part, largest
+    direction) more than WEAK_FACTOR times the median of the determined points': a point that has
+    lost the coordinates that fixed it (the three x of a three-ray point rejected leave the y
+    coordinates, which fix it only through small differences of the photos' attitudes) without its
+    normal matrix becoming nearly singular. The measurement part alone: the block's own weakness
+    (a strip bending between control) is no concern of the point's rays."""
+    idx = np.flatnonzero(determined)
+    out = np.zeros(len(determined), dtype=bool)
+    if len(idx) < WEAK_MIN_POINTS:
+        return out
+    with np.errstate(all="ignore"):
+        largest = np.linalg.eigvalsh(cov_measurement[idx])[:, -1]
+    median = np.median(largest)
+    if not np.isfinite(median) or median <= 0:
+        return out
+    out[idx] = largest > WEAK_FACTOR**2 * median
+    return out
+
+
+POINT_CHUNK = 4096  # points triangulated at once (as AdjustmentOptions.chunk_size groups)
+SINGULAR_RCOND = 1e-14  # a point's 3x3 normal matrix whose eigenvalues span more than 1e14 is singular
+CONVERGED = 1e-12  # the iteration of a batch of points ends when every step is below this times the point's size
+
+
+def _converged(step: np.ndarray, xyz_ground: np.ndarray) -> bool:
+    """True when every finite step (m, 3) is below CONVERGED times its point's largest coordinate
+    (plus 1): further Gauss-Newton steps would only move the points by rounding. Points whose step
+    is not finite (not determined) do not hold the batch back."""
+    scale = np.max(np.abs(np.where(np.isfinite(xyz_ground), xyz_ground, 0.0)), axis=1, keepdims=True) + 1.0
+    return bool(np.all((np.abs(step) <= CONVERGED * scale) | ~np.isfinite(step)))
+
+
+def safe_inverse(M: np.ndarray, rcond: float = SINGULAR_RCOND) -> tuple[np.ndarray, np.ndarray]:
+    """Inverses of symmetric positive (semi)definite matrices (m, n, n) and which are regular (m,):
+    a matrix with numbers that are not finite, or whose smallest eigenvalue is below ``rcond``
+    times its largest, is singular; its inverse is nan. Never raises LinAlgError."""
+    M = np.asarray(M, dtype=float)
+    finite = np.isfinite(M).all(axis=(-2, -1))
+    eye = np.broadcast_to(np.eye(M.shape[-1]), M.shape)
+    safe = np.where(finite[..., None, None], M, eye)
+    ev = np.linalg.eigvalsh(safe)
+    ok = finite & (ev[..., 0] > rcond * np.maximum(ev[..., -1], 0.0)) & (ev[..., -1] > 0)
+    inv = np.linalg.inv(np.where(ok[..., None, None], safe, eye))
+    return np.where(ok[..., None, None], inv, np.nan), ok
+
+
+def safe_solve(M: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """M^-1 b for batches (m, 3, 3), (m, 3); nan where M is singular (safe_inverse)."""
+    inv, _ = safe_inverse(M)
+    return np.einsum("mij,mj->mi", inv, b)
+
+
+def n_unknowns_of(Qxx) -> int:
+    return Qxx.shape[0] if isinstance(Qxx, np.ndarray) else Qxx.n
+
+
+def _dense_forms(Qxx: np.ndarray):
+    """covariance.group_forms on a dense Qxx (index -1 reads zero)."""
+    Qext = np.zeros((Qxx.shape[0] + 1, Qxx.shape[0] + 1))
+    Qext[:-1, :-1] = Qxx
+    return lambda parts: group_forms(lambda r, c: Qext[r, c], parts)
+
+
+WEAK_RCOND = 1e-4  # a point's normal matrix whose eigenvalues span more than 1e4 determines it only weakly
+
+
+def conditioning(Nx: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Smallest over largest eigenvalue (m,) of the normal matrices Nx (m, 3, 3) of points over their
+    free coordinates ``free`` (m, 3) (1 where none is free, 0 where not finite). Scale-free: the
+    square of the ratio of the best to the weakest direction's mean error."""
+    keep = free[:, :, None] & free[:, None, :]
+    n_free = free.sum(axis=1)
+    diag = np.einsum("mii->mi", Nx)
+    with np.errstate(all="ignore"):
+        fill = np.where(free, diag, 0.0).sum(axis=1) / np.maximum(n_free, 1)
+        # a held coordinate's row becomes the mean free eigenvalue: between the free block's extremes
+        M = np.where(keep, Nx, 0.0) + (~free)[:, :, None] * np.eye(3) * np.where(n_free > 0, fill, 1.0)[:, None, None]
+        finite = np.isfinite(M).all(axis=(1, 2))
+        ev = np.linalg.eigvalsh(np.where(finite[:, None, None], M, np.eye(3)))
+        ratio = np.where(ev[:, -1] > 0, ev[:, 0] / np.where(ev[:, -1] > 0, ev[:, -1], 1.0), 0.0)
+    return np.where(finite, ratio, 0.0)
+
+
+def _hold(Nx, gx, free):
+    """Hold coordinates that are not free: their rows and columns become the identity."""
+    keep = free[:, :, None] & free[:, None, :]
+    Nx = np.where(keep, Nx, 0.0) + (~free)[:, :, None] * np.eye(3)
+    gx = np.where(free, gx, 0.0)
+    return Nx, gx
+
+
+def _initial_points(R_ground_from_cam, xyz_centre, interior, xy, xyz_given, given):
+    """Starting coordinates: the ray intersection (k >= 2), or the ray met with the given
+    height / the vertical through the given plan position (one ray); given values (held or
+    weighted) where there are any."""
+    fixed = given
+    m, k, _ = xy.shape
+    r = ray_ground(R_ground_from_cam, xy, interior)
+    if k >= 2:
+        xyz_ground = intersect_rays(xyz_centre, r, safe=True)
+    else:
+        r0, O0 = r[:, 0], xyz_centre[:, 0]
+        height = np.where(fixed[:, 2], xyz_given[:, 2], np.nan)
+        t = np.where(np.isfinite(height), (height - O0[:, 2]) / r0[:, 2], np.nan)
+        # without a given height, the point on the ray nearest the vertical through (X, Y)
+        horiz = np.where(fixed[:, :2], xyz_given[:, :2], O0[:, :2])
+        d2 = np.sum(r0[:, :2] ** 2, axis=1)
+        t_plan = np.einsum("mi,mi->m", horiz - O0[:, :2], r0[:, :2]) / np.where(d2 > 0, d2, 1.0)
+        t = np.where(np.isfinite(t), t, t_plan)
+        t = np.where(t > 0, t, 1.0)
+        xyz_ground = O0 + t[:, None] * r0
+    return np.where(fixed, xyz_given, xyz_ground)
+
+
+_STEEP = 1e-3  # a ray with a horizontal part below this (relative) is taken as vertical
+
+
+def planned_points(project: Project) -> np.ndarray:
+    """The planned (approximate) ground coordinates of every object point, ground metres (np, 3):
+    the given coordinates (all three of a check point), else approx_points.csv, else the
+    least-squares intersection of its rays through the photos' given orientations (a point on one
+    photo: its ray at the given X, Y, or at the median height of the others); nan where a point is
+    on no photo and given by nothing (plan.design's module doc, diagnosis)."""
+    pts, ip, ph = project.points, project.image_points, project.photos
+    n = len(pts)
+    given = np.where(pts.given_axes | (pts.kind == CHECK)[:, None], pts.xyz_given, np.nan)
+    approx = np.full((n, 3), np.nan) if pts.xyz_approx is None else np.asarray(pts.xyz_approx, dtype=float)
+    origin = np.mean(ph.xyz0, axis=0) if len(ph) else np.zeros(3)
+    # rays of image_points.csv through the planned orientations, relative to origin
+    cam = ph.camera_index[ip.photo_index]
+    params, conv = project.cameras.interior[cam], project.cameras.convention[cam]
+    xy = ideal_from_observed(ip.xy, params, conv).xy
+    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], xy, params[:, :3])
+    r = r / np.linalg.norm(r, axis=1, keepdims=True)
+    o = ph.xyz0[ip.photo_index] - origin
+    # least-squares intersection: sum (I - r r^T) X = sum (I - r r^T) O, per point
+    P = np.eye(3) - r[:, :, None] * r[:, None, :]
+    A = np.zeros((n, 3, 3))
+    b = np.zeros((n, 3))
+    np.add.at(A, ip.point_index, P)
+    np.add.at(b, ip.point_index, np.einsum("mij,mj->mi", P, o))
+    rays = np.bincount(ip.point_index, minlength=n)
+    multi = rays >= 2
+    inter = np.full((n, 3), np.nan)
+    if multi.any():
+        inter[multi] = np.linalg.solve(A[multi], b[multi][..., None])[..., 0] + origin
+    xyz = np.where(np.isfinite(given), given, np.where(np.isfinite(approx), approx, inter))
+    single = (rays == 1) & ~np.isfinite(xyz).all(axis=1)
+    if single.any():
+        xyz[single] = _on_single_ray(xyz, single, ip.point_index, o + origin, r)
+    return xyz
+
+
+def _on_single_ray(xyz: np.ndarray, single: np.ndarray, point_index: np.ndarray, centre: np.ndarray,
+                   r: np.ndarray) -> np.ndarray:
+    """The points ``single`` (on one photo): the point of the ray nearest the vertical through the
+    known X, Y, else the ray at the known Z or the median height of the determined points."""
+    row = np.full(len(single), -1)
+    row[point_index] = np.arange(len(point_index))
+    rows = row[single]
+    O, d, known = centre[rows], r[rows], xyz[single]
+    z_known = xyz[:, 2][np.isfinite(xyz[:, 2]) & ~single]
+    z_fallback = float(np.median(z_known)) if len(z_known) else 0.0
+    h2 = np.sum(d[:, :2] ** 2, axis=1)
+    has_xy = np.isfinite(known[:, :2]).all(axis=1) & (h2 > _STEEP**2)
+    t_xy = np.einsum("mi,mi->m", np.nan_to_num(known[:, :2]) - O[:, :2], d[:, :2]) / np.where(h2 > 0, h2, 1.0)
+    z = np.where(np.isfinite(known[:, 2]), known[:, 2], z_fallback)
+    t_z = (z - O[:, 2]) / np.where(d[:, 2] != 0, d[:, 2], np.nan)
+    t = np.where(has_xy, t_xy, t_z)
+    out = O + t[:, None] * d
+    return np.where(np.isfinite(known), known, out)

@@ -1,0 +1,261 @@
+"""The residual cofactors and the points' cofactors of a bundle result in the collinearity form
+(points as unknowns), O(k^2) per point of k rays instead of the conditions form's O(k^3) (issue 11).
+
+The conditions form (precision.residual_cofactors) forms per point group ``M = A Q A^T`` (2k - 3
+conditions, dense) and ``B Qxx B^T`` over all k photos of the point: O(k^3) per point, which on
+close-range tracks of 60-90 rays dominates the command. With the point among the unknowns the same
+numbers follow from small blocks. Per point, linearised at the adjusted orientation x^ and the
+point X^ intersected from the adjusted rays, ray a has the collinearity derivatives ``Jc_a`` (2, 6 + e:
+its photo's six unknowns, then its camera's e estimated elements, the columns of the conditions
+form's B) and ``Jp_a`` (2, 3: the point), weights ``P_a = Q_a^-1``. With
+
+    N_pp = sum_a Jp_a^T P_a Jp_a + P_given            (3x3; held axes: unit rows, zero inverse)
+    G    = -N_pp^-1 sum_a Jp_a^T P_a Jc_a             (3 x the point's unknown sets)
+    Qcc  = result.covariance                          (the reduced system's inverse: the Qxx of both forms)
+
+the joint cofactors of the point and its orientation unknowns are ``Q_pc = G Qcc``,
+``Q_pp = N_pp^-1 + G Qcc G^T`` (Schmid 90: the measurement part plus the orientation part), and the
+residual cofactors of the point's rays are
+
+    Qvv_ab = delta_ab Q_a - (Jc_a Qcc Jc_b^T + Jc_a Qcc G^T Jp_b^T + Jp_a G Qcc Jc_b^T + Jp_a Q_pp Jp_b^T),
+
+of weighted control coordinates ``q_given - (Q_pp)_ii``. ``Jc_a`` touches only ray a's photo and
+camera, so everything is formed from Qcc among the point's unknown sets (``Covariance.set_blocks``,
+D = 6k + e columns when the point's rays share one camera): ``Qcc G^T`` is (D, 3), ``Jc Qcc`` is
+(2k, D), the diagonal of Qvv O(k) more and the whole 2k x 2k block (reliability.separability)
+O(k^2). Batched over the points of k rays (struct of arrays), chunked so that a chunk's blocks stay
+within MAX_ENTRIES.
+
+At convergence (adjusted rays that meet in X^) both forms are the same linear model: the
+conditions are the collinearity equations with the point eliminated (A Jp = 0, B = -A Jc), so the
+numbers agree to rounding (tests/test_bundle_precision.py), except that the subtraction ``q - J Qxx J^T``
+loses digits where the redundancy number is tiny: such points are marked ``imprecise``
+(R_SUBTRACTION) and precision.residual_cofactors takes them from the conditions form. Used by
+precision.residual_cofactors for
+a bundle result without distances (their observations couple points) and without a free network
+(its Qxx is not the reduced system's inverse): :func:`applies`.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.adjusted_points import triangulate_adjusted
+from ..equations.observations import observations_of
+from ..core.result import AdjustmentResult
+from ..selected_inverse.covariance import ray_slots
+from ..equations.groups import points_with_conditions
+from ..model import Project
+from ..equations.triangulation import Triangulated, ray_terms
+
+METHOD = "bundle"
+MAX_ENTRIES = 1 << 21  # entries of the gathered Qcc blocks (m D^2) of one chunk of points (16 MB)
+DENSE_UNKNOWNS = 2048  # up to this many unknowns Qcc is read once whole (32 MB) and gathered from
+# qvv = q - J Qxx J^T is exact to a few eps of q: a redundancy number r keeps ~ -log10(r / 1e-15)
+# digits. Points with a coordinate below this r are marked imprecise (at worst ~1e-11 relative here);
+# precision.residual_cofactors takes them from the conditions form, which has no subtraction.
+R_SUBTRACTION = 1e-4
+
+
+def applies(project: Project, result: AdjustmentResult) -> bool:
+    """Whether the collinearity form gives the residual cofactors of ``result`` (module doc): a
+    bundle result, without distances and without a free-network datum."""
+    return (result.method == METHOD and getattr(project, "distances", None) is None
+            and result.free_network is None)
+
+
+@dataclass
+class CollinearityCofactors:
+    """plate (m_ip, 2): qvv of the plate coordinates (0 for the rows of points without conditions);
+    control (n_pt, 3): qvv of the weighted given coordinates (0 elsewhere); plate_blocks: when asked,
+    per chunk (image_rows (m, k), Qvv (m, 2k, 2k)) with (x, y) per ray in the order of image_rows
+    (precision.ResidualCofactors.plate_blocks); imprecise: the points whose qvv lost digits to the
+    subtraction (R_SUBTRACTION); points: triangulation.Triangulated, the points with
+    Schmid's (90) cofactors (measurement part N_pp^-1, orientation part G Qcc G^T), as
+    adjusted_points.triangulate_adjusted(..., orientation_part=True) gives them."""
+
+    plate: np.ndarray
+    control: np.ndarray
+    plate_blocks: list | None
+    points: Triangulated
+    # (n_pt,) bool: points with a plate or weighted control r below R_SUBTRACTION, and points with
+    # conditions that their rays do not determine, or only weakly (Triangulated.undetermined)
+    imprecise: np.ndarray
+
+
+_last: tuple = ()  # (weak references to the project and the result, their Triangulated) of the last pass
+
+
+def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks: bool = False,
+                       residuals: bool = True) -> CollinearityCofactors:
+    """Residual cofactors of the plate and control observations and the points' cofactors of a
+    bundle result by the collinearity form (module doc). Points with conditions whose rays do not
+    determine them at the adjusted values, or only weakly (triangulation.Triangulated.undetermined),
+    are left to the conditions form (``imprecise``), which needs no N_pp^-1 (docs/decisions.md
+    "Undetermined points"). The points are kept
+    for :func:`points_of` (weakly: the last pass only). residuals=False: the points only (plate
+    and control zero)."""
+    global _last
+    ip = project.image_points
+    n_points = len(project.points)
+    obs = observations_of(project, result.offset)
+    state, layout = result.state, result.layout
+    gather = _qcc_reader(result)
+    given = project.points.given_axes
+    weighted = given & (obs.q_control > 0)
+    counts = np.bincount(ip.point_index, minlength=n_points)
+    with_conditions = points_with_conditions(project)
+    tri = triangulate_adjusted(project, result)  # X^: the adjusted rays' intersection, N_pp^-1
+    order = np.lexsort((ip.photo_index, ip.point_index))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    T = layout.rotation_maps(state)
+    elements = layout.camera_elements
+    camera_cols = layout.camera_cols[:, elements]
+    lens = layout.lens_in_play(state)
+    q_plate = np.zeros_like(obs.plate)
+    q_control = np.zeros_like(obs.control)
+    cov_orientation = np.zeros((n_points, 3, 3))
+    blocks = [] if plate_blocks else None
+    # points whose rays do not determine them (or only weakly) at the adjusted values: N_pp^-1 does
+    # not exist or loses digits, so their qvv come from the conditions form, which does not need it
+    # (nan there only where their conditions degenerate); their (90) cofactors as they are
+    undetermined = with_conditions & tri.undetermined
+    wanted = tri.determined  # with the points with conditions; one without: its (90) only
+    for k in np.unique(counts[wanted]):
+        k = int(k)
+        sel_k = np.flatnonzero(wanted & (counts == k))
+        width = 6 * k + camera_cols.shape[1] * k
+        step = max(1, MAX_ENTRIES // (width * width))
+        for first in range(0, len(sel_k), step):
+            sel = sel_k[first: first + step]
+            rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+            ph = ip.photo_index[rows]
+            params, conv = state.camera_terms(ph)
+            with np.errstate(all="ignore"):
+                _, dX, dO, drot, dcam = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
+                                                  tri.xyz[sel], result.plate_adjusted[rows], obs.plate[rows], lens)
+            Jc = np.concatenate([dO, drot @ T[ph], dcam[..., elements]], 3)  # (m, k, 2, 6 + e)
+            Qm, pJX = tri.cov_measurement[sel], dX * (1.0 / obs.q_plate[rows])[..., None]
+            chunk = _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], layout.photo_cols,
+                                   camera_cols, obs.q_plate[rows], full=blocks is not None, residuals=residuals)
+            cov_orientation[sel] = chunk.orientation
+            if not residuals:
+                continue
+            cond = with_conditions[sel] & ~undetermined[sel]
+            q_plate[rows[cond]] = chunk.diagonal[cond]
+            q_control[sel] = np.where(weighted[sel] & cond[:, None],
+                                      obs.q_control[sel] - np.diagonal(chunk.Q_pp, axis1=1, axis2=2), 0.0)
+            if blocks is not None and cond.any():
+                blocks.append((rows[cond], chunk.block[cond]))
+    points = Triangulated(xyz=tri.xyz, cov_measurement=tri.cov_measurement,
+                          cov_orientation=np.where(tri.determined[:, None, None], cov_orientation, 0.0),
+                          determined=tri.determined, weak=tri.weak)
+    _last = (weakref.ref(project), weakref.ref(result), points)
+    small = np.zeros(n_points, dtype=bool)
+    if residuals:
+        np.logical_or.at(small, ip.point_index, (q_plate < R_SUBTRACTION * obs.q_plate).any(axis=1))
+        small |= (weighted & (q_control < R_SUBTRACTION * obs.q_control)).any(axis=1)
+    return CollinearityCofactors(q_plate, q_control, blocks, points, (small & with_conditions) | undetermined)
+
+
+def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
+    """The points of a bundle result with Schmid's (90) cofactors, as
+    ``adjusted_points.triangulate_adjusted(project, result, orientation_part=True)`` (equal to
+    rounding, tested), by the collinearity form: those of the last :func:`residual_cofactors` pass
+    when it was over the same project and result (the pipeline's reliability measures), else a pass."""
+    if _last and _last[0]() is project and _last[1]() is result:
+        return _last[2]
+    return residual_cofactors(project, result, residuals=False).points
+
+
+@dataclass
+class _RayChunk:
+    diagonal: np.ndarray | None  # (m, k, 2) qvv of the plate coordinates (None: not asked)
+    Q_pp: np.ndarray  # (m, 3, 3)
+    orientation: np.ndarray  # (m, 3, 3) its orientation part G Qcc G^T
+    block: np.ndarray | None  # (m, 2k, 2k) the plate block of Qvv, (x, y) per ray
+
+
+def _qcc_reader(result: AdjustmentResult):
+    """A function of covariance.Slots -> Qcc among their sets (m, D, D) (Covariance.set_blocks'
+    contract). Small systems (at most DENSE_UNKNOWNS unknowns, e.g. close range) read Qcc whole
+    once and gather from it, several times faster than reading it by blocks of set pairs."""
+    cov = result.covariance
+    n = result.layout.n_unknowns
+    if n > DENSE_UNKNOWNS:
+        return cov.set_blocks
+    Q = np.zeros((n + 1, n + 1))  # row and column -1 (a fixed element) read zero
+    Q[:n, :n] = cov.dense_solved()
+
+    def gather(parts):
+        m = len(parts[0].sets)
+        idx = np.concatenate([P.columns[P.sets].reshape(m, -1) for P in parts], 1)  # (m, D)
+        return Q[idx[:, :, None], idx[:, None, :]]
+
+    return gather
+
+
+def _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, camera, photo_cols, camera_cols, q, full: bool,
+                   residuals: bool = True) -> _RayChunk:
+    """Qvv of the rays of m points of k rays each and their Q_pp (module doc). Jc: (m, k, 2, 6 + e);
+    gather: _qcc_reader's; dX, pJX: (m, k, 2, 3); Qm: (m, 3, 3) N_pp^-1; ph, camera: (m, k) photo and camera of each ray;
+    photo_cols (n_photos, 6), camera_cols (n_cameras, e): columns of Qcc; q: (m, k, 2) plate cofactors.
+    full: also the whole plate block of Qvv; residuals=False: Q_pp and its orientation part only."""
+    m, k = ph.shape
+    # G per ray: -N_pp^-1 Jp_a^T P_a Jc_a, (m, 3, k, 6 + e); ray_slots makes the point's unknown sets
+    # (its k photos, then its camera once when its rays share one, else one camera set per ray)
+    G = -np.einsum("mij,mkaj,mkac->mikc", Qm, pJX, Jc, optimize=True)
+    parts = ray_slots(G, ph, photo_cols, camera, camera_cols)
+    Q = gather(parts)  # (m, D, D)
+    Gf = np.concatenate([P.G.reshape(m, 3, -1) for P in parts], 2)  # (m, 3, D)
+    QG = Q @ np.swapaxes(Gf, 1, 2)  # (m, D, 3): Qcc G^T
+    GQG = Gf @ QG
+    Q_pp = Qm + GQG
+    if not residuals:
+        return _RayChunk(None, Q_pp, GQG, None)
+    # Jc Qcc (m, 2k, D): the photo part of ray a reads the rows of its photo set a, the camera part
+    # the rows of its camera set
+    D = Q.shape[1]
+    JQ = (Jc[..., :6] @ Q[:, : 6 * k].reshape(m, k, 6, D)).reshape(m, 2 * k, D)
+    summed = len(parts) > 1 and parts[1].sets.shape[1] == 1
+    e = Jc.shape[3] - 6
+    if len(parts) > 1:
+        Jcam = Jc[..., 6:]
+        if summed:
+            JQ += Jcam.reshape(m, 2 * k, e) @ Q[:, 6 * k:]
+        else:
+            JQ += (Jcam @ Q[:, 6 * k:].reshape(m, k, e, D)).reshape(m, 2 * k, D)
+    JX = dX.reshape(m, 2 * k, 3)
+    JcT = JQ @ np.swapaxes(Gf, 1, 2)  # (m, 2k, 3): Jc Qcc G^T
+    W = JcT + JX @ Q_pp  # the part multiplied by Jp^T from the right
+    Jph = Jc[..., :6]
+    if full:
+        # Jc Qcc Jc^T: column block b of the photo part is JQ[:, :, photo b] Jph_b^T
+        JQph = np.moveaxis(JQ[:, :, : 6 * k].reshape(m, 2 * k, k, 6), 2, 1)  # (m, k, 2k, 6)
+        F = np.moveaxis(JQph @ np.swapaxes(Jph, 2, 3), 1, 2).reshape(m, 2 * k, 2 * k)
+        if len(parts) > 1:
+            if summed:
+                F += JQ[:, :, 6 * k:] @ np.swapaxes(Jcam.reshape(m, 2 * k, e), 1, 2)
+            else:
+                JQc = np.moveaxis(JQ[:, :, 6 * k:].reshape(m, 2 * k, k, e), 2, 1)
+                F += np.moveaxis(JQc @ np.swapaxes(Jcam, 2, 3), 1, 2).reshape(m, 2 * k, 2 * k)
+        F += W @ np.swapaxes(JX, 1, 2) + JX @ np.swapaxes(JcT, 1, 2)
+        block = -F
+        idx = np.arange(2 * k)
+        block[:, idx, idx] += q.reshape(m, 2 * k)
+        return _RayChunk(np.diagonal(block, axis1=1, axis2=2).reshape(m, k, 2).copy(), Q_pp, GQG, block)
+    a = np.arange(k)
+    # diagonal only: ray a's rows of JQ against its own photo (and camera) columns
+    own = JQ.reshape(m, k, 2, D)
+    d = np.einsum("mkac,mkac->mka", own[..., : 6 * k].reshape(m, k, 2, k, 6)[:, a, :, a, :].transpose(1, 0, 2, 3),
+                  Jph)
+    if len(parts) > 1:
+        cam = own[..., 6 * k:]
+        if not summed:
+            cam = cam.reshape(m, k, 2, k, e)[:, a, :, a, :].transpose(1, 0, 2, 3)
+        d += np.einsum("mkac,mkac->mka", cam, Jcam)
+    d += np.einsum("mri,mri->mr", W + JcT, JX).reshape(m, k, 2)  # 2 Jc Qcc G^T Jp^T + Jp Q_pp Jp^T
+    return _RayChunk(q - d, Q_pp, GQG, None)

@@ -1,0 +1,575 @@
+"""Figures (matplotlib, Agg backend: no display needed). Each function returns PNG bytes so that the
+pipeline decides where they go (a file, or embedded in report.html).
+
+matplotlib is imported when the first figure is drawn, not with this module (it takes a third of a
+second): a run that fails on its input, or never draws, does not pay for it. The figures are
+``matplotlib.figure.Figure`` objects without pyplot's global state; ``figures.plt`` (pyplot, Agg)
+is still there for the study's figures.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+DPI = 110
+
+
+def __getattr__(name: str):
+    """``plt``: matplotlib.pyplot with the Agg backend, imported on first use."""
+    if name == "plt":
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        return plt
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _figure(**kwargs):
+    """A matplotlib Figure outside pyplot (nothing to close, nothing global), at DPI."""
+    from matplotlib.figure import Figure
+
+    return Figure(dpi=DPI, **kwargs)
+
+
+PNG_COMPRESSION = 3  # zlib level: 6 (PIL's default) makes the report's PNGs 5 % smaller in 40 % more time
+PAD_INCHES = 0.1  # margin kept about the drawn content when a figure is trimmed (savefig's pad_inches)
+
+
+def png_of(fig, tight: bool = True) -> bytes:
+    """The figure as PNG bytes (DPI dots per inch; trimmed to its content plus PAD_INCHES when
+    ``tight``). A pyplot figure (the study's) is closed afterwards.
+
+    A figure of ``_figure`` is drawn once and trimmed to the pixels that are not background
+    (savefig's ``bbox_inches="tight"`` draws it twice, the first time only to find the extent of its
+    artists). Content that touches the figure's edge may reach past it, which trimming cannot bring
+    back: such a figure is drawn by savefig instead."""
+    if getattr(fig.canvas, "manager", None) is not None or fig.dpi != DPI:
+        return _png_savefig(fig, tight)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from PIL import Image
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    rgba = np.asarray(canvas.buffer_rgba())
+    if tight:
+        background = np.array([*_background(fig), 255], dtype=np.uint8).view(np.uint32)[0]
+        drawn = rgba.view(np.uint32)[:, :, 0] != background  # (height, width): a pixel not of the background
+        rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
+        if len(rows):
+            height, width = drawn.shape
+            if rows[0] == 0 or cols[0] == 0 or rows[-1] == height - 1 or cols[-1] == width - 1:
+                return _png_savefig(fig, tight)
+            pad = int(round(PAD_INCHES * DPI))
+            rgba = rgba[max(rows[0] - pad, 0):rows[-1] + 1 + pad, max(cols[0] - pad, 0):cols[-1] + 1 + pad]
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgba[:, :, :3])).save(buf, format="png", compress_level=PNG_COMPRESSION)
+    return buf.getvalue()
+
+
+def _background(fig) -> tuple:
+    """The figure's face colour as 8-bit RGB."""
+    from matplotlib.colors import to_rgb
+
+    return tuple(int(round(255 * c)) for c in to_rgb(fig.get_facecolor()))
+
+
+def _png_savefig(fig, tight: bool) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight" if tight else None)
+    if getattr(fig.canvas, "manager", None) is not None:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    return buf.getvalue()
+
+
+STRUCTURE_CELLS = 1500  # blocks drawn one cell each up to this many; beyond, one pixel per group of blocks
+STRUCTURE_PIXELS = 750
+
+
+def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, title: str = "",
+                            labels=None) -> bytes:
+    """The nonzero pattern of the normal matrix (Schmid Fig. 10): one mark per nonzero 6x6 photo
+    block (camera columns last), with the block grid for small projects. Beyond STRUCTURE_CELLS
+    blocks the pattern is drawn as an image of STRUCTURE_PIXELS pixels a side, a pixel coloured when
+    any block it covers is nonzero (camera blocks on top).
+
+    N: (n, n) sparse; block_starts: first column of each photo and camera block (UnknownLayout.
+    block_starts); n_photo_blocks: how many of the blocks are photos; labels: the ids of the blocks
+    (photo ids, then camera ids), shown on the axes where they fit (at most STRUCTURE_LABELS blocks;
+    beyond, the axes count the blocks from 1).
+    """
+    n = N.shape[0]
+    if n == 0:
+        return _empty_normal_matrix(title)
+    pattern = block_pattern(N, block_starts)
+    nb = pattern.shape[0]
+    bi = np.repeat(np.arange(nb), np.diff(pattern.indptr))
+    bandwidth = int(np.max(np.abs(bi - pattern.indices), initial=0))
+    fig = _figure(figsize=(6.4, 5.5))  # room for the title beside the square axes
+    ax = fig.subplots()
+    rows, cols = pattern.nonzero()
+    is_cam = (rows >= n_photo_blocks) | (cols >= n_photo_blocks)
+    if nb <= STRUCTURE_CELLS:  # filled cells, as in Schmid's Fig. 10
+        image = np.ones((nb, nb, 3))
+        image[rows[~is_cam], cols[~is_cam]] = (0.12, 0.31, 0.47)
+        image[rows[is_cam], cols[is_cam]] = (0.77, 0.35, 0.07)
+        ax.imshow(image, interpolation="nearest")
+    else:  # one pixel per group of blocks
+        px = STRUCTURE_PIXELS
+        image = np.ones((px, px, 3))
+        pr, pc = rows * px // nb, cols * px // nb
+        image[pr[~is_cam], pc[~is_cam]] = (0.12, 0.31, 0.47)
+        image[pr[is_cam], pc[is_cam]] = (0.77, 0.35, 0.07)
+        ax.imshow(image, interpolation="nearest", extent=(-0.5, nb - 0.5, nb - 0.5, -0.5))
+    ax.set_xlim(-0.5, nb - 0.5)
+    ax.set_ylim(nb - 0.5, -0.5)
+    ax.set_aspect("equal")
+    if nb <= 40:
+        ax.set_xticks(np.arange(nb) - 0.5, minor=True)
+        ax.set_yticks(np.arange(nb) - 0.5, minor=True)
+        ax.grid(True, which="minor", linewidth=0.4, color="#999999")
+        ax.tick_params(labelsize=6)
+    if labels is not None and len(labels) == nb and nb <= STRUCTURE_LABELS:
+        ax.set_xticks(np.arange(nb), [str(x) for x in labels], rotation=90)
+        ax.set_yticks(np.arange(nb), [str(x) for x in labels])
+        ax.tick_params(labelsize=6 if nb <= 20 else 4.5)
+        what = "photo id"
+    else:  # too many to name: the blocks counted from 1, as a user counts photos
+        ax.xaxis.set_major_formatter(_count_from_one)
+        ax.yaxis.set_major_formatter(_count_from_one)
+        what = "photo number"
+    ax.set_xlabel(f"{what} (photos in order, then cameras in orange)" if is_cam.any() else what)
+    ax.set_ylabel(what)
+    fill = pattern.nnz / max(nb * nb, 1)
+    ax.set_title(title or f"normal matrix: {n} unknowns, {nb} blocks, {fill:.1%} of blocks filled, "
+                          f"block bandwidth {bandwidth}", fontsize=9)
+    return png_of(fig)
+
+
+STRUCTURE_LABELS = 40  # photo ids on the axes of the normal matrix's structure up to this many blocks
+
+
+def _count_from_one(value, position) -> str:
+    return f"{int(round(value)) + 1}" if abs(value - round(value)) < 1e-9 and value >= 0 else ""
+
+
+def block_pattern(N, block_starts: np.ndarray):
+    """(nb, nb) CSR matrix with a 1 for every block (rows and columns grouped at block_starts, the
+    first unknown of each block) that holds a nonzero of the sparse (n, n) matrix N.
+
+    The rows of a block being contiguous, the stored entries of N are grouped by block row through
+    N's own row pointers and only their columns are mapped to blocks: no coordinate list of N."""
+    import scipy.sparse as sp
+
+    N = sp.csr_matrix(N)
+    n = N.shape[0]
+    starts = np.asarray(block_starts, dtype=int)
+    block_of = np.zeros(n, dtype=int)
+    if len(starts):
+        block_of[starts[1:]] = 1
+        block_of = np.cumsum(block_of)
+    nb = len(starts)
+    if nb and starts[0] == 0 and np.all(np.diff(starts) > 0):
+        indptr = N.indptr[np.append(starts, n)]
+        data = (N.data != 0).astype(np.float64)
+        pattern = sp.csr_matrix((data, block_of[N.indices], indptr - indptr[0]), shape=(nb, nb))
+    else:  # blocks as block_of says, whatever their order
+        N = N.tocoo()
+        nz = N.data != 0
+        pattern = sp.csr_matrix((np.ones(int(nz.sum())), (block_of[N.row[nz]], block_of[N.col[nz]])), shape=(nb, nb))
+    pattern.sum_duplicates()
+    pattern.eliminate_zeros()
+    pattern.data[:] = 1.0
+    return pattern
+
+
+def _empty_normal_matrix(title: str = "") -> bytes:
+    """The figure of a normal matrix without unknowns: every orientation and camera element held
+    fixed (a pure forward intersection), so there is no structure to draw; it says so."""
+    fig = _figure(figsize=(5.5, 2.0))
+    ax = fig.subplots()
+    ax.axis("off")
+    ax.text(0.5, 0.5, "The normal matrix is empty (0 unknowns):\nevery orientation and camera element is held "
+            "fixed,\nso the adjustment only intersects the points.", ha="center", va="center", fontsize=9,
+            transform=ax.transAxes)
+    ax.set_title(title or "normal matrix: 0 unknowns", fontsize=9)
+    return png_of(fig)
+
+
+# Colours shared by the figures and the report's legend text.
+RESIDUAL_COLOUR = "#1f4e79"
+FLAG_COLOUR = "#c0392b"
+WORST_COLOUR = "#c0392b"
+KIND_STYLE = {  # kind name -> (marker, colour, label)
+    "tie": (".", "#4c72b0", "tie point"),
+    "XYZ": ("^", "#c0392b", "full control (XYZ)"),
+    "XY": ("^", "#e67e22", "plan control (XY)"),
+    "Z": ("v", "#27ae60", "height control (Z)"),
+    "check": ("D", "#8e44ad", "check point"),
+}
+FIELD_COLOURS = "YlGnBu"  # colour map of the rasters (residual field, precision map): light = small
+MAP_FLIGHT_LINES = 30  # the precision map draws the flight lines of at most this many strips (more hide the raster)
+NADIR_DEGREES = 30.0  # photos whose axes are this close to the vertical (median) fly strips: flight lines are drawn
+
+
+def flies_strips(R_ground_from_cam: np.ndarray) -> bool:
+    """Whether the photos look down like an aerial block (the median angle between the camera axis
+    and the plumb line below NADIR_DEGREES), so that joining their centres strip by strip draws
+    flight lines; convergent close-range stations fly none."""
+    if not len(R_ground_from_cam):
+        return True
+    axis = -np.asarray(R_ground_from_cam)[:, :, 2]  # the viewing direction (-z of the camera) on the ground
+    cos = np.clip(-axis[:, 2] / np.maximum(np.linalg.norm(axis, axis=1), 1e-300), -1.0, 1.0)
+    return bool(np.degrees(np.median(np.arccos(cos))) < NADIR_DEGREES)
+
+
+def nice_number(x: float) -> float:
+    """The largest of 1, 2, 5 times a power of ten not above x (x > 0)."""
+    if not np.isfinite(x) or x <= 0:
+        return 1.0
+    e = np.floor(np.log10(x))
+    for m in (5.0, 2.0, 1.0):
+        if m * 10**e <= x * (1 + 1e-12):
+            return float(m * 10**e)
+    return float(10**e)
+
+
+def _positive(a) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    return np.where(np.isfinite(a) & (a > 0), a, np.nan)
+
+
+def _power_label(y, _pos) -> str:
+    """1e-05 -> "1e-5": short plain labels for log axes."""
+    return f"{y:.0e}".replace("e+0", "e").replace("e-0", "e-")
+
+
+def convergence(vtpv, max_correction, inner_iterations=None) -> bytes:
+    """Convergence history on log axes: v^T P v and the largest correction (in units of its
+    standard deviation) per iteration; a third panel with the inner iterations of an iterative
+    solver when given. All arrays (n_iter,)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullLocator
+
+    it = np.arange(1, len(vtpv) + 1)
+    n_panels = 3 if inner_iterations is not None else 2
+    fig = _figure(figsize=(3.3 * n_panels, 2.6))
+    axes = fig.subplots(1, n_panels)
+    for ax, values, label in ((axes[0], vtpv, "vᵀP v"), (axes[1], max_correction, "largest |dx| / its σ")):
+        ax.semilogy(it, _positive(values), "o-", color=RESIDUAL_COLOUR, markersize=4)
+        # plain labels and no minor ticks: mathtext labels and minor gridlines cost most of the time
+        ax.yaxis.set_major_locator(LogLocator(numticks=7))
+        ax.yaxis.set_minor_locator(NullLocator())
+        ax.yaxis.set_major_formatter(FuncFormatter(_power_label))
+        ax.set_xlabel("iteration", fontsize=8)
+        ax.set_title(label, fontsize=9)
+        ax.grid(True, linewidth=0.3, alpha=0.6)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    if inner_iterations is not None:
+        ax = axes[2]
+        ax.bar(it, np.nan_to_num(np.asarray(inner_iterations, dtype=float)), color="#7f8c8d")
+        ax.set_xlabel("iteration", fontsize=8)
+        ax.set_title("inner iterations of the solver", fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    # fixed margins (the PNG is trimmed to its content): tight_layout would lay out every label once more
+    fig.subplots_adjust(left=0.6 / fig.get_figwidth(), right=0.99, bottom=0.17, top=0.9, wspace=0.28)
+    return png_of(fig)
+
+
+def _format_frame(ax, half_format: float) -> None:
+    h = half_format
+    ax.plot([-h, h, h, -h, -h], [-h, -h, h, h, -h], color="#888888", linewidth=0.6)
+    ax.plot([-0.03 * h, 0.03 * h], [0, 0], color="#888888", linewidth=0.5)
+    ax.plot([0, 0], [-0.03 * h, 0.03 * h], color="#888888", linewidth=0.5)
+    ax.set_xlim(-1.04 * h, 1.04 * h)
+    ax.set_ylim(-1.04 * h, 1.04 * h)
+    ax.set_aspect("equal")
+    for s in ax.spines.values():
+        s.set_visible(False)
+
+
+def _vectors(ax, xy, v, flagged, magnification, width=0.6, alpha=1.0, rasterized=False, dots=True,
+             colour=RESIDUAL_COLOUR) -> None:
+    """Residual vectors as line segments from the measured point to point + magnification v;
+    flagged ones on top in FLAG_COLOUR, opaque."""
+    from matplotlib.collections import LineCollection
+
+    styles = ((~flagged, colour, width, alpha, 2, 3), (flagged, FLAG_COLOUR, 2.0 * max(width, 0.6), 1.0, 4, 5))
+    for sel, c, lw, al, z_line, z_dot in styles:
+        if not sel.any():
+            continue
+        seg = np.stack([xy[sel], xy[sel] + magnification * v[sel]], axis=1)
+        ax.add_collection(LineCollection(seg, colors=c, linewidths=lw, alpha=al, rasterized=rasterized,
+                                         zorder=z_line))
+        if dots or c == FLAG_COLOUR:
+            ax.scatter(xy[sel, 0], xy[sel, 1], s=2 if c != FLAG_COLOUR else 6, color=c,
+                       linewidths=0, alpha=al, rasterized=rasterized, zorder=z_dot)
+
+
+def _scale_bar(ax, length_plot: float, label: str, half_format: float) -> None:
+    """A bar of length_plot (plot units) in the lower left corner of the format."""
+    x0, y0 = -0.92 * half_format, -0.9 * half_format
+    ax.plot([x0, x0 + length_plot], [y0, y0], color="black", linewidth=1.6, solid_capstyle="butt")
+    ax.text(x0, y0 + 0.05 * half_format, label, fontsize=6.5, va="bottom", ha="left")
+
+
+def plate_residuals_per_photo(xy_plate, v_plate, flagged, groups, titles, half_format: float,
+                              magnification: float, bar_length: float, bar_label: str, ncols: int = 6) -> bytes:
+    """Small multiples: the residual vectors of one photo per panel, drawn on the format.
+
+    xy_plate, v_plate: (m, 2) measured plate coordinates and residuals (plate units); flagged: (m,)
+    bool; groups: list of index arrays into the rows, one per panel; titles: one per panel;
+    half_format: half the side of the drawn frame; the vectors are drawn magnified by
+    ``magnification``; the scale bar shows a residual of bar_length (plate units) labelled bar_label.
+
+    All panels share one axes (each shifted to its place in the grid): one collection per colour
+    instead of one axes per photo keeps this fast for many panels.
+    """
+    from matplotlib.collections import LineCollection
+
+    n = len(groups)
+    ncols = max(1, min(ncols, n))
+    nrows = int(np.ceil(n / ncols))
+    h = half_format
+    pitch_x, pitch_y = 2.25 * h, 2.5 * h  # room for the title above each frame
+    fig = _figure(figsize=(1.9 * ncols, 2.1 * nrows))
+    ax = fig.add_axes((0, 0, 1, 1))
+    shift = np.array([[(k % ncols) * pitch_x, -(k // ncols) * pitch_y] for k in range(n)]).reshape(-1, 2)
+    rows = np.concatenate(groups) if n else np.zeros(0, dtype=int)
+    panel = np.repeat(np.arange(n), [len(g) for g in groups])
+    xy = xy_plate[rows] + shift[panel]
+    frame = np.array([[-h, -h], [h, -h], [h, h], [-h, h], [-h, -h]])
+    ax.add_collection(LineCollection([frame + s for s in shift], colors="#888888", linewidths=0.6))
+    cross = [np.array([[-0.03 * h, 0], [0.03 * h, 0]]), np.array([[0, -0.03 * h], [0, 0.03 * h]])]
+    ax.add_collection(LineCollection([c + s for s in shift for c in cross], colors="#888888", linewidths=0.5))
+    _vectors(ax, xy, v_plate[rows], flagged[rows], magnification)
+    for k in range(n):
+        ax.text(shift[k, 0], shift[k, 1] + 1.06 * h, titles[k], fontsize=7, ha="center", va="bottom")
+    if n:
+        x0, y0 = shift[0] + (-0.92 * h, -0.9 * h)
+        ax.plot([x0, x0 + bar_length * magnification], [y0, y0], color="black", linewidth=1.6, solid_capstyle="butt")
+        ax.text(x0, y0 + 0.05 * h, bar_label, fontsize=6.5, va="bottom", ha="left")
+    ax.set_xlim(-1.1 * h, (ncols - 1) * pitch_x + 1.1 * h)
+    ax.set_ylim(-(nrows - 1) * pitch_y - 1.1 * h, 1.4 * h)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    return png_of(fig)
+
+
+def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magnification: float,
+                            bar_length: float, bar_label: str, cell_means=None, field=None,
+                            plate_unit: str = "mm") -> bytes:
+    """All residual vectors of all photos over one format (systematic image errors show as a
+    pattern), and, when cell_means = (centres (k, 2), means (k, 2), counts (k,), magnification,
+    bar_length, bar_label) is given, the mean residual of each cell of a grid in a second panel.
+
+    field = (rms (g, g), unit_label, n_all), for many measurements: the left panel shows instead the
+    RMS residual length of each cell of a g x g grid over the format (rms in the plate units of
+    the vectors, row 0 at -half_format; nan where no measurement falls) as a raster, and on top only
+    the vectors given (the caller passes the worst), out of n_all measurements. plate_unit: the
+    unit of the plate coordinates on the axes ("mm" or "px", model.PLATE_UNITS).
+    """
+    from matplotlib.collections import LineCollection
+
+    n_panels = 2 if cell_means is not None else 1
+    fig = _figure(figsize=(4.6 * n_panels + (0.6 if field is not None else 0.0), 4.6))
+    axes = fig.subplots(1, n_panels, squeeze=False)
+    ax = axes[0, 0]
+    _format_frame(ax, half_format)
+    if field is None:
+        many = len(xy_plate) > 3000
+        _vectors(ax, xy_plate, v_plate, flagged, magnification, width=0.3 if many else 0.5,
+                 alpha=0.35 if many else 1.0, rasterized=many, dots=not many)
+        ax.set_title(f"all {len(xy_plate)} measurements, vectors x{magnification:g}", fontsize=9)
+    else:
+        rms, unit_label, n_all = field
+        h = half_format
+        top = float(np.nanpercentile(rms, 99)) if np.isfinite(rms).any() else 1.0
+        image = ax.imshow(np.ma.masked_invalid(rms), origin="lower", extent=(-h, h, -h, h), cmap=FIELD_COLOURS,
+                          vmin=0.0, vmax=top if top > 0 else 1.0, interpolation="nearest", zorder=1)
+        bar = fig.colorbar(image, ax=ax, fraction=0.046, pad=0.03, extend="max")
+        bar.set_label(f"RMS residual per cell ({unit_label})", fontsize=7)
+        bar.ax.tick_params(labelsize=6.5)
+        _vectors(ax, xy_plate, v_plate, flagged, magnification, width=0.8, colour="#2c3e50")
+        ax.set_title(f"{n_all} measurements: RMS per cell; the {len(xy_plate)} largest |w| drawn x{magnification:g}",
+                     fontsize=8.5)
+    _scale_bar(ax, bar_length * magnification, bar_label, half_format)
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel(f"x ({plate_unit})", fontsize=8)
+    ax.set_ylabel(f"y ({plate_unit})", fontsize=8)
+    if cell_means is not None:
+        centres, means, counts, mag2, bar2, label2 = cell_means
+        ax = axes[0, 1]
+        _format_frame(ax, half_format)
+        ok = counts > 0
+        seg = np.stack([centres[ok], centres[ok] + mag2 * means[ok]], axis=1)
+        ax.add_collection(LineCollection(seg, colors="#d35400", linewidths=1.6))
+        ax.scatter(centres[ok, 0], centres[ok, 1], s=8, color="#d35400", zorder=3)
+        _scale_bar(ax, bar2 * mag2, label2, half_format)
+        ax.set_title(f"mean residual per cell, vectors x{mag2:g}", fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel(f"x ({plate_unit})", fontsize=8)
+    width = fig.get_figwidth()  # fixed margins in inches, as convergence's
+    fig.subplots_adjust(left=0.65 / width, right=1 - 0.15 / width, bottom=0.1, top=0.93, wspace=0.18)
+    return png_of(fig)
+
+
+def _block_axes_size(xy_centres, xy_points) -> float:
+    """Height / width of a plan view of the block (0.3 to 1)."""
+    every = np.concatenate([xy_centres, xy_points[np.isfinite(xy_points).all(axis=1)]])
+    dx, dy = np.ptp(every, axis=0) if len(every) else (1.0, 1.0)
+    return float(np.clip((dy + 0.1 * max(dx, dy)) / max(dx, 1e-9), 0.3, 1.0))
+
+
+def _flight_lines(ax, xy_centres, strip_of_photo, arrows: bool = True) -> None:
+    """The projection centres of each strip joined in flight order, an arrow at the end."""
+    from matplotlib.collections import LineCollection
+
+    strips = np.asarray(strip_of_photo)
+    lines = [xy_centres[strips == s] for s in dict.fromkeys(strips.tolist())]
+    ax.add_collection(LineCollection(lines, colors="#95a5a6", linewidths=0.8, zorder=1))
+    if arrows:
+        for c in lines:
+            if len(c) > 1:
+                ax.annotate("", xy=c[-1], xytext=c[-2], arrowprops=dict(arrowstyle="-|>", color="#95a5a6",
+                                                                        linewidth=0.8))
+
+
+def _ellipse_collection(ax, xy, cov_xy, magnification, colours, linewidths=0.7, rasterized=False, zorder=3):
+    """The horizontal standard error ellipses (semi-axes sqrt of the eigenvalues of cov_xy, (n, 2, 2))
+    of the points xy (n, 2), magnified; points without a finite, nonzero ellipse are skipped."""
+    from matplotlib.collections import EllipseCollection
+
+    cov = np.asarray(cov_xy, dtype=float)
+    ok = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(xy).all(axis=1)
+    eigval, eigvec = np.linalg.eigh(np.where(ok[:, None, None], cov, np.eye(2)))
+    a = np.sqrt(np.maximum(eigval[:, 1], 0.0))
+    b = np.sqrt(np.maximum(eigval[:, 0], 0.0))
+    angle = np.degrees(np.arctan2(eigvec[:, 1, 1], eigvec[:, 0, 1]))
+    ok &= a > 0
+    if ok.any():
+        ax.add_collection(EllipseCollection(
+            2 * a[ok] * magnification, 2 * b[ok] * magnification, angle[ok], units="xy",
+            offsets=xy[ok], offset_transform=ax.transData, facecolors="none",
+            edgecolors=np.asarray(colours)[ok] if np.ndim(colours) else colours, linewidths=linewidths,
+            zorder=zorder, rasterized=rasterized))
+
+
+def _plan_frame(ax, bar_length: float, magnification: float, bar_label: str, bar: bool = True) -> None:
+    """Equal scales, a margin, a scale bar (bar_length m, drawn magnified; when ``bar``) in the lower
+    left corner, plain tick labels in metres."""
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    pad = 0.04 * max(x1 - x0, y1 - y0)
+    ax.set_xlim(x0 - pad, x1 + pad)
+    ax.set_ylim(y0 - 2.5 * pad, y1 + pad)
+    if bar:
+        bx, by = x0 - 0.5 * pad, y0 - 1.8 * pad
+        ax.plot([bx, bx + bar_length * magnification], [by, by], color="black", linewidth=2, solid_capstyle="butt")
+        ax.text(bx, by + 0.25 * pad, f"{bar_label} (ellipses x{magnification:g})", fontsize=7, va="bottom")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel("X (m)", fontsize=8)
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+
+
+def error_ellipses(xy_centres, strip_of_photo, xy_points, kind_names, cov_xy, magnification: float,
+                   bar_length: float, bar_label: str, labels=None, flight_lines: bool = True) -> bytes:
+    """Plan view of the block: projection centres joined along their strips, the ground points
+    coloured by kind (control as triangles) and the horizontal standard error ellipse of each point
+    magnified by ``magnification``, with a scale bar of bar_length (m) labelled bar_label.
+
+    xy_centres: (n_ph, 2) ground X, Y of the projection centres, in flight order within a strip;
+    strip_of_photo: (n_ph,) strip labels; xy_points: (n_pt, 2); kind_names: (n_pt,) names of
+    KIND_STYLE; cov_xy: (n_pt, 2, 2) covariance of X, Y in m^2 (nan where undetermined);
+    labels: optional (n_pt,) strings, drawn beside control and check points; flight_lines: join
+    the centres of each strip (False for convergent close range, whose stations fly no line).
+    """
+    kind_names = np.asarray(kind_names)
+    many = len(xy_points) > 2000
+    fig = _figure(figsize=(8.6, 0.9 + 6.3 * _block_axes_size(xy_centres, xy_points)))
+    ax = fig.subplots()
+    if flight_lines:
+        _flight_lines(ax, xy_centres, strip_of_photo)
+    ax.scatter(xy_centres[:, 0], xy_centres[:, 1], marker="+", s=18, color="#2c3e50", linewidths=0.7,
+               zorder=2, label="projection centre" if flight_lines else "camera station",
+               rasterized=len(xy_centres) > 2000)
+    colours = np.array([KIND_STYLE.get(k, KIND_STYLE["tie"])[1] for k in kind_names] or ["#000000"])[:len(kind_names)]
+    _ellipse_collection(ax, xy_points, cov_xy, magnification, colours, rasterized=many)
+    _kind_markers(ax, xy_points, kind_names, rasterized=many)
+    if labels is not None:
+        named = np.flatnonzero(kind_names != "tie")
+        if len(named) <= 60:
+            for i in named:
+                ax.annotate(str(labels[i]), xy_points[i], xytext=(3, 3), textcoords="offset points",
+                            fontsize=5.5, color="#34495e", zorder=5)
+    _plan_frame(ax, bar_length, magnification, bar_label)
+    ax.set_ylabel("Y (m)", fontsize=8)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return png_of(fig)
+
+
+def _kind_markers(ax, xy_points, kind_names, rasterized=False, kinds=None, small: bool = False) -> None:
+    """The ground points of each kind of KIND_STYLE (all, or those in ``kinds``) as markers (small
+    ones without an outline when ``small``)."""
+    for name, (marker, colour, label) in KIND_STYLE.items():
+        if kinds is not None and name not in kinds:
+            continue
+        sel = kind_names == name
+        if not sel.any():
+            continue
+        size = 5 if small else 10 if name == "tie" else 30
+        ax.scatter(xy_points[sel, 0], xy_points[sel, 1], marker=marker, s=size, color=colour,
+                   edgecolors="white" if name != "tie" and not small else "none", linewidths=0.4, zorder=4,
+                   label=f"{label} ({int(sel.sum())})", rasterized=rasterized)
+
+
+def precision_map(xy_centres, strip_of_photo, xy_points, kind_names, extent, grids, worst, cov_xy,
+                  magnification: float, bar_length: float, bar_label: str, flight_lines: bool = True) -> bytes:
+    """Plan view of a large block as two rasters side by side: the RMS of the points' horizontal
+    standard error (semi-major axis of the ellipse) and of their sigma Z, per cell of a grid over
+    the block, with the flight lines (up to MAP_FLIGHT_LINES strips), the control points (small
+    markers in the colours of KIND_STYLE) and the worst points on top (left: their ellipses
+    magnified by ``magnification``; right: circled).
+
+    extent: (x0, x1, y0, y1) of the grid in m; grids: ((ny, nx) horizontal, (ny, nx) vertical,
+    unit_label, scale) with the RMS values in m (nan: no point in the cell), shown multiplied by
+    scale in unit_label; worst: (horizontal indices, vertical indices) into the points; cov_xy:
+    (n_pt, 2, 2) covariance of X, Y in m^2. Other arguments as for error_ellipses.
+    """
+    kind_names = np.asarray(kind_names)
+    grid_h, grid_z, unit_label, scale = grids
+    worst_h, worst_z = (np.asarray(w, dtype=int) for w in worst)
+    aspect = _block_axes_size(xy_centres, xy_points)
+    fig = _figure(figsize=(11.5, 1.4 + 5.0 * aspect))
+    axes = fig.subplots(1, 2)
+    control = [k for k in KIND_STYLE if k != "tie"]
+    for ax, grid, title in ((axes[0], grid_h, "horizontal: semi-major axis of the error ellipse"),
+                            (axes[1], grid_z, "height: σZ")):
+        finite = grid[np.isfinite(grid)] * scale
+        low, top = (float(v) for v in np.percentile(finite, [1, 99])) if len(finite) else (0.0, 1.0)
+        image = ax.imshow(np.ma.masked_invalid(grid * scale), origin="lower", extent=extent, cmap=FIELD_COLOURS,
+                          vmin=low, vmax=top if top > low else low + 1.0, interpolation="nearest", zorder=0)
+        bar = fig.colorbar(image, ax=ax, orientation="horizontal", fraction=0.05, pad=0.1, extend="both")
+        bar.set_label(f"RMS per cell ({unit_label})", fontsize=7)
+        bar.ax.tick_params(labelsize=6.5)
+        if flight_lines and len(set(np.asarray(strip_of_photo).tolist())) <= MAP_FLIGHT_LINES:
+            _flight_lines(ax, xy_centres, strip_of_photo, arrows=False)
+        _kind_markers(ax, xy_points, kind_names, kinds=control, small=True)
+        ax.set_title(title, fontsize=9)
+    _ellipse_collection(axes[0], xy_points[worst_h], np.asarray(cov_xy)[worst_h], magnification, WORST_COLOUR,
+                        linewidths=1.0, zorder=5)
+    axes[1].scatter(xy_points[worst_z, 0], xy_points[worst_z, 1], s=40, facecolors="none", edgecolors=WORST_COLOUR,
+                    linewidths=1.0, zorder=5)
+    _plan_frame(axes[0], bar_length, magnification, bar_label)
+    _plan_frame(axes[1], bar_length, magnification, bar_label, bar=False)
+    axes[0].set_ylabel("Y (m)", fontsize=8)
+    return png_of(fig)

@@ -1,0 +1,271 @@
+"""The cofactor matrix of the unknowns, Qxx = N^-1 (Schmid 53), without forming it.
+
+Everything precision needs is read from here: entries of Qxx (``entries``), the 6x6 photo blocks
+(``photo_blocks``), the diagonal, the weight coefficient ``f^T Qxx f`` of any function of the
+unknowns (Schmid 81-84), and ``G Qxx G^T`` for a batch of point groups (``group_forms``: the
+orientation part of a point's covariance, Schmid 90, and ``B Qxx B^T`` of the residual cofactors).
+Underneath is the selected inversion of ``striptri.selected_inverse`` (banded for strips,
+supernodal for blocks).
+
+For a free network (datum.FreeNetwork) Qxx is the inverse under the inner constraints,
+``Q = S Q_min S^T`` with ``S = I - H K C^T``, ``K = (C^T H)^-1`` and Q_min the inverse of N under
+the minimum constraints (held unknowns: zero rows and columns). An entry is then
+``Q_min[r, c] - (HK)[r].Y[c] - Y[r].(HK)[c] + (HK)[r] (C^T Y) (HK)[c]^T`` with ``Y = Q_min C``.
+The point datum (striptri.equations.point_datum) adds ``(HK)[r] V (HK)[c]^T`` (FreeNetwork.extra = V).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import for_layout
+
+
+class Covariance:
+    def __init__(self, N: sp.spmatrix, layout, free_network=None):
+        self.layout = layout
+        self.n = N.shape[0]
+        self.free_network = free_network
+        self._store = BlockStore()  # blocks of Qxx read for group_forms, kept for later batches
+        if free_network is None:
+            # the factor is not kept: every entry precision reads lies in the pattern of the inverse
+            # (quadratic_form factorises again when asked)
+            self._inv = for_layout(N, layout, keep_factor=False)
+            return
+        N_min, mask = free_network.minimum_constraint_system(N)
+        self._inv = for_layout(N_min, layout)
+        self._keep = 1.0 - mask
+        C, H = free_network.C, free_network.H
+        Y = self._inv.solve(C) * self._keep[:, None]
+        self._HK = H @ np.linalg.inv(C.T @ H)
+        self._Y = Y
+        self._CtY = C.T @ Y
+        if free_network.extra is not None:  # the point datum: + HK V HK^T (point_datum)
+            self._CtY = self._CtY + free_network.extra
+
+    def entries(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Qxx[rows, cols] elementwise (broadcast; index -1, a fixed element, reads zero)."""
+        r, c = np.broadcast_arrays(np.asarray(rows, dtype=int), np.asarray(cols, dtype=int))
+        q = self._inv.entries(r, c)
+        if self.free_network is None:
+            return q
+        keep = np.append(self._keep, 0.0)
+        q = q * keep[r] * keep[c]
+        pad = lambda a: np.vstack([a, np.zeros((1, a.shape[1]))])  # noqa: E731  (row -1 reads zeros)
+        HK, Y = pad(self._HK), pad(self._Y)
+        hr, hc, yr, yc = HK[r], HK[c], Y[r], Y[c]
+        return (q - np.einsum("...a,...a->...", hr, yc) - np.einsum("...a,...a->...", yr, hc)
+                + np.einsum("...a,ab,...b->...", hr, self._CtY, hc))
+
+    def group_forms(self, parts: Sequence["Slots"]) -> np.ndarray:
+        """``G Qxx G^T`` of every group of a batch (group_forms with this Qxx)."""
+        return group_forms(self.entries, parts, store=self._store)
+
+    def set_blocks(self, parts: Sequence["Slots"]) -> np.ndarray:
+        """Qxx among the unknown sets of every group of a batch (set_blocks with this Qxx)."""
+        return set_blocks(self.entries, parts, store=self._store)
+
+    def photo_blocks(self) -> np.ndarray:
+        """(n_photos, 6, 6) blocks of Qxx of every photo's elements (fixed elements zero)."""
+        cols = self.layout.photo_cols
+        if self.free_network is None:
+            return self._inv.stack(range(len(cols)))
+        return self.entries(cols[:, :, None], cols[:, None, :])
+
+    def diag(self) -> np.ndarray:
+        idx = np.arange(self.n)
+        return self._inv.diag() if self.free_network is None else self.entries(idx, idx)
+
+    def quadratic_form(self, f: np.ndarray) -> float:
+        """f^T Qxx f (Schmid 83), f the gradient of a function of the unknowns."""
+        f = np.asarray(f, dtype=float)
+        if self.free_network is None:
+            return float(self._inv.quadratic_form(f))
+        fn = self.free_network
+        h = self._HK.T @ f
+        g = f - fn.C @ h  # S^T f
+        extra = float(h @ fn.extra @ h) if fn.extra is not None else 0.0
+        return float(g @ (self._inv.solve(g) * self._keep)) + extra
+
+    def dense(self) -> np.ndarray:
+        idx = np.arange(self.n)
+        return self.entries(idx[:, None], idx[None, :])
+
+    def dense_solved(self) -> np.ndarray:
+        """The whole Qxx (n, n) by n solves with the factor: for small systems several times faster
+        than ``dense`` (every entry looked up), equal to rounding."""
+        if self.free_network is not None:
+            return self.dense()
+        Q = self._inv.solve(np.eye(self.n))
+        return 0.5 * (Q + Q.T)
+
+
+# ------------------------------------------------------------------------ G Qxx G^T of groups
+
+BLOCK_CHUNK = 1 << 21  # entries of the gathered Qxx blocks of a batch held at once (16 MB)
+
+
+@dataclass(frozen=True)
+class Slots:
+    """Unknown sets of one kind (photos, or cameras) in a batch of m groups.
+
+    G: (m, r, s, w) the derivatives of r quantities of each group with respect to the w unknowns of
+    each of its s sets; sets: (m, s) the row of ``columns`` that each set is; columns: (n_sets, w)
+    the columns of Qxx of every set (-1: a fixed element, which reads zero).
+    """
+
+    G: np.ndarray
+    sets: np.ndarray
+    columns: np.ndarray
+
+
+def ray_slots(G: np.ndarray, photo: np.ndarray, photo_cols: np.ndarray, camera: np.ndarray | None = None,
+              camera_cols: np.ndarray | None = None) -> list[Slots]:
+    """Slots of groups of k rays: G (m, r, k, 6 + e) with respect to each ray's photo elements
+    (``photo_cols[photo]``, (n_photos, 6)) and then the e estimated elements of its camera
+    (``camera_cols[camera]``, (n_cameras, e)). When every group's rays share one camera (the usual
+    case) the camera derivatives of its rays are added into one camera set; a camera part whose
+    elements are all fixed is left out."""
+    out = [Slots(G[..., :6], photo, photo_cols)]
+    if camera is None or camera_cols is None or not camera_cols.shape[1] or not (camera_cols >= 0).any():
+        return out
+    Gc = G[..., 6:]
+    if camera.shape[1] and np.all(camera == camera[:, :1]):
+        Gc, camera = Gc.sum(axis=2, keepdims=True), camera[:, :1]
+    return out + [Slots(Gc, camera, camera_cols)]
+
+
+def strongest_correlations(correlations: np.ndarray, width: int) -> list[tuple[int, int, float]]:
+    """For each row of ``correlations`` (m, n_blocks * width) of an element with the elements of a
+    group of blocks (photos: width 6; centres: width 3), the largest in magnitude as (block, element,
+    correlation); (-1, -1, nan) for a row without a finite correlation."""
+    out = []
+    for row in correlations:
+        finite = np.isfinite(row)
+        if not finite.any():
+            out.append((-1, -1, float("nan")))
+            continue
+        k = int(np.nanargmax(np.where(finite, np.abs(row), -1.0)))
+        out.append((k // width, k % width, float(row[k])))
+    return out
+
+
+def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
+                block_chunk: int = BLOCK_CHUNK, store: "BlockStore | None" = None) -> np.ndarray:
+    """``G Q G^T`` (m, r, r) for every group of a batch, G the derivatives of the slots ``parts``
+    (one G of the group, split by kind of unknown set) and Q the entries of Qxx that
+    ``entries(rows, cols)`` gives (broadcast; -1 reads zero).
+
+    Q is read by blocks: the distinct pairs of sets of the batch (two photos that share a point,
+    a photo and a camera, ...) are each read once (and kept in ``store`` for later batches, when
+    given), then gathered for the groups in chunks of at most ``block_chunk`` entries and
+    contracted by matrix products: memory linear in the batch, and work ``m r (s w)^2`` instead
+    of the ``m r^2 (s w)^2`` of a three-operand einsum.
+    """
+    m, r = parts[0].G.shape[:2]
+    out = np.zeros((m, r, r))
+    if m == 0:
+        return out
+    for a, b, table, index, swap in _set_pairs(entries, parts, store):
+        Pa, Pb = parts[a], parts[b]
+        sa, wa = Pa.G.shape[2:]
+        sb, wb = Pb.G.shape[2:]
+        step = max(1, block_chunk // max(sa * sb * wa * wb, 1))
+        for c0 in range(0, m, step):
+            c1 = min(c0 + step, m)
+            Q = _set_pair_block(table, index, swap, slice(c0, c1))
+            Ga = Pa.G[c0:c1].reshape(c1 - c0, r, sa * wa)
+            Gb = Pb.G[c0:c1].reshape(c1 - c0, r, sb * wb)
+            T = (Ga @ Q) @ np.swapaxes(Gb, 1, 2)
+            out[c0:c1] += T if a == b else T + np.swapaxes(T, 1, 2)
+    return out
+
+
+def _set_pairs(entries, parts: Sequence["Slots"], store: "BlockStore | None"):
+    """(a, b, table, index, swap) for every pair a <= b of a batch's slots, the blocks of Q between
+    their unknown sets read once through ``store`` (BlockStore.blocks)."""
+    store = BlockStore() if store is None else store
+    for a, Pa in enumerate(parts):
+        for b in range(a, len(parts)):
+            yield (a, b, *store.blocks(entries, Pa, parts[b], same=a == b))
+
+
+def _set_pair_block(table: np.ndarray, index: np.ndarray, swap: np.ndarray | None, groups: slice) -> np.ndarray:
+    """Q between two slots' unknowns for ``groups`` of a batch, from BlockStore.blocks' table:
+    (mc, sa * wa, sb * wb), each set's w columns together (set-major)."""
+    Q = table[index[groups]]  # (mc, sa, sb, wa, wb)
+    if swap is not None:
+        Q = np.where(swap[groups, :, :, None, None], np.swapaxes(Q, -1, -2), Q)
+    mc, sa, sb, wa, wb = Q.shape
+    return Q.transpose(0, 1, 3, 2, 4).reshape(mc, sa * wa, sb * wb)
+
+
+def set_blocks(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
+               store: "BlockStore | None" = None) -> np.ndarray:
+    """Q restricted to the unknown sets of every group of a batch: (m, D, D) with D = sum over
+    ``parts`` of s * w, the sets of parts[0] first, each set's w columns together (set-major), as
+    ``P.G.reshape(m, r, s * w)`` orders a group's derivatives. Q is read by blocks of set pairs as
+    in group_forms (only ``sets`` and ``columns`` of the slots are read). Memory m D^2: the caller
+    chunks its groups."""
+    m = len(parts[0].sets)
+    sizes = [P.sets.shape[1] * P.columns.shape[1] for P in parts]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    out = np.zeros((m, starts[-1], starts[-1]))
+    if m == 0:
+        return out
+    for a, b, table, index, swap in _set_pairs(entries, parts, store):
+        Q = _set_pair_block(table, index, swap, slice(None))
+        out[:, starts[a]:starts[a + 1], starts[b]:starts[b + 1]] = Q
+        if a != b:
+            out[:, starts[b]:starts[b + 1], starts[a]:starts[a + 1]] = np.swapaxes(Q, 1, 2)
+    return out
+
+
+class BlockStore:
+    """Blocks of Qxx between unknown sets, read once and kept: per pair of ``columns`` arrays (told
+    apart by their contents), the sorted keys ``i * n_b + j`` of the set pairs read so far and their
+    blocks ``Q[columns_a[i], columns_b[j]]``. Within one kind (``same``) only (min, max) is kept."""
+
+    def __init__(self):
+        self._tables: dict = {}
+
+    @staticmethod
+    def _tag(columns: np.ndarray):
+        c = np.ascontiguousarray(columns)
+        return c.shape, hash(c.tobytes())
+
+    def blocks(self, entries, Pa: Slots, Pb: Slots, same: bool):
+        """(table (u, wa, wb), index (m, sa, sb) into it, swap (m, sa, sb) or None) for the set pairs
+        of a batch: where swap is true the block is read transposed (Q[b, a] = Q[a, b]^T)."""
+        i = np.broadcast_to(Pa.sets[:, :, None], Pa.sets.shape + Pb.sets.shape[1:])
+        j = np.broadcast_to(Pb.sets[:, None, :], i.shape)
+        nb = np.int64(len(Pb.columns))
+        swap = None
+        if same:
+            swap = i > j
+            i, j = np.minimum(i, j), np.maximum(i, j)
+            swap = swap if swap.any() else None
+        key = i.astype(np.int64) * nb + j
+        tag = (self._tag(Pa.columns), self._tag(Pb.columns), same)
+        wa, wb = Pa.columns.shape[1], Pb.columns.shape[1]
+        keys, table = self._tables.get(tag, (np.zeros(0, np.int64), np.zeros((0, wa, wb))))
+        wanted = np.unique(key)
+        pos = np.searchsorted(keys, wanted)
+        missing = wanted[(pos == len(keys)) | (keys[np.minimum(pos, max(len(keys) - 1, 0))] != wanted)] if len(
+            keys) else wanted
+        if len(missing):
+            ui, uj = missing // nb, missing % nb
+            new = entries(Pa.columns[ui][:, :, None], Pb.columns[uj][:, None, :])
+            keys = np.concatenate([keys, missing])
+            order = np.argsort(keys, kind="stable")
+            keys, table = keys[order], np.concatenate([table, new])[order]
+            self._tables[tag] = (keys, table)
+        return table, np.searchsorted(keys, key), swap
+
+    @property
+    def nbytes(self) -> int:
+        return sum(k.nbytes + t.nbytes for k, t in self._tables.values())
