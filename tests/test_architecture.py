@@ -105,7 +105,7 @@ def test_no_import_cycle_in_striptri_counting_imports_inside_functions():
 
 def test_the_graph_sees_imports_inside_functions():
     """striptri.cli imports the pipeline inside its commands (start-up time): the graph has it."""
-    assert "striptri.pipeline" in import_graph()["striptri.cli"]
+    assert "striptri.pipeline" in import_graph()["striptri.cli.adjust"]
 
 
 @pytest.mark.parametrize("method", METHOD_PACKAGES)
@@ -137,7 +137,7 @@ LONG_MODULE = 600
 # asks for none; these are still to be split).
 LONG_MODULES = {
     "striptri.report.html": 1090, "striptri.core.diagnosis": 804, "striptri.io.project_reader": 778,
-    "striptri.io.output": 724, "striptri.cli": 693, "striptri.bundle.adjust": 639, "striptri.pipeline": 631,
+    "striptri.io.output": 724, "striptri.bundle.adjust": 639, "striptri.pipeline": 631,
 }
 
 

@@ -54,7 +54,7 @@ DIRECTIONS = {
 
 
 def _command() -> list[str]:
-    """The `striptri` console script of this interpreter (cli.py has no __main__ guard, so
+    """The `striptri` console script of this interpreter (striptri.cli has no __main__ guard, so
     `python -m striptri.cli` would do nothing)."""
     script = Path(sys.executable).parent / "striptri"
     if script.exists():

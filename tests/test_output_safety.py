@@ -235,7 +235,7 @@ def test_a_signal_as_the_command_ends_says_the_output_is_complete(tmp_path, sig)
     out = tmp_path / "out"
     code = textwrap.dedent(f"""
         import os, sys
-        import striptri.cli as cli
+        import striptri.cli.base as cli
         restore = cli._restore_signals
         def restore_then_signal(previous):
             restore(previous)

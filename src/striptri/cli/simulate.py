@@ -1,0 +1,182 @@
+"""``striptri simulate``: a synthetic pair, strip or block project (striptri.simulate)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import click
+
+from striptri.cli.base import _Finite, _Fraction, main, reports_errors
+
+_DEFAULT_PHOTOS = {"pair": 2, "strip": 8, "block": 6}
+_DEFAULT_STRIPS = {"pair": 1, "strip": 1, "block": 3}
+_DEFAULT_LAYOUT = {"pair": "corners", "strip": "ends", "block": "perimeter"}
+_LAYOUT_CHOICES = ["corners", "mixed", "schmid-minimal", "ends", "every-k", "perimeter", "sparse-height",
+                   "schmid-fig8", "none"]
+_DEFAULT_OVERLAP = 0.6
+
+
+@main.command()
+@click.argument("kind", type=click.Choice(["pair", "strip", "block"]))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Project folder to write.")
+@click.option("--photos", type=click.IntRange(min=2), default=None,
+              help="Photos per strip [pair: 2, strip: 8, block: 6; schmid-fig8: 5].")
+@click.option("--strips", type=click.IntRange(min=1), default=None, help="Parallel strips [pair, strip: 1; block: 3].")
+@click.option("--overlap", type=_Fraction(), default=None, help="Forward overlap (0.6, 2/3 ...) [0.6; schmid-fig8: 2/3].")
+@click.option("--sidelap", type=_Fraction(), default=0.3, show_default=True, help="Sidelap of neighbouring strips (0.2 .. 0.6).")
+@click.option("--alternate/--same-direction", default=True, show_default=True,
+              help="Fly every other strip of a block the other way, or all strips the same way.")
+@click.option("--flying-height", type=_Finite(min=0, min_open=True), default=1500.0, show_default=True, help="Metres above mean terrain.")
+@click.option("--heading", type=_Finite(), default=0.0, show_default=True, help="Flight direction of the first strip, deg from +X towards +Y.")
+@click.option("--relief", type=_Finite(min=0), default=50.0, show_default=True, help="Terrain relief amplitude (m).")
+@click.option("--attitude-std", type=_Finite(min=0), default=1.0, show_default=True, help="Std of true omega, phi, kappa about the ideal (deg).")
+@click.option("--position-std", type=_Finite(min=0), default=5.0, show_default=True, help="Std of true centres about the ideal flight line (m).")
+@click.option("--control", "layout", type=click.Choice(_LAYOUT_CHOICES), default=None,
+              help="Control layout [pair: corners, strip: ends, block: perimeter].")
+@click.option("--every-k", type=click.IntRange(min=1), default=2, show_default=True,
+              help="every-k, perimeter, sparse-height layouts: control every k models.")
+@click.option("--every-k-kind", type=click.Choice(["Z", "XY", "XYZ"]), default="Z", show_default=True,
+              help="every-k layout: kind of the inner control points.")
+@click.option("--extra-ties", type=click.IntRange(min=0), default=0, show_default=True, help="Random tie points per model.")
+@click.option("--check-points", type=click.IntRange(min=0), default=0, show_default=True, help="Tie points made check points.")
+@click.option("--single-photo-control", type=click.IntRange(0, 2), default=0, show_default=True,
+              help="Full control points seen by one photo only (at the ends of the first strip).")
+@click.option("--sigma-image", type=_Finite(min=0), default=0.005, show_default=True, help="Plate noise (plate units); 0 = noise-free.")
+@click.option("--sigma-control", type=_Finite(min=0), default=0.0, show_default=True,
+              help="Control noise and stated sigma (m); 0 = exact, held fixed.")
+@click.option("--sigma-control-z", type=_Finite(min=0), default=None, help="Control noise in Z (m) [--sigma-control].")
+@click.option("--approx-position-error", type=_Finite(min=0), default=10.0, show_default=True, help="Std of the approximate centres' errors (m).")
+@click.option("--approx-angle-error", type=_Finite(min=0), default=1.0, show_default=True, help="Std of the approximate angles' errors (deg).")
+@click.option("--gnss-sigma", type=_Finite(min=0, min_open=True), default=None, help="Observe the centres by GNSS with this sigma (m).")
+@click.option("--gnss-lever", type=str, default=None, metavar="X,Y,Z",
+              help="A GNSS block (docs/decisions.md): antenna lever arm in the camera frame (m); needs --gnss-sigma.")
+@click.option("--gnss-shift-std", type=_Finite(min=0), default=0.3, show_default=True,
+              help="GNSS block: std of the true per-strip shifts (m).")
+@click.option("--gnss-drift-std", type=_Finite(min=0), default=0.002, show_default=True,
+              help="GNSS block: std of the true per-strip drifts (m/s).")
+@click.option("--gnss-interval", type=_Finite(min=0, min_open=True), default=3.0, show_default=True,
+              help="GNSS block: seconds between exposures (photos.csv time).")
+@click.option("--boresight", type=str, default="0,0,0", show_default=True, metavar="X,Y,Z",
+              help="GNSS block: true boresight rotation vector (deg, camera frame).")
+@click.option("--imu-sigma", type=_Finite(min=0, min_open=True), default=None,
+              help="GNSS block: observe the angles by an IMU with this sigma (deg).")
+@click.option("--lever-arm", "lever_mode", type=click.Choice(["held", "free", "observed"]), default="free",
+              show_default=True, help="GNSS block: how the project states the lever arm.")
+@click.option("--boresight-mode", type=click.Choice(["held", "free", "observed"]), default="held",
+              show_default=True, help="GNSS block: how the project states the boresight.")
+@click.option("--shift", "shift_mode", type=click.Choice(["none", "free", "observed"]), default="free",
+              show_default=True, help="GNSS block: per-strip shift unknowns.")
+@click.option("--drift", "drift_mode", type=click.Choice(["none", "free", "observed"]), default="free",
+              show_default=True, help="GNSS block: per-strip drift unknowns.")
+@click.option("--crs", default=None,
+              help="Make the block on the ellipsoid and write it in this projected CRS (EPSG:326zz or WKT) with "
+                   "project.toml [coordinates]; without it the block is in a local Cartesian frame.")
+@click.option("--heights", type=click.Choice(["ellipsoidal", "orthometric"]), default="ellipsoidal", show_default=True,
+              help="With --crs: the kind of the heights written.")
+@click.option("--geoid-undulation", type=_Finite(min=-200, max=200), default=None,
+              help="With --crs and --heights orthometric: the constant geoid undulation N (m), h = H + N.")
+@click.option("--centre-lat", type=_Finite(min=-80, max=84), default=48.0, show_default=True,
+              help="With --crs: latitude of the block's centre (deg).")
+@click.option("--centre-lon", type=_Finite(min=-180, max=180), default=None,
+              help="With --crs: longitude of the block's centre (deg) [3 deg east of the CRS's central meridian].")
+@click.option("--naive", is_flag=True, default=False,
+              help="With --crs: write the same map coordinates without project.toml [coordinates], so that "
+                   "striptri adjusts them as Cartesian grid coordinates (the flat-Earth comparison).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@reports_errors
+def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_height, heading, relief, attitude_std,
+             position_std, layout, every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image,
+             sigma_control, sigma_control_z, approx_position_error, approx_angle_error, gnss_sigma, gnss_lever,
+             gnss_shift_std, gnss_drift_std, gnss_interval, boresight, imu_sigma, lever_mode, boresight_mode,
+             shift_mode, drift_mode, crs, heights, geoid_undulation, centre_lat, centre_lon, naive, seed):
+    """Write a synthetic KIND project (pair, strip or block) to --out, with its truth in OUT/truth/.
+
+    --control schmid-fig8 is Schmid's worked strip (BRL 961, Fig. 8): 5 photos, 2/3 overlap and his
+    30 points; --photos and --overlap default to those values and may not differ from them."""
+    from striptri import simulate as sim
+    from striptri.io.output import check_output_location
+    from striptri.io.project_writer import write_project
+
+    check_output_location(out_dir)
+    layout = layout or _DEFAULT_LAYOUT[kind]
+    if layout == sim.SCHMID_FIG8:
+        photos, overlap = 5 if photos is None else photos, 2 / 3 if overlap is None else overlap
+    try:
+        design = sim.SyntheticDesign(
+            flight=sim.FlightDesign(
+                n_photos=_DEFAULT_PHOTOS[kind] if photos is None else photos,
+                overlap=_DEFAULT_OVERLAP if overlap is None else overlap,
+                n_strips=_DEFAULT_STRIPS[kind] if strips is None else strips, sidelap=sidelap, alternate=alternate,
+                flying_height=flying_height, heading_deg=heading, attitude_std_deg=(attitude_std,) * 3,
+                position_std_m=(position_std,) * 3,
+            ),
+            terrain=sim.TerrainDesign(relief=relief),
+            points=sim.PointDesign(extra_ties_per_model=extra_ties),
+            control=sim.ControlDesign(
+                layout=layout, every_k=every_k, every_k_kind=every_k_kind,
+                n_check=check_points, n_single_photo=single_photo_control,
+            ),
+        )
+        noise = sim.NoiseOptions(
+            sigma_image=sigma_image, sigma_control_xy=sigma_control,
+            sigma_control_z=sigma_control if sigma_control_z is None else sigma_control_z,
+            approx_position_error=approx_position_error, approx_angle_error=approx_angle_error, sigma_gnss=gnss_sigma,
+        )
+        gnss = None
+        if gnss_lever is not None:
+            if gnss_sigma is None:
+                raise ValueError("--gnss-lever makes a GNSS block: give --gnss-sigma too")
+            gnss = sim.GnssOptions(lever_arm=_triple(gnss_lever, "--gnss-lever"), shift_std=gnss_shift_std,
+                                   drift_std=gnss_drift_std, sigma_gnss=gnss_sigma, interval=gnss_interval,
+                                   boresight=_triple(boresight, "--boresight"), sigma_imu=imu_sigma,
+                                   lever_mode=lever_mode, boresight_mode=boresight_mode, shift_mode=shift_mode,
+                                   drift_mode=drift_mode)
+        project, truth = sim.simulate_project(kind, sim.SimulateOptions(design, noise, gnss), seed)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from exc
+    if crs is not None:
+        project, truth = _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_lat, centre_lon)
+        if naive:
+            project = replace(project, settings=replace(project.settings, coordinates=None))
+    elif heights != "ellipsoidal" or geoid_undulation is not None or centre_lon is not None or naive:
+        raise click.UsageError("--heights, --geoid-undulation, --centre-lon and --naive need --crs")
+    folder = write_project(out_dir, project, truth_tables=truth)
+    click.echo(f"wrote {folder}: {len(project.photos)} photos, {len(project.points)} points, "
+               f"{len(project.image_points)} plate measurements")
+
+
+def _triple(text: str, option: str) -> tuple:
+    """"x,y,z" -> three finite floats (ValueError naming the option)."""
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{option}: expected three numbers x,y,z, got {text!r}")
+    return values
+
+
+def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_lat, centre_lon):
+    """simulate --crs: the project and truth on the ellipsoid, in the CRS (simulate.map_coordinates)."""
+    from striptri.model import CoordinateSettings
+    from striptri.simulate.map_coordinates import central_meridian, to_map_coordinates
+
+    if (heights == "orthometric") != (geoid_undulation is not None):
+        raise click.UsageError("--heights orthometric needs --geoid-undulation, and --geoid-undulation needs "
+                               "--heights orthometric")
+    try:
+        if centre_lon is None:
+            meridian = central_meridian(crs)
+            if meridian is None:
+                raise ValueError(f"{crs!r} has no central meridian: give --centre-lon")
+            centre_lon = meridian + 3.0
+        coordinates = CoordinateSettings(crs=crs, heights=heights, geoid_undulation=geoid_undulation)
+        return to_map_coordinates(project, truth, coordinates, centre_lat, centre_lon)
+    except ValueError as exc:
+        raise click.UsageError(f"--crs: {exc}") from exc
+
+
+# --------------------------------------------------------------------------- striptri adjust
+# (DESIGN section 10: `striptri adjust DIR --out OUT ...`; decorate it with @reports_errors too.)
