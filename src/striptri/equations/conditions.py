@@ -144,16 +144,10 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
     (X, Y, Z given). Derivatives with respect to O and X are RayConditions.d_O and d_X.
     Conditions, in this order:
 
-    * k - 1 coplanarities of consecutive pairs (Schmid 20);
-    * k - 2 scale transfers of consecutive triples (Schmid 93; ``scale_form`` "3d": closest-approach
-      scales, direction-free; "xz": Schmid's projected form (94) ``[2]_2 II_1 + [5]_1 II_2 = 0``,
-      written here as the difference of the two scales);
-    * for a height point, Z of the first pair's intersection equals the given Z (Schmid 18);
-      for a plan point, X and Y of it equal the given X, Y (Schmid 19). The intersection is the
-      point of closest approach on the first ray, ``O_1 + s r_1`` (the "xz" form uses Schmid's
-      mu' of formula 74 instead).
-    * a plan point seen by one photo: the ray meets the vertical through (X, Y) (coplanarity of
-      the ray with that vertical), so that 2k - (3 - d) conditions hold for every k.
+    * k - 1 coplanarities of consecutive pairs (Schmid 20, :func:`pair_coplanarities`);
+    * k - 2 scale transfers of consecutive triples (Schmid 93 or 94, :func:`scale_transfer`);
+    * the conditions of a height or plan point (Schmid 18, 19, :func:`control_conditions`), so
+      that 2k - (3 - d) conditions hold for every k.
 
     The count is 2k - (3 - d) whenever that is positive (DESIGN section 3).
 
@@ -164,19 +158,11 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
     adjustment (docs/decisions.md).
     """
     m, k, _ = r.shape
-    gx, gy, gz = given_axes
-    d = int(gx) + int(gy) + int(gz)
-    rows_g, rows_r, rows_O, rows_X = [], [], [], []
-
-    def new_row():
-        return np.zeros((m, k, 3)), np.zeros((m, k, 3)), np.zeros((m, 3))
-
-    pair_scales = closest_scales if scale_form == "3d" else projected_scales
     if scale_form not in SCALE_FORMS:
         raise ValueError(f"unknown scale form {scale_form!r}")
-
+    rows_g, rows_r, rows_O, rows_X = [], [], [], []
     # the pair conditions, all pairs of a point at once (no loop over the rays of a long track):
-    # chain (i, i + 1), i = 0..k-2, or star (0, j), j = 1..k-1; ``second`` is each pair's second ray
+    # chain (i, i + 1), i = 0..k-2, or star (0, j), j = 1..k-1
     n_pairs = k - 1
     pair = np.arange(n_pairs)
     first = np.zeros(n_pairs, dtype=int) if star else pair
@@ -184,39 +170,91 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
     if n_pairs > 0:
         b = xyz_centre[:, second] - xyz_centre[:, first]  # (m, k - 1, 3)
         r1, r2 = r[:, first], r[:, second]
-        g, dg_b, dg_r1, dg_r2 = coplanarity(b, r1, r2)
-        dr, dO = np.zeros((m, n_pairs, k, 3)), np.zeros((m, n_pairs, k, 3))
-        dr[:, pair, first], dr[:, pair, second] = dg_r1, dg_r2
-        dO[:, pair, first], dO[:, pair, second] = -dg_b, dg_b
+        g, dr, dO = pair_coplanarities(b, r1, r2, first, second, k)
         rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(np.zeros((m, n_pairs, 3)))
-
     if k >= 3:
-        sc, tc, ds, dt = pair_scales(b, r1, r2)  # the scales of every pair: (m, k - 1), derivatives (m, k - 1, 3)
-        q = np.arange(k - 2)
-        dr, dO = np.zeros((m, k - 2, k, 3)), np.zeros((m, k - 2, k, 3))
-        if star:
-            # scale of r_0 from the pair (0, 1) minus its scale from the pair (0, j), j = 2..k-1
-            j = q + 2
-            g = sc[:, :1] - sc[:, 1:]
-            dr[:, q, 0] = ds[1][:, :1] - ds[1][:, 1:]
-            dr[:, q, 1] = ds[2][:, :1]
-            dr[:, q, j] = -ds[2][:, 1:]
-            dO[:, q, 0] = -ds[0][:, :1] + ds[0][:, 1:]
-            dO[:, q, 1] = ds[0][:, :1]
-            dO[:, q, j] = -ds[0][:, 1:]
-        else:
-            # scale of r_i from the pair (i-1, i) (second ray) minus its scale from (i, i+1) (first
-            # ray), i = 1..k-2: pair q = i - 1 gives t, pair q + 1 gives s
-            g = tc[:, :-1] - sc[:, 1:]
-            dr[:, q, q] = dt[1][:, :-1]
-            dr[:, q, q + 1] = dt[2][:, :-1] - ds[1][:, 1:]
-            dr[:, q, q + 2] = -ds[2][:, 1:]
-            dO[:, q, q] = -dt[0][:, :-1]
-            dO[:, q, q + 1] = dt[0][:, :-1] + ds[0][:, 1:]
-            dO[:, q, q + 2] = -ds[0][:, 1:]
+        g, dr, dO = scale_transfer(b, r1, r2, k, scale_form, star)
         rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(np.zeros((m, k - 2, 3)))
+    for g, dr, dO, dX in control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form):
+        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
+    if not rows_g:
+        return RayConditions(np.zeros((m, 0)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, 3)))
+    return RayConditions(
+        np.concatenate(rows_g, 1), np.concatenate(rows_r, 1), np.concatenate(rows_O, 1), np.concatenate(rows_X, 1)
+    )
+
+
+def pair_coplanarities(b, r1, r2, first, second, k: int):
+    """Schmid (20) for the pairs (first[j], second[j]) of a point's k rays: ``g = b . (r1 x r2)``.
+
+    b, r1, r2: (m, p, 3) the pairs' bases O_second - O_first (m) and rays (ground frame).
+    Returns g (m, p) and its derivatives (m, p, k, 3) with respect to each ray and each centre."""
+    m, n_pairs = b.shape[:2]
+    pair = np.arange(n_pairs)
+    g, dg_b, dg_r1, dg_r2 = coplanarity(b, r1, r2)
+    dr, dO = np.zeros((m, n_pairs, k, 3)), np.zeros((m, n_pairs, k, 3))
+    dr[:, pair, first], dr[:, pair, second] = dg_r1, dg_r2
+    dO[:, pair, first], dO[:, pair, second] = -dg_b, dg_b
+    return g, dr, dO
+
+
+def scale_transfer(b, r1, r2, k: int, scale_form: str = "3d", star: bool = False):
+    """Schmid's scale-transfer conditions (93) of a point's k >= 3 rays, one per consecutive triple.
+
+    b, r1, r2: (m, k - 1, 3) the pairs of the chain (i, i + 1) or, star, of the hub (0, j). Chain:
+    the scale of ray i from the pair (i - 1, i) minus its scale from the pair (i, i + 1), i = 1..k-2.
+    Star: the scale of ray 0 from the pair (0, 1) minus its scale from (0, j), j = 2..k-1.
+    ``scale_form`` "3d": the closest-approach scales (closest_scales, direction-free); "xz":
+    Schmid's projected form (94) ``[2]_2 II_1 + [5]_1 II_2 = 0`` (projected_scales), written as the
+    difference of the two scales. Returns g (m, k - 2) and its derivatives (m, k - 2, k, 3) with
+    respect to each ray and each centre (the scales are dimensionless)."""
+    m = b.shape[0]
+    pair_scales = closest_scales if scale_form == "3d" else projected_scales
+    sc, tc, ds, dt = pair_scales(b, r1, r2)  # the scales of every pair: (m, k - 1), derivatives (m, k - 1, 3)
+    q = np.arange(k - 2)
+    dr, dO = np.zeros((m, k - 2, k, 3)), np.zeros((m, k - 2, k, 3))
+    if star:
+        # scale of r_0 from the pair (0, 1) minus its scale from the pair (0, j), j = 2..k-1
+        j = q + 2
+        g = sc[:, :1] - sc[:, 1:]
+        dr[:, q, 0] = ds[1][:, :1] - ds[1][:, 1:]
+        dr[:, q, 1] = ds[2][:, :1]
+        dr[:, q, j] = -ds[2][:, 1:]
+        dO[:, q, 0] = -ds[0][:, :1] + ds[0][:, 1:]
+        dO[:, q, 1] = ds[0][:, :1]
+        dO[:, q, j] = -ds[0][:, 1:]
+    else:
+        # scale of r_i from the pair (i-1, i) (second ray) minus its scale from (i, i+1) (first
+        # ray), i = 1..k-2: pair q = i - 1 gives t, pair q + 1 gives s
+        g = tc[:, :-1] - sc[:, 1:]
+        dr[:, q, q] = dt[1][:, :-1]
+        dr[:, q, q + 1] = dt[2][:, :-1] - ds[1][:, 1:]
+        dr[:, q, q + 2] = -ds[2][:, 1:]
+        dO[:, q, q] = -dt[0][:, :-1]
+        dO[:, q, q + 1] = dt[0][:, :-1] + ds[0][:, 1:]
+        dO[:, q, q + 2] = -ds[0][:, 1:]
+    return g, dr, dO
+
+
+def control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d") -> list:
+    """Schmid's conditions of a height or plan point (18, 19): the given coordinates of the first
+    pair's intersection ``O_1 + s r_1`` (s its scale on the first ray: closest approach, or
+    Schmid's mu' of formula 74 for the "xz" form) equal the given ones, one condition per given
+    axis: Z for a height point (18), X and Y for a plan point (19). A plan point on one photo: its
+    ray meets the vertical through (X, Y) (the coplanarity of the ray with that vertical). A full
+    point (d = 3) or a tie point has none here.
+
+    r, xyz_centre: (m, k, 3); xyz_control: (m, 3) (m); given_axes: three bools (X, Y, Z). Returns a
+    list of (g (m, 1) m, d_r (m, 1, k, 3), d_O (m, 1, k, 3), d_X (m, 1, 3)), one per condition."""
+    m, k, _ = r.shape
+    d = int(given_axes[0]) + int(given_axes[1]) + int(given_axes[2])
+    out = []
+
+    def new_row():
+        return np.zeros((m, k, 3)), np.zeros((m, k, 3)), np.zeros((m, 3))
 
     if d in (1, 2) and k >= 2:
+        pair_scales = closest_scales if scale_form == "3d" else projected_scales
         b = xyz_centre[:, 1] - xyz_centre[:, 0]
         s, _, ds, _ = pair_scales(b, r[:, 0], r[:, 1])
         xyz_meet = xyz_centre[:, 0] + s[:, None] * r[:, 0]  # the first pair's intersection
@@ -232,9 +270,7 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
             dO[:, 0, axis] += 1.0
             dO[:, 1] = r[:, 0, axis, None] * ds[0]
             dX[:, axis] = -1.0
-            rows_g.append(xyz_meet[:, axis, None] - xyz_control[:, axis, None])
-            rows_r.append(dr[:, None]), rows_O.append(dO[:, None])
-            rows_X.append(dX[:, None])
+            out.append((xyz_meet[:, axis, None] - xyz_control[:, axis, None], dr[:, None], dO[:, None], dX[:, None]))
     elif d == 2 and k == 1:
         # the ray and the vertical through (X, Y): coplanarity with b = (X, Y, 0) - O, r2 = e_z
         foot = np.concatenate([xyz_control[:, :2], np.zeros((m, 1))], axis=1)
@@ -244,13 +280,8 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
         dr[:, 0] = dg_r1
         dO[:, 0] = -dg_b
         dX[:, :2] = dg_b[:, :2]
-        rows_g.append(g[:, None]), rows_r.append(dr[:, None]), rows_O.append(dO[:, None]), rows_X.append(dX[:, None])
-
-    if not rows_g:
-        return RayConditions(np.zeros((m, 0)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, 3)))
-    return RayConditions(
-        np.concatenate(rows_g, 1), np.concatenate(rows_r, 1), np.concatenate(rows_O, 1), np.concatenate(rows_X, 1)
-    )
+        out.append((g[:, None], dr[:, None], dO[:, None], dX[:, None]))
+    return out
 
 
 def first_pair_intersection(r, xyz_centre) -> RayConditions:
