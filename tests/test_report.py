@@ -20,6 +20,7 @@ import pytest
 
 from striptri import pipeline
 from striptri.report import html as report
+from striptri.report import page
 from striptri.io.project_reader import read_project
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
@@ -202,10 +203,10 @@ def test_flagged_table_matches_residuals_csv(name, products):
 
 def test_large_projects_show_a_selection(name, products, monkeypatch):
     """Beyond the caps: a few photos get a panel, the photos table lists the first and worst, with a note."""
-    monkeypatch.setattr(report, "MAX_PHOTO_PANELS", 3)
-    monkeypatch.setattr(report, "WORST_PANELS", 2)
-    monkeypatch.setattr(report, "MAX_PHOTO_ROWS", 4)
-    monkeypatch.setattr(report, "PHOTO_ROWS_EACH", 2)
+    monkeypatch.setattr(page, "MAX_PHOTO_PANELS", 3)
+    monkeypatch.setattr(page, "WORST_PANELS", 2)
+    monkeypatch.setattr(page, "MAX_PHOTO_ROWS", 4)
+    monkeypatch.setattr(page, "PHOTO_ROWS_EACH", 2)
     text = report.html_report(products.project, products.result, products.summary, _normalised(name),
                               points=products.points)
     photos = _parse(text).tables["photos"][0]
@@ -219,11 +220,11 @@ def test_large_projects_show_a_selection(name, products, monkeypatch):
 
 def _large_mode(monkeypatch):
     """The drawing of large projects on a small one: rasters and the worst, not every vector and ellipse."""
-    monkeypatch.setattr(report, "MAX_VECTORS", 50)
-    monkeypatch.setattr(report, "WORST_VECTORS", 7)
-    monkeypatch.setattr(report, "MAX_ELLIPSES", 20)
-    monkeypatch.setattr(report, "WORST_ELLIPSES", 5)
-    monkeypatch.setattr(report, "WORST_POINT_ROWS", 4)
+    monkeypatch.setattr(page, "MAX_VECTORS", 50)
+    monkeypatch.setattr(page, "WORST_VECTORS", 7)
+    monkeypatch.setattr(page, "MAX_ELLIPSES", 20)
+    monkeypatch.setattr(page, "WORST_ELLIPSES", 5)
+    monkeypatch.setattr(page, "WORST_POINT_ROWS", 4)
 
 
 def test_large_projects_are_drawn_as_rasters_with_the_worst_on_top(name, products, monkeypatch):

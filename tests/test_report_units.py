@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from striptri.report import figures, html as report
+from striptri.report import figures, html as report, page
 from striptri import pipeline
 from striptri.cli import main
 from striptri.formats import convert
@@ -71,8 +71,8 @@ class _Drawn:
 def _report(products, monkeypatch, large: bool = False) -> tuple[str, _Drawn]:
     drawn = _Drawn(monkeypatch)
     if large:  # the residual field of large projects: a raster of the RMS per cell
-        monkeypatch.setattr(report, "MAX_VECTORS", 10)
-        monkeypatch.setattr(report, "WORST_VECTORS", 4)
+        monkeypatch.setattr(page, "MAX_VECTORS", 10)
+        monkeypatch.setattr(page, "WORST_VECTORS", 4)
     w = products.blunders.w[products.blunders.rows]
     text = report.html_report(products.project, products.result, products.summary, w, points=products.points)
     return text, drawn
@@ -194,9 +194,9 @@ def test_report_of_a_project_in_mm_is_in_micrometres(monkeypatch, large):
 
 def test_residual_unit_is_one_helper():
     """(factor, label) of the residuals per plate unit, and the plate unit named in words."""
-    mm, px = report.RESIDUAL_UNITS["mm"], report.RESIDUAL_UNITS["px"]
+    mm, px = page.RESIDUAL_UNITS["mm"], page.RESIDUAL_UNITS["px"]
     assert (mm.factor, mm.label, mm.plate_words) == (1000.0, "µm", "mm")
     assert (px.factor, px.label, px.plate_words) == (1.0, "px", "pixels")
     assert mm(0.0042) == "4.2" and px(0.42) == "0.42" and mm(None) == px(float("nan")) == "&ndash;"
     assert mm.length(0.005) == "5 µm" and px.length(0.5) == "0.5 px"
-    assert set(report.RESIDUAL_UNITS) == set(PLATE_UNITS)
+    assert set(page.RESIDUAL_UNITS) == set(PLATE_UNITS)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..report.figures import KIND_STYLE
 from ..model import KIND_NAMES, TIE
-from ..report.html import STYLE, run_block  # the adjust report's style: one look for every striptri report
+from ..report.page import STYLE, run_block  # the adjust report's style: one look for every striptri report
 
 
 def _fmt(x, spec: str = ".4g") -> str:

@@ -18,12 +18,8 @@ them).
 
 from __future__ import annotations
 
-import base64
 import html
-import re
 import time
-from pathlib import Path
-from dataclasses import dataclass
 import numpy as np
 
 from . import figures as fig
@@ -34,46 +30,21 @@ from . import film as film_report
 from .gnss import report_tables as gnss_report_tables
 from ..geometry.rotations import RADIANS_PER_UNIT
 from ..geometry.lens import CAMERA_ELEMENTS, CONVENTION_NAMES
-from ..model import CHECK, KIND_NAMES, Project
-from ..precision.residuals import PHOTO_ELEMENTS, W_CRITICAL, camera_correlations
+from ..model import KIND_NAMES, Project
+from ..precision.residuals import PHOTO_ELEMENTS, camera_correlations
 from ..geometry.rotations import angles_from_R
 from ..equations.triangulation import Triangulated
-from ..core.adjusted_points import undetermined_points
+from . import page  # the page's limits, read at call time (tests set them)
+from .page import (
+    SECTIONS, ResidualUnit, _STYLE, _card, _cell, _flag_text, _flags_of, _fmt, _half_format, _img,
+    _photo_statistics, _point_covariance, _section, _table, _without_folders, chi2_quantile, length_unit,
+    residual_unit, run_block,
+)
+from .points import (
+    _cell_statistics, _check_points_section, _flagged_section, _largest_section, _points_section,
+    _rejected_section,
+)
 
-MAX_PHOTO_PANELS = 24  # all photos get a residual panel up to this many; beyond, the worst WORST_PANELS
-WORST_PANELS = 12
-MAX_PHOTO_ROWS = 40  # all photos in the table up to this many; beyond, the first and the worst PHOTO_ROWS_EACH
-PHOTO_ROWS_EACH = 10
-MAX_TABLE_ROWS = 100  # flagged measurements and check points listed at most
-MAX_VECTORS = 10_000  # residual vectors of all photographs drawn up to this many; beyond, a raster and the worst
-WORST_VECTORS = 300
-FIELD_CELLS = 24  # the raster of the residuals over the format: FIELD_CELLS x FIELD_CELLS cells
-MAX_ELLIPSES = 3_000  # error ellipses drawn for every point up to this many points; beyond, rasters and the worst
-WORST_ELLIPSES = 50
-MAP_CELLS = 40  # the rasters over the block: at most this many cells along its longer side
-WORST_POINT_ROWS = 10
-CHECKS_HOLD_BELOW = 1e-6
-
-SECTIONS = {  # id -> heading, in the order of the report
-    "summary": "Summary",
-    "warnings": "Warnings and input not used",
-    "corrections": "Earth curvature and refraction",  # only when [corrections] applied one
-    "checks": "Checks after convergence",
-    "convergence": "Convergence",
-    "residuals": "Residuals on the photographs",
-    "points": "Precision of the ground points",
-    "check-points": "Check points",
-    "flagged": "Flagged measurements",
-    "rejected": "Rejected measurements (gross errors)",
-    "inactive": "Inactive measurements",  # only when image_points.csv has inactive rows
-    "distances": "Distances between points",  # only with distances.csv (striptri.bundle.distances)
-    "largest": "Largest normalised residuals",
-    "photos": "Photographs",
-    "camera": "Camera calibration",
-    "film": "Fiducial marks and calibration report",  # only with scanned film (striptri.film)
-    "gnss": "GNSS and IMU (lever arm, boresight, shift, drift)",
-    "structure": "Structure of the normal matrix",
-}
 
 CHECK_TEXT = {
     "max_condition_misclosure_sigma": "Final check: largest misclosure of a condition at the adjusted observations "
@@ -83,218 +54,6 @@ CHECK_TEXT = {
     "max_point_gradient_sigma": "Largest gradient with respect to a point coordinate, in units of its "
                                 "standard deviation",
 }
-
-_STYLE = """
-:root { --ink: #1d2733; --muted: #5d6d7e; --rule: #d5dbe1; --head: #eef2f6; --accent: #1f4e79; --bad: #c0392b;
-        --good: #1e8449 }
-* { box-sizing: border-box }
-body { font: 15px/1.45 "DejaVu Sans", "Liberation Sans", Helvetica, Arial, sans-serif; color: var(--ink);
-       margin: 0; background: #fafbfc }
-main { max-width: 76em; margin: 0 auto; padding: 1.5em 2em 3em; background: #fff; min-height: 100vh }
-h1 { font-size: 1.6em; margin: 0.2em 0 0.1em; color: var(--accent) }
-h2 { font-size: 1.25em; margin: 2em 0 0.5em; padding-bottom: 0.2em; border-bottom: 2px solid var(--accent) }
-h3 { font-size: 1.02em; margin: 1.2em 0 0.4em }
-p, li { max-width: 62em }
-.sub { color: var(--muted); margin: 0 0 1em; word-break: break-all }
-nav { margin: 1em 0 0.5em; font-size: 0.9em; line-height: 1.9 }
-nav a { color: var(--accent); text-decoration: none; margin-right: 0.4em; padding: 0.1em 0.5em;
-        border: 1px solid var(--rule); border-radius: 3px; white-space: nowrap }
-.cards { display: flex; flex-wrap: wrap; gap: 0.8em; margin: 1em 0 }
-.card { border: 1px solid var(--rule); border-left: 4px solid var(--accent); border-radius: 3px;
-        padding: 0.45em 0.9em; min-width: 10em; background: #fdfefe }
-.card .v { font-size: 1.35em; font-weight: bold }
-.card .k { font-size: 0.8em; color: var(--muted) }
-.card.bad { border-left-color: var(--bad) } .card.good { border-left-color: var(--good) }
-.cols { display: flex; flex-wrap: wrap; gap: 0 2.5em; align-items: flex-start }
-.scroll { overflow-x: auto; max-width: 100% }
-table { border-collapse: collapse; margin: 0.4em 0 1.2em; font-size: 0.88em; font-variant-numeric: tabular-nums }
-td, th { border-bottom: 1px solid var(--rule); padding: 0.22em 0.7em; text-align: right; white-space: nowrap }
-th { background: var(--head); font-weight: 600; border-bottom: 1px solid #aab7c4 }
-td.l, th.l { text-align: left } td.wrap { white-space: normal; text-align: left; max-width: 34em;
-                                         overflow-wrap: anywhere }
-tr.sep td { border-top: 2px solid #aab7c4 } tr.total td { font-weight: bold; background: #f6f8fa }
-table.photos td, table.photos th { padding: 0.15em 0.32em; font-size: 0.86em }
-@media (max-width: 1100px) { main { padding: 1em 1em 2em } }
-.ok { color: var(--good); font-weight: 600 } .no { color: var(--bad); font-weight: 600 }
-.flag { color: var(--bad) } .warn { color: var(--bad) }
-figure { margin: 0.6em 0 1.4em } figure img { max-width: 100%; height: auto; display: block }
-figcaption { color: var(--muted); font-size: 0.88em; margin-top: 0.3em; max-width: 62em }
-.note { color: var(--muted); font-size: 0.88em }
-footer { margin-top: 3em; color: var(--muted); font-size: 0.8em; border-top: 1px solid var(--rule); padding-top: 0.5em }
-@media print { main { max-width: none; padding: 0 } nav { display: none } h2 { break-after: avoid }
-               figure { break-inside: avoid } }
-"""
-
-
-STYLE = _STYLE  # the look of every striptri report (plan, compare)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# small HTML helpers
-
-
-def _fmt(x, spec: str = ".6g") -> str:
-    if x is None:
-        return "&ndash;"
-    if isinstance(x, (bool, np.bool_)):
-        return "yes" if x else "no"
-    if isinstance(x, (int, np.integer)):
-        return str(int(x))
-    if isinstance(x, str):
-        return html.escape(x)
-    if not np.isfinite(x):
-        return "&ndash;"
-    x = float(x)
-    if spec.endswith("f"):  # no "-0.000": round first, then drop the sign of a zero
-        x = round(x, int(spec[1:-1] or 6)) + 0.0
-    return format(x, spec)
-
-
-def _cell(text, cls: str = "", title: str = "") -> tuple:
-    return (text, cls, title)
-
-
-def _table(header, rows, cls: str = "", left: int = 0, row_classes=None, wrap: tuple = ()) -> str:
-    """header: list of column names (HTML); rows: cells as HTML text or (text, class, title);
-    the first ``left`` columns are left-aligned; the columns in ``wrap`` wrap their text (long
-    values: a table must fit the page)."""
-    head = "".join(f"<th{' class=l' if j < left or j in wrap else ''}>{h}</th>" for j, h in enumerate(header))
-    body = []
-    for i, row in enumerate(rows):
-        cells = []
-        for j, c in enumerate(row):
-            text, ccls, title = c if isinstance(c, tuple) else (c, "", "")
-            classes = " ".join(x for x in (("l" if j < left else ""), ("wrap" if j in wrap else ""), ccls) if x)
-            attrs = (f" class='{classes}'" if classes else "") + (f" title='{html.escape(title)}'" if title else "")
-            cells.append(f"<td{attrs}>{text}</td>")
-        rc = row_classes[i] if row_classes else ""
-        body.append(f"<tr{f' class={rc}' if rc else ''}>" + "".join(cells) + "</tr>")
-    return (f"<div class='scroll'><table{f' class={cls}' if cls else ''}><tr>{head}</tr>"
-            + "".join(body) + "</table></div>")
-
-
-def _img(png: bytes, alt: str, caption: str = "") -> str:
-    data = base64.b64encode(png).decode("ascii")
-    cap = f"<figcaption>{caption}</figcaption>" if caption else ""
-    return f"<figure><img alt='{html.escape(alt)}' src='data:image/png;base64,{data}'>{cap}</figure>"
-
-
-def _section(key: str) -> str:
-    return f"<h2 id='{key}'>{SECTIONS[key]}</h2>"
-
-
-def _card(value: str, label: str, cls: str = "") -> str:
-    return f"<div class='card {cls}'><div class='v'>{value}</div><div class='k'>{label}</div></div>"
-
-
-@dataclass(frozen=True)
-class ResidualUnit:
-    """How the report shows plate residuals, from the project's plate unit ([units] plate): a
-    residual of v plate units is shown as ``v * factor`` ``label``, with ``spec`` digits.
-
-    plate: "mm" or "px" (model.PLATE_UNITS), the unit of the plate coordinates and of c;
-    plate_words: that unit in a sentence. A plate in mm has its residuals in micrometres of the
-    plate (factor 1000), one in pixels keeps pixels (factor 1)."""
-
-    plate: str
-    plate_words: str
-    factor: float
-    label: str
-    spec: str
-
-    def __call__(self, v) -> str:
-        """A residual (plate units; None or nan: a dash) as text in this unit."""
-        return _fmt(None if v is None else self.factor * v, self.spec)
-
-    def length(self, v: float) -> str:
-        """A length v (plate units) for a scale bar: "5 µm", "0.5 px"."""
-        return f"{v * self.factor:g} {self.label}"
-
-
-RESIDUAL_UNITS = {
-    "mm": ResidualUnit(plate="mm", plate_words="mm", factor=1000.0, label="µm", spec=".1f"),
-    "px": ResidualUnit(plate="px", plate_words="pixels", factor=1.0, label="px", spec=".2f"),
-}
-
-
-def residual_unit(project: Project) -> ResidualUnit:
-    """The ResidualUnit of project's plate unit (ProjectSettings.plate_unit)."""
-    return RESIDUAL_UNITS[project.settings.plate_unit]
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# quantities the report shows (computed here from the result; nothing is read back from files)
-
-
-def _flags_of(flags, w: np.ndarray) -> np.ndarray:
-    """Boolean (m,) flags: the given array (bool, or residuals.csv's "flag" strings, non-empty =
-    flagged), else residuals.csv's rule |w| > W_CRITICAL for the larger normalised residual."""
-    if flags is None:
-        return np.nan_to_num(np.abs(w), nan=0.0).max(axis=1) > W_CRITICAL
-    flags = np.asarray(flags)
-    if flags.dtype.kind in "USO":
-        return np.char.str_len(np.char.strip(flags.astype(str))) > 0 if len(flags) else np.zeros(0, dtype=bool)
-    return flags.astype(bool)
-
-
-def _flag_text(flags) -> str:
-    rule = f"suspect, |w| &gt; {W_CRITICAL} (Baarda, &alpha;<sub>0</sub> = 0.001)"
-    if flags is None:
-        return rule
-    flags = np.asarray(flags)
-    if flags.dtype.kind in "USO":
-        values = sorted(set(np.char.strip(np.unique(flags.astype(str))).tolist()) - {""})
-        if set(values) <= {"suspect"}:
-            return rule + " as in residuals.csv"
-        return "flagged " + ", ".join(html.escape(v) for v in values)
-    return "flagged"
-
-
-def _photo_statistics(project: Project, v: np.ndarray, absw: np.ndarray, flagged: np.ndarray) -> dict:
-    """Per photo: number of measurements, RMS of vx and vy, largest |w|, number flagged."""
-    n = len(project.photos)
-    ph = project.image_points.photo_index
-    count = np.bincount(ph, minlength=n)
-    safe = np.maximum(count, 1)
-    rms = np.sqrt(np.stack([np.bincount(ph, v[:, a] ** 2, n) for a in range(2)], axis=1) / safe[:, None])
-    wmax = np.zeros(n)
-    np.maximum.at(wmax, ph, absw)
-    return {"count": count, "rms": np.where(count[:, None] > 0, rms, np.nan), "wmax": wmax,
-            "flagged": np.bincount(ph, flagged.astype(float), n).astype(int)}
-
-
-def _kind_names(kind: np.ndarray) -> np.ndarray:
-    """(n,) names of KIND_NAMES for the (n,) kind codes."""
-    codes = np.array(sorted(KIND_NAMES))
-    names = np.array([KIND_NAMES[c] for c in codes])
-    return names[np.searchsorted(codes, np.asarray(kind, dtype=int))] if len(kind) else np.zeros(0, dtype=names.dtype)
-
-
-def _point_covariance(result: AdjustmentResult, points: Triangulated) -> np.ndarray:
-    """(n_pt, 3, 3) covariance of the triangulated points in m^2, as in points.csv (Schmid 90)."""
-    cov = (points.cov_measurement + points.cov_orientation) * result.sigma0_for_precision**2
-    return np.where(points.determined[:, None, None], cov, np.nan)
-
-
-def _half_format(xy: np.ndarray) -> float:
-    """Half the side of a square about the principal point that holds every measurement, rounded up."""
-    r = float(np.nanmax(np.abs(xy))) if len(xy) else 1.0
-    step = fig.nice_number(r / 10)
-    return float(np.ceil(r * 1.02 / step) * step)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# sections
-
-
-def chi2_quantile(p: np.ndarray, dof: float) -> np.ndarray:
-    """Quantiles of the chi-square distribution with dof degrees of freedom: 2 P^-1(dof/2, p), the
-    inverse regularised lower incomplete gamma function (what scipy.stats.chi2.ppf computes),
-    without importing scipy.stats (half a second)."""
-    from scipy.special import gammaincinv
-
-    return 2.0 * gammaincinv(dof / 2.0, p)
-
 
 def _summary_section(project: Project, result: AdjustmentResult, summary: dict, flagged: np.ndarray) -> list[str]:
     s0, r = summary["sigma0"], summary["redundancy"]
@@ -366,55 +125,6 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         "<div><h3>Timings (s)</h3>" + _table(["step", "seconds"], timings, left=1) + "</div>",
         "</div>",
     ]
-
-
-def length_unit(values) -> tuple[float, str]:
-    """The unit that shows mean errors and differences ``values`` (metres) with three decimals:
-    (factor, name), mm where metres would print 0.000 for most of them (close range), else m."""
-    a = np.abs(np.asarray(values, dtype=float)).ravel()
-    a = a[np.isfinite(a) & (a > 0)]
-    if len(a) and np.median(a) < 0.01:
-        return 1000.0, "mm"
-    return 1.0, "m"
-
-
-def run_block(summary: dict) -> str:
-    """The run's metadata (summary.json ``version``, ``started``, ``project``, ``options``): which
-    striptri made the result, when, from what, with which options. Empty without them."""
-    if "version" not in summary:
-        return ""
-    options = summary.get("options") or {}
-    chosen = "; ".join(f"{html.escape(str(k).replace('_', ' '))} {html.escape(_option_text(v))}"
-                       for k, v in options.items())
-    project = summary.get("project")
-    cells = [f"striptri {html.escape(str(summary['version']))}",
-             f"started {html.escape(str(summary.get('started')))}"]
-    if project:
-        name = html.escape(Path(project).name or project)
-        cells.append(f"project <span title='{html.escape(project)}'>{name}</span>")
-    return (f"<p class='sub run'>{' &middot; '.join(cells)}</p>"
-            + (f"<p class='note run'>Options: {chosen}</p>" if chosen else ""))
-
-
-def _option_text(value) -> str:
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, (list, tuple)):
-        return ", ".join(map(str, value))
-    return str(value)
-
-
-_PATH = re.compile(r"(/[^\s,;()]+)+/([^\s,;()/]+)")
-
-
-def _without_folders(text) -> tuple | str:
-    """A value that names files (the BLAS library) by their names alone, the full text as the cell's
-    title: folders (a user's venv) make a line too long for the page and say nothing to the reader."""
-    if text is None:
-        return _fmt(None)
-    full = str(text)
-    short = _PATH.sub(lambda m: m.group(2), full)
-    return (html.escape(short), "", full) if short != full else html.escape(full)
 
 
 TERMINATION_WORDS = {
@@ -507,13 +217,13 @@ def _inactive_section(summary: dict, unit: "ResidualUnit") -> list[str]:
 def _checks_section(summary: dict) -> list[str]:
     rows = []
     for k, v in summary["checks"].items():
-        holds = v is not None and abs(v) < CHECKS_HOLD_BELOW
+        holds = v is not None and abs(v) < page.CHECKS_HOLD_BELOW
         mark = "<span class='ok'>holds</span>" if holds else "<span class='no'>fails</span>"
         rows.append((CHECK_TEXT.get(k, html.escape(k)), _fmt(v, ".2e"), mark))
     return [
         _section("checks"),
         "<p>After the last iteration the adjustment is checked as Schmid prescribes; every value should "
-        f"vanish to rounding (here: below {CHECKS_HOLD_BELOW:g}).</p>",
+        f"vanish to rounding (here: below {page.CHECKS_HOLD_BELOW:g}).</p>",
         _table(["check", "value", ""], [((t, "wrap", ""), v, m) for t, v, m in rows], left=1),
     ]
 
@@ -579,11 +289,11 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
         "plates are exact.</p>" if vanish else "",
     ]
     order = np.argsort(-(stats["flagged"] * 1e6 + np.nan_to_num(np.hypot(*stats["rms"].T))), kind="stable")
-    if n_ph <= MAX_PHOTO_PANELS:
+    if n_ph <= page.MAX_PHOTO_PANELS:
         shown, what = np.arange(n_ph), "every photograph"
     else:
-        shown = order[:WORST_PANELS]
-        what = (f"the {WORST_PANELS} photographs with the most flagged measurements and the largest RMS residual "
+        shown = order[:page.WORST_PANELS]
+        what = (f"the {page.WORST_PANELS} photographs with the most flagged measurements and the largest RMS residual "
                 f"(of {n_ph}; residuals.csv lists all)")
     rows_of = np.argsort(ip.photo_index, kind="stable")
     bounds = np.searchsorted(ip.photo_index[rows_of], np.arange(n_ph + 1))
@@ -608,293 +318,27 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
         right = (f" Right: the mean residual in each cell of a {cells} &times; {cells} grid (x{mag2:g}); a regular "
                  "pattern there points to a systematic image error (lens distortion, film deformation) rather than "
                  "noise.")
-    if len(xy) <= MAX_VECTORS:
+    if len(xy) <= page.MAX_VECTORS:
         png = fig.plate_residuals_stacked(xy, v, flagged, h, mag_all, bar_all, unit.length(bar_all), cell_means,
                                           plate_unit=unit.plate)
         left = f"the residuals of all photographs drawn over one format (x{mag_all:g})."
     else:  # a raster of the RMS residual per cell, and the worst vectors on top
-        _, ms, count = _cell_statistics(xy, length[:, None] ** 2, h, FIELD_CELLS)
-        rms = np.where(count > 0, np.sqrt(ms[:, 0]), np.nan).reshape(FIELD_CELLS, FIELD_CELLS)
-        worst = np.argsort(-(flagged * (1.0 + absw.max(initial=0.0)) + absw), kind="stable")[:WORST_VECTORS]
+        _, ms, count = _cell_statistics(xy, length[:, None] ** 2, h, page.FIELD_CELLS)
+        rms = np.where(count > 0, np.sqrt(ms[:, 0]), np.nan).reshape(page.FIELD_CELLS, page.FIELD_CELLS)
+        worst = np.argsort(-(flagged * (1.0 + absw.max(initial=0.0)) + absw), kind="stable")[:page.WORST_VECTORS]
         mag_w = min(mag_all, fig.nice_number(0.3 * h / max(float(length[worst].max()), 1e-300)))
         bar_w = fig.nice_number(0.3 * h / mag_w)
         png = fig.plate_residuals_stacked(xy[worst], v[worst], flagged[worst], h, mag_w, bar_w, unit.length(bar_w),
                                           cell_means, field=(rms * unit.factor, unit.label, len(xy)),
                                           plate_unit=unit.plate)
-        left = (f"the RMS length of the residuals of all {len(xy)} measurements in each cell of a {FIELD_CELLS} "
-                f"&times; {FIELD_CELLS} grid over the format ({unit.label}; white: no measurement), and on top the "
+        left = (f"the RMS length of the residuals of all {len(xy)} measurements in each cell of a {page.FIELD_CELLS} "
+                f"&times; {page.FIELD_CELLS} grid over the format ({unit.label}; white: no measurement), and on top the "
                 f"{len(worst)} with the largest normalised residual |w| (<span class='flag'>red</span>: flagged), "
                 f"drawn x{mag_w:g}.")
     caption = ("Left: " + left + right) if right else left[:1].upper() + left[1:]
     parts.append("<h3>All photographs over one format</h3>")
     parts.append(_img(png, "residual vectors of all photographs", caption))
     return parts
-
-
-def _cell_statistics(xy: np.ndarray, values: np.ndarray, h: float, cells: int):
-    """Means of values (m, k) per cell of a cells x cells grid over [-h, h]^2 (row-major from the
-    lower left; points outside go to the border cells) -> (centres (cells^2, 2), means (cells^2, k),
-    counts (cells^2,))."""
-    edges = np.linspace(-h, h, cells + 1)
-    ix = np.clip(np.searchsorted(edges, xy[:, 0]) - 1, 0, cells - 1)
-    iy = np.clip(np.searchsorted(edges, xy[:, 1]) - 1, 0, cells - 1)
-    cell = iy * cells + ix
-    counts = np.bincount(cell, minlength=cells * cells)
-    sums = np.stack([np.bincount(cell, values[:, a], cells * cells) for a in range(values.shape[1])], axis=1)
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    cx, cy = np.meshgrid(centres, centres)
-    return np.column_stack([cx.ravel(), cy.ravel()]), sums / np.maximum(counts, 1)[:, None], counts
-
-
-def _points_section(project: Project, result: AdjustmentResult, points: Triangulated, cov: np.ndarray) -> list[str]:
-    pts = project.points
-    xyz = points.xyz + result.offset
-    kind_names = _kind_names(pts.kind)
-    centres = result.state.xyz0 + result.offset
-    sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
-    a = np.sqrt(np.maximum(np.linalg.eigvalsh(np.nan_to_num(cov[:, :2, :2]))[:, 1], 0.0))
-    a = np.where(points.determined, a, np.nan)
-    pos = np.isfinite(a) & (a > 0)
-    every = np.concatenate([xyz[points.determined, :2], centres[:, :2]])
-    span = np.ptp(every, axis=0)
-    extent = float(span.max())
-    n_determined = int(points.determined.sum())
-    spacing = float(np.sqrt(max(span[0] * span[1], extent**2 / 100) / max(n_determined, 1)))
-    typical = float(np.median(a[pos])) if pos.any() else 1.0
-    # a typical ellipse 1.5 % of the block across, or a third of the mean point spacing in dense blocks
-    mag = fig.nice_number(min(0.015 * extent, 0.35 * spacing) / typical)
-    bar = fig.nice_number(0.12 * extent / mag)
-    bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
-    worst_table = ""
-    if n_determined <= MAX_ELLIPSES:
-        strips = fig.flies_strips(result.state.R_ground_from_cam)
-        png = fig.error_ellipses(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, cov[:, :2, :2],
-                                 mag, bar, bar_label, labels=pts.ids, flight_lines=strips)
-        stations = ("projection centres (+) along their flight lines (arrow: direction of flight)" if strips else
-                    "camera stations (+; convergent photographs, no flight lines)")
-        figure = _img(png, "error ellipses of the ground points",
-                      f"Plan view of the block: {stations}, ground points coloured by kind, control as triangles. "
-                      f"Around every point its "
-                      f"horizontal standard error ellipse (1 &sigma;, from the X, Y part of its covariance), "
-                      f"magnified <b>{mag:g} times</b>; the bar is {bar_label} of error. Fixed control has no "
-                      f"ellipse.")
-    else:
-        figure, worst_table = _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every,
-                                             extent, spacing)
-    rows = []
-    factor, unit = length_unit(sig[points.determined])
-    for k in sorted(KIND_NAMES):
-        sel = (pts.kind == k) & points.determined
-        if not sel.any():
-            continue
-        s = sig[sel] * factor
-        rows.append([KIND_NAMES[k], str(int(sel.sum()))] + [_fmt(x, ".3f") for x in np.nanmean(s, axis=0)]
-                    + [_fmt(x, ".3f") for x in np.nanmax(s, axis=0)])
-    n_undet = int((~points.determined).sum())
-    return [
-        _section("points"),
-        figure,
-        f"<h3>Mean errors by kind ({unit})</h3>",
-        _table(["kind", "points", "mean &sigma;X", "mean &sigma;Y", "mean &sigma;Z", "max &sigma;X", "max &sigma;Y",
-                "max &sigma;Z"], rows, left=1),
-        f"<p class='note'>{n_undet} points could not be determined.</p>" if n_undet else "",
-        worst_table,
-    ]
-
-
-def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every, extent, spacing):
-    """The error ellipses of a large block summarised: rasters of the RMS horizontal (semi-major
-    axis) and vertical error per cell of a grid over the block, the WORST_ELLIPSES worst drawn on
-    top, and a table of the WORST_POINT_ROWS points with the largest error. -> (figure, table) HTML."""
-    pts = project.points
-    lo, hi = every.min(axis=0), every.max(axis=0)
-    cell = max(extent / MAP_CELLS, 4.0 * spacing, 1e-9)  # about 16 points per cell at least
-    nx, ny = (int(v) for v in np.maximum(np.ceil((hi - lo) / cell), 1))
-    grid_extent = (lo[0], lo[0] + nx * cell, lo[1], lo[1] + ny * cell)
-    sz = np.where(points.determined, sig[:, 2], np.nan)
-    pos_z = np.isfinite(sz) & (sz > 0)
-
-    def rms_grid(values, sel):
-        ix = np.clip(((xyz[sel, 0] - lo[0]) / cell).astype(int), 0, nx - 1)
-        iy = np.clip(((xyz[sel, 1] - lo[1]) / cell).astype(int), 0, ny - 1)
-        k = iy * nx + ix
-        count = np.bincount(k, minlength=nx * ny)
-        ms = np.bincount(k, values[sel] ** 2, nx * ny) / np.maximum(count, 1)
-        return np.where(count > 0, np.sqrt(ms), np.nan).reshape(ny, nx)
-
-    grid_h, grid_z = rms_grid(a, pos), rms_grid(sz, pos_z)
-    worst_h = np.flatnonzero(pos)[np.argsort(-a[pos], kind="stable")[:WORST_ELLIPSES]]
-    worst_z = np.flatnonzero(pos_z)[np.argsort(-sz[pos_z], kind="stable")[:WORST_ELLIPSES]]
-    largest = float(a[worst_h[0]]) if len(worst_h) else 1.0
-    mag = fig.nice_number(0.03 * extent / largest)  # the largest ellipse 6 % of the block across
-    bar = fig.nice_number(0.12 * extent / mag)
-    bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
-    finite = np.concatenate([grid_h[np.isfinite(grid_h)], grid_z[np.isfinite(grid_z)]])
-    unit, scale = ("cm", 100.0) if len(finite) == 0 or np.percentile(finite, 99) < 1.0 else ("m", 1.0)
-    strips = fig.flies_strips(project.photos.R_ground_from_cam)
-    png = fig.precision_map(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names,
-                            grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
-                            mag, bar, bar_label, flight_lines=strips)
-    n_shown = int(pos.sum())
-    n_strips = len(set(project.photos.strip_ids))
-    lines = " with its flight lines" if strips and n_strips <= fig.MAP_FLIGHT_LINES else ""
-    figure = _img(png, "precision of the ground points over the block",
-                  f"Plan view of the block{lines} and control (full control: red triangles, plan: orange, height: "
-                  f"green, check points: purple diamonds). With {n_shown} error ellipses too many to draw one by "
-                  f"one, each cell of a {nx} &times; {ny} grid ({cell:.4g} m a side) is coloured by the quadratic "
-                  f"mean over its points of, left, the semi-major axis of the horizontal standard error ellipse "
-                  f"(1 &sigma;) and, right, &sigma;Z ({unit}; white: no point; the colour scale runs from the 1st "
-                  f"to the 99th percentile of the cells). On top, left: the error ellipses of the {len(worst_h)} "
-                  f"points with the largest, magnified <b>{mag:g} times</b> (the bar is {bar_label} of error); "
-                  f"right: the {len(worst_z)} points with the largest &sigma;Z, circled. Fixed control has no "
-                  f"error.")
-    total = np.where(points.determined, np.sqrt(np.sum(sig**2, axis=1)), np.nan)
-    finite_total = np.flatnonzero(np.isfinite(total))
-    worst = finite_total[np.argsort(-total[finite_total], kind="stable")[:WORST_POINT_ROWS]]
-    rays = np.bincount(project.image_points.point_index, minlength=len(pts))
-    factor, unit = length_unit(sig[worst])
-    rows = [[html.escape(pts.ids[i]), kind_names[i], str(rays[i])] + [_fmt(x, ".2f") for x in xyz[i]]
-            + [_fmt(x * factor, ".3f") for x in sig[i]] + [_fmt(a[i] * factor, ".3f")] for i in worst]
-    table = (f"<h3>The {len(worst)} points with the largest mean error</h3>"
-             f"<p class='note'>Sorted by &radic;(&sigma;X&sup2; + &sigma;Y&sup2; + &sigma;Z&sup2;), of "
-             f"{len(finite_total)} determined points (coordinates in m, mean errors in {unit}); points.csv lists "
-             "all.</p>"
-             + _table(["point", "kind", "rays", "X", "Y", "Z", "&sigma;X", "&sigma;Y", "&sigma;Z",
-                       "semi-major axis"], rows, left=2))
-    return figure, table
-
-
-def _check_points_section(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
-                          summary: dict) -> list[str]:
-    pts = project.points
-    flagged = undetermined_points(project, points)
-    sel = np.flatnonzero((pts.kind == CHECK) & points.determined & ~flagged)
-    out = np.flatnonzero((pts.kind == CHECK) & flagged)
-    parts = [_section("check-points")]
-    left_out = _left_out_check_points(project, result, points, sig, out)
-    if len(sel) == 0:
-        return parts + ["<p>The project has no check points.</p>" if not len(out) else
-                        "<p>No check point is determined by its rays.</p>"] + left_out
-    d = points.xyz[sel] + result.offset - pts.xyz_given[sel]
-    f, unit = length_unit(np.concatenate([d.ravel(), sig[sel].ravel()]))
-    rows = [[html.escape(pts.ids[i])] + [_fmt(x * f, ".3f") for x in d[j]] + [_fmt(x * f, ".3f") for x in sig[i]]
-            for j, i in enumerate(sel[:MAX_TABLE_ROWS])]
-    classes = [""] * len(rows)
-    mean = d.mean(axis=0)
-    rows.append(["mean"] + [_fmt(x * f, ".3f") for x in mean] + ["", "", ""])
-    cp = summary["check_points"]
-    rms = [cp["rms_X"], cp["rms_Y"], cp["rms_Z"]]  # summary.json's values (m), in full in the cell's title
-    rows.append(["RMS"] + [_cell(_fmt(x * f, ".3f"), "", repr(float(x))) for x in rms]
-                + [_fmt(x * f, ".3f") for x in np.sqrt(np.nanmean(sig[sel] ** 2, axis=0))])
-    classes += ["sep", "total"]
-    note = (f"<p class='note'>The first {MAX_TABLE_ROWS} of {len(sel)} check points; points.csv lists all.</p>"
-            if len(sel) > MAX_TABLE_ROWS else "")
-    return parts + [
-        f"<p>{len(sel)} check points were adjusted as tie points and compared with their given coordinates "
-        f"afterwards: d = adjusted &minus; given ({unit}), beside the mean error of the adjusted point. The RMS row of "
-        "&sigma; is the quadratic mean of the mean errors, to compare with the RMS of d.</p>",
-        _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1, row_classes=classes),
-        note,
-    ] + left_out
-
-
-def _left_out_check_points(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
-                           idx: np.ndarray) -> list[str]:
-    """The check points left out of the statistics because their rays do not determine them."""
-    if not len(idx):
-        return []
-    pts = project.points
-    d = points.xyz[idx] + result.offset - pts.xyz_given[idx]
-    rows = [[html.escape(pts.ids[i])] + [_fmt(x, ".3f") for x in d[j]] + [_fmt(x, ".3f") for x in sig[i]]
-            for j, i in enumerate(idx[:MAX_TABLE_ROWS])]
-    return [
-        f"<p class='warn'>{len(idx)} check point{'s were' if len(idx) > 1 else ' was'} left out of the statistics: "
-        f"the measurements left to {'them' if len(idx) > 1 else 'it'} do not determine "
-        f"{'them' if len(idx) > 1 else 'it'} (rays nearly parallel, one ray left, or coordinates lost to rejected "
-        "measurements; flag <i>undetermined</i> in points.csv). Their differences say nothing of the block's "
-        "accuracy:</p>",
-        _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1),
-    ]
-
-
-def _measurement_rows(project: Project, result: AdjustmentResult, w: np.ndarray, rows_idx) -> list:
-    ip = project.image_points
-    unit = residual_unit(project)
-    out = []
-    for i in rows_idx:
-        wi = w[i]
-        out.append([html.escape(project.photos.ids[ip.photo_index[i]]),
-                    html.escape(project.points.ids[ip.point_index[i]]),
-                    KIND_NAMES[int(project.points.kind[ip.point_index[i]])],
-                    _fmt(ip.xy[i, 0], ".3f"), _fmt(ip.xy[i, 1], ".3f"),
-                    unit(result.plate_residuals[i, 0]), unit(result.plate_residuals[i, 1]),
-                    _fmt(wi[0], ".2f"), _fmt(wi[1], ".2f")])
-    return out
-
-
-def _measurement_header(unit: ResidualUnit) -> list[str]:
-    """Column names of a table of _measurement_rows: plate coordinates and residuals in their units."""
-    return ["photo", "point", "kind", f"x ({unit.plate})", f"y ({unit.plate})", f"v<sub>x</sub> ({unit.label})",
-            f"v<sub>y</sub> ({unit.label})", "w<sub>x</sub>", "w<sub>y</sub>"]
-
-
-def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
-    idx = np.flatnonzero(flagged)
-    idx = idx[np.argsort(-absw[idx], kind="stable")]
-    parts = [_section("flagged")]
-    if len(idx) == 0:
-        return parts + [f"<p>No measurement is flagged ({flag_text}).</p>"]
-    note = (f"<p class='note'>The {MAX_TABLE_ROWS} with the largest |w| of {len(idx)}; residuals.csv lists all.</p>"
-            if len(idx) > MAX_TABLE_ROWS else "")
-    return parts + [
-        f"<p>{len(idx)} measurement{'s' if len(idx) != 1 else ''} flagged ({flag_text}), largest |w| first. "
-        "w is the normalised residual "
-        "v / (&sigma; &radic;q<sub>vv</sub>) of Baarda's data snooping.</p>",
-        _table(_measurement_header(residual_unit(project)), _measurement_rows(project, result, w, idx[:MAX_TABLE_ROWS]),
-               left=3),
-        note,
-    ]
-
-
-def _rejected_section(summary: dict) -> list[str]:
-    """summary["blunders"]["groups"] (reliability.rejections): per rejected group its members, w, MDB
-    and effect on the ground."""
-    groups = (summary.get("blunders") or {}).get("groups") or []
-    parts = [_section("rejected")]
-    if not groups:
-        return parts + ["<p>No measurement was rejected.</p>"]
-
-    def num(v, fmt):
-        return "&ndash;" if v is None else format(v, fmt)
-
-    rows = []
-    for g in groups[:MAX_TABLE_ROWS]:
-        effect = g["ground_effect"]
-        rows.append([
-            html.escape(g["point_id"]), html.escape(", ".join(g["photo_ids"])),
-            "found" if g["localised"] else "<span class='flag'>detected, not localisable</span>",
-            g["coordinate"], f"{g['w']:.1f}", num(g["mdb"], ".4g"), num(g["bias_to_noise"], ".1f"),
-            "point drops out" if effect is None else " ".join(f"{v:+.3f}" for v in effect),
-        ])
-    note = (f"<p class='note'>The first {MAX_TABLE_ROWS} of {len(groups)}; summary.json lists all.</p>"
-            if len(groups) > MAX_TABLE_ROWS else "")
-    return parts + [
-        f"<p>{len(groups)} group{'s' if len(groups) != 1 else ''} rejected, in the order of rejection. A group of "
-        "several photographs: their w-tests cannot be told apart (correlated beyond separability), the gross error "
-        "is detected but not localised and all were rejected. w, MDB (plate units) and the bias-to-noise ratio "
-        "(external reliability) of the tested coordinate when it was rejected; effect on the ground: what the "
-        "group's measurements would have moved their point (X Y Z, m) had they been kept.</p>",
-        _table(["point", "photos", "outcome", "coordinate", "w", "MDB", "bias / noise", "effect on the ground (m)"],
-               rows, left=3),
-        note,
-    ]
-
-
-def _largest_section(project, result, w, absw, n: int = 15) -> list[str]:
-    worst = np.argsort(-absw, kind="stable")[:n]
-    return [_section("largest"),
-            f"<p>The {len(worst)} measurements with the largest normalised residual, flagged or not.</p>",
-            _table(_measurement_header(residual_unit(project)), _measurement_rows(project, result, w, worst), left=3)]
 
 
 def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> list[str]:
@@ -908,14 +352,14 @@ def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> 
     sig_ang = sig_ang * per_rad
     n = len(project.photos)
     worst_key = np.nan_to_num(sig_xyz.max(axis=1), nan=np.inf)
-    if n <= MAX_PHOTO_ROWS:
+    if n <= page.MAX_PHOTO_ROWS:
         shown, classes, note = np.arange(n), None, ""
     else:
-        first = np.arange(PHOTO_ROWS_EACH)
-        worst = np.array([p for p in np.argsort(-worst_key, kind="stable") if p >= PHOTO_ROWS_EACH][:PHOTO_ROWS_EACH])
+        first = np.arange(page.PHOTO_ROWS_EACH)
+        worst = np.array([p for p in np.argsort(-worst_key, kind="stable") if p >= page.PHOTO_ROWS_EACH][:page.PHOTO_ROWS_EACH])
         shown = np.concatenate([first, worst])
-        classes = [""] * PHOTO_ROWS_EACH + ["sep"] + [""] * (len(worst) - 1)
-        note = (f"<p class='note'>The first {PHOTO_ROWS_EACH} photographs, then (below the line) the "
+        classes = [""] * page.PHOTO_ROWS_EACH + ["sep"] + [""] * (len(worst) - 1)
+        note = (f"<p class='note'>The first {page.PHOTO_ROWS_EACH} photographs, then (below the line) the "
                 f"{len(worst)} others with the largest mean error of the projection centre, of {n}; "
                 "photos.csv lists all.</p>")
     rows = []

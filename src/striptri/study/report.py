@@ -11,7 +11,7 @@ import numpy as np
 
 from striptri import __version__
 from striptri.report.figures import png_of, plt
-from striptri.report.html import STYLE as REPORT_STYLE
+from striptri.report.page import STYLE as REPORT_STYLE
 from striptri.study.growth import GROWTH_COLUMNS, PRECISION_COLUMNS, end_errors
 from striptri.study.options import METHOD_LABELS, METHOD_SPECS
 

@@ -1,0 +1,285 @@
+"""report.html's sections on the points and measurements: the ground points with their error
+ellipses (or their rasters), the check points and those left out, the flagged, rejected and
+largest measurements."""
+
+from __future__ import annotations
+
+import html
+import numpy as np
+
+from . import figures as fig
+from ..core.result import AdjustmentResult
+from ..model import CHECK, KIND_NAMES, Project
+from ..equations.triangulation import Triangulated
+from ..core.adjusted_points import undetermined_points
+from . import page  # the page's limits, read at call time (tests set them)
+from .page import (
+    ResidualUnit, _cell, _fmt, _img, _kind_names, _section, _table, length_unit, residual_unit,
+)
+
+
+
+def _cell_statistics(xy: np.ndarray, values: np.ndarray, h: float, cells: int):
+    """Means of values (m, k) per cell of a cells x cells grid over [-h, h]^2 (row-major from the
+    lower left; points outside go to the border cells) -> (centres (cells^2, 2), means (cells^2, k),
+    counts (cells^2,))."""
+    edges = np.linspace(-h, h, cells + 1)
+    ix = np.clip(np.searchsorted(edges, xy[:, 0]) - 1, 0, cells - 1)
+    iy = np.clip(np.searchsorted(edges, xy[:, 1]) - 1, 0, cells - 1)
+    cell = iy * cells + ix
+    counts = np.bincount(cell, minlength=cells * cells)
+    sums = np.stack([np.bincount(cell, values[:, a], cells * cells) for a in range(values.shape[1])], axis=1)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    cx, cy = np.meshgrid(centres, centres)
+    return np.column_stack([cx.ravel(), cy.ravel()]), sums / np.maximum(counts, 1)[:, None], counts
+
+
+def _points_section(project: Project, result: AdjustmentResult, points: Triangulated, cov: np.ndarray) -> list[str]:
+    pts = project.points
+    xyz = points.xyz + result.offset
+    kind_names = _kind_names(pts.kind)
+    centres = result.state.xyz0 + result.offset
+    sig = np.sqrt(np.maximum(np.einsum("nii->ni", cov), 0.0))
+    a = np.sqrt(np.maximum(np.linalg.eigvalsh(np.nan_to_num(cov[:, :2, :2]))[:, 1], 0.0))
+    a = np.where(points.determined, a, np.nan)
+    pos = np.isfinite(a) & (a > 0)
+    every = np.concatenate([xyz[points.determined, :2], centres[:, :2]])
+    span = np.ptp(every, axis=0)
+    extent = float(span.max())
+    n_determined = int(points.determined.sum())
+    spacing = float(np.sqrt(max(span[0] * span[1], extent**2 / 100) / max(n_determined, 1)))
+    typical = float(np.median(a[pos])) if pos.any() else 1.0
+    # a typical ellipse 1.5 % of the block across, or a third of the mean point spacing in dense blocks
+    mag = fig.nice_number(min(0.015 * extent, 0.35 * spacing) / typical)
+    bar = fig.nice_number(0.12 * extent / mag)
+    bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
+    worst_table = ""
+    if n_determined <= page.MAX_ELLIPSES:
+        strips = fig.flies_strips(result.state.R_ground_from_cam)
+        png = fig.error_ellipses(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, cov[:, :2, :2],
+                                 mag, bar, bar_label, labels=pts.ids, flight_lines=strips)
+        stations = ("projection centres (+) along their flight lines (arrow: direction of flight)" if strips else
+                    "camera stations (+; convergent photographs, no flight lines)")
+        figure = _img(png, "error ellipses of the ground points",
+                      f"Plan view of the block: {stations}, ground points coloured by kind, control as triangles. "
+                      f"Around every point its "
+                      f"horizontal standard error ellipse (1 &sigma;, from the X, Y part of its covariance), "
+                      f"magnified <b>{mag:g} times</b>; the bar is {bar_label} of error. Fixed control has no "
+                      f"ellipse.")
+    else:
+        figure, worst_table = _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every,
+                                             extent, spacing)
+    rows = []
+    factor, unit = length_unit(sig[points.determined])
+    for k in sorted(KIND_NAMES):
+        sel = (pts.kind == k) & points.determined
+        if not sel.any():
+            continue
+        s = sig[sel] * factor
+        rows.append([KIND_NAMES[k], str(int(sel.sum()))] + [_fmt(x, ".3f") for x in np.nanmean(s, axis=0)]
+                    + [_fmt(x, ".3f") for x in np.nanmax(s, axis=0)])
+    n_undet = int((~points.determined).sum())
+    return [
+        _section("points"),
+        figure,
+        f"<h3>Mean errors by kind ({unit})</h3>",
+        _table(["kind", "points", "mean &sigma;X", "mean &sigma;Y", "mean &sigma;Z", "max &sigma;X", "max &sigma;Y",
+                "max &sigma;Z"], rows, left=1),
+        f"<p class='note'>{n_undet} points could not be determined.</p>" if n_undet else "",
+        worst_table,
+    ]
+
+
+def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every, extent, spacing):
+    """The error ellipses of a large block summarised: rasters of the RMS horizontal (semi-major
+    axis) and vertical error per cell of a grid over the block, the page.WORST_ELLIPSES worst drawn on
+    top, and a table of the page.WORST_POINT_ROWS points with the largest error. -> (figure, table) HTML."""
+    pts = project.points
+    lo, hi = every.min(axis=0), every.max(axis=0)
+    cell = max(extent / page.MAP_CELLS, 4.0 * spacing, 1e-9)  # about 16 points per cell at least
+    nx, ny = (int(v) for v in np.maximum(np.ceil((hi - lo) / cell), 1))
+    grid_extent = (lo[0], lo[0] + nx * cell, lo[1], lo[1] + ny * cell)
+    sz = np.where(points.determined, sig[:, 2], np.nan)
+    pos_z = np.isfinite(sz) & (sz > 0)
+
+    def rms_grid(values, sel):
+        ix = np.clip(((xyz[sel, 0] - lo[0]) / cell).astype(int), 0, nx - 1)
+        iy = np.clip(((xyz[sel, 1] - lo[1]) / cell).astype(int), 0, ny - 1)
+        k = iy * nx + ix
+        count = np.bincount(k, minlength=nx * ny)
+        ms = np.bincount(k, values[sel] ** 2, nx * ny) / np.maximum(count, 1)
+        return np.where(count > 0, np.sqrt(ms), np.nan).reshape(ny, nx)
+
+    grid_h, grid_z = rms_grid(a, pos), rms_grid(sz, pos_z)
+    worst_h = np.flatnonzero(pos)[np.argsort(-a[pos], kind="stable")[:page.WORST_ELLIPSES]]
+    worst_z = np.flatnonzero(pos_z)[np.argsort(-sz[pos_z], kind="stable")[:page.WORST_ELLIPSES]]
+    largest = float(a[worst_h[0]]) if len(worst_h) else 1.0
+    mag = fig.nice_number(0.03 * extent / largest)  # the largest ellipse 6 % of the block across
+    bar = fig.nice_number(0.12 * extent / mag)
+    bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
+    finite = np.concatenate([grid_h[np.isfinite(grid_h)], grid_z[np.isfinite(grid_z)]])
+    unit, scale = ("cm", 100.0) if len(finite) == 0 or np.percentile(finite, 99) < 1.0 else ("m", 1.0)
+    strips = fig.flies_strips(project.photos.R_ground_from_cam)
+    png = fig.precision_map(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names,
+                            grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
+                            mag, bar, bar_label, flight_lines=strips)
+    n_shown = int(pos.sum())
+    n_strips = len(set(project.photos.strip_ids))
+    lines = " with its flight lines" if strips and n_strips <= fig.MAP_FLIGHT_LINES else ""
+    figure = _img(png, "precision of the ground points over the block",
+                  f"Plan view of the block{lines} and control (full control: red triangles, plan: orange, height: "
+                  f"green, check points: purple diamonds). With {n_shown} error ellipses too many to draw one by "
+                  f"one, each cell of a {nx} &times; {ny} grid ({cell:.4g} m a side) is coloured by the quadratic "
+                  f"mean over its points of, left, the semi-major axis of the horizontal standard error ellipse "
+                  f"(1 &sigma;) and, right, &sigma;Z ({unit}; white: no point; the colour scale runs from the 1st "
+                  f"to the 99th percentile of the cells). On top, left: the error ellipses of the {len(worst_h)} "
+                  f"points with the largest, magnified <b>{mag:g} times</b> (the bar is {bar_label} of error); "
+                  f"right: the {len(worst_z)} points with the largest &sigma;Z, circled. Fixed control has no "
+                  f"error.")
+    total = np.where(points.determined, np.sqrt(np.sum(sig**2, axis=1)), np.nan)
+    finite_total = np.flatnonzero(np.isfinite(total))
+    worst = finite_total[np.argsort(-total[finite_total], kind="stable")[:page.WORST_POINT_ROWS]]
+    rays = np.bincount(project.image_points.point_index, minlength=len(pts))
+    factor, unit = length_unit(sig[worst])
+    rows = [[html.escape(pts.ids[i]), kind_names[i], str(rays[i])] + [_fmt(x, ".2f") for x in xyz[i]]
+            + [_fmt(x * factor, ".3f") for x in sig[i]] + [_fmt(a[i] * factor, ".3f")] for i in worst]
+    table = (f"<h3>The {len(worst)} points with the largest mean error</h3>"
+             f"<p class='note'>Sorted by &radic;(&sigma;X&sup2; + &sigma;Y&sup2; + &sigma;Z&sup2;), of "
+             f"{len(finite_total)} determined points (coordinates in m, mean errors in {unit}); points.csv lists "
+             "all.</p>"
+             + _table(["point", "kind", "rays", "X", "Y", "Z", "&sigma;X", "&sigma;Y", "&sigma;Z",
+                       "semi-major axis"], rows, left=2))
+    return figure, table
+
+
+def _check_points_section(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
+                          summary: dict) -> list[str]:
+    pts = project.points
+    flagged = undetermined_points(project, points)
+    sel = np.flatnonzero((pts.kind == CHECK) & points.determined & ~flagged)
+    out = np.flatnonzero((pts.kind == CHECK) & flagged)
+    parts = [_section("check-points")]
+    left_out = _left_out_check_points(project, result, points, sig, out)
+    if len(sel) == 0:
+        return parts + ["<p>The project has no check points.</p>" if not len(out) else
+                        "<p>No check point is determined by its rays.</p>"] + left_out
+    d = points.xyz[sel] + result.offset - pts.xyz_given[sel]
+    f, unit = length_unit(np.concatenate([d.ravel(), sig[sel].ravel()]))
+    rows = [[html.escape(pts.ids[i])] + [_fmt(x * f, ".3f") for x in d[j]] + [_fmt(x * f, ".3f") for x in sig[i]]
+            for j, i in enumerate(sel[:page.MAX_TABLE_ROWS])]
+    classes = [""] * len(rows)
+    mean = d.mean(axis=0)
+    rows.append(["mean"] + [_fmt(x * f, ".3f") for x in mean] + ["", "", ""])
+    cp = summary["check_points"]
+    rms = [cp["rms_X"], cp["rms_Y"], cp["rms_Z"]]  # summary.json's values (m), in full in the cell's title
+    rows.append(["RMS"] + [_cell(_fmt(x * f, ".3f"), "", repr(float(x))) for x in rms]
+                + [_fmt(x * f, ".3f") for x in np.sqrt(np.nanmean(sig[sel] ** 2, axis=0))])
+    classes += ["sep", "total"]
+    note = (f"<p class='note'>The first {page.MAX_TABLE_ROWS} of {len(sel)} check points; points.csv lists all.</p>"
+            if len(sel) > page.MAX_TABLE_ROWS else "")
+    return parts + [
+        f"<p>{len(sel)} check points were adjusted as tie points and compared with their given coordinates "
+        f"afterwards: d = adjusted &minus; given ({unit}), beside the mean error of the adjusted point. The RMS row of "
+        "&sigma; is the quadratic mean of the mean errors, to compare with the RMS of d.</p>",
+        _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1, row_classes=classes),
+        note,
+    ] + left_out
+
+
+def _left_out_check_points(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
+                           idx: np.ndarray) -> list[str]:
+    """The check points left out of the statistics because their rays do not determine them."""
+    if not len(idx):
+        return []
+    pts = project.points
+    d = points.xyz[idx] + result.offset - pts.xyz_given[idx]
+    rows = [[html.escape(pts.ids[i])] + [_fmt(x, ".3f") for x in d[j]] + [_fmt(x, ".3f") for x in sig[i]]
+            for j, i in enumerate(idx[:page.MAX_TABLE_ROWS])]
+    return [
+        f"<p class='warn'>{len(idx)} check point{'s were' if len(idx) > 1 else ' was'} left out of the statistics: "
+        f"the measurements left to {'them' if len(idx) > 1 else 'it'} do not determine "
+        f"{'them' if len(idx) > 1 else 'it'} (rays nearly parallel, one ray left, or coordinates lost to rejected "
+        "measurements; flag <i>undetermined</i> in points.csv). Their differences say nothing of the block's "
+        "accuracy:</p>",
+        _table(["point", "dX", "dY", "dZ", "&sigma;X", "&sigma;Y", "&sigma;Z"], rows, left=1),
+    ]
+
+
+def _measurement_rows(project: Project, result: AdjustmentResult, w: np.ndarray, rows_idx) -> list:
+    ip = project.image_points
+    unit = residual_unit(project)
+    out = []
+    for i in rows_idx:
+        wi = w[i]
+        out.append([html.escape(project.photos.ids[ip.photo_index[i]]),
+                    html.escape(project.points.ids[ip.point_index[i]]),
+                    KIND_NAMES[int(project.points.kind[ip.point_index[i]])],
+                    _fmt(ip.xy[i, 0], ".3f"), _fmt(ip.xy[i, 1], ".3f"),
+                    unit(result.plate_residuals[i, 0]), unit(result.plate_residuals[i, 1]),
+                    _fmt(wi[0], ".2f"), _fmt(wi[1], ".2f")])
+    return out
+
+
+def _measurement_header(unit: ResidualUnit) -> list[str]:
+    """Column names of a table of _measurement_rows: plate coordinates and residuals in their units."""
+    return ["photo", "point", "kind", f"x ({unit.plate})", f"y ({unit.plate})", f"v<sub>x</sub> ({unit.label})",
+            f"v<sub>y</sub> ({unit.label})", "w<sub>x</sub>", "w<sub>y</sub>"]
+
+
+def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
+    idx = np.flatnonzero(flagged)
+    idx = idx[np.argsort(-absw[idx], kind="stable")]
+    parts = [_section("flagged")]
+    if len(idx) == 0:
+        return parts + [f"<p>No measurement is flagged ({flag_text}).</p>"]
+    note = (f"<p class='note'>The {page.MAX_TABLE_ROWS} with the largest |w| of {len(idx)}; residuals.csv lists all.</p>"
+            if len(idx) > page.MAX_TABLE_ROWS else "")
+    return parts + [
+        f"<p>{len(idx)} measurement{'s' if len(idx) != 1 else ''} flagged ({flag_text}), largest |w| first. "
+        "w is the normalised residual "
+        "v / (&sigma; &radic;q<sub>vv</sub>) of Baarda's data snooping.</p>",
+        _table(_measurement_header(residual_unit(project)), _measurement_rows(project, result, w, idx[:page.MAX_TABLE_ROWS]),
+               left=3),
+        note,
+    ]
+
+
+def _rejected_section(summary: dict) -> list[str]:
+    """summary["blunders"]["groups"] (reliability.rejections): per rejected group its members, w, MDB
+    and effect on the ground."""
+    groups = (summary.get("blunders") or {}).get("groups") or []
+    parts = [_section("rejected")]
+    if not groups:
+        return parts + ["<p>No measurement was rejected.</p>"]
+
+    def num(v, fmt):
+        return "&ndash;" if v is None else format(v, fmt)
+
+    rows = []
+    for g in groups[:page.MAX_TABLE_ROWS]:
+        effect = g["ground_effect"]
+        rows.append([
+            html.escape(g["point_id"]), html.escape(", ".join(g["photo_ids"])),
+            "found" if g["localised"] else "<span class='flag'>detected, not localisable</span>",
+            g["coordinate"], f"{g['w']:.1f}", num(g["mdb"], ".4g"), num(g["bias_to_noise"], ".1f"),
+            "point drops out" if effect is None else " ".join(f"{v:+.3f}" for v in effect),
+        ])
+    note = (f"<p class='note'>The first {page.MAX_TABLE_ROWS} of {len(groups)}; summary.json lists all.</p>"
+            if len(groups) > page.MAX_TABLE_ROWS else "")
+    return parts + [
+        f"<p>{len(groups)} group{'s' if len(groups) != 1 else ''} rejected, in the order of rejection. A group of "
+        "several photographs: their w-tests cannot be told apart (correlated beyond separability), the gross error "
+        "is detected but not localised and all were rejected. w, MDB (plate units) and the bias-to-noise ratio "
+        "(external reliability) of the tested coordinate when it was rejected; effect on the ground: what the "
+        "group's measurements would have moved their point (X Y Z, m) had they been kept.</p>",
+        _table(["point", "photos", "outcome", "coordinate", "w", "MDB", "bias / noise", "effect on the ground (m)"],
+               rows, left=3),
+        note,
+    ]
+
+
+def _largest_section(project, result, w, absw, n: int = 15) -> list[str]:
+    worst = np.argsort(-absw, kind="stable")[:n]
+    return [_section("largest"),
+            f"<p>The {len(worst)} measurements with the largest normalised residual, flagged or not.</p>",
+            _table(_measurement_header(residual_unit(project)), _measurement_rows(project, result, w, worst), left=3)]
