@@ -43,7 +43,7 @@ from click.testing import CliRunner
 from scipy.stats import chi2
 
 from cli_support import DATA, assert_clean_failure, command, copy_project, run, snapshot, stray_siblings
-from striptri.core import diagnosis, termination
+from striptri.core import diagnosis, orientations, termination
 from striptri.adjustment import (SUCCESSFUL_TERMINATIONS, TERMINATIONS, AdjustmentOptions, Iteration, adjust,
                                  stop_if_diverging)
 from striptri.cli import main
@@ -1421,10 +1421,10 @@ def test_case1_blunder_detection_keeps_the_termination_and_tests_nothing(strip8,
 @pytest.mark.parametrize("name", ("strip8", "block_3x6"))
 def test_case2_a_turned_photo_is_found_for_every_photo_and_quarter_turn(name):
     project = read_project(DATA / name)
-    assert diagnosis.find_turns(project) == []
+    assert orientations.find_turns(project) == []
     for j in range(len(project.photos)):
         for degrees in (90, 180, 270):
-            found = diagnosis.find_turns(turned(project, j, degrees))
+            found = orientations.find_turns(turned(project, j, degrees))
             assert [(t.photo, t.degrees) for t in found] == [(j, 360 - degrees)], (j, degrees, found)
             assert found[0].turned_deg < diagnosis.GROSS_DEG < found[0].given_deg
 
@@ -1458,15 +1458,15 @@ def test_case2_no_photo_blamed_for_rough_approximations(name):
         xyz0 = project.photos.xyz0 + 50.0 * rng.standard_normal(project.photos.xyz0.shape)
         rough = replace(project, photos=replace(project.photos, angles=angles, R_ground_from_cam=R_from_opk(angles),
                                                 xyz0=xyz0))
-        assert diagnosis.find_turns(rough) == []
-        assert [t.photo for t in diagnosis.find_turns(turned(rough, 2, 180.0))] == [2]
+        assert orientations.find_turns(rough) == []
+        assert [t.photo for t in orientations.find_turns(turned(rough, 2, 180.0))] == [2]
 
 
 def test_case2_whole_block_turned_and_a_photo_upside_down(strip8):
     every = strip8
     for j in range(len(strip8.photos)):
         every = turned(every, j, 180.0)
-    found = diagnosis.find_turns(every)
+    found = orientations.find_turns(every)
     assert [(t.photo, t.degrees) for t in found] == [(-1, 180)]
     assert "kappa of all photos is probably 180 deg off" in diagnosis.wrong_orientations(every)[0]
     angles = strip8.photos.angles.copy()
