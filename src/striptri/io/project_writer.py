@@ -24,7 +24,7 @@ from striptri.io.gnss_writer import gnss_camera_columns, gnss_photo_columns, gns
 from striptri.io.output import write_output_folder
 from striptri.geometry.balanced import balanced_from_gaussian
 from striptri.geometry.rotations import RADIANS_PER_UNIT
-from striptri.io.project_reader import ANGLE_COLUMNS, BASE_AXES
+from striptri.io.table_readers import ANGLE_COLUMNS, BASE_AXES
 
 _AXIS_NAMES = {axis: name for name, axis in BASE_AXES.items()}
 
