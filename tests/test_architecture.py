@@ -135,7 +135,7 @@ ROOT_MODULES_MAX = 12
 LONG_MODULE = 600
 # Modules over LONG_MODULE lines, each at most as long as listed: the list may only shrink (issue 27
 # asks for none; these are still to be split).
-LONG_MODULES = {"striptri.io.output": 724, "striptri.bundle.adjust": 639}
+LONG_MODULES = {"striptri.io.output": 724}
 
 
 def package_of(name: str) -> str:

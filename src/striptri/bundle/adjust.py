@@ -26,17 +26,16 @@ points' Jacobian).
 from __future__ import annotations
 
 import time
-import copy
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..equations import datum, point_datum
 from ..core import diagnosis, termination
 from .. import progress, solvers
 from ..core.convergence import energy_floor, has_converged, largest_correction, round_off_floor, stop_if_diverging
-from ..core.explain import datum_defect_failure, reduction_check, singular_message, solve_or_explain, solver_for
+from ..core.explain import (bundle_not_formed_message, datum_defect_failure, reduction_check, singular_message,
+                            solve_or_explain, solver_for)
 from ..equations.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
@@ -49,6 +48,7 @@ from .points import PointUnknowns, initial_points, point_unknowns
 from .dense import DenseSchur, dense_scatters
 from .distances import couple, distance_cost, linearise_distances, locate_points
 from .padding import pad_batches, real_rays
+from .damping import COST_ROUND_OFF, LM_MAX, ROUND_OFF, Damping
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
 
 METHOD = "bundle"
@@ -253,7 +253,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     Gauss-Newton, with Levenberg-Marquardt damping only when a step fails (docs/solvers.md): a step
     that raises the sum of squares (or meets a point in a camera's plane, or a numerically singular
     system) is taken again from where it started with lam * diag(N) added to the point blocks and
-    to the reduced camera system (_Damping)."""
+    to the reduced camera system (Damping)."""
     t_start = time.perf_counter()
     problem = _Problem(project, options)
     obs = problem.obs
@@ -265,10 +265,10 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     timings = Timings(initial_points=time.perf_counter() - t_start, linearisation_and_reduction=0.0, solve=0.0,
                       back_substitution=0.0)
     history: list[Iteration] = []
-    damping = _Damping()
+    damping = Damping()
     normals = _assemble_or_none(problem, now.state, now.xyz)
     if normals is None:
-        raise NumericalFailure(_not_formed_message(problem), reason="not_finite")
+        raise NumericalFailure(bundle_not_formed_message(problem.project), reason="not_finite")
     problem.set_datum(now.state, normals)
     if problem.redundancy < 0:
         _explain_too_few(problem, now.state, now.xyz)
@@ -328,37 +328,7 @@ class _Estimate:
     vtpv: float = float("nan")
 
 
-class _Damping:
-    """The Levenberg-Marquardt factor ``lam`` (0: plain Gauss-Newton) and its growth ``nu``:
-    ``more`` after a failed step (from LM_START, doubling the growth each time), Nielsen's rule on
-    the ratio of the actual to the predicted reduction after a good one, back to 0 below LM_FLOOR."""
-
-    def __init__(self):
-        self.lam, self.nu = 0.0, 2.0
-
-    def exhausted(self) -> bool:
-        return self.lam * self.nu > LM_MAX
-
-    def more(self) -> None:
-        self.lam, self.nu = max(self.lam * self.nu, LM_START), 2.0 * self.nu
-
-    def after_good_step(self, actual: float, predicted: float) -> None:
-        if self.lam > 0.0:
-            rho = actual / predicted if predicted > 0 else 1.0
-            self.lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-            self.lam = self.lam if self.lam >= LM_FLOOR else 0.0
-        self.nu = 2.0
-
-    def applied(self, normals: ReducedNormals) -> ReducedNormals:
-        """The normals with lam * max(diag of J^T J, diag of N) added to the reduced camera system."""
-        if self.lam == 0.0:
-            return normals
-        damped = copy.copy(normals)
-        damped.N = (normals.N + self.lam * sp.diags(np.maximum(normals.d, normals.N.diagonal()))).tocsr()
-        return damped
-
-
-def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, damping: _Damping,
+def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, damping: Damping,
           history: list[Iteration], timings: Timings, causes):
     """One step from ``now`` with the normals formed there (under the present damping).
 
@@ -437,13 +407,6 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     return (new, "iterating"), normals
 
 
-LM_START = 1e-4  # first Levenberg-Marquardt factor after a failed step
-LM_MAX = 1e8  # beyond this the step is a gradient step of nothing; give up
-LM_FLOOR = 1e-9  # below this the damping is dropped (plain Gauss-Newton again)
-ROUND_OFF = 1e-10  # a rise of the sum of squares below this fraction is round-off, not a worse step
-COST_ROUND_OFF = 1e-20  # and below this per observation (whitened residuals of 1e-10 sigma)
-
-
 def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
     """The reduced normals, or None where the linearisation is not finite (a point in the plane of
     a camera makes its 3x3 block singular)."""
@@ -455,19 +418,6 @@ def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
     if not (np.isfinite(normals.ee) and np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
         return None
     return normals
-
-
-def _not_formed_message(problem: "_Problem", where: str = "at the approximate values") -> str:
-    """Why the normal equations cannot be formed (``where``): numbers that overflow
-    (wild values, c in another unit: striptri.core.diagnosis) or, failing those, a point in the plane
-    of a camera."""
-    with np.errstate(all="ignore"):
-        causes = diagnosis.likely_causes(problem.project, "overflow")
-    if causes:
-        return (f"the bundle adjustment cannot form its equations {where}: their numbers "
-                "overflow (they are not finite).\n" + termination.causes_text(causes))
-    return (f"a point lies in the plane of a camera {where} (its projection is undefined); check the approximate "
-            "orientations and points")
 
 
 def _undamped_correction(problem: "_Problem", solver, state: State, xyz: np.ndarray) -> float:
@@ -549,7 +499,7 @@ def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _P
     """Solve the reduced camera system N_rcs dx = b_rcs (core.explain.solve_or_explain: a datum
     defect or a singularity explained); numbers that are not finite explained first."""
     if not (np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
-        raise NumericalFailure(_not_formed_message(problem, "at the current values"), reason="not_finite")
+        raise NumericalFailure(bundle_not_formed_message(problem.project, "at the current values"), reason="not_finite")
     return solve_or_explain(normals, normals.b, solver, state, problem.layout, problem.project, problem.offset,
                             "the reduced normal equations of the bundle adjustment are singular")
 
@@ -557,7 +507,7 @@ def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _P
 def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
     normals = _assemble_or_none(problem, state, xyz)
     if normals is None:
-        raise NumericalFailure(_not_formed_message(problem), reason="not_finite")
+        raise NumericalFailure(bundle_not_formed_message(problem.project), reason="not_finite")
     defects = datum.diagnose(normals, state, problem.layout, offset=problem.offset)
     if defects:
         raise datum_defect_failure(problem.project, defects)

@@ -103,3 +103,16 @@ def singular_message(project: Project, layout: UnknownLayout, column: int | None
     return (f"{what}{datum_fixed}{where}: some orientation element is not determined by the measurements. Check "
             "that every photograph has enough well-distributed points (at least three, not on a line) and that "
             "each free camera constant is determined.")
+
+
+def bundle_not_formed_message(project: Project, where: str = "at the approximate values") -> str:
+    """Why the bundle's normal equations cannot be formed (``where``): numbers that overflow
+    (wild values, c in another unit: core.diagnosis) or, failing those, a point in the plane of a
+    camera."""
+    with np.errstate(all="ignore"):
+        causes = diagnosis.likely_causes(project, "overflow")
+    if causes:
+        return (f"the bundle adjustment cannot form its equations {where}: their numbers "
+                "overflow (they are not finite).\n" + termination.causes_text(causes))
+    return (f"a point lies in the plane of a camera {where} (its projection is undefined); check the approximate "
+            "orientations and points")
