@@ -27,7 +27,8 @@ import pytest
 
 from cli_support import DATA, assert_clean_failure, run, snapshot, stray_siblings
 from striptri.io import output
-from striptri.io.output import MARKER, foreign_content
+from striptri.io.output import MARKER
+from striptri.io.output_location import foreign_content
 
 FOLDER_STEPS = ("reserve:parents", "reserve:made", "reserve:marked", "commit:written", "swap:checked",
                 "swap:exchanged", "swap:old-removed", "commit:done")
