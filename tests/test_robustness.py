@@ -52,7 +52,8 @@ from striptri.report.figures import normal_matrix_structure
 from striptri.formats.bal import read_bal
 from striptri.formats.dbat import read_dbat
 from striptri.io import parse_project, project_files, read_project, read_settings
-from striptri.io.output import MARKER, foreign_content
+from striptri.io.output import MARKER
+from striptri.io.output_location import foreign_content
 from striptri.geometry.rotations import R_from_opk
 
 
