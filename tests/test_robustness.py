@@ -1427,7 +1427,7 @@ def test_case2_a_turned_photo_is_found_for_every_photo_and_quarter_turn(name):
         for degrees in (90, 180, 270):
             found = orientations.find_turns(turned(project, j, degrees))
             assert [(t.photo, t.degrees) for t in found] == [(j, 360 - degrees)], (j, degrees, found)
-            assert found[0].turned_deg < diagnosis.GROSS_DEG < found[0].given_deg
+            assert found[0].turned_deg < orientations.GROSS_DEG < found[0].given_deg
 
 
 def test_case1_and_2_block_with_one_photo_turned_diverges_naming_it(block):

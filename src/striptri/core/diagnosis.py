@@ -52,27 +52,6 @@ EXTENT_QUANTILE = 0.95  # the extent of a camera's plate coordinates (robust to 
 # -- implausible values -------------------------------------------------------------------------------
 OUTSIDE_IMAGE = 2.0  # a plate coordinate this many times beyond the camera's EXTENT_QUANTILE lies off the image
 
-# -- turned photos -------------------------------------------------------------------------------------
-TURNS_DEG = (90, 180, 270)
-# The misclosure of a ray pair: the angle by which one ray misses the epipolar plane of the other
-# and the base (90 deg, the most there is, for a pair whose rays meet behind a camera). Approximate
-# orientations good to a few degrees give a median of a few degrees; a photo turned by a quarter
-# turn or more gives tens of degrees. A photo (or the block) is called turned when its median at
-# the given kappa is above GROSS_DEG and a turn lowers it by at least IMPROVEMENT times.
-GROSS_DEG = 10.0
-IMPROVEMENT = 4.0
-MIN_PAIRS = 3  # ray pairs a photo needs for a verdict
-# A photo no kappa turn explains is blamed when MISFIT_SHARE of its ray pairs miss by more than
-# MISFIT_DEG (its neighbours share only part of their pairs with it); approximate attitudes good to
-# 5 deg (std) give such misses in fewer than one pair in a thousand. The whole block is blamed when
-# the median of all pairs exceeds MISFIT_DEG and no photo in particular explains it.
-MISFIT_DEG = 30.0
-MISFIT_SHARE = 0.75
-PAIR_CHUNK = 200_000  # ray pairs evaluated at once (bounds the memory)
-
-ANGLE_UNITS = {"deg": 180.0 / np.pi, "gon": 200.0 / np.pi, "rad": 1.0}
-THIRD_ANGLE = {"omega-phi-kappa": "kappa", "alpha-omega-chi": "chi", "phi-omega-kappa": "kappa"}
-
 
 def likely_causes(project: Project, failure: str) -> list[str]:
     """The likely causes of a failure of kind ``failure``, most specific first:
