@@ -479,3 +479,34 @@ def test_row_statistic_takes_the_larger_magnitude():
     r = row_statistic(w)
     np.testing.assert_array_equal(r[[0, 1, 3]], [-2.0, 0.5, -3.0])
     assert np.isnan(r[2])
+
+
+@pytest.mark.parametrize("blunder_method", ["off", "snoop", "robust"])
+def test_the_procedure_takes_the_callers_first_adjustment(monkeypatch, blunder_method):
+    """The pipeline adjusts first and then runs the blunder procedure on that adjustment (two
+    visible steps): given the adjustment of all rows, each procedure reaches the outcome it reaches
+    alone, with one adjustment fewer of its own."""
+    import importlib
+
+    robust_module = importlib.import_module("striptri.reliability.robust")  # the package's robust is the function
+    snooping_module = importlib.import_module("striptri.reliability.snooping")
+
+    project, _ = simulated("strip", STRIP, 2)
+    spoiled, _ = random_blunders(project, np.random.default_rng(1002))
+    options, blunders = AdjustmentOptions(method="conditions"), BlunderOptions(method=blunder_method)
+    calls = []
+
+    def counted(p, o):
+        calls.append(1)
+        return adjust(p, o)
+
+    for module in (robust_module, snooping_module):
+        monkeypatch.setattr(module, "adjust", counted)
+    alone = detect_blunders(spoiled, options, blunders)
+    n_alone = len(calls)
+    given = detect_blunders(spoiled, options, blunders, first=adjust(spoiled, options))
+    assert len(calls) - n_alone == n_alone - 1
+    assert [r.row for r in given.rejected] == [r.row for r in alone.rejected]
+    np.testing.assert_array_equal(given.flag, alone.flag)
+    assert given.result.vtpv == alone.result.vtpv
+    np.testing.assert_array_equal(given.w, alone.w)

@@ -283,10 +283,11 @@ def _adjust_products(project, options, point_precision, blunders, keep_unconverg
         warnings.simplefilter("always")
         try:
             t0 = time.perf_counter()
-            if options.method == "sequential":
-                det = without_tests(project, adjust(project, options), "not tested (sequential method)")
+            first = adjust(project, options)  # step 1: the adjustment of all rows
+            if options.method == "sequential":  # step 2: the blunder procedure on it
+                det = without_tests(project, first, "not tested (sequential method)")
             else:
-                det = detect_blunders(project, options, blunder_options(blunders))
+                det = detect_blunders(project, options, blunder_options(blunders), first)
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total, 0.0)
             progress.phase("reliability measures (gross errors)", phases["gross_errors"])

@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ..core.options import AdjustmentOptions
+from ..core.result import AdjustmentResult
 from ..model import Project
 from .measures import (
     ALPHA0,
@@ -66,14 +67,16 @@ from .snooping import select_rejections, snoop
 
 
 def detect_blunders(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
-                    blunders: BlunderOptions = BlunderOptions()) -> BlunderResult:
-    """Adjust ``project`` with gross-error detection by ``blunders.method`` (module doc).
+                    blunders: BlunderOptions = BlunderOptions(), first: AdjustmentResult | None = None) -> BlunderResult:
+    """The blunder procedure ``blunders.method`` (module doc) on ``project``; first: the adjustment
+    of all rows, ``adjust(project, options)``, when the caller has made it (the pipeline does, as
+    its own step), else it is made here. Method "off" tests that adjustment and rejects nothing.
     Raises NumericalFailure when the adjustment of all rows fails."""
     if blunders.method == "snoop":
-        return snoop(project, options, blunders)
+        return snoop(project, options, blunders, first)
     if blunders.method == "robust":
-        return robust(project, options, blunders)
-    out = snoop(project, options, replace(blunders, max_rejections=0))
+        return robust(project, options, blunders, first)
+    out = snoop(project, options, replace(blunders, max_rejections=0), first)
     out.method, out.stopped = "off", "off"
     return out
 

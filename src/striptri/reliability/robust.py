@@ -27,7 +27,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..adjustment import AdjustmentOptions, adjust
+from ..adjustment import AdjustmentOptions, AdjustmentResult, adjust
 from ..errors import NumericalFailure
 from ..model import Project
 from ..precision.residuals import residual_cofactors
@@ -77,13 +77,14 @@ def studentised_gross_errors(v: np.ndarray, qvv: np.ndarray, q_current: np.ndarr
 
 
 def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
-           blunders: BlunderOptions = BlunderOptions()) -> BlunderResult:
+           blunders: BlunderOptions = BlunderOptions(), first: AdjustmentResult | None = None) -> BlunderResult:
     """Re-weighting to convergence, rejection, final adjustment at full weight (module doc).
 
     If the final adjustment of the survivors fails (or does not converge), all rows are adjusted
     at full weight instead, the candidates are flagged "suspect" and ``stopped`` says why. Raises
     NumericalFailure when the first adjustment fails; when it, or the re-weighting, does not
     converge, nothing is tested (outcome.untested) on the adjustment of all rows at full weight.
+    first: the adjustment of all rows at full weight (the first round's) when the caller has made it.
     """
     t_start = time.perf_counter()
     ip = project.image_points
@@ -101,7 +102,7 @@ def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         weighted = replace(project, image_points=replace(ip, sigma_xy=ip.sigma_xy / np.sqrt(p)[:, None]))
         if state is not None:
             weighted = warm_start(weighted, *state)
-        result = adjust(weighted, options)
+        result = first if state is None and first is not None else adjust(weighted, options)
         if not succeeded(result):  # no solution to judge residuals by: all rows at full weight, untested
             if state is not None:
                 result = adjust(warm_start(project, *state), options)

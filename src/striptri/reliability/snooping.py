@@ -35,7 +35,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..adjustment import AdjustmentOptions, adjust
+from ..adjustment import AdjustmentOptions, AdjustmentResult, adjust
 from ..errors import InputError, NumericalFailure
 from ..model import Project
 from ..core.result import sigma0_of
@@ -98,7 +98,7 @@ def select_rejections(point_index: np.ndarray, photo_index: np.ndarray, row_abs_
 
 
 def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
-          blunders: BlunderOptions = BlunderOptions()) -> BlunderResult:
+          blunders: BlunderOptions = BlunderOptions(), first: AdjustmentResult | None = None) -> BlunderResult:
     """Data snooping (module doc) until no row |w| exceeds the critical value, ``max_rejections``
     rows are rejected or ``max_rounds`` adjustments are made.
 
@@ -111,7 +111,8 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     If a re-adjustment fails (a photo or the datum lost too much) or does not converge, the rows
     rejected in that round are taken back (flagged "suspect") and the previous adjustment is the
     result. Raises NumericalFailure when the first adjustment, of all rows, fails; when it does not
-    converge, nothing is tested (outcome.untested).
+    converge, nothing is tested (outcome.untested). first: that adjustment of all rows when the
+    caller has made it (``adjust(project, options)``), else it is made here.
     """
     t_start = time.perf_counter()
     m = len(project.image_points)
@@ -119,7 +120,7 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     rejected: list[Rejection] = []
     rounds: list[Round] = []
     separable = blunders.procedure == "separable"
-    out = _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, None)
+    out = _snoop_rounds(project, options, blunders, keep, rejected, rounds, None, first)
     if isinstance(out, BlunderResult):
         return out
     stopped, last = out
@@ -133,7 +134,7 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         keep[list(gone)] = True
         rejected[:] = [rej for rej in rejected if rej.row not in gone]
         start = warm_start(subset(project, keep), last[1].state, last[1].offset)
-        stopped, last = _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, start)
+        stopped, last = _snoop_rounds(project, options, blunders, keep, rejected, rounds, start)
     factor = np.ones((m, 2))
     for _ in range(READMIT_PASSES if separable else 0):
         out_now = [rej for rej in rejected if not keep[rej.row]]
@@ -147,7 +148,7 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         keep[back[0]] = True
         start = warm_start(subset(weighted, keep), last[1].state, last[1].offset)
         try:
-            stopped, last = _snoop_rounds(weighted, options, blunders, keep, rejected, rounds, separable, start)
+            stopped, last = _snoop_rounds(weighted, options, blunders, keep, rejected, rounds, start)
         except NumericalFailure:
             keep[:], rejected[:], factor = saved[0], saved[1], saved[3]
             del rounds[saved[2]:]
@@ -291,11 +292,13 @@ def _distance_leads(distance_w: np.ndarray, row_abs_w: np.ndarray, crit: float) 
     return bool(len(a) and a.max() > crit and a.max() >= row_abs_w.max(initial=0.0))
 
 
-def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable, current):
-    """Snooping rounds from the rows ``keep`` (updated in place, as ``rejected`` and ``rounds``).
+def _snoop_rounds(project, options, blunders, keep, rejected, rounds, current, first=None):
+    """Snooping rounds from the rows ``keep`` (updated in place, as ``rejected`` and ``rounds``);
+    first: the adjustment of the first round when already made (of all rows, current None).
     -> (stopped, last) with last = (project, result, reliability, rows) of the last adjustment that
     succeeded, or a BlunderResult when the first adjustment of all rows did not converge."""
     t_start = time.perf_counter()
+    separable = blunders.procedure == "separable"
     ip = project.image_points
     limit = blunders.rejection_limit(len(ip))
     crit = critical_value(blunders.alpha0)
@@ -306,7 +309,7 @@ def _snoop_rounds(project, options, blunders, keep, rejected, rounds, separable,
     while True:
         t0 = time.perf_counter()
         try:
-            result = adjust(current, options)
+            result = first if last is None and first is not None else adjust(current, options)
             if not succeeded(result):
                 if last is None and not rejected:
                     return untested("snoop", project, result, blunders, time.perf_counter() - t_start)
