@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from striptri.runs import RunOptions
 from striptri import simulate as sim
 from striptri.io.project_writer import write_project
 from striptri.model import CoordinateSettings
@@ -61,7 +62,7 @@ def run(size_km: float, seed: int, crs: str, lat: float, offset_deg: float, heig
                                  ("naive grid", naive, truth_grid)):
         src, dst = folder / f"{name}-{seed}".replace(" ", "_"), folder / f"out-{name}-{seed}".replace(" ", "_")
         write_project(src, project, truth_tables=truth)
-        run_adjust(src, dst, method="bundle")
+        run_adjust(src, dst, RunOptions(method="bundle"))
         out[name] = check_errors(dst, truth)
     return out
 

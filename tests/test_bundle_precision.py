@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from striptri.runs import RunOptions
 from striptri import simulate as sim
 from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.adjustment import AdjustmentOptions, adjust
@@ -261,11 +262,11 @@ def test_the_output_tables_are_those_of_the_conditions_form(solved, monkeypatch,
     calls = []
     real = collinearity_form.residual_cofactors
     monkeypatch.setattr(collinearity_form, "residual_cofactors", lambda *a, **k: calls.append(1) or real(*a, **k))
-    fast = adjust_products(project, BUNDLE, blunders=blunders)
+    fast = adjust_products(project, BUNDLE, RunOptions(blunders=blunders))
     passes = len(calls)
     assert passes == 1 if blunders == "off" else passes >= 1  # one per adjustment; none more for the points
     monkeypatch.setattr(collinearity_form, "applies", lambda *a: False)
-    ref = adjust_products(project, BUNDLE, blunders=blunders)
+    ref = adjust_products(project, BUNDLE, RunOptions(blunders=blunders))
     assert len(calls) == passes
     for file in ("points.csv", "photos.csv", "residuals.csv"):
         _assert_same_table(fast.files[file], ref.files[file], RTOL)

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from striptri.runs import RunOptions
 from striptri.precision.export import CovarianceRequest
 from striptri.pipeline import run_adjust
 
@@ -43,7 +44,7 @@ def adjusted(tmp_path_factory):
     out = {}
     for method in ("conditions", "bundle"):
         folder = tmp_path_factory.mktemp(method) / "out"
-        products = run_adjust(EXAMPLE, folder, method=method, covariance=CovarianceRequest(("camera", "points")))
+        products = run_adjust(EXAMPLE, folder, RunOptions(method=method, covariance=CovarianceRequest(("camera", "points"))))
         out[method] = (folder, products)
     return out
 

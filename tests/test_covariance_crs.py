@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from striptri.runs import RunOptions
 from striptri.cli import main
 from striptri.precision.export import CovarianceRequest, in_grid, joint_covariance, s_transform
 from striptri.core.adjusted_points import triangulate_adjusted
@@ -154,8 +155,7 @@ def test_s_transformation_happens_in_the_local_frame(crs_block, tmp_path):
     framed = in_local_frame(read_project(crs_block))
     first = joint_covariance(framed.local, *_bundle(framed.local), ("points",))
     datum = [label.split("/")[1] for label in first.labels[::3][:6]]
-    products = run_adjust(crs_block, tmp_path / "o", method="bundle",
-                          covariance=CovarianceRequest(("points",), tuple(datum)))
+    products = run_adjust(crs_block, tmp_path / "o", RunOptions(method="bundle", covariance=CovarianceRequest(("points",), tuple(datum))))
     local = joint_covariance(products.project, products.result,
                              triangulate_adjusted(products.project, products.result), ("points",))
     expected = in_grid(s_transform(local, datum), framed.frame)

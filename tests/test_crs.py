@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from striptri.runs import RunOptions
 from striptri import simulate as sim
 from striptri.cli import main
 from striptri.crs.frame import LocalFrame, angle_sigmas
@@ -214,7 +215,7 @@ def test_held_control_and_centres_written_back_unchanged(tmp_path, heights, n):
         w.writerows(photos)
     project = read_project(tmp_path / "p")
     assert project.settings.coordinates.heights == heights
-    run_adjust(tmp_path / "p", tmp_path / "o", method="bundle")
+    run_adjust(tmp_path / "p", tmp_path / "o", RunOptions(method="bundle"))
     given = {r["point_id"]: [float(r[a]) for a in "XYZ"] for r in csv.DictReader((tmp_path / "p" / "control.csv").open())
              if r["kind"] == "XYZ"}
     out = {r["point_id"]: [float(r[a]) for a in "XYZ"] for r in csv.DictReader((tmp_path / "o" / "points.csv").open())
@@ -255,7 +256,7 @@ def test_20km_block_naive_grid_is_biased_crs_matches_local_frame(tmp_path):
     errors = {}
     for name, project, truth in (("local", local, truth_local), ("crs", grid, truth_grid), ("naive", naive, truth_grid)):
         write_project(tmp_path / name, project, truth_tables=truth)
-        run_adjust(tmp_path / name, tmp_path / f"out-{name}", method="bundle")
+        run_adjust(tmp_path / name, tmp_path / f"out-{name}", RunOptions(method="bundle"))
         errors[name] = check_errors(tmp_path / f"out-{name}", truth)
     e_local, e_crs, e_naive = errors["local"], errors["crs"], errors["naive"]
     n = len(e_local)
@@ -311,7 +312,7 @@ def test_gnss_and_imu_observations_agree_with_the_local_frame(tmp_path):
     results = {}
     for name, project, truth in (("local", local, truth_local), ("crs", grid, truth_grid)):
         write_project(tmp_path / name, project, truth_tables=truth)
-        products = run_adjust(tmp_path / name, tmp_path / f"out-{name}", method="bundle")
+        products = run_adjust(tmp_path / name, tmp_path / f"out-{name}", RunOptions(method="bundle"))
         results[name] = (products.result.vtpv, check_errors(tmp_path / f"out-{name}", truth))
     (v_local, e_local), (v_crs, e_crs) = results["local"], results["crs"]
     assert abs(v_crs / v_local - 1.0) < 1e-3

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from striptri.runs import RunOptions
 from striptri import simulate as sim
 from striptri.adjustment import adjust
 from striptri.core.options import AdjustmentOptions
@@ -82,7 +83,7 @@ def test_output_table_and_summary(files_and_truth, tmp_path, method):
     for name, text in _with(files, f"point_from,point_to,distance,sigma\n{a},{b},{float(d)!r},0.002\n").items():
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
         (folder / name).write_text(text)
-    run_adjust(folder, tmp_path / "out", method=method)
+    run_adjust(folder, tmp_path / "out", RunOptions(method=method))
     lines = (tmp_path / "out" / "distances.csv").read_text().splitlines()
     assert lines[0] == ("point_from,point_to,distance,sigma,adjusted,residual,residual_sigma,sigma_adjusted,"
                         "redundancy,w,flag,mdb")
@@ -116,7 +117,7 @@ def test_no_distances_no_section(files_and_truth, tmp_path):
     for name, text in files.items():
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
         (folder / name).write_text(text)
-    run_adjust(folder, tmp_path / "out", method="bundle")
+    run_adjust(folder, tmp_path / "out", RunOptions(method="bundle"))
     assert not (tmp_path / "out" / "distances.csv").exists()
     assert "distances" not in json.loads((tmp_path / "out" / "summary.json").read_text())
     assert "id='distances'" not in (tmp_path / "out" / "report.html").read_text()

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from cli_support import assert_clean_failure, run
 
+from striptri.runs import RunOptions
 from striptri.errors import InputError
 from striptri.simulate.film import FilmOptions, film_project_files
 from striptri.io.csvtable import format_csv
@@ -46,7 +47,7 @@ def test_example_reads_to_plate_millimetres_close_to_the_truth():
 @pytest.mark.parametrize("method", ["sequential", "conditions"])
 def test_example_adjusts_and_reports_the_fiducials(tmp_path, method):
     out = tmp_path / method
-    products = run_adjust(EXAMPLE, out, method=method)
+    products = run_adjust(EXAMPLE, out, RunOptions(method=method))
     assert products.result.converged
     html = (out / "report.html").read_text(encoding="utf-8")
     assert "Fiducial marks and calibration report" in html and "largest |v| px" in html

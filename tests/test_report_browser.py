@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from striptri.runs import RunOptions
 from striptri.pipeline import run_adjust
 
 REPO = Path(__file__).resolve().parents[1]
@@ -48,7 +49,7 @@ def _chromium(tmp_path: Path, *args) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_no_table_is_wider_than_the_page(tmp_path, case):
     folder, options = CASES[case]
-    products = run_adjust(folder, tmp_path / "out", **options)
+    products = run_adjust(folder, tmp_path / "out", RunOptions(**options))
     page = tmp_path / "measured.html"
     page.write_text(products.files["report.html"].replace("</body>", MEASURE + "</body>"), encoding="utf-8")
     for width in (1000, 1400):

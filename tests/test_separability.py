@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from striptri.runs import RunOptions
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.model import TIE
 from striptri.pipeline import adjust_products
@@ -168,7 +169,7 @@ def test_the_outputs_report_an_inseparable_group(clean_block):
     xy = ip.xy.copy()
     xy[rows[0], 0] -= 25 * SIGMA
     spoiled = replace(project, image_points=replace(ip, xy=xy))
-    products = adjust_products(spoiled, OPTIONS, blunders="snoop")
+    products = adjust_products(spoiled, OPTIONS, RunOptions(blunders="snoop"))
     table = list(csv.DictReader(io.StringIO(products.files["residuals.csv"])))
     assert list(table[0])[:6] == ["photo_id", "point_id", "vx", "vy", "w", "flag"]
     assert [table[i]["flag"] for i in rows] == ["inseparable"] * 3
@@ -178,6 +179,6 @@ def test_the_outputs_report_an_inseparable_group(clean_block):
     assert groups[0]["localised"] is False and groups[0]["mdb"] > 0 and groups[0]["ground_effect"] is None
     assert summary["blunders"]["inseparable"] >= 3
     assert "detected, not localisable" in products.files["report.html"]
-    classic = adjust_products(spoiled, OPTIONS, blunders="snoop-classic")
+    classic = adjust_products(spoiled, OPTIONS, RunOptions(blunders="snoop-classic"))
     table = list(csv.DictReader(io.StringIO(classic.files["residuals.csv"])))
     assert sorted(table[i]["flag"] for i in rows) in (["", "", "rejected"], ["", "dropped", "rejected"])

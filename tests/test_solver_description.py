@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from striptri.runs import RunOptions
 from striptri import solvers
 from striptri.solvers import SOLVERS, SolverInfo, SolverOptions, describe, make_solver
 from striptri.solvers.cvxopt_cholesky import lower_triangle
@@ -175,7 +176,7 @@ def test_summary_json_names_the_factorisation_and_blas_that_ran(tmp_path, solver
         pytest.skip("scikit-sparse not installed")
     project = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6"
     out = tmp_path / "out"
-    run_adjust(project, out, solver=solver)
+    run_adjust(project, out, RunOptions(solver=solver))
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == solver
     expected = describe(solver, SolverInfo(mode="supernodal") if solver == "cholmod" else None)

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from cli_support import DATA, SHARED_DATA, run
+from striptri.runs import RunOptions
 from striptri.equations.triangulation import (WEAK_FACTOR, WEAK_RCOND, conditioning, far_weaker_than_the_rest)
 
 LADYBUG = SHARED_DATA / "bal_ladybug49" / "problem-49-7776-pre.txt"
@@ -187,7 +188,7 @@ def test_a_tie_point_left_undetermined_in_a_strip_is_flagged():
     xy = ip.xy.copy()
     xy[row, 1] += 0.1
     project = replace(project, image_points=replace(ip, xy=xy))
-    products = adjust_products(project, options_for(project), blunders="snoop")
+    products = adjust_products(project, options_for(project), RunOptions(blunders="snoop"))
     rows = {r["point_id"]: r for r in csv.DictReader(products.files["points.csv"].splitlines())}
     assert rows["1001C"]["flag"] == "undetermined"
     assert float(rows["1001C"]["sigma_Y"]) > 1.0  # metres: its rays no longer fix it in Y

@@ -1,7 +1,7 @@
 """Pipelines: load, compute, save. The CLI and the scripts call these; the mathematics below them
 never opens a file or prints.
 
-``run_adjust(project_dir, out_dir, options)`` reads a project folder, adjusts it, computes the
+``run_adjust(project_dir, out_dir, RunOptions(...))`` reads a project folder, adjusts it, computes the
 products of DESIGN section 10 (photos, cameras, points, residuals, summary, report) and writes the
 output folder whole or not at all.
 """
@@ -43,6 +43,7 @@ from .reliability import blunder_options, detect_blunders
 from .reliability.distances import distance_table
 from .reliability.rejections import rejection_groups
 from .reliability.outcome import without_tests
+from .runs import RunOptions
 from .solvers import SolverUnavailable
 from .equations.triangulation import Triangulated
 
@@ -95,26 +96,23 @@ def input_paths(project_dir: Path) -> list[Path]:
     return [project_dir, *(project_dir / name for name in FILE_NAMES)]
 
 
-def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders: str = "off",
-               keep_unconverged: bool = False, on_warning: Callable[[str], None] | None = None,
-               corrections: dict | None = None, covariance=None, **overrides) -> AdjustmentProducts:
-    """Read, adjust and write (DESIGN section 10). Raises InputError / NumericalFailure.
+def run_adjust(project_dir, out_dir, run: RunOptions = RunOptions(),
+               on_warning: Callable[[str], None] | None = None) -> AdjustmentProducts:
+    """Read, adjust and write (DESIGN section 10) as ``run`` asks (runs.RunOptions). Raises
+    InputError / NumericalFailure; warnings go to ``on_warning`` as they arise.
 
     The output location is checked before the project is read and reserved before the adjustment
     starts (io.output); nothing is written unless the whole run succeeds. An adjustment that has not
-    converged is a NumericalFailure unless ``keep_unconverged`` (then written with converged: false).
-
-    point_precision: "schmid90", the orientation part plus the measurement part (Schmid 87-90), or
-    "joint92", the rigorous joint form (92) (docs/decisions.md: for points in the adjustment the
-    two agree to rounding). corrections: {"earth_curvature": bool | None, "refraction": bool | None},
-    the command line's values over project.toml's [corrections] (None: project.toml's). covariance: a
-    covariance_export.CovarianceRequest: covariance.npz is written too."""
+    converged is a NumericalFailure unless ``run.keep_unconverged`` (then written with converged:
+    false). For the point precision "joint92" against "schmid90" see docs/decisions.md: for points
+    in the adjustment the two agree to rounding. With ``run.covariance`` covariance.npz is written
+    too."""
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
     t0 = time.perf_counter()
     project = read_project(project_dir)
-    project = plate_corrections.with_switches(project, **(corrections or {}))
+    project = plate_corrections.with_switches(project, **run.corrections)
     if project.settings.coordinates is not None and project.settings.earth_curvature:
         raise InputError(project_dir / "project.toml", None,
                          "[corrections] earth_curvature with [coordinates] crs: the project is adjusted in a local "
@@ -122,25 +120,23 @@ def run_adjust(project_dir, out_dir, point_precision: str = "schmid90", blunders
                          "correction would count it twice (docs/decisions.md)")
     framed = map_coordinates.in_local_frame(project) if project.settings.coordinates is not None else None
     seconds_reading = time.perf_counter() - t0
-    options = options_for(project, **overrides)
+    options = options_for(project, **run.adjustment)
     try:
-        check_products_options(options, point_precision, blunders)
+        check_products_options(options, run.point_precision, run.blunders)
     except ValueError as exc:
         raise InputError("command line", None, str(exc)) from None
     with OutputReservation(out_dir, inputs) as reservation:
         try:
             if framed is None:
-                products = adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning,
-                                           seconds_reading=seconds_reading)
+                products = adjust_products(project, options, run, on_warning, seconds_reading=seconds_reading)
             else:
-                products = _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unconverged,
-                                                  on_warning, seconds_reading)
+                products = _adjust_in_local_frame(framed, options, run, on_warning, seconds_reading)
         except SolverUnavailable as exc:
-            raise InputError(solver_source(project_dir, overrides), None, str(exc)) from exc
-        if covariance is not None:
+            raise InputError(solver_source(project_dir, run.adjustment), None, str(exc)) from exc
+        if run.covariance is not None:
             try:
                 products.files["covariance.npz"] = covariance_export.covariance_file(
-                    products.project, products.result, covariance, None if framed is None else framed.frame)
+                    products.project, products.result, run.covariance, None if framed is None else framed.frame)
             except ValueError as exc:
                 raise InputError("command line", None, str(exc)) from None
         reservation.commit(products.files)
@@ -155,7 +151,7 @@ def solver_source(project_dir: Path, overrides: dict) -> str | Path:
 MAX_REFINEMENTS = 4
 
 
-def _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unconverged, on_warning, seconds_reading):
+def _adjust_in_local_frame(framed, options, run, on_warning, seconds_reading):
     """adjust_products for a project in map coordinates (striptri.crs.project): adjusted in its local
     frame, the tables written back in its CRS; partial control (XY, Z) converted again at its adjusted
     position and the block re-adjusted until that changes it by less than REFINE_TOLERANCE_M (each
@@ -168,8 +164,8 @@ def _adjust_in_local_frame(framed, options, point_precision, blunders, keep_unco
             on_warning(text)
 
     for _ in range(MAX_REFINEMENTS):
-        products = adjust_products(framed.local, options, point_precision, blunders, keep_unconverged, warn_once,
-                                   seconds_reading=seconds_reading, frame=framed.frame)
+        products = adjust_products(framed.local, options, run, warn_once, seconds_reading=seconds_reading,
+                                   frame=framed.frame)
         if not map_coordinates.has_partial_control(framed.grid):
             break
         framed, change = map_coordinates.refine_partial_control(framed, products.points.xyz + products.result.offset)
@@ -214,25 +210,25 @@ def structure_figure(project_dir, out_png, on_warning: Callable[[str], None] | N
         return reservation.commit(with_software(png, STRUCTURE_SOFTWARE))
 
 
-def adjust_products(project: Project, options: AdjustmentOptions, point_precision: str = "schmid90",
-                    blunders: str = "off", keep_unconverged: bool = False,
+def adjust_products(project: Project, options: AdjustmentOptions, run: RunOptions = RunOptions(),
                     on_warning: Callable[[str], None] | None = None,
                     seconds_reading: float | None = None, frame=None) -> AdjustmentProducts:
-    """Adjust (with gross-error detection by ``blunders``: "off", "snoop", "snoop-classic" or "robust") and build
-    the output files. Photos, points and the summary describe the adjustment of the measurements
-    kept; residuals.csv lists every original measurement with its flag.
+    """Adjust with ``options`` (the adjustment options of ``run`` already in them: options_for),
+    then run the gross-error procedure ``run.blunders`` ("off", "snoop", "snoop-classic" or
+    "robust") and build the output files with the point precision ``run.point_precision``.
+    Photos, points and the summary describe the adjustment of the measurements kept;
+    residuals.csv lists every original measurement with its flag.
 
     Warnings (the project's notes, then what the computation warns of) go to ``on_warning`` as they
     arise, even when the run then fails, and into summary.json "warnings" and the report. An
-    adjustment that does not converge raises NumericalFailure unless ``keep_unconverged``.
+    adjustment that does not converge raises NumericalFailure unless ``run.keep_unconverged``.
     seconds_reading: the time the caller took to read the project (summary.json timings_s "read").
     frame: the crs.frame.LocalFrame of a project in map coordinates (``project`` is then in that
     frame): photos.csv and points.csv are written back in the project's CRS, summary.json and the
     report name the frame; check-point differences stay those of the local frame (metres)."""
     started = run_started()
     with single_threaded():  # BLAS threads set by striptri (solvers.threads), also for API callers
-        products = _adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning,
-                                    seconds_reading, frame, started)
+        products = _adjust_products(project, options, run, on_warning, seconds_reading, frame, started)
     return products
 
 
@@ -257,10 +253,11 @@ def run_metadata(project: Project, options: AdjustmentOptions, started: str, **m
             "project": None if project.source is None else str(project.source), "options": chosen}
 
 
-def _adjust_products(project, options, point_precision, blunders, keep_unconverged, on_warning, seconds_reading,
-                     frame, started) -> AdjustmentProducts:
+def _adjust_products(project, options, run, on_warning, seconds_reading, frame, started) -> AdjustmentProducts:
     """adjust_products' work, with the BLAS threads already set; started: run_started()'s time."""
     from dataclasses import replace as _replace
+
+    point_precision, blunders, keep_unconverged = run.point_precision, run.blunders, run.keep_unconverged
 
     check_products_options(options, point_precision, blunders)
     options = _replace(options, keep_unconverged=keep_unconverged)

@@ -78,17 +78,17 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
     from striptri import progress
     from striptri.pipeline import run_adjust
+    from striptri.runs import RunOptions
 
     covariance = _covariance_request(covariance_groups, covariance_datum, covariance_rigid)
     with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):
-        products = run_adjust(project_dir, out_dir, point_precision=point_precision, blunders=blunders,
-                              covariance=covariance, keep_unconverged=keep_unconverged, on_warning=_warn,
-                              corrections={"earth_curvature": earth_curvature, "refraction": refraction},
-                              method=method, solver=solver, init=init, direction=direction,
-                              procedure=None if procedure is None else int(procedure),
-                              polynomial_degree=polynomial_degree,
-                              max_iterations=max_iterations, scale_form=scale_form, datum=datum,
-                              datum_points=_datum_points(datum_points))
+        run = RunOptions(method=method, solver=solver, datum=datum, datum_points=_datum_points(datum_points),
+                         max_iterations=max_iterations, init=init, scale_form=scale_form,
+                         procedure=None if procedure is None else int(procedure), direction=direction,
+                         polynomial_degree=polynomial_degree, blunders=blunders, point_precision=point_precision,
+                         earth_curvature=earth_curvature, refraction=refraction, covariance=covariance,
+                         keep_unconverged=keep_unconverged)
+        products = run_adjust(project_dir, out_dir, run, on_warning=_warn)
     s = products.summary
     b = s["blunders"]
     if b["method"] != "off" or b["suspect"]:
