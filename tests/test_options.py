@@ -45,3 +45,46 @@ def test_the_sequential_steps_limit_is_the_larger_of_the_two():
     assert SequentialOptions.from_adjustment_options(options).max_iterations == 30
     options = AdjustmentOptions(method="sequential", max_iterations=1, sequential=SequentialOptions(max_iterations=2))
     assert SequentialOptions.from_adjustment_options(options).max_iterations == 2
+
+
+def test_run_options_hold_every_option_of_the_adjust_command():
+    """The command line builds one RunOptions (runs.py): each option of ``striptri adjust`` is a
+    field of it, except the covariance flags (one CovarianceRequest) and --quiet (the terminal)."""
+    from dataclasses import fields
+
+    from striptri.cli import main
+    from striptri.runs import ADJUSTMENT_FIELDS, RunOptions
+
+    names = {f.name for f in fields(RunOptions)}
+    given = {p.name for p in main.commands["adjust"].params} - {"project_dir", "out_dir", "quiet"}
+    covariance = {n for n in given if n.startswith("covariance")}
+    assert given - covariance <= names
+    run = RunOptions(method="bundle", datum_points=["P1", 2])
+    assert run.adjustment == {"method": "bundle", "datum_points": ("P1", "2")}
+    assert set(run.adjustment) <= set(ADJUSTMENT_FIELDS)
+    assert RunOptions().corrections == {"earth_curvature": None, "refraction": None}
+
+
+def test_run_summary_is_what_summary_json_holds(tmp_path):
+    """runs.RunSummary types summary.json: the file is its as_dict, the contract's keys first in
+    DESIGN's order, an optional section only when the project has it, and the mapping reads the
+    same keys."""
+    import json
+    from pathlib import Path
+
+    from striptri.pipeline import run_adjust
+    from striptri.runs import OPTIONAL_SECTIONS, RunOptions
+
+    folder = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "strip8"
+    products = run_adjust(folder, tmp_path / "out", RunOptions(blunders="snoop"))
+    written = json.loads((tmp_path / "out" / "summary.json").read_text())
+    summary = products.summary
+    assert written == json.loads(json.dumps(summary.as_dict())) and list(written) == list(summary)
+    contract = ["method", "solver", "sigma0", "redundancy", "vtpv", "iterations", "converged", "n_photos",
+                "n_points", "n_observations", "n_conditions", "n_unknowns", "check_points", "timings_s"]
+    assert list(written)[: len(contract)] == contract
+    assert summary["sigma0"] == summary.sigma0 and summary.blunders["method"] == "snoop"
+    assert not any(key in written for key in OPTIONAL_SECTIONS)  # strip8: no free network, GNSS, film ...
+    with pytest.raises(KeyError):
+        summary["film"]
+    assert summary.get("film") is None and "film" not in summary

@@ -101,6 +101,12 @@ def worker(phase: str, arg: str) -> dict:
     summary = pipeline.summary_of(project, result, points)
     summary["blunders"] = pipeline.blunder_summary(det)
     summary["warnings"] = []
+    try:  # the typed summary of the trees that have it (issue 27); a dict before
+        from striptri.runs import RunSummary
+    except ImportError:
+        pass
+    else:
+        summary = RunSummary(**summary, version="bench", started="", project=None, options={})
     if phase == "structure":
         _, cpu, wall = _timed(lambda: figures.normal_matrix_structure(result.N, result.layout.block_starts(),
                                                                       len(project.photos)))

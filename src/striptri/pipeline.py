@@ -8,7 +8,6 @@ output folder whole or not at all.
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from collections.abc import Callable
@@ -43,7 +42,7 @@ from .reliability import blunder_options, detect_blunders
 from .reliability.distances import distance_table
 from .reliability.rejections import rejection_groups
 from .reliability.outcome import without_tests
-from .runs import RunOptions
+from .runs import RunOptions, RunSummary
 from .solvers import SolverUnavailable
 from .equations.triangulation import Triangulated
 
@@ -55,7 +54,7 @@ class AdjustmentProducts:
     project: Project
     result: AdjustmentResult
     points: Triangulated
-    summary: dict
+    summary: RunSummary
     files: dict
     blunders: object = None
     warnings: list = field(default_factory=list)  # summary.json "warnings", also printed on stderr
@@ -334,33 +333,29 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         tables["fiducial_residuals.csv"] = format_csv(film_report.residual_columns(adjusted.film))
     phases["tables"] = time.perf_counter() - t0
     progress.phase("tables (CSV)", phases["tables"])
-    summary = {**summary_of(adjusted, result, points),  # the contract's keys first, in DESIGN's order
-               **run_metadata(given, options, started, blunders=blunders, point_precision=point_precision,
-                              keep_unconverged=keep_unconverged)}
-    summary["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
-    summary["blunders"] = blunder_summary(det)
-    summary["blunders"]["groups"] = rejection_groups(project, det)
-    summary["warnings"] = list(said)
-    if corrections is not None:
-        summary["plate_corrections"] = corrections.summary
-    if off is not None:
-        summary["inactive"] = inactive.summary_entry(adjusted, off)
-    summary.update(gnss_output.summary_entry(adjusted, result))
-    if adjusted.distances is not None:
-        summary["distances"] = distances_summary(adjusted.distances, points.xyz, distance_cols)
-    if adjusted.film is not None:
-        summary["film"] = film_report.summary_entry(adjusted.film)
-    if frame is not None:
-        summary["frame"] = frame.summary()
+    found = summary_of(adjusted, result, points)  # the contract's keys first, in DESIGN's order
+    found["timings_s"].update({k: round(v, 6) for k, v in phases.items()})
+    blunder_counts = {**blunder_summary(det), "groups": rejection_groups(project, det)}
+    summary = RunSummary(
+        **found, **run_metadata(given, options, started, blunders=blunders, point_precision=point_precision,
+                                keep_unconverged=keep_unconverged),
+        blunders=blunder_counts, warnings=list(said),
+        plate_corrections=None if corrections is None else corrections.summary,
+        inactive=None if off is None else inactive.summary_entry(adjusted, off),
+        **gnss_output.summary_entry(adjusted, result),
+        distances=None if adjusted.distances is None else distances_summary(adjusted.distances, points.xyz,
+                                                                            distance_cols),
+        film=None if adjusted.film is None else film_report.summary_entry(adjusted.film),
+        frame=None if frame is None else frame.summary())
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos),
                                         labels=structure_labels(adjusted, result.layout))
     html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
                               flags=det.flag[det.rows], figures={"structure": structure}, distances=distance_cols)
-    summary["timings_s"]["report"] = round(time.perf_counter() - t0, 6)
-    progress.phase("report", summary["timings_s"]["report"])
-    files = {**tables, "summary.json": json.dumps(summary, indent=2, allow_nan=False) + "\n", "report.html": html}
+    summary.timings_s["report"] = round(time.perf_counter() - t0, 6)
+    progress.phase("report", summary.timings_s["report"])
+    files = {**tables, "summary.json": summary.json(), "report.html": html}
     products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products
 

@@ -1,4 +1,5 @@
-"""What a run of ``striptri adjust`` is asked for: the typed options of pipeline.run_adjust.
+"""What a run of ``striptri adjust`` is asked for (:class:`RunOptions`) and what it found
+(:class:`RunSummary`, summary.json's typed form).
 
 The command line (cli/adjust.py) and scripts build one frozen :class:`RunOptions` and pass it to
 ``pipeline.run_adjust(project_dir, out_dir, RunOptions(...))``. The adjustment options in it are
@@ -10,6 +11,8 @@ unconverged adjustment is kept.
 
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING
 
@@ -71,3 +74,81 @@ class RunOptions:
 
 
 assert set(ADJUSTMENT_FIELDS) <= {f.name for f in fields(RunOptions)}
+
+
+@dataclass(kw_only=True)
+class RunSummary(Mapping):
+    """What a run found: the typed form of summary.json (DESIGN section 10), which summary.json
+    and report.html both render (:meth:`as_dict` is summary.json's object, its keys in the
+    contract's order). Also a read-only mapping of that object (``summary["sigma0"]``), for the
+    scripts and tests that read summary.json's keys.
+
+    The result (pipeline.summary_of): method, solver, sigma0 (None without redundancy),
+    redundancy, vtpv, iterations, converged, n_photos, n_points, n_observations, n_conditions,
+    n_unknowns, check_points (RMS and largest differences, m), timings_s (seconds per phase),
+    factorisation and blas (what solved the normal equations), termination and message (why the
+    iteration stopped, in words), plate_unit, datum (a free network only), checks (Schmid's final
+    checks), history (per iteration). The run (pipeline.run_metadata): version, started, project,
+    options. Then blunders (the gross-error procedure's counts and groups), warnings, and the
+    sections that only some projects have, in this order: plate_corrections, inactive, gnss,
+    distances, film, frame.
+    """
+
+    method: str
+    solver: str
+    sigma0: float | None
+    redundancy: int
+    vtpv: float | None
+    iterations: int
+    converged: bool
+    n_photos: int
+    n_points: int
+    n_observations: int
+    n_conditions: int
+    n_unknowns: int
+    check_points: dict
+    timings_s: dict
+    factorisation: str
+    blas: str
+    termination: str
+    message: str
+    plate_unit: str
+    datum: dict | None = None
+    checks: dict
+    history: list
+    version: str
+    started: str
+    project: str | None
+    options: dict
+    blunders: dict
+    warnings: list
+    plate_corrections: dict | None = None
+    inactive: dict | None = None
+    gnss: dict | None = None
+    distances: dict | None = None
+    film: dict | None = None
+    frame: dict | None = None
+
+    def as_dict(self) -> dict:
+        """summary.json's object: every field in order, the optional sections only when present."""
+        return {f.name: getattr(self, f.name) for f in fields(self)
+                if f.name not in OPTIONAL_SECTIONS or getattr(self, f.name) is not None}
+
+    def json(self) -> str:
+        """summary.json's text (strict JSON: a value that is not finite is an error, not NaN)."""
+        return json.dumps(self.as_dict(), indent=2, allow_nan=False) + "\n"
+
+    def __getitem__(self, key: str):
+        if key in OPTIONAL_SECTIONS and getattr(self, key) is None or key not in FIELD_NAMES:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self):
+        return iter(self.as_dict())
+
+    def __len__(self) -> int:
+        return len(self.as_dict())
+
+
+OPTIONAL_SECTIONS = ("datum", "plate_corrections", "inactive", "gnss", "distances", "film", "frame")
+FIELD_NAMES = frozenset(f.name for f in fields(RunSummary))

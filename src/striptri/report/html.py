@@ -18,6 +18,8 @@ them).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import html
 import time
 import numpy as np
@@ -34,6 +36,8 @@ from ..model import KIND_NAMES, Project
 from ..precision.residuals import PHOTO_ELEMENTS, camera_correlations
 from ..geometry.rotations import angles_from_R
 from ..equations.triangulation import Triangulated
+if TYPE_CHECKING:  # the type only: the report is below the run (runs.py)
+    from ..runs import RunSummary
 from . import page  # the page's limits, read at call time (tests set them)
 from .page import (
     SECTIONS, ResidualUnit, _STYLE, _card, _cell, _flag_text, _flags_of, _fmt, _half_format, _img,
@@ -55,16 +59,16 @@ CHECK_TEXT = {
                                 "standard deviation",
 }
 
-def _summary_section(project: Project, result: AdjustmentResult, summary: dict, flagged: np.ndarray) -> list[str]:
-    s0, r = summary["sigma0"], summary["redundancy"]
+def _summary_section(project: Project, result: AdjustmentResult, summary: "RunSummary", flagged: np.ndarray) -> list[str]:
+    s0, r = summary.sigma0, summary.redundancy
     cards = []
     if s0 is not None:
         cards.append(_card(f"{s0:.3f}", "&sigma;<sub>0</sub> a posteriori"))
     cards.append(_card(str(r), "redundancy"))
-    conv = summary["converged"]
-    cards.append(_card(f"{summary['iterations']}", "iterations, " + ("converged" if conv else "NOT converged"),
+    conv = summary.converged
+    cards.append(_card(f"{summary.iterations}", "iterations, " + ("converged" if conv else "NOT converged"),
                        "good" if conv else "bad"))
-    cp = summary["check_points"]
+    cp = summary.check_points
     if cp["n"]:
         rms_xy = np.hypot(cp["rms_X"], cp["rms_Y"])
         cards.append(_card(f"{rms_xy:.3f} / {cp['rms_Z']:.3f} m", f"check points ({cp['n']}): RMS XY / Z"))
@@ -75,25 +79,25 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
     kind_text = ", ".join(f"{kinds[k]} {KIND_NAMES[k]}" for k in sorted(KIND_NAMES) if kinds[k])
     method = {"conditions": "conditions (Schmid's simultaneous adjustment)", "bundle": "bundle (collinearity)"}
     rows = [
-        ("method", _fmt(method.get(summary["method"], summary["method"]))),
-        ("solver", _fmt(summary["solver"])),
-        ("factorisation of the normal equations", _fmt(summary.get("factorisation"))),
-        ("BLAS it ran on", _without_folders(summary.get("blas"))),
+        ("method", _fmt(method.get(summary.method, summary.method))),
+        ("solver", _fmt(summary.solver)),
+        ("factorisation of the normal equations", _fmt(summary.factorisation)),
+        ("BLAS it ran on", _without_folders(summary.blas)),
         ("&sigma;<sub>0</sub> a posteriori (unit: the a-priori &sigma;)", _fmt(s0, ".4f")),
-        ("v<sup>T</sup>P v", _fmt(summary["vtpv"])),
+        ("v<sup>T</sup>P v", _fmt(summary.vtpv)),
         ("redundancy r", _fmt(r)),
-        ("iterations", _fmt(summary["iterations"])),
+        ("iterations", _fmt(summary.iterations)),
         ("converged", f"<span class='{'ok' if conv else 'no'}'>{_fmt(conv)}</span>"),
         ("termination (why the iteration stopped)", _termination_text(summary)),
     ]
-    if "frame" in summary:  # a project in map coordinates (striptri.crs)
-        f = summary["frame"]
+    if summary.frame is not None:  # a project in map coordinates (striptri.crs)
+        f = summary.frame
         rows.append(("coordinate frame", html.escape(
             f"files in {f['crs_name']} ({f['crs']}), {f['heights']} heights"
             + (f" (geoid: {f['geoid']})" if "geoid" in f else "")
             + f"; adjusted, and shown in this report (points, check points), in the local frame: {f['local']}")))
-    if "datum" in summary:  # a free network (datum.FreeNetwork.summary)
-        d = summary["datum"]
+    if summary.datum is not None:  # a free network (datum.FreeNetwork.summary)
+        d = summary.datum
         on = (f"inner constraints on {d['n_datum_points']} object points" if "n_datum_points" in d
               else "inner constraints on the photos")
         free = "; ".join(d["free_directions"])
@@ -105,17 +109,17 @@ def _summary_section(project: Project, result: AdjustmentResult, summary: dict, 
         rows.append(("global test: 95 % range of &sigma;<sub>0</sub> if the a-priori &sigma; hold",
                      f"{lo:.3f} &ndash; {hi:.3f} ({verdict})"))
     sizes = [
-        ("photographs", _fmt(summary["n_photos"])),
+        ("photographs", _fmt(summary.n_photos)),
         ("strips", _fmt(len(set(project.photos.strip_ids)))),
         ("cameras", _fmt(len(project.cameras))),
-        ("object points", _fmt(summary["n_points"])),
+        ("object points", _fmt(summary.n_points)),
         ("&nbsp;&nbsp;by kind", _fmt(kind_text)),
         ("plate measurements (points on photos)", _fmt(len(project.image_points))),
-        ("observations", _fmt(summary["n_observations"])),
-        ("condition equations", _fmt(summary["n_conditions"])),
-        ("unknowns", _fmt(summary["n_unknowns"])),
+        ("observations", _fmt(summary.n_observations)),
+        ("condition equations", _fmt(summary.n_conditions)),
+        ("unknowns", _fmt(summary.n_unknowns)),
     ]
-    timings = [(html.escape(k.replace("_", " ")), _fmt(v, ".3f")) for k, v in summary["timings_s"].items()]
+    timings = [(html.escape(k.replace("_", " ")), _fmt(v, ".3f")) for k, v in summary.timings_s.items()]
     return [
         _section("summary"),
         "<div class='cards'>" + "".join(cards) + "</div>",
@@ -134,24 +138,24 @@ TERMINATION_WORDS = {
 }
 
 
-def _termination_text(summary: dict) -> str:
+def _termination_text(summary: "RunSummary") -> str:
     """summary.json's termination in words, with its message when it has one."""
-    reason = str(summary.get("termination"))
+    reason = str(summary.termination)
     text = html.escape(TERMINATION_WORDS.get(reason, reason))
-    message = summary.get("message")
+    message = summary.message
     if message and reason != "iteration_limit":  # the iteration limit's message is in the warnings
         text += f"<br><small>{html.escape(message)}</small>"
-    return f"<span class='{'ok' if summary['converged'] else 'no'}'>{text}</span>"
+    return f"<span class='{'ok' if summary.converged else 'no'}'>{text}</span>"
 
 
-def _warnings_section(summary: dict) -> list[str]:
+def _warnings_section(summary: "RunSummary") -> list[str]:
     """Everything the run warned of: input it did not use (the reader's notes), a result kept
     although it did not converge, solver warnings. Nothing in the input is ignored silently."""
-    warnings = summary.get("warnings") or []
+    warnings = summary.warnings or []
     parts = [_section("warnings")]
-    if not summary["converged"]:
-        parts.append(f"<p class='no'>The adjustment did not converge ({html.escape(str(summary.get('termination')))})"
-                     f": {html.escape(str(summary.get('message') or ''))}</p>")
+    if not summary.converged:
+        parts.append(f"<p class='no'>The adjustment did not converge ({html.escape(str(summary.termination))})"
+                     f": {html.escape(str(summary.message or ''))}</p>")
     if warnings:
         parts.append("<ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul>")
     else:
@@ -162,10 +166,10 @@ def _warnings_section(summary: dict) -> list[str]:
 CORRECTION_NAMES = {"earth_curvature": "Earth curvature", "refraction": "Atmospheric refraction"}
 
 
-def _corrections_section(summary: dict) -> list[str]:
+def _corrections_section(summary: "RunSummary") -> list[str]:
     """The corrections of the plate coordinates that were applied (summary.json "plate_corrections",
     striptri.equations.plate_corrections): size, direction and the formula's source; nothing when none was."""
-    applied = summary.get("plate_corrections")
+    applied = summary.plate_corrections
     if not applied:
         return []
     unit = html.escape(applied["plate_unit"])
@@ -181,7 +185,7 @@ def _corrections_section(summary: dict) -> list[str]:
                     "direction", "formula and source"], rows, left=1)]
 
 
-def _distances_section(project: Project, result: AdjustmentResult, summary: dict, points,
+def _distances_section(project: Project, result: AdjustmentResult, summary: "RunSummary", points,
                        cols: dict | None = None) -> list[str]:
     """The observed distances, their residuals and tests (bundle.distances.report_parts,
     reliability.distances); nothing without. cols: distances.csv's columns when the caller has them
@@ -190,15 +194,15 @@ def _distances_section(project: Project, result: AdjustmentResult, summary: dict
         return []
     if cols is None:
         cols = distance_table(project, result, points.xyz,
-                              critical=(summary.get("blunders") or {}).get("critical_value"))
+                              critical=(summary.blunders or {}).get("critical_value"))
     return [_section("distances")] + [p if isinstance(p, str) else _table(*p) for p in
                                       distance_report_parts(project.points.ids, project.distances, points.xyz, cols)]
 
 
-def _inactive_section(summary: dict, unit: "ResidualUnit") -> list[str]:
+def _inactive_section(summary: "RunSummary", unit: "ResidualUnit") -> list[str]:
     """The measurements image_points.csv marks inactive (summary.json "inactive", striptri.report.inactive):
     not adjusted; their residuals against the adjusted result. Nothing when there are none."""
-    info = summary.get("inactive")
+    info = summary.inactive
     if not info:
         return []
     rows = [[html.escape(r["photo_id"]), html.escape(r["point_id"]), unit(r["vx"]), unit(r["vy"])]
@@ -214,9 +218,9 @@ def _inactive_section(summary: dict, unit: "ResidualUnit") -> list[str]:
                    left=2)]
 
 
-def _checks_section(summary: dict) -> list[str]:
+def _checks_section(summary: "RunSummary") -> list[str]:
     rows = []
-    for k, v in summary["checks"].items():
+    for k, v in summary.checks.items():
         holds = v is not None and abs(v) < page.CHECKS_HOLD_BELOW
         mark = "<span class='ok'>holds</span>" if holds else "<span class='no'>fails</span>"
         rows.append((CHECK_TEXT.get(k, html.escape(k)), _fmt(v, ".2e"), mark))
@@ -436,13 +440,13 @@ def _gnss_section(project: Project, result: AdjustmentResult) -> list[str]:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np.ndarray,
+def html_report(project: Project, result: AdjustmentResult, summary: "RunSummary", w: np.ndarray,
                 points: Triangulated | None = None, flags=None, figures=None, timings: dict | None = None,
                 distances: dict | None = None) -> str:
     """The report as one self-contained HTML text.
 
-    summary: summary.json's dict; w: (m, 2) normalised residuals of the plate coordinates (nan where
-    undefined); points: the triangulated points (pipeline.triangulate_result), needed for the error
+    summary: the run's runs.RunSummary (summary.json's typed form); w: (m, 2) normalised
+    residuals of the plate coordinates (nan where undefined); points: the triangulated points (pipeline.triangulate_result), needed for the error
     ellipses and the check-point table; flags: optional (m,) flags of the plate measurements (bool, or
     residuals.csv's "flag" strings); by default residuals.csv's rule |w| > 3.29. figures: optional
     name -> PNG bytes made elsewhere ("structure": the normal matrix pattern). timings: optional dict
@@ -503,10 +507,10 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
     body.append(structure)
 
     nav = " ".join(f"<a href='#{k}'>{v}</a>" for k, v in SECTIONS.items()
-                   if (k != "corrections" or "plate_corrections" in summary)
+                   if (k != "corrections" or summary.plate_corrections is not None)
                    and (k != "gnss" or result.layout.gnss_cols is not None)
                    and (k != "film" or project.film is not None)
-                   and (k != "inactive" or "inactive" in summary)
+                   and (k != "inactive" or summary.inactive is not None)
                    and (k != "distances" or (project.distances is not None and points is not None)))
     total = time.perf_counter() - t0
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
@@ -516,9 +520,9 @@ def html_report(project: Project, result: AdjustmentResult, summary: dict, w: np
         "<meta name='viewport' content='width=device-width, initial-scale=1'>"
         f"<title>striptri adjustment report</title><style>{_STYLE}</style></head><body><main>",
         "<h1>Aerial triangulation: adjustment report</h1>",
-        f"<p class='sub'>Project {src or '(in memory)'} &middot; {summary['n_photos']} photographs, "
-        f"{summary['n_points']} points &middot; method {html.escape(summary['method'])}, solver "
-        f"{html.escape(summary['solver'])}</p>",
+        f"<p class='sub'>Project {src or '(in memory)'} &middot; {summary.n_photos} photographs, "
+        f"{summary.n_points} points &middot; method {html.escape(summary.method)}, solver "
+        f"{html.escape(summary.solver)}</p>",
         f"<nav>{nav}</nav>",
         run_block(summary),
     ]

@@ -4,6 +4,8 @@ largest measurements."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import html
 import numpy as np
 
@@ -12,6 +14,8 @@ from ..core.result import AdjustmentResult
 from ..model import CHECK, KIND_NAMES, Project
 from ..equations.triangulation import Triangulated
 from ..core.adjusted_points import undetermined_points
+if TYPE_CHECKING:  # the type only: the report is below the run (runs.py)
+    from ..runs import RunSummary
 from . import page  # the page's limits, read at call time (tests set them)
 from .page import (
     ResidualUnit, _cell, _fmt, _img, _kind_names, _section, _table, length_unit, residual_unit,
@@ -153,7 +157,7 @@ def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, 
 
 
 def _check_points_section(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
-                          summary: dict) -> list[str]:
+                          summary: "RunSummary") -> list[str]:
     pts = project.points
     flagged = undetermined_points(project, points)
     sel = np.flatnonzero((pts.kind == CHECK) & points.determined & ~flagged)
@@ -170,7 +174,7 @@ def _check_points_section(project: Project, result: AdjustmentResult, points: Tr
     classes = [""] * len(rows)
     mean = d.mean(axis=0)
     rows.append(["mean"] + [_fmt(x * f, ".3f") for x in mean] + ["", "", ""])
-    cp = summary["check_points"]
+    cp = summary.check_points
     rms = [cp["rms_X"], cp["rms_Y"], cp["rms_Z"]]  # summary.json's values (m), in full in the cell's title
     rows.append(["RMS"] + [_cell(_fmt(x * f, ".3f"), "", repr(float(x))) for x in rms]
                 + [_fmt(x * f, ".3f") for x in np.sqrt(np.nanmean(sig[sel] ** 2, axis=0))])
@@ -244,10 +248,10 @@ def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
     ]
 
 
-def _rejected_section(summary: dict) -> list[str]:
-    """summary["blunders"]["groups"] (reliability.rejections): per rejected group its members, w, MDB
+def _rejected_section(summary: "RunSummary") -> list[str]:
+    """summary.blunders["groups"] (reliability.rejections): per rejected group its members, w, MDB
     and effect on the ground."""
-    groups = (summary.get("blunders") or {}).get("groups") or []
+    groups = (summary.blunders or {}).get("groups") or []
     parts = [_section("rejected")]
     if not groups:
         return parts + ["<p>No measurement was rejected.</p>"]
