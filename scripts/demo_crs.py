@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri import simulate as sim
 from striptri.io.project_writer import write_project
 from striptri.model import CoordinateSettings

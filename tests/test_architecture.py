@@ -186,3 +186,53 @@ def test_few_modules_in_the_root_and_none_over_600_lines():
         lines = len(path.read_text().splitlines())
         if lines > LONG_MODULE:
             assert lines <= LONG_MODULE, f"{name}: {lines} lines"
+
+
+def sigma_to_weight_sites(tree: ast.AST) -> list[int]:
+    """Lines where a standard deviation becomes a weight by hand: ``x / sigma**2`` (a name that
+    holds "sig"), ``1 / sigma``, ``1 / np.sqrt(...)``, ``1 / np.where(...)``, ``x ** -2`` and
+    ``1 / q`` of a variance named q_*."""
+    def named(node, part):
+        return isinstance(node, (ast.Name, ast.Attribute, ast.Subscript, ast.Call)) and part in ast.unparse(node)
+
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Div):
+            right = node.right
+            if isinstance(right, ast.BinOp) and isinstance(right.op, ast.Pow) and named(right.left, "sig"):
+                lines.append(node.lineno)
+            elif (isinstance(node.left, ast.Constant) and isinstance(right, ast.Call)
+                  and ast.unparse(right.func) == "np.sqrt"):
+                lines.append(node.lineno)
+            elif isinstance(node.left, ast.Constant) and (named(right, "sig") or named(right, "q_")
+                                                          or ast.unparse(right).startswith("np.where(")):
+                lines.append(node.lineno)
+        elif (isinstance(node, ast.BinOp) and isinstance(node.op, ast.Pow) and isinstance(node.right, ast.UnaryOp)
+              and isinstance(node.right.op, ast.USub)):
+            lines.append(node.lineno)
+    return lines
+
+
+WEIGHTS = "striptri.equations.weights"
+NOT_A_WEIGHT = {("striptri.solvers.base", "1.0 / np.sqrt(d)")}  # Jacobi scaling of a normal matrix's diagonal
+
+
+def test_a_sigma_becomes_a_weight_only_in_equations_weights():
+    """equations/weights.py is the only place where a standard deviation becomes a weight (issue 27)."""
+    found = []
+    for name, path in module_files().items():
+        if name == WEIGHTS:
+            continue
+        text = path.read_text()
+        source = text.splitlines()
+        for line in sigma_to_weight_sites(ast.parse(text)):
+            if not any(name == m and snippet in source[line - 1] for m, snippet in NOT_A_WEIGHT):
+                found.append(f"{name}:{line}: {source[line - 1].strip()}")
+    assert not found, "\n".join(found)
+
+
+def test_the_weight_finder_finds_the_forms_it_looks_for():
+    tree = ast.parse("a = 1.0 / sigma_xy[rows] ** 2\nb = B / s.sigma**2\nc = 1.0 / np.sqrt(q)\nd = f**-2.0\n"
+                     "e = 1.0 / q_control\nf = 1.0 / np.where(w, q, 1.0)\ng = (1.0 / sigma)[..., None]\n"
+                     "ok = x / y**2 + 1.0 / n\n")
+    assert sigma_to_weight_sites(tree) == [1, 2, 3, 4, 5, 6, 7]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri import simulate as sim
 from striptri.core.adjusted_points import triangulate_adjusted
 from striptri.adjustment import AdjustmentOptions, adjust

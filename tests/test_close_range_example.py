@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri.precision.export import CovarianceRequest
 from striptri.pipeline import run_adjust
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri.cli import main
 from striptri.precision.export import CovarianceRequest, in_grid, joint_covariance, s_transform
 from striptri.core.adjusted_points import triangulate_adjusted

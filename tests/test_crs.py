@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri import simulate as sim
 from striptri.cli import main
 from striptri.crs.frame import LocalFrame, angle_sigmas

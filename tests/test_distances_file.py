@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri import simulate as sim
 from striptri.adjustment import adjust
 from striptri.core.options import AdjustmentOptions

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from cli_support import assert_clean_failure, run
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri.errors import InputError
 from striptri.simulate.film import FilmOptions, film_project_files
 from striptri.io.csvtable import format_csv

@@ -53,7 +53,7 @@ def test_run_options_hold_every_option_of_the_adjust_command():
     from dataclasses import fields
 
     from striptri.cli import main
-    from striptri.runs import ADJUSTMENT_FIELDS, RunOptions
+    from striptri.core.runs import ADJUSTMENT_FIELDS, RunOptions
 
     names = {f.name for f in fields(RunOptions)}
     given = {p.name for p in main.commands["adjust"].params} - {"project_dir", "out_dir", "quiet"}
@@ -73,7 +73,7 @@ def test_run_summary_is_what_summary_json_holds(tmp_path):
     from pathlib import Path
 
     from striptri.pipeline import run_adjust
-    from striptri.runs import OPTIONAL_SECTIONS, RunOptions
+    from striptri.core.runs import OPTIONAL_SECTIONS, RunOptions
 
     folder = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "strip8"
     products = run_adjust(folder, tmp_path / "out", RunOptions(blunders="snoop"))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri.pipeline import run_adjust
 
 REPO = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.model import TIE
 from striptri.pipeline import adjust_products

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri import solvers
 from striptri.solvers import SOLVERS, SolverInfo, SolverOptions, describe, make_solver
 from striptri.solvers.cvxopt_cholesky import lower_triangle

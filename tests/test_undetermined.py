@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from cli_support import DATA, SHARED_DATA, run
-from striptri.runs import RunOptions
+from striptri.core.runs import RunOptions
 from striptri.equations.triangulation import (WEAK_FACTOR, WEAK_RCOND, conditioning, far_weaker_than_the_rest)
 
 LADYBUG = SHARED_DATA / "bal_ladybug49" / "problem-49-7776-pre.txt"

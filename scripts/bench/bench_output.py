@@ -102,7 +102,7 @@ def worker(phase: str, arg: str) -> dict:
     summary["blunders"] = pipeline.blunder_summary(det)
     summary["warnings"] = []
     try:  # the typed summary of the trees that have it (issue 27); a dict before
-        from striptri.runs import RunSummary
+        from striptri.core.runs import RunSummary
     except ImportError:
         pass
     else:

@@ -42,7 +42,7 @@ from .reliability import blunder_options, detect_blunders
 from .reliability.distances import distance_table
 from .reliability.rejections import rejection_groups
 from .reliability.outcome import without_tests
-from .runs import RunOptions, RunSummary
+from .core.runs import RunOptions, RunSummary
 from .solvers import SolverUnavailable
 from .equations.triangulation import Triangulated
 

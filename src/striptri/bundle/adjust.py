@@ -50,6 +50,7 @@ from .distances import couple, distance_cost, linearise_distances, locate_points
 from .padding import pad_batches, real_rays
 from .damping import COST_ROUND_OFF, LM_MAX, ROUND_OFF, Damping
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
+from ..equations import weights
 
 METHOD = "bundle"
 
@@ -554,7 +555,7 @@ def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution
             normals.add_points(chunk, state.camera_of_photo, scatters, keep=False)
         rows, e, sigma = real_rays(chunk.batch, chunk.batch.image_rows, chunk.e, chunk.sigma)
         # l^ - f = (l - f) + (l^ - l) = sigma e + v
-        g = e + (plate_hat[rows] - obs.plate[rows]) / sigma
+        g = e + weights.whiten(plate_hat[rows] - obs.plate[rows], sigma)
         g_control = np.sqrt(chunk.weight) * (control_hat[chunk.batch.point_index] - xyz[chunk.batch.point_index])
         if g.size:
             max_g = max(max_g, float(np.max(np.abs(g))), float(np.max(np.abs(g_control))))

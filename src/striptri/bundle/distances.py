@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import Distances  # noqa: F401  (the observations these functions take)
+from ..equations import weights
 
 
 def linearise_distances(dist: Distances, xyz: np.ndarray, free: np.ndarray):
@@ -38,14 +39,14 @@ def linearise_distances(dist: Distances, xyz: np.ndarray, free: np.ndarray):
     length = np.linalg.norm(delta, axis=1)
     u = delta / length[:, None]
     s = dist.sigma[:, None]
-    e = (dist.distance - length) / dist.sigma
-    return e, u / s * free[dist.point_from], -u / s * free[dist.point_to]
+    e = weights.whiten(dist.distance - length, dist.sigma)
+    return e, weights.whiten(u, s) * free[dist.point_from], weights.whiten(-u, s) * free[dist.point_to]
 
 
 def distance_cost(dist: Distances, xyz: np.ndarray) -> float:
     """Sum of the squared whitened distance residuals at xyz."""
     length = np.linalg.norm(xyz[dist.point_from] - xyz[dist.point_to], axis=1)
-    return float(np.sum(((dist.distance - length) / dist.sigma) ** 2))
+    return float(np.sum(weights.whiten(dist.distance - length, dist.sigma) ** 2))
 
 
 def locate_points(chunk_point_index: list[np.ndarray], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,6 +27,7 @@ from ..equations.linearise import Observations
 from ..model import Project
 from ..equations.parameters import State
 from ..equations.triangulation import intersect_rays
+from ..equations import weights
 
 # A single ray closer to the vertical than this (|r_xy| / |r|) cannot place a plan point's height.
 _STEEP_RAY = 1e-3
@@ -62,7 +63,7 @@ def point_unknowns(project: Project, batches: list[GroupBatch], obs: Observation
     included = np.zeros(len(pts), dtype=bool)
     for batch in batches:
         included[batch.point_index] = True
-    weight = np.where(weighted, 1.0 / np.where(weighted, obs.q_control, 1.0), 0.0)
+    weight = weights.variance_weight(obs.q_control, weighted)
     return PointUnknowns(free=~held, weight=weight, given=np.where(given, obs.control, 0.0), held=held,
                          included=included)
 

@@ -39,6 +39,7 @@ from ..equations.parameters import State, UnknownLayout
 from ..equations.triangulation import ray_terms
 from .dense import DenseSchur, dense_pays
 from .points import PointUnknowns
+from ..equations import weights
 
 @dataclass
 class PointChunk:
@@ -87,8 +88,7 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     e, d_point, d_centre, d_rot, d_camera = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv, xyz_ground,
                                                       obs.plate[rows], with_lens=layout.lens_in_play(state))
     d_rot = d_rot @ rotation_maps[ph]
-    sigma = np.sqrt(obs.q_plate[rows])
-    s = (1.0 / sigma)[..., None]
+    sigma, s = weights.whitening(obs.q_plate[rows])
     real = getattr(batch, "real", None)  # bundle.padding: padded rays get weight zero
     if real is not None:
         s = s * real[:, :, None, None]
@@ -100,7 +100,7 @@ def linearise_points(batch: GroupBatch, state: State, layout: UnknownLayout, rot
     Jc = np.concatenate(parts, -1) * s
     free = unknowns.free[pt]
     Jp = d_point * s * free[:, None, None, :]
-    e = e / sigma if real is None else e / sigma * real[..., None]
+    e = weights.whiten(e, sigma) if real is None else weights.whiten(e, sigma) * real[..., None]
     cols = np.concatenate(col_parts, -1)
     weight = unknowns.weight[pt]
     control_misclosure = np.where(weight > 0, unknowns.given[pt] - xyz_ground, 0.0)
@@ -128,7 +128,7 @@ def residual_sum_of_squares(batch: GroupBatch, state: State, layout: UnknownLayo
             e = terms.obs - terms.pred
         else:
             e = xy_obs - pred
-        total = float(np.sum((e / np.sqrt(obs.q_plate[rows])) ** 2))
+        total = float(np.sum(weights.whiten(e, np.sqrt(obs.q_plate[rows])) ** 2))
     weight = unknowns.weight[pt]
     total += float(np.sum(weight * np.where(weight > 0, unknowns.given[pt] - xyz_ground, 0.0) ** 2))
     return total if np.isfinite(total) else np.inf

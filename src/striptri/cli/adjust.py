@@ -78,7 +78,7 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
     from striptri import progress
     from striptri.pipeline import run_adjust
-    from striptri.runs import RunOptions
+    from striptri.core.runs import RunOptions
 
     covariance = _covariance_request(covariance_groups, covariance_datum, covariance_rigid)
     with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):

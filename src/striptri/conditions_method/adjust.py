@@ -37,6 +37,7 @@ from ..model import Project
 from ..equations.normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, sums_camera_columns, whiten
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
+from ..equations import weights
 
 METHOD = "conditions"
 
@@ -172,7 +173,7 @@ def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterOb
     if len(pobs):
         f, grad, cols = pobs.evaluate(sweep.state, sweep.layout, sweep.T)
         v_par = -(pobs.misclosure(f) - np.einsum("pi,pi->p", grad, dxp[cols]))
-        vtpv += float(np.sum((v_par / pobs.sigma) ** 2))
+        vtpv += float(np.sum(weights.whiten(v_par, pobs.sigma) ** 2))
     return plate_hat, control_hat, v_par, vtpv, distance_hat
 
 

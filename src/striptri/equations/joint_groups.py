@@ -44,6 +44,7 @@ from ..selected_inverse.covariance import ray_slots
 from .groups import adjusted_kind, build_batches, rays_per_point
 from ..model import FULL, Project
 from .triangulation import ray_terms
+from . import weights
 
 FILE_NAME = "distances.csv"
 
@@ -223,7 +224,7 @@ class JointGroups:
         B_d = np.einsum("ri,riu->ru", u, dX_dx[ia]) - np.einsum("ri,riu->ru", u, dX_dx[ib])
         Q[dpos], l[dpos], l_hat[dpos] = dist.sigma[comp.distances] ** 2, dist.distance[comp.distances], d_hat
         g_d = length - d_hat
-        scale = 1.0 / np.sqrt((A_d * A_d) @ Q)
+        scale = weights.inverse_sigma((A_d * A_d) @ Q)
         A[rows], B[rows], g[rows] = A_d * scale[:, None], B_d * scale[:, None], g_d * scale
         w = g + A @ (l - l_hat)
         cat = lambda x: np.concatenate(x) if x else np.zeros(0, dtype=int)  # noqa: E731
@@ -367,7 +368,7 @@ def joint_intersections(project: Project, result, xyz: np.ndarray, scale_form: s
             J_x = np.concatenate(J_parts, 2)  # (k, 2, width): the columns of js.cols, ray by ray
             sl = slice(3 * j, 3 * j + 3)
             JX = dX[0].reshape(2 * k, 3)
-            PJ = JX / ip.sigma_xy[rows].reshape(2 * k, 1) ** 2
+            PJ = weights.weigh(JX, ip.sigma_xy[rows].reshape(2 * k, 1))
             N[sl, sl] += JX.T @ PJ
             R[sl, js.plate_pos[o_plate:o_plate + 2 * k]] = PJ.T
             Nx[sl, u:u + k * width] = _ray_block(PJ, J_x)
@@ -376,7 +377,7 @@ def joint_intersections(project: Project, result, xyz: np.ndarray, scale_form: s
             here = js.control_target // 3 == p
             if here.any():
                 qc = q_control[p]
-                pc = np.where(given[p] & (qc > 0), 1.0 / np.where(qc > 0, qc, 1.0), 0.0)
+                pc = weights.variance_weight(qc, given[p] & (qc > 0))
                 N[sl, sl] += np.diag(pc)
                 R[sl, js.control_pos[here]] = np.diag(pc)[:, js.control_target[here] % 3]
         for e, (a, b), o in zip(js.component.distances, js.component.ends, js.distance_pos):
@@ -384,8 +385,8 @@ def joint_intersections(project: Project, result, xyz: np.ndarray, scale_form: s
             d /= np.linalg.norm(d)
             Jd = np.zeros(3 * n)
             Jd[3 * a:3 * a + 3], Jd[3 * b:3 * b + 3] = d, -d
-            N += np.outer(Jd, Jd) / dist.sigma[e] ** 2
-            R[:, o] = Jd / dist.sigma[e] ** 2
+            N += weights.weigh(np.outer(Jd, Jd), dist.sigma[e])
+            R[:, o] = weights.weigh(Jd, dist.sigma[e])
         free = ~(given[pts] & (q_control[pts] == 0)).ravel()
         Qm = np.zeros((3 * n, 3 * n))
         Qm[np.ix_(free, free)] = np.linalg.inv(N[np.ix_(free, free)])

@@ -22,6 +22,7 @@ from .conditions import collinearity, ray_chain, ray_conditions
 from .groups import COLLINEARITY, GroupBatch
 from .observations import Observations  # noqa: F401  (re-exported: striptri.equations.linearise.Observations)
 from .parameters import State, UnknownLayout
+from . import weights
 
 
 @dataclass
@@ -131,7 +132,7 @@ def linearise(
     B, cols = unknown_blocks(lin, batch, state, layout, rotation_maps)
 
     g = lin.g
-    scale = 1.0 / np.sqrt(np.matmul(A * A, Q[..., None])[..., 0])  # 1 / sigma of each condition
+    scale = weights.inverse_sigma(np.matmul(A * A, Q[..., None])[..., 0])  # 1 / sigma of each condition
     A, B, g = A * scale[..., None], B * scale[..., None], g * scale
     if transform is not None:
         Tg = transform(batch)

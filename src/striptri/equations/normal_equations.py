@@ -13,6 +13,7 @@ import scipy.sparse as sp
 
 from ..geometry.lens import NCP
 from .linearise import GroupSystem
+from . import weights
 
 
 def whiten(system: GroupSystem, residual_map: bool = False):
@@ -72,8 +73,8 @@ class NormalAccumulator:
 
     def add_rows(self, grad: np.ndarray, cols: np.ndarray, misclosure: np.ndarray, sigma: np.ndarray) -> None:
         """Parameter observations: one condition each, B = -grad, w = misclosure, M = sigma^2."""
-        Bw = (-grad / sigma[:, None])[:, None, :]
-        ww = (misclosure / sigma)[:, None]
+        Bw = weights.whiten(-grad, sigma[:, None])[:, None, :]
+        ww = weights.whiten(misclosure, sigma)[:, None]
         self.add(Bw, ww, cols, np.zeros_like(ww))
 
 

@@ -62,6 +62,7 @@ from ..geometry.lens import ideal_from_observed
 from ..model import Project
 from .parameters import State, UnknownLayout
 from .triangulation import ray_terms
+from . import weights
 
 MIN_POINTS = 3
 
@@ -142,8 +143,8 @@ class DatumJoint:
                 Jd = np.zeros(3 * k)
                 Jd[3 * a:3 * a + 3] = delta / length * free[slots[a]]
                 Jd[3 * c:3 * c + 3] = -delta / length * free[slots[c]]
-                N += np.outer(Jd, Jd) / self.sigma[e] ** 2
-                bJ += Jd * (self.distance[e] - length) / self.sigma[e] ** 2
+                N += weights.weigh(np.outer(Jd, Jd), self.sigma[e])
+                bJ += weights.weigh(Jd * (self.distance[e] - length), self.sigma[e])
             Y[slots] = np.linalg.solve(N, Hp[slots].reshape(3 * k, d)).reshape(k, 3, d)
             b[slots] = bJ.reshape(k, 3)
         return Y, b
@@ -215,7 +216,7 @@ class PointDatum:
         given = pts.given_axes[index] & np.isfinite(pts.xyz_given[index])
         weighted = given & (obs.q_control[index] > 0)
         held = given & ~weighted
-        weight = np.where(weighted, 1.0 / np.where(weighted, obs.q_control[index], 1.0), 0.0)
+        weight = weights.variance_weight(obs.q_control[index], weighted)
         given_xyz = np.where(given, obs.control[index], 0.0)
         centroid = state.xyz0.mean(axis=0)
         datum = PointDatum(index, ids, np.zeros((len(index), 3)), rows, slot,
@@ -272,13 +273,12 @@ class PointDatum:
             xyz[self.slot], obs.plate[rows][:, None], with_lens=layout.lens_in_play(state))
         e, d_point, d_centre, d_rot, d_camera = e[:, 0], d_point[:, 0], d_centre[:, 0], d_rot[:, 0], d_camera[:, 0]
         d_rot = d_rot @ layout.rotation_maps(state)[ph]
-        sigma = np.sqrt(obs.q_plate[rows])
-        s = (1.0 / sigma)[..., None]
+        sigma, s = weights.whitening(obs.q_plate[rows])
         elements = layout.camera_elements
         Jc = np.concatenate([d_centre, d_rot, d_camera[..., elements]], -1) * s
         cols = np.concatenate([layout.photo_cols[ph], layout.camera_cols[state.camera_of_photo[ph]][:, elements]], -1)
         Jp = d_point * s * self.free[self.slot][:, None, :]
-        e = e / sigma
+        e = weights.whiten(e, sigma)
         n = len(self.index)
         N_pp = _sum_by(self.slot, np.einsum("rai,raj->rij", Jp, Jp), n)
         b_p = _sum_by(self.slot, np.einsum("rai,ra->ri", Jp, e), n)

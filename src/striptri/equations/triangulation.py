@@ -25,6 +25,7 @@ from .conditions import coplanarity, ray_chain, RayConditions
 from ..model import CHECK, Project
 from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
 from .parameters import State, UnknownLayout
+from . import weights
 
 
 def intersect_rays(xyz_centre: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None,
@@ -254,8 +255,8 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
             xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
             xyz_point = _initial_points(R_ground_from_cam, xyz_centre, interior[..., :3], xy_ray, xyz_given[sel],
                                         given_mask[sel])
-            Pw = np.where(weighted[sel], 1.0 / np.where(weighted[sel], q_given[sel], 1.0), 0.0)
-            wxy = 1.0 / rays.sigma_xy[rows] ** 2  # (m, k, 2)
+            Pw = weights.variance_weight(q_given[sel], weighted[sel])
+            wxy = weights.weight(rays.sigma_xy[rows])  # (m, k, 2)
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 for _ in range(iterations):
                     res, dX, *_ = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs, meas,

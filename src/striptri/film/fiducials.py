@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from striptri.film import transform
+from ..equations import weights
 
 W_LIMIT = 3.29
 MAX_ITERATIONS = 20
@@ -91,7 +92,7 @@ def fit_fiducials(kind: str, xy_plate: np.ndarray, q_scan: np.ndarray, sigma_px:
         if not reject.any():
             break
         used[rows[reject], worst[reject]] = False
-    weight = np.where(used, 1.0 / sigma_px ** 2, 0.0)
+    weight = np.where(used, weights.weight(sigma_px), 0.0)
     vtpv = np.nansum(v * v * weight[..., None], (1, 2))
     with np.errstate(invalid="ignore"):
         sigma0 = np.where(redundancy > 0, np.sqrt(vtpv / np.maximum(redundancy, 1)), np.nan)
@@ -102,7 +103,7 @@ def fit_fiducials(kind: str, xy_plate: np.ndarray, q_scan: np.ndarray, sigma_px:
 def _fit(kind, xy_plate, q, sigma_px, measured, used):
     """One fit with the fiducials ``used``: params, N^-1, v and w of every measured fiducial, redundancy."""
     P, F = measured.shape
-    weight = np.repeat(np.where(used, 1.0 / sigma_px ** 2, 0.0), 2, axis=1)
+    weight = np.repeat(np.where(used, weights.weight(sigma_px), 0.0), 2, axis=1)
     lin = "affine" if kind == "projective" else kind
     n0 = transform.N_PARAMS[lin]
     _, _, A = transform.scan_from_plate(lin, np.zeros((P, n0)), xy_plate)

@@ -21,6 +21,7 @@ from ..selected_inverse.covariance import Slots
 from ..model import Project
 from ..reliability import PlateReliability
 from .ranking import ray_jacobians
+from ..equations import weights
 
 
 def own_point_shifts(plan: Project, result: AdjustmentResult, rel: PlateReliability) -> np.ndarray:
@@ -36,7 +37,7 @@ def own_point_shifts(plan: Project, result: AdjustmentResult, rel: PlateReliabil
     ApP = np.swapaxes(A_p, 1, 2) * p[:, None, :]  # (m, 3, 2)
     M = np.zeros((n_pt, 3, 3))
     np.add.at(M, pt, ApP @ A_p)
-    M += np.einsum("ni,ij->nij", np.where(weighted, 1.0 / np.where(weighted, sigma, 1.0) ** 2, 0.0), np.eye(3))
+    M += np.einsum("ni,ij->nij", weights.variance_weight(sigma**2, weighted), np.eye(3))
     free = (~held).astype(float)
     Mf = M * free[:, :, None] * free[:, None, :] + np.einsum("ni,ij->nij", 1.0 - free, np.eye(3))
     Minv = np.zeros((n_pt, 3, 3))

@@ -31,6 +31,7 @@ from ..adjustment import AdjustmentOptions, AdjustmentResult
 from ..geometry.collinearity import collinearity_jacobians
 from ..model import CHECK, TIE, Project
 from .design import CONTROL_KINDS
+from ..equations import weights
 
 DEFECT_TOL = 1e-10  # K's smallest eigenvalue below this (relative to 1): the drop leaves a datum defect
 
@@ -53,7 +54,7 @@ def ray_jacobians(plan: Project, result: AdjustmentResult):
     A_o = np.concatenate([jac.d_centre, jac.d_rotation @ T], axis=2)  # (m, 2, 6)
     cols = layout.photo_cols[ph]
     A_o = np.where((cols >= 0)[:, None, :], A_o, 0.0)
-    return jac.d_ground, A_o, cols, 1.0 / ip.sigma_xy**2
+    return jac.d_ground, A_o, cols, weights.weight(ip.sigma_xy)
 
 
 def ray_terms(plan: Project, result: AdjustmentResult):
@@ -100,7 +101,7 @@ def rank_control_fast(plan: Project, result: AdjustmentResult, sigma_points: np.
         held = pts.given_axes[k] & ~(np.nan_to_num(pts.sigma_given[k]) > 0)
         free = ~held
         if free.any():
-            w = np.where(np.nan_to_num(pts.sigma_given[k]) > 0, 1.0 / np.nan_to_num(pts.sigma_given[k], nan=1.0)**2, 0.0)
+            w = weights.variance_weight(np.nan_to_num(pts.sigma_given[k], nan=1.0)**2, np.nan_to_num(pts.sigma_given[k]) > 0)
             Mf = M[k][np.ix_(free, free)] + np.diag(w[free])
             Uf = U[free]
             dB += Uf.T @ np.linalg.solve(Mf, Uf)

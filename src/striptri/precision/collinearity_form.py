@@ -50,6 +50,7 @@ from ..selected_inverse.covariance import ray_slots
 from ..equations.groups import points_with_conditions
 from ..model import Project
 from ..equations.triangulation import Triangulated, ray_terms
+from ..equations import weights
 
 METHOD = "bundle"
 MAX_ENTRIES = 1 << 21  # entries of the gathered Qcc blocks (m D^2) of one chunk of points (16 MB)
@@ -138,7 +139,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
                 _, dX, dO, drot, dcam = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
                                                   tri.xyz[sel], result.plate_adjusted[rows], obs.plate[rows], lens)
             Jc = np.concatenate([dO, drot @ T[ph], dcam[..., elements]], 3)  # (m, k, 2, 6 + e)
-            Qm, pJX = tri.cov_measurement[sel], dX * (1.0 / obs.q_plate[rows])[..., None]
+            Qm, pJX = tri.cov_measurement[sel], dX * weights.inverse_variance(obs.q_plate[rows])[..., None]
             chunk = _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], layout.photo_cols,
                                    camera_cols, obs.q_plate[rows], full=blocks is not None, residuals=residuals)
             cov_orientation[sel] = chunk.orientation

@@ -45,8 +45,9 @@ from ..model import Project
 from ..equations.point_datum import JointBlock, export_correction
 from ..geometry.rotations import R_from_angles, angles_from_R, angles_jacobian, skew
 from ..equations.triangulation import Triangulated, ray_terms
+from ..equations import weights
+from ..core.runs import GROUPS, CovarianceRequest
 
-GROUPS = ("photos", "camera", "points")
 MAX_PARAMETERS = 20_000  # a dense matrix of this order is 3.2 GB: beyond it the export is refused
 
 
@@ -125,7 +126,7 @@ def _point_gradients(project: Project, result: AdjustmentResult, tri: Triangulat
                                       conv[:, None], tri.xyz[pt], result.plate_adjusted[rows][:, None],
                                       ip.xy[rows][:, None], with_lens=result.layout.lens_in_play(s))
     dX, dO, drot, dint = dX[:, 0], dO[:, 0], drot[:, 0], dint[:, 0]
-    w = 1.0 / ip.sigma_xy[rows] ** 2  # (m, 2)
+    w = weights.weight(ip.sigma_xy[rows])  # (m, 2)
     A = -np.einsum("mij,mkj,mk->mik", tri.cov_measurement[pt], dX, w)  # (m, 3, 2): -Qm J_X^T P
     drot_u = np.einsum("mai,mij->maj", drot, layout.rotation_maps(s)[ph])
     cols = np.concatenate([layout.photo_cols[ph], layout.camera_cols[s.camera_of_photo[ph]]], 1)
@@ -317,25 +318,6 @@ def in_grid(export: CovarianceExport, frame) -> CovarianceExport:
     F = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
     cov = F @ (F @ export.cov).T
     return replace(export, values=values, cov=0.5 * (cov + cov.T), H=F @ export.H, crs=frame.settings.crs)
-
-
-@dataclass(frozen=True)
-class CovarianceRequest:
-    """What ``striptri adjust --covariance`` asks for: groups (GROUPS), the datum points of an
-    S-transformation (empty: the adjustment's datum) and whether it is a similarity (scale) or a
-    rigid motion."""
-
-    groups: tuple[str, ...]
-    datum_points: tuple[str, ...] = ()
-    scale: bool = True
-
-    def __post_init__(self):
-        unknown = [g for g in self.groups if g not in GROUPS]
-        if unknown or not self.groups:
-            raise ValueError(f"--covariance: unknown group(s) {', '.join(unknown) or '(none)'}; choose from "
-                             f"{', '.join(GROUPS)}, separated by commas")
-        if self.datum_points and "points" not in self.groups:
-            raise ValueError("--covariance-datum needs the group points in --covariance")
 
 
 def covariance_file(project: Project, result: AdjustmentResult, request: CovarianceRequest, frame=None) -> bytes:

@@ -32,6 +32,7 @@ from ..equations.joint_groups import JointGroups, has_distances, joint_intersect
 from ..model import Project
 from ..equations.parameter_observations import build_parameter_observations
 from ..equations.triangulation import ray_terms, safe_inverse
+from ..equations import weights
 
 W_CRITICAL = 3.29  # two-sided, alpha0 = 0.001 (Baarda)
 
@@ -58,8 +59,8 @@ class ResidualCofactors:
         return {
             "plate": self.plate / obs.q_plate,
             "control": np.where(obs.q_control > 0, self.control / np.where(obs.q_control > 0, obs.q_control, 1), 0),
-            "parameters": self.parameters / pobs.sigma**2 if len(pobs) else np.zeros(0),
-            "distances": self.distances / project.distances.sigma**2 if len(self.distances) else np.zeros(0),
+            "parameters": weights.weigh(self.parameters, pobs.sigma) if len(pobs) else np.zeros(0),
+            "distances": weights.weigh(self.distances, project.distances.sigma) if len(self.distances) else np.zeros(0),
         }
 
 
@@ -303,7 +304,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
             q_c = s.Q[:, 2 * k:]
             given = np.array(chunk.given_axes)[None, :] & np.ones((m, 1), dtype=bool)
             fixed = given & (q_c == 0)
-            p_c = np.where(q_c > 0, 1.0 / np.where(q_c > 0, q_c, 1.0), 0.0)
+            p_c = weights.variance_weight(q_c, q_c > 0)
         else:
             fixed = np.zeros((m, 3), dtype=bool)
             p_c = np.zeros((m, 0))

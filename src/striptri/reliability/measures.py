@@ -34,6 +34,7 @@ from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult
 from ..model import Project
 from ..precision.residuals import residual_cofactors
+from ..equations import weights
 
 ALPHA0 = 0.001  # size of the w-test, two-sided (Baarda)
 BETA0 = 0.80  # its power against a gross error of the minimal detectable size
@@ -95,7 +96,7 @@ def plate_reliability(project: Project, result: AdjustmentResult, options: Adjus
     plate block of Qvv (precision.residual_cofactors), for the w-tests' correlations."""
     cof = residual_cofactors(project, result, options, plate_blocks=cofactor_blocks)
     sigma = project.image_points.sigma_xy
-    r = np.clip(cof.plate / sigma**2, 0.0, 1.0)
+    r = np.clip(weights.weigh(cof.plate, sigma), 0.0, 1.0)
     ok = r > R_ZERO
     safe_r = np.where(ok, r, 1.0)
     delta0 = noncentrality(alpha0, beta0)
@@ -126,7 +127,7 @@ def distance_tests(project: Project, qvv: np.ndarray, adjusted: np.ndarray, alph
         return DistanceTests(z, z, z, z, z)
     sigma = project.distances.sigma
     v = adjusted - project.distances.distance
-    r = np.clip(qvv / sigma**2, 0.0, 1.0)
+    r = np.clip(weights.weigh(qvv, sigma), 0.0, 1.0)
     ok = r > R_ZERO
     w = np.where(ok, v / (sigma * np.sqrt(np.where(ok, r, 1.0))), np.nan)
     return DistanceTests(v, qvv, r, w, minimal_detectable_bias(sigma, r, noncentrality(alpha0, beta0)))

@@ -56,6 +56,7 @@ from .outcome import (
     untested,
     warm_start,
 )
+from ..equations import weights
 
 SEPARATED_FRACTION = 0.5  # a "separated" round rejects rows with |w| >= this times the largest
 TWIN_TOLERANCE = 1e-6  # rows of one point whose |w| agree to this (relative) are not told apart
@@ -161,7 +162,7 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         last = _without_coordinates(*last, factor)
     current, result, rel, rows = last
     det = blunder_result("snoop", project, current, result, rel, rows, rejected, rounds, stopped,
-                         time.perf_counter() - t_start, weights=factor**-2.0 if partial else None)
+                         time.perf_counter() - t_start, weights=weights.weight(factor) if partial else None)
     if partial:
         _flag_rejected(det, rejected)
     return det
@@ -182,7 +183,7 @@ def _without_coordinates(current, result, rel, rows, factor):
     for name in ("w", "redundancy", "mdb", "bnr"):
         getattr(rel, name)[i, j] = np.nan
     sigma = current.image_points.sigma_xy[i, j]
-    vtpv = result.vtpv - float(np.sum((result.plate_residuals[i, j] / sigma) ** 2))
+    vtpv = result.vtpv - float(np.sum(weights.whiten(result.plate_residuals[i, j], sigma) ** 2))
     redundancy = result.redundancy - len(i)
     result = replace(result, vtpv=vtpv, redundancy=redundancy, sigma0=sigma0_of(vtpv, redundancy))
     return current, result, rel, rows

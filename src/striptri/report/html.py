@@ -18,8 +18,6 @@ them).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import html
 import time
 import numpy as np
@@ -36,8 +34,7 @@ from ..model import KIND_NAMES, Project
 from ..precision.residuals import PHOTO_ELEMENTS, camera_correlations
 from ..geometry.rotations import angles_from_R
 from ..equations.triangulation import Triangulated
-if TYPE_CHECKING:  # the type only: the report is below the run (runs.py)
-    from ..runs import RunSummary
+from ..core.runs import RunSummary
 from . import page  # the page's limits, read at call time (tests set them)
 from .page import (
     SECTIONS, ResidualUnit, _STYLE, _card, _cell, _flag_text, _flags_of, _fmt, _half_format, _img,
@@ -59,7 +56,7 @@ CHECK_TEXT = {
                                 "standard deviation",
 }
 
-def _summary_section(project: Project, result: AdjustmentResult, summary: "RunSummary", flagged: np.ndarray) -> list[str]:
+def _summary_section(project: Project, result: AdjustmentResult, summary: RunSummary, flagged: np.ndarray) -> list[str]:
     s0, r = summary.sigma0, summary.redundancy
     cards = []
     if s0 is not None:
@@ -138,7 +135,7 @@ TERMINATION_WORDS = {
 }
 
 
-def _termination_text(summary: "RunSummary") -> str:
+def _termination_text(summary: RunSummary) -> str:
     """summary.json's termination in words, with its message when it has one."""
     reason = str(summary.termination)
     text = html.escape(TERMINATION_WORDS.get(reason, reason))
@@ -148,7 +145,7 @@ def _termination_text(summary: "RunSummary") -> str:
     return f"<span class='{'ok' if summary.converged else 'no'}'>{text}</span>"
 
 
-def _warnings_section(summary: "RunSummary") -> list[str]:
+def _warnings_section(summary: RunSummary) -> list[str]:
     """Everything the run warned of: input it did not use (the reader's notes), a result kept
     although it did not converge, solver warnings. Nothing in the input is ignored silently."""
     warnings = summary.warnings or []
@@ -166,7 +163,7 @@ def _warnings_section(summary: "RunSummary") -> list[str]:
 CORRECTION_NAMES = {"earth_curvature": "Earth curvature", "refraction": "Atmospheric refraction"}
 
 
-def _corrections_section(summary: "RunSummary") -> list[str]:
+def _corrections_section(summary: RunSummary) -> list[str]:
     """The corrections of the plate coordinates that were applied (summary.json "plate_corrections",
     striptri.equations.plate_corrections): size, direction and the formula's source; nothing when none was."""
     applied = summary.plate_corrections
@@ -185,7 +182,7 @@ def _corrections_section(summary: "RunSummary") -> list[str]:
                     "direction", "formula and source"], rows, left=1)]
 
 
-def _distances_section(project: Project, result: AdjustmentResult, summary: "RunSummary", points,
+def _distances_section(project: Project, result: AdjustmentResult, summary: RunSummary, points,
                        cols: dict | None = None) -> list[str]:
     """The observed distances, their residuals and tests (bundle.distances.report_parts,
     reliability.distances); nothing without. cols: distances.csv's columns when the caller has them
@@ -199,7 +196,7 @@ def _distances_section(project: Project, result: AdjustmentResult, summary: "Run
                                       distance_report_parts(project.points.ids, project.distances, points.xyz, cols)]
 
 
-def _inactive_section(summary: "RunSummary", unit: "ResidualUnit") -> list[str]:
+def _inactive_section(summary: RunSummary, unit: "ResidualUnit") -> list[str]:
     """The measurements image_points.csv marks inactive (summary.json "inactive", striptri.report.inactive):
     not adjusted; their residuals against the adjusted result. Nothing when there are none."""
     info = summary.inactive
@@ -218,7 +215,7 @@ def _inactive_section(summary: "RunSummary", unit: "ResidualUnit") -> list[str]:
                    left=2)]
 
 
-def _checks_section(summary: "RunSummary") -> list[str]:
+def _checks_section(summary: RunSummary) -> list[str]:
     rows = []
     for k, v in summary.checks.items():
         holds = v is not None and abs(v) < page.CHECKS_HOLD_BELOW
@@ -440,7 +437,7 @@ def _gnss_section(project: Project, result: AdjustmentResult) -> list[str]:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def html_report(project: Project, result: AdjustmentResult, summary: "RunSummary", w: np.ndarray,
+def html_report(project: Project, result: AdjustmentResult, summary: RunSummary, w: np.ndarray,
                 points: Triangulated | None = None, flags=None, figures=None, timings: dict | None = None,
                 distances: dict | None = None) -> str:
     """The report as one self-contained HTML text.

@@ -4,8 +4,6 @@ largest measurements."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import html
 import numpy as np
 
@@ -14,8 +12,7 @@ from ..core.result import AdjustmentResult
 from ..model import CHECK, KIND_NAMES, Project
 from ..equations.triangulation import Triangulated
 from ..core.adjusted_points import undetermined_points
-if TYPE_CHECKING:  # the type only: the report is below the run (runs.py)
-    from ..runs import RunSummary
+from ..core.runs import RunSummary
 from . import page  # the page's limits, read at call time (tests set them)
 from .page import (
     ResidualUnit, _cell, _fmt, _img, _kind_names, _section, _table, length_unit, residual_unit,
@@ -157,7 +154,7 @@ def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, 
 
 
 def _check_points_section(project: Project, result: AdjustmentResult, points: Triangulated, sig: np.ndarray,
-                          summary: "RunSummary") -> list[str]:
+                          summary: RunSummary) -> list[str]:
     pts = project.points
     flagged = undetermined_points(project, points)
     sel = np.flatnonzero((pts.kind == CHECK) & points.determined & ~flagged)
@@ -248,7 +245,7 @@ def _flagged_section(project, result, w, absw, flagged, flag_text) -> list[str]:
     ]
 
 
-def _rejected_section(summary: "RunSummary") -> list[str]:
+def _rejected_section(summary: RunSummary) -> list[str]:
     """summary.blunders["groups"] (reliability.rejections): per rejected group its members, w, MDB
     and effect on the ground."""
     groups = (summary.blunders or {}).get("groups") or []

@@ -45,6 +45,7 @@ from ..model import Project
 from ..equations.parameter_observations import build_parameter_observations
 from ..equations.parameters import State, build_layout, with_state
 from .strip import SequentialOptions, SequentialSolution, distortion_free, triangulate_strip
+from ..equations import weights
 
 
 def adjust_sequential(project: Project, options: AdjustmentOptions | SequentialOptions | None = None) -> AdjustmentResult:
@@ -113,7 +114,7 @@ def _conditional_normal_matrix(project: Project, sol: SequentialSolution, layout
                           np.broadcast_to(sol.xyz0_ground[j], (k, 1, 3)), np.broadcast_to(interior[j], (k, 1, 3)),
                           X[sel])
         B = np.concatenate([lc.d_centre[:, :, 0], lc.d_rot[:, :, 0] @ T[j]], 2).reshape(2 * k, 6)
-        Nj = B.T @ (B / ip.sigma_xy[sel].reshape(2 * k)[:, None] ** 2)
+        Nj = B.T @ weights.weigh(B, ip.sigma_xy[sel].reshape(2 * k)[:, None])
         c = layout.photo_cols[j]
         keep = c >= 0
         cc = c[keep]

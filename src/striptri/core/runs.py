@@ -14,14 +14,30 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from .precision.export import CovarianceRequest
-
+GROUPS = ("photos", "camera", "points")  # the groups of covariance.npz (precision.export)
 # the fields of RunOptions that are AdjustmentOptions values over project.toml's (pipeline.options_for)
 ADJUSTMENT_FIELDS = ("method", "solver", "datum", "datum_points", "max_iterations", "cost_tolerance", "init",
                      "scale_form", "procedure", "direction", "polynomial_degree")
+
+
+@dataclass(frozen=True)
+class CovarianceRequest:
+    """What ``striptri adjust --covariance`` asks for: groups (GROUPS), the datum points of an
+    S-transformation (empty: the adjustment's datum) and whether it is a similarity (scale) or a
+    rigid motion."""
+
+    groups: tuple[str, ...]
+    datum_points: tuple[str, ...] = ()
+    scale: bool = True
+
+    def __post_init__(self):
+        unknown = [g for g in self.groups if g not in GROUPS]
+        if unknown or not self.groups:
+            raise ValueError(f"--covariance: unknown group(s) {', '.join(unknown) or '(none)'}; choose from "
+                             f"{', '.join(GROUPS)}, separated by commas")
+        if self.datum_points and "points" not in self.groups:
+            raise ValueError("--covariance-datum needs the group points in --covariance")
 
 
 @dataclass(frozen=True)
@@ -34,7 +50,7 @@ class RunOptions:
     blunders: the gross-error procedure, "off", "snoop", "snoop-classic" or "robust". point_precision: "schmid90"
     (the orientation plus the measurement part, Schmid 87-90) or "joint92" (the rigorous joint form
     (92)). earth_curvature, refraction: the plate corrections, None for project.toml's
-    [corrections]. covariance: a precision.export.CovarianceRequest (covariance.npz is written too)
+    [corrections]. covariance: a :class:`CovarianceRequest` (covariance.npz is written too)
     or None. keep_unconverged: write an adjustment that stopped without converging (converged:
     false) instead of failing.
     """
@@ -54,7 +70,7 @@ class RunOptions:
     point_precision: str = "schmid90"
     earth_curvature: bool | None = None
     refraction: bool | None = None
-    covariance: "CovarianceRequest | None" = None
+    covariance: CovarianceRequest | None = None
     keep_unconverged: bool = False
 
     def __post_init__(self) -> None:  # the values are checked where a run starts (pipeline.run_adjust)
