@@ -40,11 +40,11 @@ from ..errors import InputError
 from .groups import COLLINEARITY, GroupBatch
 from .linearise import evaluate, linearise, unknown_blocks
 from .observations import observations_of
-from ..selected_inverse.covariance import ray_slots
 from .groups import adjusted_kind, build_batches, rays_per_point
 from ..model import FULL, Project
 from .triangulation import ray_terms
 from . import weights
+from .point_precision import orientation_part
 
 FILE_NAME = "distances.csv"
 
@@ -314,9 +314,9 @@ def joint_point_blocks(project: Project, result, tri):
     pairs = joint_intersections(project, result, tri.xyz)
     for js, inter in pairs:
         photo = js.photo_index[None]
-        slots = ray_slots(inter.G.reshape(1, len(inter.G), len(js.photo_index), -1), photo, lay.photo_cols,
-                          state.camera_of_photo[photo], lay.camera_cols[:, lay.camera_elements])
-        GQG = result.covariance.group_forms(slots)[0]
+        GQG = orientation_part(inter.G.reshape(1, len(inter.G), len(js.photo_index), -1), photo,
+                               state.camera_of_photo[photo], lay.photo_cols, lay.camera_cols[:, lay.camera_elements],
+                               result.covariance.group_forms)[0]
         for j, p in enumerate(js.point_index):
             sl = slice(3 * j, 3 * j + 3)
             cov_m[p], cov_o[p] = inter.Qm[sl, sl], GQG[sl, sl]

@@ -20,12 +20,13 @@ import numpy as np
 
 from ..geometry.camera import plate_vector, ray_ground
 from ..geometry.collinearity import collinearity_jacobians
-from ..selected_inverse.covariance import group_forms, ray_slots
+from ..selected_inverse.covariance import group_forms
 from .conditions import coplanarity, ray_chain, RayConditions
 from ..model import CHECK, Project
 from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
 from .parameters import State, UnknownLayout
 from . import weights
+from .point_precision import orientation_part
 
 
 def intersect_rays(xyz_centre: np.ndarray, r: np.ndarray, mask: np.ndarray | None = None,
@@ -288,8 +289,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
                 drot_u = np.einsum("mkai,mkij->mkaj", drot, rotation_maps[ph])
                 J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
                 G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
-                parts = ray_slots(G, ph, photo_cols, camera_of_photo[ph], camera_cols[:, estimated])
-                Qo = forms(parts)
+                Qo = orientation_part(G, ph, camera_of_photo[ph], photo_cols, camera_cols[:, estimated], forms)
                 cov_o[sel[ok]] = Qo[ok]
     weak |= far_weaker_than_the_rest(cov_m, determined & (counts > 0))
     return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined,

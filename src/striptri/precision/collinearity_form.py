@@ -46,7 +46,7 @@ import numpy as np
 from ..core.adjusted_points import triangulate_adjusted
 from ..equations.observations import observations_of
 from ..core.result import AdjustmentResult
-from ..selected_inverse.covariance import ray_slots
+from ..equations.point_precision import orientation_part
 from ..equations.groups import points_with_conditions
 from ..model import Project
 from ..equations.triangulation import Triangulated, ray_terms
@@ -206,14 +206,20 @@ def _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, camera, photo_cols, camera_cols,
     photo_cols (n_photos, 6), camera_cols (n_cameras, e): columns of Qcc; q: (m, k, 2) plate cofactors.
     full: also the whole plate block of Qvv; residuals=False: Q_pp and its orientation part only."""
     m, k = ph.shape
-    # G per ray: -N_pp^-1 Jp_a^T P_a Jc_a, (m, 3, k, 6 + e); ray_slots makes the point's unknown sets
-    # (its k photos, then its camera once when its rays share one, else one camera set per ray)
+    # G per ray: -N_pp^-1 Jp_a^T P_a Jc_a, (m, 3, k, 6 + e); ray_slots (in orientation_part) makes the
+    # point's unknown sets (its k photos, then its camera once when its rays share one, else one
+    # camera set per ray)
     G = -np.einsum("mij,mkaj,mkac->mikc", Qm, pJX, Jc, optimize=True)
-    parts = ray_slots(G, ph, photo_cols, camera, camera_cols)
-    Q = gather(parts)  # (m, D, D)
-    Gf = np.concatenate([P.G.reshape(m, 3, -1) for P in parts], 2)  # (m, 3, D)
-    QG = Q @ np.swapaxes(Gf, 1, 2)  # (m, D, 3): Qcc G^T
-    GQG = Gf @ QG
+    read: dict = {}
+
+    def forms(parts):  # Qcc gathered once per chunk: the residual cofactors below read it again
+        Q = gather(parts)  # (m, D, D)
+        Gf = np.concatenate([P.G.reshape(m, 3, -1) for P in parts], 2)  # (m, 3, D)
+        read.update(parts=parts, Q=Q, Gf=Gf)
+        return Gf @ (Q @ np.swapaxes(Gf, 1, 2))  # Gf (Qcc G^T)
+
+    GQG = orientation_part(G, ph, camera, photo_cols, camera_cols, forms)  # Schmid's (90)
+    parts, Q, Gf = read["parts"], read["Q"], read["Gf"]
     Q_pp = Qm + GQG
     if not residuals:
         return _RayChunk(None, Q_pp, GQG, None)

@@ -33,6 +33,7 @@ from ..model import Project
 from ..equations.parameter_observations import build_parameter_observations
 from ..equations.triangulation import ray_terms, safe_inverse
 from ..equations import weights
+from ..equations.point_precision import joint_form
 
 W_CRITICAL = 3.29  # two-sided, alpha0 = 0.001 (Baarda)
 
@@ -298,7 +299,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
             J_parts.append(dcam[..., result.layout.camera_elements])
         J_x = np.concatenate(J_parts, 3)  # (m, k, 2, 6 + camera_width): the columns of s.cols
         JX = dX.reshape(m, 2 * k, 3)
-        p_plate = 1.0 / s.Q[:, : 2 * k]
+        p_plate = weights.inverse_variance(s.Q[:, : 2 * k])
         n_obs = s.Q.shape[1]
         if chunk.has_control:
             q_c = s.Q[:, 2 * k:]
@@ -323,14 +324,8 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
         # G Qxx G^T, G Qxx B^T and B Qxx B^T at once (Qxx read by blocks, matrix products)
         HQH = cov.group_forms(group_slots(np.concatenate([G, s.B], 1), chunk, result))
         GQG, GQB, BQB = HQH[:, :3, :3], HQH[:, :3, 3:], HQH[:, 3:, 3:]
-        MAQ = Minv @ AQ  # (m, nc, no)
-        Qvv = np.swapaxes(MAQ, 1, 2) @ (M - BQB) @ MAQ
-        Qll = s.Q[:, :, None] * np.eye(s.Q.shape[1]) - Qvv
-        # Cov(x^, l^) = -Qxx B^T M^-1 A Q, so G Cov(x^, l^) F^T = -(G Qxx B^T) M^-1 A Q F^T
-        Ft = np.swapaxes(F, 1, 2)
-        cross = -(GQB @ (MAQ @ Ft))
         good = ~bad
-        out[chunk.point_index[good]] = (GQG + F @ Qll @ Ft + cross + np.swapaxes(cross, 1, 2))[good]
+        out[chunk.point_index[good]] = joint_form(GQG, GQB, BQB, M, Minv, AQ, s.Q, F)[good]
     if has_distances(project):  # the points joined by distances: one joint intersection per joint group
         _joint_groups_92(project, result, tri, options, out)
     return out
@@ -352,13 +347,9 @@ def _joint_groups_92(project: Project, result: AdjustmentResult, tri, options: A
         Minv, bad = group_inverse(M[None], chunk)
         if bad[0]:  # degenerate: the members keep their (90) cofactors
             continue
-        Minv = Minv[0]
-        HQH = cov.group_forms(group_slots(np.concatenate([inter.G, js.B], 0)[None], chunk, result))[0]
-        GQG, GQB, BQB = HQH[:n3, :n3], HQH[:n3, n3:], HQH[n3:, n3:]
-        MAQ = Minv @ AQ
-        Qll = np.diag(js.Q) - MAQ.T @ (M - BQB) @ MAQ
-        cross = -(GQB @ (MAQ @ inter.F.T))
-        full = GQG + inter.F @ Qll @ inter.F.T + cross + cross.T
+        HQH = cov.group_forms(group_slots(np.concatenate([inter.G, js.B], 0)[None], chunk, result))
+        GQG, GQB, BQB = HQH[:, :n3, :n3], HQH[:, :n3, n3:], HQH[:, n3:, n3:]
+        full = joint_form(GQG, GQB, BQB, M[None], Minv, AQ[None], js.Q[None], inter.F[None])[0]
         for j, p in enumerate(js.point_index):
             out[p] = full[3 * j:3 * j + 3, 3 * j:3 * j + 3]
 
