@@ -7,13 +7,16 @@ Conventions (DESIGN.md section 1):
   ``ProjectSettings.plate_unit`` (mm by default, px for pixels);
 * ``R_ground_from_cam`` maps the camera-frame vector ``p = (x - xp, y - yp, -c)`` to the ground;
 * angles in the tables are radians, in the convention named by ``ProjectSettings.rotation``;
-* a standard deviation of ``nan`` means "no observation": a photo element is then free, a control
-  coordinate held fixed, a camera element held fixed. A standard deviation of 0 holds a photo
-  element fixed (an enforced element, Schmid 24).
+* every element (camera, photo, point, GNSS) is held, observed or free (:class:`ElementState`). The
+  tables keep the files' sigma conventions, which differ by file for good reasons (an empty sigma
+  leaves a photo free, holds a control coordinate or a camera element, Schmid 24's enforced
+  elements are a sigma of 0); each table translates its own once, into its ``*_state`` arrays,
+  and everything below reads those (docs/decisions.md, "One element state").
 """
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -71,12 +74,43 @@ PLATE_UNITS = ("mm", "px")
 # Values accepted for [adjustment] method and solver in project.toml (DESIGN sections 4, 5, 8).
 
 
+class ElementState(enum.IntEnum):
+    """How an element of the model takes part in the adjustment, as COLMAP's bundle-adjustment
+    Config sets parameters constant or variable: HELD, its value is kept (not an unknown);
+    OBSERVED, an unknown with an observation of its value (its sigma > 0 the observation's);
+    FREE, an unknown without an observation."""
+
+    HELD = 0
+    OBSERVED = 1
+    FREE = 2
+
+
+HELD, OBSERVED, FREE = ElementState.HELD, ElementState.OBSERVED, ElementState.FREE
+
+
+def element_states(sigma: np.ndarray, missing: ElementState) -> np.ndarray:
+    """The states (int8, sigma's shape) of elements with standard deviations ``sigma``: 0 held, inf
+    free, finite > 0 observed, nan ``missing`` (the file's meaning of an empty sigma)."""
+    sigma = np.asarray(sigma, dtype=float)
+    state = np.full(sigma.shape, int(OBSERVED), dtype=np.int8)
+    state[np.isnan(sigma)] = int(missing)
+    state[sigma == 0] = int(HELD)
+    state[np.isposinf(sigma)] = int(FREE)
+    return state
+
+
+def _set_state(table, name: str, state: np.ndarray) -> None:
+    state.setflags(write=False)
+    object.__setattr__(table, name, state)
+
+
 @dataclass(frozen=True)
 class Cameras:
     """Interior orientation and additional parameters per camera (striptri.geometry.lens).
 
     interior: (ncam, NCP) columns lens.CAMERA_ELEMENTS (c, xp, yp, k1, k2, k3, p1, p2, b1, b2);
-    sigma_interior: (ncam, NCP), nan = held fixed, > 0 = observed, inf = free;
+    sigma_interior: (ncam, NCP), nan (or 0) = held fixed, > 0 = observed, inf = free, translated
+    into interior_state (ncam, NCP) ElementState codes;
     convention: (ncam,) lens.PLATE or lens.IMAGE, where the distortion acts.
     r0: (ncam,) the zero-crossing radius of cameras given with balanced radial distortion
     (striptri.geometry.balanced; nan = none, None = no camera): ``interior`` always holds the Gaussian form,
@@ -89,6 +123,7 @@ class Cameras:
     sigma_interior: np.ndarray
     convention: np.ndarray | None = None
     r0: np.ndarray | None = None
+    interior_state: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         n = len(self.ids)
@@ -102,6 +137,7 @@ class Cameras:
         object.__setattr__(self, "interior", interior)
         object.__setattr__(self, "sigma_interior", sigma)
         object.__setattr__(self, "convention", conv.reshape(n).copy())
+        _set_state(self, "interior_state", element_states(sigma, HELD))
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -113,7 +149,8 @@ class Photos:
 
     xyz0: (n, 3) projection centres, ground metres. R_ground_from_cam: (n, 3, 3).
     angles: (n, 3) the file's angles in radians (convention ProjectSettings.rotation).
-    sigma_xyz0, sigma_angles: (n, 3); nan = free, 0 = held fixed, > 0 = observed (GNSS, IMU).
+    sigma_xyz0, sigma_angles: (n, 3); nan = free, 0 = held fixed, > 0 = observed (GNSS, IMU),
+    translated into centre_state and angle_state (n, 3) ElementState codes.
     """
 
     ids: list[str]
@@ -124,6 +161,12 @@ class Photos:
     angles: np.ndarray
     sigma_xyz0: np.ndarray
     sigma_angles: np.ndarray
+    centre_state: np.ndarray = field(init=False, repr=False, compare=False)
+    angle_state: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        _set_state(self, "centre_state", element_states(self.sigma_xyz0, FREE))
+        _set_state(self, "angle_state", element_states(self.sigma_angles, FREE))
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -147,8 +190,10 @@ class ObjectPoints:
     """Every object point named in image_points.csv or control.csv.
 
     kind: (np,) codes TIE, HEIGHT, PLAN, FULL, CHECK. xyz_given: (np, 3), nan where not given
-    (check points carry their reference coordinates here). sigma_given: (np, 3), nan = held
-    fixed, > 0 = weighted control (an observation of the point's group). xyz_approx: (np, 3)
+    (check points carry their reference coordinates here). sigma_given: (np, 3), nan (or 0) = held
+    fixed, > 0 = weighted control (an observation of the point's group); given_state (np, 3) the
+    ElementState of each coordinate: held or observed where the point gives it (given_axes, with
+    a finite coordinate), free elsewhere. xyz_approx: (np, 3)
     approximate coordinates (approx_points.csv; nan or None = none): starting values for the
     bundle method, never observations.
     """
@@ -158,6 +203,12 @@ class ObjectPoints:
     xyz_given: np.ndarray
     sigma_given: np.ndarray
     xyz_approx: np.ndarray | None = None
+    given_state: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        given = self.given_axes & np.isfinite(np.asarray(self.xyz_given, dtype=float).reshape(len(self), 3))
+        state = element_states(np.asarray(self.sigma_given, dtype=float).reshape(len(self), 3), HELD)
+        _set_state(self, "given_state", np.where(given, state, np.int8(FREE)).astype(np.int8))
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -295,7 +346,8 @@ GNSS_MODES = ("none", "free", "observed")  # of the shift and the drift
 @dataclass(frozen=True)
 class GnssModel:
     """lever (ncam, 3) m, sigma_lever (ncam, 3) (nan held, > 0 observed, inf free); boresight
-    (ncam, 3) rotation vector in radians, sigma_boresight (ncam, 3) radians; time (n_photos,)
+    (ncam, 3) rotation vector in radians, sigma_boresight (ncam, 3) radians; lever_state and
+    boresight_state their ElementState codes; time (n_photos,)
     seconds (nan: not given); strip (n_photos,) index of the photo's strip (-1: empty strip_id:
     no shift or drift), strip_ids (n_strips,); shift / drift modes (GNSS_MODES) with their sigmas
     (m, m/s; used when "observed")."""
@@ -311,6 +363,12 @@ class GnssModel:
     drift: str = "none"
     sigma_shift: float = float("nan")
     sigma_drift: float = float("nan")
+    lever_state: np.ndarray = field(init=False, repr=False, compare=False)
+    boresight_state: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        _set_state(self, "lever_state", element_states(self.sigma_lever, HELD))
+        _set_state(self, "boresight_state", element_states(self.sigma_boresight, HELD))
 
     @property
     def n_strips(self) -> int:
@@ -335,8 +393,8 @@ class GnssModel:
     @property
     def in_play(self) -> bool:
         """True when the model differs from plain observed centres and angles."""
-        return bool(np.any(self.lever != 0) or np.any(self.boresight != 0) or np.any(~np.isnan(self.sigma_lever))
-                    or np.any(~np.isnan(self.sigma_boresight)) or self.shift != "none" or self.drift != "none")
+        return bool(np.any(self.lever != 0) or np.any(self.boresight != 0) or np.any(self.lever_state != HELD)
+                    or np.any(self.boresight_state != HELD) or self.shift != "none" or self.drift != "none")
 
 
 def default_gnss(n_cameras: int, strip_ids: list[str]) -> GnssModel:

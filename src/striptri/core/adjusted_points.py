@@ -16,7 +16,7 @@ from ..equations.observations import observations_of
 from .result import AdjustmentResult
 from ..equations.joint_groups import joint_point_blocks
 from ..equations.groups import rays_per_point
-from ..model import CHECK, Project
+from ..model import CHECK, HELD, Project
 from ..equations.point_datum import JointBlock, points_correction
 from ..equations.triangulation import GivenCoordinates, RayObservations, Triangulated, triangulate
 
@@ -65,6 +65,6 @@ def undetermined_points(project: Project, tri: Triangulated) -> np.ndarray:
     or nearly singular normal matrix): measured points, and check points even without rays. Held
     control has nothing to determine."""
     pts = project.points
-    held = pts.given_axes.all(axis=1) & np.isnan(pts.sigma_given).all(axis=1)
+    held = (pts.given_state == HELD).all(axis=1)
     measured = (rays_per_point(project) > 0) | (pts.kind == CHECK)
     return tri.undetermined & measured & ~held

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model import Project
+from ..model import OBSERVED, Project
 from .listing import FAR, LIST_MAX, centre_spread, group_quantile, more
 from .orientations import wrong_orientations
 from .photo_groups import photo_groups
@@ -133,8 +133,7 @@ def extreme_weights(project: Project) -> list[str]:
                              f"{project.photos.ids[ip.photo_index[row]]} (sigma_{'xy'[axis]} = {sig[row, axis]:.3g})")
             out.append(_weights_sentence("plate measurement", items, len(bad), med, "image_points.csv"))
     pts = project.points
-    sg = np.where(np.isfinite(pts.xyz_given), pts.sigma_given, np.nan)
-    sg = np.where(sg > 0, sg, np.nan)
+    sg = np.where(pts.given_state == OBSERVED, pts.sigma_given, np.nan)
     if np.isfinite(sg).any():
         med = float(np.nanmedian(sg))
         ratio = sg / med
@@ -144,9 +143,9 @@ def extreme_weights(project: Project) -> list[str]:
         if len(bad):
             out.append(_weights_sentence("control coordinate", items, len(bad), med, "control.csv"))
     ph = project.photos
-    for name, sig, elements in (("observed centre", ph.sigma_xyz0, ("X0", "Y0", "Z0")),
-                                ("observed angle", ph.sigma_angles, ("omega", "phi", "kappa"))):
-        s = np.where(np.isfinite(sig) & (sig > 0), sig, np.nan)
+    for name, sig, state, elements in (("observed centre", ph.sigma_xyz0, ph.centre_state, ("X0", "Y0", "Z0")),
+                                       ("observed angle", ph.sigma_angles, ph.angle_state, ("omega", "phi", "kappa"))):
+        s = np.where(state == OBSERVED, sig, np.nan)
         if not np.isfinite(s).any():
             continue
         med = float(np.nanmedian(s))
@@ -175,20 +174,20 @@ def absolute_extremes(project: Project) -> list[str]:
     extent = float(np.ptp(ph.xyz0, axis=0).max()) if len(ph) > 1 else 1.0
     extent = max(extent, 1.0)
 
-    def extreme(s, scale):
-        s = np.where(np.isfinite(s) & (s > 0), s, np.nan)
+    def extreme(s, state, scale):
+        s = np.where(state == OBSERVED, s, np.nan)
         return np.nan_to_num((s < ABSOLUTE_SMALL * scale) | (s > ABSOLUTE_LARGE * scale)).astype(bool)
 
-    sg = np.where(np.isfinite(pts.xyz_given), pts.sigma_given, np.nan)
-    bad = np.flatnonzero(extreme(sg, extent).any(axis=1))
+    sg = np.where(pts.given_state == OBSERVED, pts.sigma_given, np.nan)
+    bad = np.flatnonzero(extreme(pts.sigma_given, pts.given_state, extent).any(axis=1))
     if len(bad):
         items = [f"point {pts.ids[i]} (sigma {', '.join(f'{x:.3g}' for x in sg[i] if np.isfinite(x) and x > 0)} m)"
                  for i in bad[:LIST_MAX]]
         out.append(_absolute_sentence("control coordinate", items, len(bad), f"{extent:.4g} m", "control.csv"))
-    for name, sig, elements, scale, unit in (("observed centre", ph.sigma_xyz0, ("X0", "Y0", "Z0"), extent, "m"),
-                                             ("observed angle", ph.sigma_angles, ("omega", "phi", "kappa"), 1.0,
-                                              "rad")):
-        bad = np.argwhere(extreme(sig, scale))
+    for name, sig, state, elements, scale, unit in (
+            ("observed centre", ph.sigma_xyz0, ph.centre_state, ("X0", "Y0", "Z0"), extent, "m"),
+            ("observed angle", ph.sigma_angles, ph.angle_state, ("omega", "phi", "kappa"), 1.0, "rad")):
+        bad = np.argwhere(extreme(sig, state, scale))
         if len(bad):
             items = [f"photo {ph.ids[i]} (sigma_{elements[a]} = {sig[i, a]:.3g} {unit})" for i, a in bad[:LIST_MAX]]
             out.append(_absolute_sentence(name, items, len(bad), f"{scale:.4g} {unit}", "photos.csv"))

@@ -12,7 +12,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..equations.datum import describe
 from ..equations.groups import adjusted_kind
-from ..model import FULL, HEIGHT, PLAN, Project, given_axes
+from ..model import FREE, FULL, HEIGHT, PLAN, Project, given_axes
 from ..geometry.rotations import angles_jacobian
 from .listing import LIST_MAX
 
@@ -147,10 +147,10 @@ def _datum_rows(project: Project, label, rays, kinds, extent, centroids):
         owner.append(np.repeat(g, 3)[sel.ravel()])
     # observed or fixed centres and angles
     H_photo = _similarity_rows(ph.xyz0 - centroids[label], extent)
-    held_c = np.isfinite(ph.sigma_xyz0) & (ph.sigma_xyz0 >= 0)
+    held_c = ph.centre_state != FREE
     rows.append(H_photo[held_c])
     owner.append(np.repeat(label, 3)[held_c.ravel()])
-    held_a = np.isfinite(ph.sigma_angles) & (ph.sigma_angles >= 0)
+    held_a = ph.angle_state != FREE
     if held_a.any():
         k = np.flatnonzero(held_a.any(axis=1))
         # an angle changes by J R^T omega under a ground rotation omega (R <- Exp(omega) R)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import GnssModel
+from ..model import HELD, GnssModel
 from ..geometry.rotations import exp_so3
 
 GROUPS = ("lever", "boresight", "shift", "drift")
@@ -76,8 +76,8 @@ def gnss_columns(gnss: GnssModel, first: int) -> tuple[GnssColumns, int]:
         return out
 
     ns = gnss.n_strips
-    lever = take(~np.isnan(gnss.sigma_lever))
-    boresight = take(~np.isnan(gnss.sigma_boresight))
+    lever = take(gnss.lever_state != HELD)
+    boresight = take(gnss.boresight_state != HELD)
     shift = take(np.full((ns, 3), gnss.shift != "none"))
     drift = take(np.full((ns, 3), gnss.drift != "none"))
     return GnssColumns(lever=lever, boresight=boresight, shift=shift, drift=drift), col

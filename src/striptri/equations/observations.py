@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import Project
+from ..model import OBSERVED, Project
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,6 @@ def observations_of(project: Project, offset: np.ndarray) -> Observations:
     pts = project.points
     given = np.isfinite(pts.xyz_given) & pts.given_axes
     control = np.where(given, pts.xyz_given - offset, 0.0)
-    q_control = np.where(given & np.isfinite(pts.sigma_given), np.nan_to_num(pts.sigma_given) ** 2, 0.0)
+    q_control = np.where(pts.given_state == OBSERVED, np.nan_to_num(pts.sigma_given) ** 2, 0.0)  # held: 0
     ip = project.image_points
     return Observations(plate=ip.xy.copy(), q_plate=ip.sigma_xy**2, control=control, q_control=q_control)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import Project
+from ..model import OBSERVED, Project
 from .parameters import State, UnknownLayout, uses_gnss
 from ..geometry.rotations import angles_from_R, angles_jacobian, log_so3, skew, wrap_angle
 
@@ -91,13 +91,12 @@ class ParameterObservations:
 def build_parameter_observations(project: Project, offset: np.ndarray) -> ParameterObservations:
     rows = []  # (what, index, element, other, value, sigma)
     ph = project.photos
-    for (i, a) in zip(*np.nonzero(ph.sigma_xyz0 > 0)):
+    for (i, a) in zip(*np.nonzero(ph.centre_state == OBSERVED)):
         rows.append((CENTRE, i, a, -1, ph.xyz0[i, a] - offset[a], ph.sigma_xyz0[i, a]))
-    for (i, a) in zip(*np.nonzero(ph.sigma_angles > 0)):
+    for (i, a) in zip(*np.nonzero(ph.angle_state == OBSERVED)):
         rows.append((ANGLE, i, a, -1, ph.angles[i, a], ph.sigma_angles[i, a]))
     cams = project.cameras
-    observed = np.isfinite(cams.sigma_interior) & (cams.sigma_interior > 0)
-    for (j, e) in zip(*np.nonzero(observed)):
+    for (j, e) in zip(*np.nonzero(cams.interior_state == OBSERVED)):
         rows.append((INTERIOR, j, e, -1, cams.interior[j, e], cams.sigma_interior[j, e]))
     b = project.bases
     for f, t, ax, val, sig in zip(b.photo_from, b.photo_to, b.axis, b.value, b.sigma):
@@ -199,9 +198,9 @@ def _gnss_element_rows(project: Project) -> list:
     """Rows (what, index, element, other, value, sigma) of the observed GNSS elements."""
     g = project.gnss
     rows = []
-    for code, values, sigma in ((LEVER, g.lever, g.sigma_lever), (BORESIGHT, g.boresight, g.sigma_boresight)):
-        observed = np.isfinite(sigma) & (sigma > 0)
-        for (j, a) in zip(*np.nonzero(observed)):
+    for code, values, sigma, state in ((LEVER, g.lever, g.sigma_lever, g.lever_state),
+                                       (BORESIGHT, g.boresight, g.sigma_boresight, g.boresight_state)):
+        for (j, a) in zip(*np.nonzero(state == OBSERVED)):
             rows.append((GNSS_ELEMENT, j, a, code, values[j, a], sigma[j, a]))
     for code, mode, sigma in ((SHIFT, g.shift, g.sigma_shift), (DRIFT, g.drift, g.sigma_drift)):
         if mode == "observed":

@@ -19,7 +19,7 @@ import numpy as np
 
 from .gnss_unknowns import GROUPS as GNSS_GROUPS, GnssColumns, GnssState, gnss_columns, initial_gnss_state
 from ..geometry.lens import CAMERA_ELEMENTS, NCP, PLATE, has_distortion
-from ..model import Project
+from ..model import FREE, HELD, Project
 from ..geometry.rotations import R_from_angles, angles_from_R, angles_jacobian, exp_so3
 
 ELEMENT_NAMES = ("X0", "Y0", "Z0", "rot1", "rot2", "rot3")
@@ -215,8 +215,8 @@ def build_layout(project: Project) -> UnknownLayout:
     """Columns of the unknowns, from the fixed/free/observed flags of the project."""
     photos, cams = project.photos, project.cameras
     n = len(photos)
-    fixed_pos = photos.sigma_xyz0 == 0
-    fixed_ang = photos.sigma_angles == 0
+    fixed_pos = photos.centre_state == HELD
+    fixed_ang = photos.angle_state == HELD
     alias = _enforced_base_aliases(project)  # (n, 3) root element index 3*photo + axis
     photo_cols = -np.ones((n, 6), dtype=int)
     root_col: dict[int, int] = {}
@@ -238,7 +238,7 @@ def build_layout(project: Project) -> UnknownLayout:
                 photo_cols[i, 3 + a] = col
                 col += 1
     camera_cols = -np.ones((len(cams), NCP), dtype=int)
-    free_or_observed = ~np.isnan(cams.sigma_interior) & ~(cams.sigma_interior == 0)
+    free_or_observed = cams.interior_state != HELD
     for j in range(len(cams)):
         for e in range(NCP):
             if free_or_observed[j, e]:
@@ -295,7 +295,7 @@ def with_state(project: Project, state: State, offset: np.ndarray) -> Project:
     camera elements. Observed elements (GNSS centres, observed camera elements) keep their observed
     values and fixed ones their given values, so the adjusted values never become observations."""
     ph, cams = project.photos, project.cameras
-    xyz0 = np.where(np.isnan(ph.sigma_xyz0), state.xyz0 + offset, ph.xyz0)
-    interior = np.where(np.isinf(cams.sigma_interior), state.interior, cams.interior)
+    xyz0 = np.where(ph.centre_state == FREE, state.xyz0 + offset, ph.xyz0)
+    interior = np.where(cams.interior_state == FREE, state.interior, cams.interior)
     return replace(project, photos=replace(ph, xyz0=xyz0, R_ground_from_cam=state.R_ground_from_cam.copy()),
                    cameras=replace(cams, interior=interior))

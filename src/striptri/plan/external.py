@@ -18,7 +18,7 @@ import numpy as np
 
 from ..adjustment import AdjustmentResult
 from ..selected_inverse.covariance import Slots
-from ..model import Project
+from ..model import HELD, OBSERVED, Project
 from ..reliability import PlateReliability
 from .ranking import ray_jacobians
 from ..equations import weights
@@ -32,8 +32,8 @@ def own_point_shifts(plan: Project, result: AdjustmentResult, rel: PlateReliabil
     A_p, A_o, cols, p = ray_jacobians(plan, result)
     pt = ip.point_index
     sigma = pts.sigma_given
-    weighted = np.nan_to_num(sigma) > 0
-    held = pts.given_axes & ~weighted
+    weighted = pts.given_state == OBSERVED
+    held = pts.given_state == HELD
     ApP = np.swapaxes(A_p, 1, 2) * p[:, None, :]  # (m, 3, 2)
     M = np.zeros((n_pt, 3, 3))
     np.add.at(M, pt, ApP @ A_p)

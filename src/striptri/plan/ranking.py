@@ -29,7 +29,7 @@ from scipy.sparse.linalg import splu
 
 from ..adjustment import AdjustmentOptions, AdjustmentResult
 from ..geometry.collinearity import collinearity_jacobians
-from ..model import CHECK, TIE, Project
+from ..model import CHECK, HELD, OBSERVED, TIE, Project
 from .design import CONTROL_KINDS
 from ..equations import weights
 
@@ -98,10 +98,10 @@ def rank_control_fast(plan: Project, result: AdjustmentResult, sigma_points: np.
             valid = cols[rows][:, a] >= 0
             np.add.at(U.T, where[valid, a], U_ray[rows][valid][:, :, a])
         dB = -U.T @ Minv[k] @ U
-        held = pts.given_axes[k] & ~(np.nan_to_num(pts.sigma_given[k]) > 0)
+        held = pts.given_state[k] == HELD
         free = ~held
         if free.any():
-            w = weights.variance_weight(np.nan_to_num(pts.sigma_given[k], nan=1.0)**2, np.nan_to_num(pts.sigma_given[k]) > 0)
+            w = weights.variance_weight(np.nan_to_num(pts.sigma_given[k], nan=1.0)**2, pts.given_state[k] == OBSERVED)
             Mf = M[k][np.ix_(free, free)] + np.diag(w[free])
             Uf = U[free]
             dB += Uf.T @ np.linalg.solve(Mf, Uf)

@@ -36,7 +36,7 @@ from ..equations.conditions import closest_scales
 from ..core.options import DIRECTIONS, PROCEDURES, SequentialOptions  # noqa: F401  (re-exported)
 from ..errors import InputError, NumericalFailure
 from ..geometry.lens import DISTORTION_ELEMENTS, has_distortion, ideal_from_observed
-from ..model import CHECK, Project
+from ..model import CHECK, HELD, Project
 from ..equations.parameters import reduction_offset
 from ..core.termination import table, trend
 from ..equations.triangulation import intersect_rays
@@ -195,7 +195,7 @@ def distortion_free(project: Project) -> Project:
     the additional parameters set to 0: the sequential method holds the camera, so the camera
     model is applied once, before the strip is built (docs/camera-model.md)."""
     cams, ip = project.cameras, project.image_points
-    free = ~np.isnan(cams.sigma_interior[:, DISTORTION_ELEMENTS]) & (cams.sigma_interior[:, DISTORTION_ELEMENTS] != 0)
+    free = cams.interior_state[:, DISTORTION_ELEMENTS] != HELD
     if free.any():
         raise InputError(Path(project.source or ".") / "cameras.csv", None,
                          "the sequential method (--method sequential) holds the camera; it cannot estimate lens "

@@ -35,6 +35,7 @@ from striptri.simulate.noise import NoiseOptions
 from striptri.geometry.rotations import R_from_angles, angles_from_R
 from striptri.study.options import SIMULTANEOUS, trial_seed
 from striptri.study.trial import ROW_COLUMNS, adjust_by_methods
+from ..model import FREE, OBSERVED
 
 PROJECT_LAYOUT = "project"
 APPROX_POSITION_ERROR = NoiseOptions().approx_position_error  # m
@@ -81,16 +82,16 @@ def noisy_project(task: ProjectTask) -> model.Project:
     sigma_xy = np.full_like(ip.sigma_xy, task.sigma_image) if task.scale_sigma else ip.sigma_xy
     xy = ip.xy + rng.normal(0.0, 1.0, ip.xy.shape) * sigma_xy
     n = len(ph)
-    free_xyz, obs_xyz = np.isnan(ph.sigma_xyz0), np.nan_to_num(ph.sigma_xyz0) > 0
+    free_xyz, obs_xyz = ph.centre_state == FREE, ph.centre_state == OBSERVED
     xyz0 = ph.xyz0 + rng.normal(0.0, 1.0, (n, 3)) * np.where(
         free_xyz, APPROX_POSITION_ERROR, np.where(obs_xyz, np.nan_to_num(ph.sigma_xyz0), 0.0))
-    free_ang, obs_ang = np.isnan(ph.sigma_angles), np.nan_to_num(ph.sigma_angles) > 0
+    free_ang, obs_ang = ph.angle_state == FREE, ph.angle_state == OBSERVED
     d_ang = rng.normal(0.0, 1.0, (n, 3)) * np.where(
         free_ang, np.radians(APPROX_ANGLE_ERROR), np.where(obs_ang, np.nan_to_num(ph.sigma_angles), 0.0))
     convention = plan.settings.rotation
     angles = angles_from_R(ph.R_ground_from_cam, convention) + d_ang
     R = R_from_angles(angles, convention)
-    weighted = np.nan_to_num(pts.sigma_given) > 0
+    weighted = pts.given_state == OBSERVED
     given = pts.xyz_given + np.where(weighted, rng.normal(0.0, 1.0, pts.xyz_given.shape) * np.nan_to_num(pts.sigma_given), 0.0)
     return replace(plan,
                    image_points=replace(ip, xy=xy, sigma_xy=sigma_xy),
