@@ -18,7 +18,7 @@ from striptri.plan.design import noise_free_project
 from striptri.simulate.design import SyntheticDesign
 from striptri.simulate.pipeline import SimulateOptions, simulate_project
 from striptri.study.project import noisy_project, project_tasks
-from striptri.study.project_pipeline import run_compare_project
+from striptri.study.project_pipeline import ProjectStudyOptions, run_compare_project
 
 METHODS = ("seq1-forward", "conditions", "bundle")
 TRIALS = 6
@@ -42,7 +42,7 @@ def strip(tmp_path_factory):
 
 def test_compare_project_writes_the_study_of_the_project(strip, tmp_path):
     before = snapshot(strip)
-    result = run_compare_project(tmp_path / "out", strip, methods=METHODS, trials=TRIALS, seed=3, workers=1)
+    result = run_compare_project(tmp_path / "out", strip, ProjectStudyOptions(METHODS, trials=TRIALS, seed=3), workers=1)
     assert snapshot(strip) == before
     assert {p.name for p in (tmp_path / "out").iterdir()} >= {"study.csv", "growth.csv", "precision.csv",
                                                                "along.csv", "report.html"}
@@ -61,7 +61,8 @@ def test_compare_project_writes_the_study_of_the_project(strip, tmp_path):
     bund = [float(r["centre_last"]) for r in rows if r["method"] == "bundle"]
     np.testing.assert_allclose(cond, bund, rtol=1e-6)
     # the same seed gives the same study
-    again = run_compare_project(tmp_path / "again", strip, methods=METHODS, trials=TRIALS, seed=3, workers=1)
+    again = run_compare_project(tmp_path / "again", strip, ProjectStudyOptions(METHODS, trials=TRIALS, seed=3),
+                                workers=1)
     key = [(r["method"], r["trial"], r["centre_last"]) for r in result.rows]
     assert key == [(r["method"], r["trial"], r["centre_last"]) for r in again.rows]
 

@@ -32,7 +32,7 @@ from striptri.plan import ranking, whatif
 from striptri.plan.analysis import analyse, external_bound, precision_only
 from striptri.plan.external import own_point_shifts
 from striptri.plan.design import planned_points, predicted_plates
-from striptri.plan.pipeline import run_plan
+from striptri.plan.pipeline import PlanOptions, run_plan
 from striptri.simulate.design import SyntheticDesign
 from striptri.simulate.noise import NoiseOptions, perturb
 from striptri.simulate.pipeline import SimulateOptions, simulate_project
@@ -198,8 +198,8 @@ def test_whatifs(flight, tmp_path):
     turning a dropped point back into control restores the plan."""
     ranking = flight["planned"].ranking
     first = ranking[0]["point_id"]
-    out = run_plan(flight["plan"], tmp_path / "w", drop_control=[first], sigma_image=["0.0025"],
-                   rank_control=False)
+    out = run_plan(flight["plan"], tmp_path / "w",
+                   PlanOptions(drop_control=[first], sigma_image=["0.0025"], rank_control=False))
     plan, dropped, half = out.whatifs
     assert plan["case"] == "plan" and dropped["case"] == f"drop control {first}"
     assert dropped["worst_sigma_P"] == pytest.approx(ranking[0]["worst_sigma_P"], rel=REL)
@@ -331,7 +331,7 @@ def test_rank3_update_equals_brute_force_with_weighted_partial_control_and_defec
 def test_overlap_whatif_equals_a_thinned_plan(flight, tmp_path):
     """--keep-every 2 is the plan with every other photo of each strip removed from photos.csv and
     image_points.csv."""
-    out = run_plan(flight["plan"], tmp_path / "w", keep_every=[2], rank_control=False)
+    out = run_plan(flight["plan"], tmp_path / "w", PlanOptions(keep_every=[2], rank_control=False))
     thinned = tmp_path / "thinned"
     shutil.copytree(flight["plan"], thinned)
     photos = read_rows(thinned / "photos.csv")
@@ -349,7 +349,7 @@ def test_overlap_whatif_equals_a_thinned_plan(flight, tmp_path):
             w.writeheader()
             w.writerows(rows)
     assert 0 < len(kept) < len(photos)
-    alone = run_plan(thinned, tmp_path / "t", rank_control=False)
+    alone = run_plan(thinned, tmp_path / "t", PlanOptions(rank_control=False))
     row, ref = out.whatifs[1], alone.whatifs[0]
     assert row["case"] == "every 2-th photo" and row["status"] == "ok"
     for k in ("n_points", "worst_sigma_XY", "rms_sigma_XY", "worst_sigma_Z", "rms_sigma_Z", "worst_sigma_P"):

@@ -23,7 +23,7 @@ from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.io.project_reader import read_project
 from striptri.model import TIE
 from striptri.plan.analysis import analyse
-from striptri.plan.pipeline import run_plan
+from striptri.plan.pipeline import PlanOptions, run_plan
 from striptri.plan.vongruber import von_gruber_project
 from striptri.simulate.noise import NoiseOptions, perturb
 from striptri.simulate.truth import make_truth
@@ -95,13 +95,13 @@ def test_plan_from_von_gruber_points_equals_the_plan_with_their_image_points(tmp
     """Without image_points.csv the plan is analysed on its von Gruber points: the same figures as
     the same folder with those sightings written into image_points.csv (file column contract)."""
     folder = write_plan(tmp_path / "p")
-    out = run_plan(folder, tmp_path / "o", rank_control=False)
+    out = run_plan(folder, tmp_path / "o", PlanOptions(rank_control=False))
     assert out.summary["plan"]["tie_points"].startswith("von Gruber points: 30 tie points")
     assert "von Gruber points: 30 tie points" in (tmp_path / "o" / "report.html").read_text()
     header = next(csv.reader(open(tmp_path / "o" / "points.csv")))
     assert header[-3:] == ["ext_photos_X", "ext_photos_Y", "ext_photos_Z"]
     write_image_points(folder, out.analysis.project)
-    ref = run_plan(folder, tmp_path / "r", rank_control=False)
+    ref = run_plan(folder, tmp_path / "r", PlanOptions(rank_control=False))
     assert ref.summary["plan"]["tie_points"] == "image_points.csv"
     for k in FIGURES:
         assert out.whatifs[0][k] == pytest.approx(ref.whatifs[0][k], rel=REL)
@@ -109,7 +109,7 @@ def test_plan_from_von_gruber_points_equals_the_plan_with_their_image_points(tmp
     order = [b.project.points.ids.index(p) for p in a.project.points.ids]
     np.testing.assert_allclose(a.sigma_points, b.sigma_points[order], rtol=REL)
     # --von-gruber replaces image_points.csv's tie points by the generated ones
-    again = run_plan(folder, tmp_path / "v", von_gruber=True, rank_control=False)
+    again = run_plan(folder, tmp_path / "v", PlanOptions(von_gruber=True, rank_control=False))
     np.testing.assert_allclose(again.analysis.sigma_points, a.sigma_points, rtol=REL)
 
 
@@ -118,11 +118,11 @@ def test_overlap_whatif_equals_a_plan_flown_at_that_overlap(tmp_path):
     plan's own overlap it is the plan; at 80 % it is the plan written at 80 % (11 photos a strip)."""
     p60 = write_plan(tmp_path / "p60")
     p80 = write_plan(tmp_path / "p80", overlap=0.8, n_photos=11)
-    out = run_plan(p60, tmp_path / "o", overlap=[0.6, 0.8], keep_every=[2], rank_control=False)
+    out = run_plan(p60, tmp_path / "o", PlanOptions(overlap=[0.6, 0.8], keep_every=[2], rank_control=False))
     plan, kept, same, eighty = out.whatifs
     assert kept["case"] == "every 2-th photo" and same["case"] == "overlap 0.6 (12 photos)"
     assert eighty["case"] == "overlap 0.8 (22 photos)"
-    ref = run_plan(p80, tmp_path / "r", rank_control=False).whatifs[0]
+    ref = run_plan(p80, tmp_path / "r", PlanOptions(rank_control=False)).whatifs[0]
     for k in FIGURES:
         assert same[k] == pytest.approx(plan[k], rel=REL)
         assert eighty[k] == pytest.approx(ref[k], rel=REL)
@@ -147,8 +147,8 @@ def test_add_control_with_a_sigma_is_weighted_control(tmp_path):
     write_image_points(folder, plan)
     pid = "vg_103_r"
     X, Y, Z = map(float, plan.points.xyz_approx[plan.points.ids.index(pid)])
-    out = run_plan(folder, tmp_path / "o", add_control=[f"{pid}=XYZ:0.05", f"{pid}=XYZ", f"{pid}=Z:0.05"],
-                   rank_control=False)
+    out = run_plan(folder, tmp_path / "o",
+                   PlanOptions(add_control=[f"{pid}=XYZ:0.05", f"{pid}=XYZ", f"{pid}=Z:0.05"], rank_control=False))
     base, weighted, held, height = out.whatifs
     assert weighted["case"] == f"add control {pid}=XYZ:0.05"
     for kind, sigmas, row in (("XYZ", "0.05,0.05,0.05", weighted), ("Z", ",,0.05", height)):
@@ -158,7 +158,7 @@ def test_add_control_with_a_sigma_is_weighted_control(tmp_path):
             (ref / name).write_bytes((folder / name).read_bytes())
         with open(ref / "control.csv", "a") as f:
             f.write(f"{pid},{kind},{X!r},{Y!r},{Z!r},{sigmas}\n")
-        expect = run_plan(ref, tmp_path / f"r_{kind}", rank_control=False).whatifs[0]
+        expect = run_plan(ref, tmp_path / f"r_{kind}", PlanOptions(rank_control=False)).whatifs[0]
         for k in FIGURES:
             assert row[k] == pytest.approx(expect[k], rel=REL)
     assert held["worst_sigma_P"] < weighted["worst_sigma_P"] < base["worst_sigma_P"]
@@ -239,7 +239,7 @@ def test_overlap_whatif_on_every_shipped_project(tmp_path, name):
     """Before: `striptri plan data/synthetic_strips/block_3x6 --out p --overlap 0.8 --format 230`
     said "a plan without image_points.csv needs its planned X, Y" though image_points.csv is there:
     the height points' X, Y now come from their measured rays (plan.design.planned_points)."""
-    products = run_plan(SHIPPED / name, tmp_path / "p", overlap=(0.8,), plate_format="230")
+    products = run_plan(SHIPPED / name, tmp_path / "p", PlanOptions(overlap=(0.8,), plate_format="230"))
     assert any("overlap 0.8" in case for case in products.files["summary.json"].split('"'))
 
 
@@ -247,5 +247,5 @@ def test_von_gruber_on_a_simulated_project(tmp_path):
     """Before: --von-gruber failed the same way on simulate's output (height points without X, Y)."""
     proc = run("simulate", "block", "--out", tmp_path / "sim", "--seed", "3")
     assert proc.returncode == 0, proc.stderr
-    products = run_plan(tmp_path / "sim", tmp_path / "p", von_gruber=True, plate_format="230")
+    products = run_plan(tmp_path / "sim", tmp_path / "p", PlanOptions(von_gruber=True, plate_format="230"))
     assert (tmp_path / "p" / "points.csv").is_file() and products.files["points.csv"]

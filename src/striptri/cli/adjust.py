@@ -65,10 +65,7 @@ from striptri.solvers import SOLVERS
               help="No progress on stderr (shown otherwise once a run takes longer than 2 s: each iteration's "
                    "vTPv, largest correction and seconds, then the phases after the adjustment).")
 @reports_errors
-def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, datum, datum_points, point_precision,
-           blunders,
-           covariance_groups, covariance_datum, covariance_rigid,
-           procedure, direction, polynomial_degree, init, earth_curvature, refraction, keep_unconverged, quiet):
+def adjust(project_dir, out_dir, quiet, **given):
     """Adjust the project in PROJECT_DIR and write the results to --out.
 
     The output folder is checked before anything is computed and written only when the adjustment
@@ -78,16 +75,9 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 
     from striptri import progress
     from striptri.pipeline import run_adjust
-    from striptri.core.runs import RunOptions
 
-    covariance = _covariance_request(covariance_groups, covariance_datum, covariance_rigid)
+    run = run_options(given)
     with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):
-        run = RunOptions(method=method, solver=solver, datum=datum, datum_points=_datum_points(datum_points),
-                         max_iterations=max_iterations, init=init, scale_form=scale_form,
-                         procedure=None if procedure is None else int(procedure), direction=direction,
-                         polynomial_degree=polynomial_degree, blunders=blunders, point_precision=point_precision,
-                         earth_curvature=earth_curvature, refraction=refraction, covariance=covariance,
-                         keep_unconverged=keep_unconverged)
         products = run_adjust(project_dir, out_dir, run, on_warning=_warn)
     s = products.summary
     b = s["blunders"]
@@ -111,6 +101,19 @@ def adjust(project_dir, out_dir, method, solver, max_iterations, scale_form, dat
 # --------------------------------------------------------------------------- striptri plan
 # (DESIGN section 10, issue 15: pre-analysis of a planned block; docs/plan.md)
 
+
+
+def run_options(given: dict):
+    """The options of ``striptri adjust`` (click's values by name) -> one core.runs.RunOptions;
+    a bad combination of the covariance options is an InputError (exit status 2)."""
+    from striptri.core.runs import RunOptions
+
+    given = dict(given)
+    covariance = _covariance_request(given.pop("covariance_groups"), given.pop("covariance_datum"),
+                                     given.pop("covariance_rigid"))
+    procedure, datum_points = given.pop("procedure"), _datum_points(given.pop("datum_points"))
+    return RunOptions(**given, datum_points=datum_points, covariance=covariance,
+                      procedure=None if procedure is None else int(procedure))
 
 
 def _datum_points(text):

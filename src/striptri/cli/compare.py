@@ -30,31 +30,34 @@ from striptri.errors import InputError
                    "instead of invented strips (--photos, --layouts, --every-k do not apply; --sigma-image "
                    "replaces the plan's plate sigmas) [invented strips].")
 @reports_errors
-def compare(out_dir, methods, photos, layouts, sigma_images, trials, seed, every_k, workers, scheduler, project_dir):
+def compare(out_dir, project_dir, workers, scheduler, **given):
     """Method-comparison study: the sequential, conditions and bundle methods on simulated strips or
     your own block, Monte Carlo trials (docs/study.md), written to --out."""
     from striptri.study import StudyOptions, run_compare
     from striptri.study.progress import StderrProgress
 
-    given = {"methods": methods, "photos": photos, "layouts": layouts, "sigma_images": sigma_images}
+    methods, photos, layouts, sigma_images = (given[k] for k in ("methods", "photos", "layouts", "sigma_images"))
+    trials, seed, every_k = given["trials"], given["seed"], given["every_k"]
+    lists = {"methods": methods, "photos": photos, "layouts": layouts, "sigma_images": sigma_images}
     if project_dir is not None:
-        from striptri.study.project_pipeline import run_compare_project
+        from striptri.study.project_pipeline import ProjectStudyOptions, run_compare_project
 
         if photos or layouts or every_k != 2:
             raise InputError("command line", None, "--photos, --layouts and --every-k describe invented strips; "
                              "with --project the strips and control are the project's")
         progress = StderrProgress()
         try:
-            result = run_compare_project(out_dir, project_dir, methods=tuple(methods) or None, trials=trials,
-                                         sigma_images=tuple(sigma_images), seed=seed, workers=workers,
-                                         scheduler=scheduler, progress=progress)
+            study = ProjectStudyOptions(methods=tuple(methods) or None, sigma_images=tuple(sigma_images),
+                                        trials=trials, seed=seed)
+            result = run_compare_project(out_dir, project_dir, study, workers=workers, scheduler=scheduler,
+                                         progress=progress)
         finally:
             progress.close()
         failed = f", {result.n_failed} failed" if result.n_failed else ""
         click.echo(f"{len(result.rows)} adjustments{failed} -> {result.out_dir}")
         return
     options = StudyOptions(trials=trials, seed=seed, every_k=every_k,
-                           **{k: tuple(v) for k, v in given.items() if v})
+                           **{k: tuple(v) for k, v in lists.items() if v})
     progress = StderrProgress()
     try:
         result = run_compare(out_dir, options, workers=workers, scheduler=scheduler, progress=progress)

@@ -42,16 +42,12 @@ from striptri.solvers import SOLVERS
                    "rank-3 update does not apply (self-calibration, distortion, free network) only up to 40 "
                    "control points].")
 @reports_errors
-def plan(project_dir, out_dir, method, solver, drop_control, add_control, sigma_image, keep_every, overlap, von_gruber,
-         plate_format, terrain_height, rank_control):
+def plan(project_dir, out_dir, **given):
     """Pre-analysis of the planned block in PROJECT_DIR: a-priori precision (sigma0 = 1), internal and
     external reliability, what-ifs and the control ranking, from the design alone (docs/plan.md)."""
-    from striptri.plan.pipeline import run_plan
+    from striptri.plan.pipeline import PlanOptions, run_plan
 
-    products = run_plan(project_dir, out_dir, drop_control=drop_control, add_control=add_control,
-                        sigma_image=sigma_image, keep_every=keep_every, rank_control=rank_control, on_warning=_warn,
-                        von_gruber=von_gruber, plate_format=plate_format, terrain_height=terrain_height,
-                        overlap=overlap, method=method, solver=solver)
+    products = run_plan(project_dir, out_dir, PlanOptions(**given), on_warning=_warn)
     p = products.summary["plan"]["precision"]
     click.echo(f"plan: {products.summary['n_photos']} photos, {products.summary['n_points']} points; "
                f"worst sigma_XY {p['worst_sigma_XY']:.4g} m, worst sigma_Z {p['worst_sigma_Z']:.4g} m "

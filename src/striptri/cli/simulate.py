@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import click
 
@@ -85,11 +86,7 @@ _DEFAULT_OVERLAP = 0.6
                    "striptri adjusts them as Cartesian grid coordinates (the flat-Earth comparison).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
-def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_height, heading, relief, attitude_std,
-             position_std, layout, every_k, every_k_kind, extra_ties, check_points, single_photo_control, sigma_image,
-             sigma_control, sigma_control_z, approx_position_error, approx_angle_error, gnss_sigma, gnss_lever,
-             gnss_shift_std, gnss_drift_std, gnss_interval, boresight, imu_sigma, lever_mode, boresight_mode,
-             shift_mode, drift_mode, crs, heights, geoid_undulation, centre_lat, centre_lon, naive, seed):
+def simulate(kind, out_dir, seed, **given):
     """Write a synthetic KIND project (pair, strip or block) to --out, with its truth in OUT/truth/.
 
     --control schmid-fig8 is Schmid's worked strip (BRL 961, Fig. 8): 5 photos, 2/3 overlap and his
@@ -99,51 +96,63 @@ def simulate(kind, out_dir, photos, strips, overlap, sidelap, alternate, flying_
     from striptri.io.project_writer import write_project
 
     check_output_location(out_dir)
-    layout = layout or _DEFAULT_LAYOUT[kind]
-    if layout == sim.SCHMID_FIG8:
-        photos, overlap = 5 if photos is None else photos, 2 / 3 if overlap is None else overlap
+    o = SimpleNamespace(**given)  # the command's options by name
     try:
-        design = sim.SyntheticDesign(
-            flight=sim.FlightDesign(
-                n_photos=_DEFAULT_PHOTOS[kind] if photos is None else photos,
-                overlap=_DEFAULT_OVERLAP if overlap is None else overlap,
-                n_strips=_DEFAULT_STRIPS[kind] if strips is None else strips, sidelap=sidelap, alternate=alternate,
-                flying_height=flying_height, heading_deg=heading, attitude_std_deg=(attitude_std,) * 3,
-                position_std_m=(position_std,) * 3,
-            ),
-            terrain=sim.TerrainDesign(relief=relief),
-            points=sim.PointDesign(extra_ties_per_model=extra_ties),
-            control=sim.ControlDesign(
-                layout=layout, every_k=every_k, every_k_kind=every_k_kind,
-                n_check=check_points, n_single_photo=single_photo_control,
-            ),
-        )
-        noise = sim.NoiseOptions(
-            sigma_image=sigma_image, sigma_control_xy=sigma_control,
-            sigma_control_z=sigma_control if sigma_control_z is None else sigma_control_z,
-            approx_position_error=approx_position_error, approx_angle_error=approx_angle_error, sigma_gnss=gnss_sigma,
-        )
-        gnss = None
-        if gnss_lever is not None:
-            if gnss_sigma is None:
-                raise ValueError("--gnss-lever makes a GNSS block: give --gnss-sigma too")
-            gnss = sim.GnssOptions(lever_arm=_triple(gnss_lever, "--gnss-lever"), shift_std=gnss_shift_std,
-                                   drift_std=gnss_drift_std, sigma_gnss=gnss_sigma, interval=gnss_interval,
-                                   boresight=_triple(boresight, "--boresight"), sigma_imu=imu_sigma,
-                                   lever_mode=lever_mode, boresight_mode=boresight_mode, shift_mode=shift_mode,
-                                   drift_mode=drift_mode)
-        project, truth = sim.simulate_project(kind, sim.SimulateOptions(design, noise, gnss), seed)
+        project, truth = sim.simulate_project(kind, simulate_options(kind, o), seed)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from exc
-    if crs is not None:
-        project, truth = _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_lat, centre_lon)
-        if naive:
+    if o.crs is not None:
+        project, truth = _in_map_coordinates(project, truth, o)
+        if o.naive:
             project = replace(project, settings=replace(project.settings, coordinates=None))
-    elif heights != "ellipsoidal" or geoid_undulation is not None or centre_lon is not None or naive:
+    elif o.heights != "ellipsoidal" or o.geoid_undulation is not None or o.centre_lon is not None or o.naive:
         raise click.UsageError("--heights, --geoid-undulation, --centre-lon and --naive need --crs")
     folder = write_project(out_dir, project, truth_tables=truth)
     click.echo(f"wrote {folder}: {len(project.photos)} photos, {len(project.points)} points, "
                f"{len(project.image_points)} plate measurements")
+
+
+def simulate_options(kind: str, o: SimpleNamespace):
+    """The options of ``striptri simulate`` (by name, in ``o``) -> simulate.SimulateOptions (the
+    design of the flight, terrain, points and control, the noise, and GNSS when --gnss-lever is
+    given). ValueError for a combination that cannot be simulated."""
+    from striptri import simulate as sim
+
+    layout = o.layout or _DEFAULT_LAYOUT[kind]
+    photos, overlap = o.photos, o.overlap
+    if layout == sim.SCHMID_FIG8:
+        photos, overlap = 5 if photos is None else photos, 2 / 3 if overlap is None else overlap
+    design = sim.SyntheticDesign(
+        flight=sim.FlightDesign(
+            n_photos=_DEFAULT_PHOTOS[kind] if photos is None else photos,
+            overlap=_DEFAULT_OVERLAP if overlap is None else overlap,
+            n_strips=_DEFAULT_STRIPS[kind] if o.strips is None else o.strips, sidelap=o.sidelap,
+            alternate=o.alternate, flying_height=o.flying_height, heading_deg=o.heading,
+            attitude_std_deg=(o.attitude_std,) * 3, position_std_m=(o.position_std,) * 3,
+        ),
+        terrain=sim.TerrainDesign(relief=o.relief),
+        points=sim.PointDesign(extra_ties_per_model=o.extra_ties),
+        control=sim.ControlDesign(
+            layout=layout, every_k=o.every_k, every_k_kind=o.every_k_kind,
+            n_check=o.check_points, n_single_photo=o.single_photo_control,
+        ),
+    )
+    noise = sim.NoiseOptions(
+        sigma_image=o.sigma_image, sigma_control_xy=o.sigma_control,
+        sigma_control_z=o.sigma_control if o.sigma_control_z is None else o.sigma_control_z,
+        approx_position_error=o.approx_position_error, approx_angle_error=o.approx_angle_error,
+        sigma_gnss=o.gnss_sigma,
+    )
+    gnss = None
+    if o.gnss_lever is not None:
+        if o.gnss_sigma is None:
+            raise ValueError("--gnss-lever makes a GNSS block: give --gnss-sigma too")
+        gnss = sim.GnssOptions(lever_arm=_triple(o.gnss_lever, "--gnss-lever"), shift_std=o.gnss_shift_std,
+                               drift_std=o.gnss_drift_std, sigma_gnss=o.gnss_sigma, interval=o.gnss_interval,
+                               boresight=_triple(o.boresight, "--boresight"), sigma_imu=o.imu_sigma,
+                               lever_mode=o.lever_mode, boresight_mode=o.boresight_mode, shift_mode=o.shift_mode,
+                               drift_mode=o.drift_mode)
+    return sim.SimulateOptions(design, noise, gnss)
 
 
 def _triple(text: str, option: str) -> tuple:
@@ -158,11 +167,13 @@ def _triple(text: str, option: str) -> tuple:
     return values
 
 
-def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_lat, centre_lon):
-    """simulate --crs: the project and truth on the ellipsoid, in the CRS (simulate.map_coordinates)."""
+def _in_map_coordinates(project, truth, o: SimpleNamespace):
+    """simulate --crs: the project and truth on the ellipsoid, in the CRS (simulate.map_coordinates);
+    o: the command's options (crs, heights, geoid_undulation, centre_lat, centre_lon)."""
     from striptri.model import CoordinateSettings
     from striptri.simulate.map_coordinates import central_meridian, to_map_coordinates
 
+    crs, heights, geoid_undulation, centre_lon = o.crs, o.heights, o.geoid_undulation, o.centre_lon
     if (heights == "orthometric") != (geoid_undulation is not None):
         raise click.UsageError("--heights orthometric needs --geoid-undulation, and --geoid-undulation needs "
                                "--heights orthometric")
@@ -173,7 +184,7 @@ def _in_map_coordinates(project, truth, crs, heights, geoid_undulation, centre_l
                 raise ValueError(f"{crs!r} has no central meridian: give --centre-lon")
             centre_lon = meridian + 3.0
         coordinates = CoordinateSettings(crs=crs, heights=heights, geoid_undulation=geoid_undulation)
-        return to_map_coordinates(project, truth, coordinates, centre_lat, centre_lon)
+        return to_map_coordinates(project, truth, coordinates, o.centre_lat, centre_lon)
     except ValueError as exc:
         raise click.UsageError(f"--crs: {exc}") from exc
 

@@ -46,50 +46,78 @@ class PlanProducts:
 AUTO_RANK_LIMIT = 40  # control points up to which the ranking is computed unless asked (one analysis each)
 
 
-def run_plan(project_dir, out_dir, drop_control=(), add_control=(), sigma_image=(), keep_every=(),
-             rank_control: bool | None = None, on_warning=None, von_gruber: bool = False, plate_format=None,
-             terrain_height: float | None = None, overlap=(), **overrides) -> PlanProducts:
-    """Read the plan in ``project_dir``, analyse it with its what-ifs, write ``out_dir`` (module doc).
-    rank_control: True, False, or None: rank when the rank-3 update applies (plan.ranking) or the
-    plan has at most AUTO_RANK_LIMIT control points (the brute force re-analyses the plan once per
-    control point; otherwise a warning says so).
-    The output location is checked before anything is read; InputError for bad input or bad
-    what-ifs, NumericalFailure when the plan itself cannot be adjusted (e.g. a datum defect).
-    von_gruber (or no image_points.csv): the tie points are the plan's von Gruber points
-    (plan.vongruber), with plate_format ("W" or "WxH", plate units) and terrain_height (m) or their
-    project.toml [plan] keys; overlap: forward overlaps of the re-spaced what-ifs (whatif.respaced)."""
+@dataclass(frozen=True)
+class PlanOptions:
+    """What ``striptri plan`` is asked for (docs/plan.md).
+
+    drop_control, add_control, sigma_image, keep_every, overlap: the what-ifs (whatif: control
+    points dropped or added, plate sigmas, every k-th photo kept, forward overlaps of re-spaced
+    photos); rank_control: True, False, or None: rank when the rank-3 update applies
+    (plan.ranking) or the plan has at most AUTO_RANK_LIMIT control points (the brute force
+    re-analyses the plan once per control point; otherwise a warning says so). von_gruber (or no
+    image_points.csv): the tie points are the plan's von Gruber points (plan.vongruber), with
+    plate_format ("W" or "WxH", plate units) and terrain_height (m) or their project.toml [plan]
+    keys. method, solver: over project.toml's [adjustment] (None: project.toml's)."""
+
+    drop_control: tuple = ()
+    add_control: tuple = ()
+    sigma_image: tuple = ()
+    keep_every: tuple = ()
+    overlap: tuple = ()
+    rank_control: bool | None = None
+    von_gruber: bool = False
+    plate_format: str | None = None
+    terrain_height: float | None = None
+    method: str | None = None
+    solver: str | None = None
+
+    def __post_init__(self):
+        for name in ("drop_control", "add_control", "sigma_image", "keep_every", "overlap"):
+            object.__setattr__(self, name, tuple(getattr(self, name) or ()))
+
+    @property
+    def adjustment(self) -> dict:
+        """The AdjustmentOptions values given here (pipeline.options_for)."""
+        return {k: v for k, v in (("method", self.method), ("solver", self.solver)) if v is not None}
+
+
+def run_plan(project_dir, out_dir, plan: PlanOptions = PlanOptions(), on_warning=None) -> PlanProducts:
+    """Read the plan in ``project_dir``, analyse it with the what-ifs of ``plan`` (PlanOptions),
+    write ``out_dir`` (module doc). The output location is checked before anything is read;
+    InputError for bad input or bad what-ifs, NumericalFailure when the plan itself cannot be
+    adjusted (e.g. a datum defect)."""
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
     project = read_project(project_dir, plate_measurements_optional=True)
     said = [str(note) for note in project.notes]
-    generate = von_gruber or not len(project.image_points)
+    generate = plan.von_gruber or not len(project.image_points)
     geometry = None
-    if generate or overlap:
+    if generate or plan.overlap:
         toml = vongruber.plan_settings(project_dir)
-        geometry = (vongruber.format_of(plate_format, toml, project_dir),
-                    vongruber.terrain_height(terrain_height, toml, project, project_dir))
+        geometry = (vongruber.format_of(plan.plate_format, toml, project_dir),
+                    vongruber.terrain_height(plan.terrain_height, toml, project, project_dir))
     tie_points = "image_points.csv"
     if generate:
         project, tie_points = vongruber.von_gruber_project(project, *geometry)
     for text in said:
         if on_warning is not None:
             on_warning(text)
-    options = options_for(project, **overrides)
+    options = options_for(project, **plan.adjustment)
     if options.method == "sequential":
         raise InputError("command line", None, "a plan is analysed for a simultaneous adjustment (conditions or "
                          "bundle); the sequential method has no normal matrix of the whole block")
     xyz = planned_points(project)
-    cases = ([whatif.drop_control(project, s) for s in drop_control]
-             + [whatif.add_control(project, s, xyz) for s in add_control]
-             + [whatif.sigma_image(project, float(s)) for s in sigma_image]
-             + [whatif.every_kth_photo(project, k) for k in keep_every]
-             + [whatif.respaced(project, float(p), *geometry) for p in overlap])
+    cases = ([whatif.drop_control(project, s) for s in plan.drop_control]
+             + [whatif.add_control(project, s, xyz) for s in plan.add_control]
+             + [whatif.sigma_image(project, float(s)) for s in plan.sigma_image]
+             + [whatif.every_kth_photo(project, k) for k in plan.keep_every]
+             + [whatif.respaced(project, float(p), *geometry) for p in plan.overlap])
     with OutputReservation(out_dir, inputs) as reservation:
         try:
-            products = plan_products(project, options, xyz, cases, rank_control, said, on_warning, tie_points)
+            products = plan_products(project, options, xyz, cases, plan.rank_control, said, on_warning, tie_points)
         except SolverUnavailable as exc:
-            raise InputError(solver_source(project_dir, overrides), None, str(exc)) from exc
+            raise InputError(solver_source(project_dir, plan.adjustment), None, str(exc)) from exc
         reservation.commit(products.files)
     return products
 

@@ -71,24 +71,40 @@ class PhotoStep:
         return self.n_conditions - self.n_unknowns
 
 
-def orient_photo(
-    mode: str,
-    R_i: np.ndarray, O_i: np.ndarray, interior_i: np.ndarray,
-    R_j: np.ndarray, O_j: np.ndarray, interior_j: np.ndarray,
-    cop_xy: np.ndarray, cop_sigma: np.ndarray,
-    col_xy: np.ndarray, col_sigma: np.ndarray, col_X: np.ndarray,
-    held_axis: int = 0, tolerance: float = 1e-10, max_iterations: int = 30, label: str = "a photograph",
-) -> PhotoStep:
-    """Orient photo j to photo i (held) and to known points (held) by least squares.
+class Pose(NamedTuple):
+    """A photograph in the model frame: R (3, 3) R_ground_from_cam, O (3,) its centre, interior (3,)
+    c, xp, yp."""
 
-    R_*: (3, 3) R_ground_from_cam in the model frame; O_*: (3,); interior_*: (3,) c, xp, yp.
-    cop_xy, cop_sigma: (m, 4) plate coordinates x_i, y_i, x_j, y_j of the points for coplanarity
-    and their standard deviations; col_xy, col_sigma: (n, 2) plate coordinates in photo j of the
-    known points col_X (n, 3) (model frame). Start: R_j, O_j. Convergence: every correction below
-    ``tolerance`` times its standard deviation with all other unknowns known, or the round-off floor
-    (core.convergence.has_converged, as adjust()).
+    R: np.ndarray
+    O: np.ndarray
+    interior: np.ndarray
+
+
+class StepMeasurements(NamedTuple):
+    """What orients photo j: cop_xy, cop_sigma (m, 4) plate coordinates x_i, y_i, x_j, y_j of the
+    points for coplanarity and their standard deviations; col_xy, col_sigma (n, 2) plate
+    coordinates in photo j of the known points col_X (n, 3) (model frame)."""
+
+    cop_xy: np.ndarray
+    cop_sigma: np.ndarray
+    col_xy: np.ndarray = np.zeros((0, 2))
+    col_sigma: np.ndarray = np.zeros((0, 2))
+    col_X: np.ndarray = np.zeros((0, 3))
+
+
+def orient_photo(mode: str, held: Pose, start: Pose, measured: StepMeasurements, held_axis: int = 0,
+                 tolerance: float = 1e-10, max_iterations: int = 30, label: str = "a photograph") -> PhotoStep:
+    """Orient photo j to photo i (``held``) and to known points (held) by least squares.
+
+    held, start: photo i and the approximate orientation of photo j (Pose, model frame);
+    measured: the plate coordinates that orient j (StepMeasurements). Convergence: every
+    correction below ``tolerance`` times its standard deviation with all other unknowns known, or
+    the round-off floor (core.convergence.has_converged, as adjust()).
     label: the photograph in messages ("photo 1005").
     """
+    R_i, O_i, interior_i = held
+    R_j, O_j, interior_j = start
+    cop_xy, cop_sigma, col_xy, col_sigma, col_X = measured
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}")
     m, n = len(cop_xy), len(col_xy)

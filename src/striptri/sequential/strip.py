@@ -47,7 +47,7 @@ from .absolute import (
     fit_strip_polynomial,
     umeyama,
 )
-from .photo_step import PhotoStep, orient_photo
+from .photo_step import PhotoStep, Pose, StepMeasurements, orient_photo
 
 # A start of a relative orientation from the linear base (_linear_base) only when its component
 # along the held axis exceeds this fraction of the base (a smaller one scales the others wildly).
@@ -144,8 +144,8 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
             starts.append((R_rel, b_axis))
     for R_rel, b in starts:
         try:
-            ro = orient_photo("relative", R_i, O_i, interior_i, R_i @ R_rel, O_i + R_i @ b, interior_j, cop_xy,
-                              cop_sig, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 3)), held_axis=held,
+            ro = orient_photo("relative", Pose(R_i, O_i, interior_i), Pose(R_i @ R_rel, O_i + R_i @ b, interior_j),
+                              StepMeasurements(cop_xy, cop_sig), held_axis=held,
                               label=f"photo {names[1]} relative to photo {names[0]}", **kw)
         except NumericalFailure:
             continue
@@ -270,9 +270,9 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
         if options.procedure == 2 and s > 1:
             carried = np.flatnonzero(have & (row[j] >= 0))
             new_rows = np.stack([row[i, new], row[j, new]], 1)
-            step = orient_photo("full", Rm[i], Om[i], interior[i], R_j, O_j, interior[j],
-                                ip.xy[new_rows].reshape(-1, 4), ip.sigma_xy[new_rows].reshape(-1, 4),
-                                ip.xy[row[j, carried]], ip.sigma_xy[row[j, carried]], Xm[carried],
+            measured = StepMeasurements(ip.xy[new_rows].reshape(-1, 4), ip.sigma_xy[new_rows].reshape(-1, 4),
+                                        ip.xy[row[j, carried]], ip.sigma_xy[row[j, carried]], Xm[carried])
+            step = orient_photo("full", Pose(Rm[i], Om[i], interior[i]), Pose(R_j, O_j, interior[j]), measured,
                                 label=f"photo {ph.ids[j]}", **kw)
             relative_steps.append(ro)
             R_j, O_j = step.R_j, step.O_j
@@ -309,9 +309,11 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
         O_g = O_g + poly.correction(O_g)
         for j in range(n):
             seen = np.flatnonzero(have & (row[j] >= 0))
-            rs = orient_photo("full", R_g[j], O_g[j], interior[j], R_g[j], O_g[j], interior[j],
-                              np.zeros((0, 4)), np.zeros((0, 4)), ip.xy[row[j, seen]], ip.sigma_xy[row[j, seen]],
-                              X_g[seen], label=f"photo {ph.ids[j]} (resection after the strip correction)", **kw)
+            pose = Pose(R_g[j], O_g[j], interior[j])
+            measured = StepMeasurements(np.zeros((0, 4)), np.zeros((0, 4)), ip.xy[row[j, seen]],
+                                        ip.sigma_xy[row[j, seen]], X_g[seen])
+            rs = orient_photo("full", pose, pose, measured,
+                              label=f"photo {ph.ids[j]} (resection after the strip correction)", **kw)
             R_g[j], O_g[j] = rs.R_j, rs.O_j
             resections.append(rs)
     return SequentialSolution(

@@ -4,6 +4,7 @@ precision.csv, along.csv and report.html, whole or not at all (docs/study.md, do
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -19,13 +20,24 @@ from striptri.study.project import PROJECT_LAYOUT, project_tasks, run_project_ta
 from striptri.study.runner import Progress, run_tasks
 
 
-def run_compare_project(out_dir, project_dir, methods=None, sigma_images=(), trials: int = 10,
-                        seed: int = 0, workers: int | None = None, scheduler=None,
-                        progress: Progress | None = None) -> StudyResult:
-    """Run the study on the plan in ``project_dir`` and write ``out_dir``. sigma_images: plate
-    sigmas of the configurations (empty: one configuration with the plan's own sigmas); methods:
-    labels of study.options.METHOD_SPECS (None: all six). The output
+@dataclass(frozen=True)
+class ProjectStudyOptions:
+    """A study on a project's own block: methods, labels of study.options.METHOD_SPECS (None: all
+    six); sigma_images, plate sigmas of the configurations (empty: one configuration with the
+    plan's own sigmas); trials per configuration and method; seed of the noise."""
+
+    methods: tuple | None = None
+    sigma_images: tuple = ()
+    trials: int = 10
+    seed: int = 0
+
+
+def run_compare_project(out_dir, project_dir, options: ProjectStudyOptions = ProjectStudyOptions(),
+                        workers: int | None = None, scheduler=None, progress: Progress | None = None) -> StudyResult:
+    """Run the study ``options`` on the plan in ``project_dir`` and write ``out_dir``. The output
     location is checked before the project is read; InputError for bad input or options."""
+    methods, sigma_images = options.methods, tuple(options.sigma_images)
+    trials, seed = options.trials, options.seed
     methods = METHOD_LABELS if methods is None else tuple(methods)
     project_dir = Path(project_dir)
     inputs = input_paths(project_dir)
