@@ -56,11 +56,11 @@ class _Drawn:
         per_photo, stacked = figures.plate_residuals_per_photo, figures.plate_residuals_stacked
 
         def record_per_photo(*args, **kwargs):
-            self.per_photo.append({"titles": args[4], "bar_label": args[8]})
+            self.per_photo.append({"titles": args[4], "bar_label": args[6].label})
             return per_photo(*args, **kwargs)
 
         def record_stacked(*args, **kwargs):
-            self.stacked.append({"bar_label": args[6], "field": kwargs.get("field"),
+            self.stacked.append({"bar_label": args[4].label, "field": kwargs.get("field"),
                                  "plate_unit": kwargs.get("plate_unit", "mm")})
             return stacked(*args, **kwargs)
 

@@ -10,6 +10,8 @@ is still there for the study's figures.
 from __future__ import annotations
 
 import io
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -203,6 +205,41 @@ def _empty_normal_matrix(title: str = "") -> bytes:
 
 # Colours shared by the figures and the report's legend text.
 RESIDUAL_COLOUR = "#1f4e79"
+
+
+class ScaleBar(NamedTuple):
+    """Vectors or ellipses drawn magnified by ``magnification``, with a scale bar of ``length`` (in
+    the units of what is drawn: plate units for residuals, m for errors on the ground) labelled
+    ``label``."""
+
+    magnification: float
+    length: float
+    label: str
+
+
+class BlockPlan(NamedTuple):
+    """What a plan view of the block draws: xy_centres (n_ph, 2) ground X, Y of the projection
+    centres, in flight order within a strip; strip_of_photo (n_ph,) strip labels; xy_points
+    (n_pt, 2); kind_names (n_pt,) names of KIND_STYLE; flight_lines: join the centres of each
+    strip (False for convergent close range, whose stations fly no line)."""
+
+    xy_centres: np.ndarray
+    strip_of_photo: np.ndarray
+    xy_points: np.ndarray
+    kind_names: np.ndarray
+    flight_lines: bool = True
+
+
+@dataclass(frozen=True)
+class VectorStyle:
+    """How residual vectors are drawn: line width, opacity, rasterised (many vectors), a dot at the
+    measured point, colour (flagged ones always in FLAG_COLOUR, opaque and on top)."""
+
+    width: float = 0.6
+    alpha: float = 1.0
+    rasterized: bool = False
+    dots: bool = True
+    colour: str = RESIDUAL_COLOUR
 FLAG_COLOUR = "#c0392b"
 WORST_COLOUR = "#c0392b"
 KIND_STYLE = {  # kind name -> (marker, colour, label)
@@ -294,12 +331,12 @@ def _format_frame(ax, half_format: float) -> None:
         s.set_visible(False)
 
 
-def _vectors(ax, xy, v, flagged, magnification, width=0.6, alpha=1.0, rasterized=False, dots=True,
-             colour=RESIDUAL_COLOUR) -> None:
+def _vectors(ax, xy, v, flagged, magnification, style: VectorStyle = VectorStyle()) -> None:
     """Residual vectors as line segments from the measured point to point + magnification v;
     flagged ones on top in FLAG_COLOUR, opaque."""
     from matplotlib.collections import LineCollection
 
+    width, alpha, rasterized, dots, colour = style.width, style.alpha, style.rasterized, style.dots, style.colour
     styles = ((~flagged, colour, width, alpha, 2, 3), (flagged, FLAG_COLOUR, 2.0 * max(width, 0.6), 1.0, 4, 5))
     for sel, c, lw, al, z_line, z_dot in styles:
         if not sel.any():
@@ -319,20 +356,21 @@ def _scale_bar(ax, length_plot: float, label: str, half_format: float) -> None:
     ax.text(x0, y0 + 0.05 * half_format, label, fontsize=6.5, va="bottom", ha="left")
 
 
-def plate_residuals_per_photo(xy_plate, v_plate, flagged, groups, titles, half_format: float,
-                              magnification: float, bar_length: float, bar_label: str, ncols: int = 6) -> bytes:
+def plate_residuals_per_photo(xy_plate, v_plate, flagged, groups, titles, half_format: float, scale: ScaleBar,
+                              ncols: int = 6) -> bytes:
     """Small multiples: the residual vectors of one photo per panel, drawn on the format.
 
     xy_plate, v_plate: (m, 2) measured plate coordinates and residuals (plate units); flagged: (m,)
     bool; groups: list of index arrays into the rows, one per panel; titles: one per panel;
-    half_format: half the side of the drawn frame; the vectors are drawn magnified by
-    ``magnification``; the scale bar shows a residual of bar_length (plate units) labelled bar_label.
+    half_format: half the side of the drawn frame; scale: the magnification of the vectors and the
+    scale bar (a residual in plate units).
 
     All panels share one axes (each shifted to its place in the grid): one collection per colour
     instead of one axes per photo keeps this fast for many panels.
     """
     from matplotlib.collections import LineCollection
 
+    magnification, bar_length, bar_label = scale
     n = len(groups)
     ncols = max(1, min(ncols, n))
     nrows = int(np.ceil(n / ncols))
@@ -362,12 +400,11 @@ def plate_residuals_per_photo(xy_plate, v_plate, flagged, groups, titles, half_f
     return png_of(fig)
 
 
-def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magnification: float,
-                            bar_length: float, bar_label: str, cell_means=None, field=None,
-                            plate_unit: str = "mm") -> bytes:
+def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, scale: ScaleBar, cell_means=None,
+                            field=None, plate_unit: str = "mm") -> bytes:
     """All residual vectors of all photos over one format (systematic image errors show as a
-    pattern), and, when cell_means = (centres (k, 2), means (k, 2), counts (k,), magnification,
-    bar_length, bar_label) is given, the mean residual of each cell of a grid in a second panel.
+    pattern), drawn as ``scale`` says, and, when cell_means = (centres (k, 2), means (k, 2), counts
+    (k,), ScaleBar) is given, the mean residual of each cell of a grid in a second panel.
 
     field = (rms (g, g), unit_label, n_all), for many measurements: the left panel shows instead the
     RMS residual length of each cell of a g x g grid over the format (rms in the plate units of
@@ -377,6 +414,7 @@ def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magn
     """
     from matplotlib.collections import LineCollection
 
+    magnification, bar_length, bar_label = scale
     n_panels = 2 if cell_means is not None else 1
     fig = _figure(figsize=(4.6 * n_panels + (0.6 if field is not None else 0.0), 4.6))
     axes = fig.subplots(1, n_panels, squeeze=False)
@@ -384,8 +422,8 @@ def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magn
     _format_frame(ax, half_format)
     if field is None:
         many = len(xy_plate) > 3000
-        _vectors(ax, xy_plate, v_plate, flagged, magnification, width=0.3 if many else 0.5,
-                 alpha=0.35 if many else 1.0, rasterized=many, dots=not many)
+        _vectors(ax, xy_plate, v_plate, flagged, magnification,
+                 VectorStyle(width=0.3 if many else 0.5, alpha=0.35 if many else 1.0, rasterized=many, dots=not many))
         ax.set_title(f"all {len(xy_plate)} measurements, vectors x{magnification:g}", fontsize=9)
     else:
         rms, unit_label, n_all = field
@@ -396,7 +434,7 @@ def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magn
         bar = fig.colorbar(image, ax=ax, fraction=0.046, pad=0.03, extend="max")
         bar.set_label(f"RMS residual per cell ({unit_label})", fontsize=7)
         bar.ax.tick_params(labelsize=6.5)
-        _vectors(ax, xy_plate, v_plate, flagged, magnification, width=0.8, colour="#2c3e50")
+        _vectors(ax, xy_plate, v_plate, flagged, magnification, VectorStyle(width=0.8, colour="#2c3e50"))
         ax.set_title(f"{n_all} measurements: RMS per cell; the {len(xy_plate)} largest |w| drawn x{magnification:g}",
                      fontsize=8.5)
     _scale_bar(ax, bar_length * magnification, bar_label, half_format)
@@ -404,7 +442,7 @@ def plate_residuals_stacked(xy_plate, v_plate, flagged, half_format: float, magn
     ax.set_xlabel(f"x ({plate_unit})", fontsize=8)
     ax.set_ylabel(f"y ({plate_unit})", fontsize=8)
     if cell_means is not None:
-        centres, means, counts, mag2, bar2, label2 = cell_means
+        centres, means, counts, (mag2, bar2, label2) = cell_means
         ax = axes[0, 1]
         _format_frame(ax, half_format)
         ok = counts > 0
@@ -481,18 +519,16 @@ def _plan_frame(ax, bar_length: float, magnification: float, bar_label: str, bar
     ax.grid(True, linewidth=0.3, alpha=0.5)
 
 
-def error_ellipses(xy_centres, strip_of_photo, xy_points, kind_names, cov_xy, magnification: float,
-                   bar_length: float, bar_label: str, labels=None, flight_lines: bool = True) -> bytes:
-    """Plan view of the block: projection centres joined along their strips, the ground points
-    coloured by kind (control as triangles) and the horizontal standard error ellipse of each point
-    magnified by ``magnification``, with a scale bar of bar_length (m) labelled bar_label.
+def error_ellipses(plan: BlockPlan, cov_xy, scale: ScaleBar, labels=None) -> bytes:
+    """Plan view of the block (``plan``): projection centres joined along their strips, the ground
+    points coloured by kind (control as triangles) and the horizontal standard error ellipse of each
+    point magnified as ``scale`` says, with its scale bar (m).
 
-    xy_centres: (n_ph, 2) ground X, Y of the projection centres, in flight order within a strip;
-    strip_of_photo: (n_ph,) strip labels; xy_points: (n_pt, 2); kind_names: (n_pt,) names of
-    KIND_STYLE; cov_xy: (n_pt, 2, 2) covariance of X, Y in m^2 (nan where undetermined);
-    labels: optional (n_pt,) strings, drawn beside control and check points; flight_lines: join
-    the centres of each strip (False for convergent close range, whose stations fly no line).
+    cov_xy: (n_pt, 2, 2) covariance of X, Y in m^2 (nan where undetermined); labels: optional
+    (n_pt,) strings, drawn beside control and check points.
     """
+    xy_centres, strip_of_photo, xy_points, kind_names, flight_lines = plan
+    magnification, bar_length, bar_label = scale
     kind_names = np.asarray(kind_names)
     many = len(xy_points) > 2000
     fig = _figure(figsize=(8.6, 0.9 + 6.3 * _block_axes_size(xy_centres, xy_points)))
@@ -532,8 +568,7 @@ def _kind_markers(ax, xy_points, kind_names, rasterized=False, kinds=None, small
                    label=f"{label} ({int(sel.sum())})", rasterized=rasterized)
 
 
-def precision_map(xy_centres, strip_of_photo, xy_points, kind_names, extent, grids, worst, cov_xy,
-                  magnification: float, bar_length: float, bar_label: str, flight_lines: bool = True) -> bytes:
+def precision_map(plan: BlockPlan, extent, grids, worst, cov_xy, scale: ScaleBar) -> bytes:
     """Plan view of a large block as two rasters side by side: the RMS of the points' horizontal
     standard error (semi-major axis of the ellipse) and of their sigma Z, per cell of a grid over
     the block, with the flight lines (up to MAP_FLIGHT_LINES strips), the control points (small
@@ -543,8 +578,10 @@ def precision_map(xy_centres, strip_of_photo, xy_points, kind_names, extent, gri
     extent: (x0, x1, y0, y1) of the grid in m; grids: ((ny, nx) horizontal, (ny, nx) vertical,
     unit_label, scale) with the RMS values in m (nan: no point in the cell), shown multiplied by
     scale in unit_label; worst: (horizontal indices, vertical indices) into the points; cov_xy:
-    (n_pt, 2, 2) covariance of X, Y in m^2. Other arguments as for error_ellipses.
+    (n_pt, 2, 2) covariance of X, Y in m^2. plan, scale as for error_ellipses.
     """
+    xy_centres, strip_of_photo, xy_points, kind_names, flight_lines = plan
+    magnification, bar_length, bar_label = scale
     kind_names = np.asarray(kind_names)
     grid_h, grid_z, unit_label, scale = grids
     worst_h, worst_z = (np.asarray(w, dtype=int) for w in worst)

@@ -301,7 +301,7 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     groups = [rows_of[bounds[p]:bounds[p + 1]] for p in shown]
     rms_photo = unit.factor * np.hypot(*stats["rms"].T) / np.sqrt(2)  # RMS per coordinate, in unit.label
     titles = [f"{ids[p]}  ({stats['count'][p]} pts, {rms_photo[p]:{unit.spec}} {unit.label})" for p in shown]
-    png = fig.plate_residuals_per_photo(xy, v, flagged, groups, titles, h, mag, bar, bar_label)
+    png = fig.plate_residuals_per_photo(xy, v, flagged, groups, titles, h, fig.ScaleBar(mag, bar, bar_label))
     parts.append("<h3>Per photograph</h3>")
     parts.append(_img(png, "residual vectors per photograph",
                       f"Residual vectors on the format of {what}; panel title: photo, measurements, RMS residual "
@@ -315,13 +315,13 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     if biggest > resolvable:
         mag2 = fig.nice_number(0.3 * h / biggest)
         bar2 = fig.nice_number(0.3 * h / mag2)
-        cell_means = (centres_5, means, counts, mag2, bar2, unit.length(bar2))
+        cell_means = (centres_5, means, counts, fig.ScaleBar(mag2, bar2, unit.length(bar2)))
         right = (f" Right: the mean residual in each cell of a {cells} &times; {cells} grid (x{mag2:g}); a regular "
                  "pattern there points to a systematic image error (lens distortion, film deformation) rather than "
                  "noise.")
     if len(xy) <= page.MAX_VECTORS:
-        png = fig.plate_residuals_stacked(xy, v, flagged, h, mag_all, bar_all, unit.length(bar_all), cell_means,
-                                          plate_unit=unit.plate)
+        png = fig.plate_residuals_stacked(xy, v, flagged, h, fig.ScaleBar(mag_all, bar_all, unit.length(bar_all)),
+                                          cell_means, plate_unit=unit.plate)
         left = f"the residuals of all photographs drawn over one format (x{mag_all:g})."
     else:  # a raster of the RMS residual per cell, and the worst vectors on top
         _, ms, count = _cell_statistics(xy, length[:, None] ** 2, h, page.FIELD_CELLS)
@@ -329,7 +329,8 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
         worst = np.argsort(-(flagged * (1.0 + absw.max(initial=0.0)) + absw), kind="stable")[:page.WORST_VECTORS]
         mag_w = min(mag_all, fig.nice_number(0.3 * h / max(float(length[worst].max()), 1e-300)))
         bar_w = fig.nice_number(0.3 * h / mag_w)
-        png = fig.plate_residuals_stacked(xy[worst], v[worst], flagged[worst], h, mag_w, bar_w, unit.length(bar_w),
+        png = fig.plate_residuals_stacked(xy[worst], v[worst], flagged[worst], h,
+                                          fig.ScaleBar(mag_w, bar_w, unit.length(bar_w)),
                                           cell_means, field=(rms * unit.factor, unit.label, len(xy)),
                                           plate_unit=unit.plate)
         left = (f"the RMS length of the residuals of all {len(xy)} measurements in each cell of a {page.FIELD_CELLS} "

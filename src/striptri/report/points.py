@@ -57,8 +57,8 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
     worst_table = ""
     if n_determined <= page.MAX_ELLIPSES:
         strips = fig.flies_strips(result.state.R_ground_from_cam)
-        png = fig.error_ellipses(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, cov[:, :2, :2],
-                                 mag, bar, bar_label, labels=pts.ids, flight_lines=strips)
+        plan = fig.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
+        png = fig.error_ellipses(plan, cov[:, :2, :2], fig.ScaleBar(mag, bar, bar_label), labels=pts.ids)
         stations = ("projection centres (+) along their flight lines (arrow: direction of flight)" if strips else
                     "camera stations (+; convergent photographs, no flight lines)")
         figure = _img(png, "error ellipses of the ground points",
@@ -121,9 +121,9 @@ def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, 
     finite = np.concatenate([grid_h[np.isfinite(grid_h)], grid_z[np.isfinite(grid_z)]])
     unit, scale = ("cm", 100.0) if len(finite) == 0 or np.percentile(finite, 99) < 1.0 else ("m", 1.0)
     strips = fig.flies_strips(project.photos.R_ground_from_cam)
-    png = fig.precision_map(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names,
-                            grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
-                            mag, bar, bar_label, flight_lines=strips)
+    plan = fig.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
+    png = fig.precision_map(plan, grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
+                            fig.ScaleBar(mag, bar, bar_label))
     n_shown = int(pos.sum())
     n_strips = len(set(project.photos.strip_ids))
     lines = " with its flight lines" if strips and n_strips <= fig.MAP_FLIGHT_LINES else ""
