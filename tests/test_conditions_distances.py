@@ -15,6 +15,7 @@ from striptri.model import Distances
 from striptri.geometry.collinearity import collinearity_jacobians
 from striptri.conditions_method import adjust_conditions
 from striptri.conditions_method.adjust import _Problem
+from striptri.equations.linearise import At
 from striptri.core.options import AdjustmentOptions, ConditionsOptions
 from striptri.errors import InputError
 from striptri.equations.joint_groups import joint_point_precision
@@ -61,7 +62,7 @@ def _with(project, true_xyz, held: dict, pairs, sigma, offsets=None, held_angles
 def _joint_system(project, state, plate_hat, control_hat, d_hat):
     prob = _Problem(project, OPTIONS)
     T = prob.layout.rotation_maps(state)
-    return prob, prob.joint.systems(state, prob.layout, T, prob.obs, plate_hat, control_hat, d_hat)
+    return prob, prob.joint.systems(At(state, prob.layout, T, prob.obs, plate_hat, control_hat), d_hat)
 
 
 def test_distance_condition_jacobian_matches_central_differences():
@@ -74,14 +75,14 @@ def test_distance_condition_jacobian_matches_central_differences():
     obs, state = prob.obs, prob.initial_state
     plate, control = obs.plate.copy(), obs.control.copy()
     d_hat = project.distances.distance.copy()
-    (js,) = prob.joint.systems(state, prob.layout, prob.layout.rotation_maps(state), obs, plate, control, d_hat)
+    (js,) = prob.joint.systems(At.of(state, prob.layout, obs, plate, control), d_hat)
     rows = js.n_conditions - len(project.distances) + np.arange(len(project.distances))
     # the scaled distance rows: g = s (|X_a - X_b| - d^), s the scale linearise-style (a constant here)
     scale = js.g[rows] / (np.linalg.norm(js.xyz[js.component.ends[:, 0]] - js.xyz[js.component.ends[:, 1]], axis=1)
                           - d_hat[js.component.distances])
 
     def g_at(plate_, control_, d_, state_):
-        (j,) = prob.joint.systems(state_, prob.layout, prob.layout.rotation_maps(state_), obs, plate_, control_, d_)
+        (j,) = prob.joint.systems(At.of(state_, prob.layout, obs, plate_, control_), d_)
         ends = j.component.ends
         return (np.linalg.norm(j.xyz[ends[:, 0]] - j.xyz[ends[:, 1]], axis=1) - d_[j.component.distances]) * scale
 

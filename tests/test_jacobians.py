@@ -22,7 +22,7 @@ from striptri.equations import conditions
 from striptri import model
 from striptri.adjustment import observations_of
 from striptri.equations.groups import build_batches
-from striptri.equations.linearise import evaluate, linearise
+from striptri.equations.linearise import At, evaluate, linearise
 from striptri.equations.parameter_observations import build_parameter_observations
 from striptri.equations.parameters import build_layout, initial_state, reduction_offset
 from striptri.geometry.rotations import angles_from_R, angles_jacobian
@@ -398,7 +398,7 @@ def test_linearise_B_and_A(convention):
     families = set()
     for batch in batches:
         families.add((batch.family, batch.k, batch.given_axes))
-        system = linearise(batch, state, layout, T, obs, plate_hat, control_hat)
+        system = linearise(batch, At(state, layout, T, obs, plate_hat, control_hat))
         m, nc = system.g.shape
         lin0 = evaluate(batch, state, plate_hat, control_hat)
         # the conditions are scaled per row (linearise docstring); recover the scale from A

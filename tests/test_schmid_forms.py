@@ -96,7 +96,8 @@ def test_independent_triangulation_75_80():
     xy1 = project(R1, O1, interior, X) + rng.normal(0, 0.005, (m, 2))
     xy2 = project(R2, O2, interior, X) + rng.normal(0, 0.005, (m, 2))
     sig = np.full((m, 4), 0.005)
-    res = independent_pair_triangulation(R1, O1, interior, xy1, R2, O2, interior, xy2, sig)
+    res = independent_pair_triangulation(np.stack([R1, R2], 1), np.stack([O1, O2], 1), np.stack([interior] * 2, 1),
+                                         np.concatenate([xy1, xy2], 1), sig)
     g0, *_ = coplanarity(O2 - O1, *(np.einsum("mij,mj->mi", R, plate_vector(xy, interior)) for R, xy in ((R1, xy1), (R2, xy2))))
     assert np.abs(res.misclosure).max() < 1e-9 * np.abs(g0).max()
     # (80): v^T P v = -w k, with w the absolute term of the last linearisation

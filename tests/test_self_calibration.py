@@ -22,7 +22,7 @@ from striptri import simulate as sim
 from striptri.adjustment import AdjustmentOptions, adjust, observations_of
 from striptri.equations.groups import build_batches
 from striptri.geometry.lens import IMAGE, NCP, PLATE
-from striptri.equations.linearise import evaluate, linearise
+from striptri.equations.linearise import At, evaluate, linearise
 from striptri.equations.parameters import build_layout, initial_state, reduction_offset
 
 H = 1500.0
@@ -88,7 +88,7 @@ def test_linearised_conditions_with_the_camera_model(convention):
         steps.update(k1=1e-6, k2=1e-6, k3=1e-6, p1=1e-7, p2=1e-7)
     cam_cols = layout.camera_cols[0]
     for batch in build_batches(project)[:4]:
-        system = linearise(batch, state, layout, T, obs, plate_hat, control_hat)
+        system = linearise(batch, At(state, layout, T, obs, plate_hat, control_hat))
         m, nc = system.g.shape
         lin0 = evaluate(batch, state, plate_hat, control_hat, plate_measured=obs.plate)
         scale = system.g / lin0.g

@@ -13,6 +13,7 @@ from striptri import simulate as sim
 from striptri.adjustment import AdjustmentOptions, Assembly, Sweep, assemble_normals, adjust, observations_of
 from striptri.errors import NumericalFailure
 from striptri.equations.groups import build_batches
+from striptri.equations.linearise import At
 from striptri.io import read_project
 from striptri.equations.parameter_observations import build_parameter_observations
 from striptri.equations.parameters import build_layout, initial_state, reduction_offset
@@ -80,7 +81,7 @@ def _assembly_peak_bytes(project, chunk_size):
     pobs = build_parameter_observations(project, offset)
     options = AdjustmentOptions(chunk_size=chunk_size)
     assembly = Assembly.of(batches, state, layout, chunk_size)
-    sweep = Sweep(batches, state, layout, obs, obs.plate.copy(), obs.control.copy(), options)
+    sweep = Sweep(batches, At.of(state, layout, obs, obs.plate.copy(), obs.control.copy()), options)
     assemble_normals(sweep, pobs, assembly)  # warm up (imports, caches)
     tracemalloc.start()
     tracemalloc.reset_peak()

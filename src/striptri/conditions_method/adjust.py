@@ -32,7 +32,7 @@ from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observat
 from ..errors import NumericalFailure
 from ..equations.groups import build_batches
 from ..equations.joint_groups import JointGroups, whiten_joint
-from ..equations.linearise import Sweep
+from ..equations.linearise import At, Sweep
 from ..model import Project
 from ..equations.normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, sums_camera_columns, whiten
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
@@ -234,8 +234,8 @@ class _Problem:
             self._explain_too_few()
 
     def sweep(self, state: State, plate_hat: np.ndarray, control_hat: np.ndarray, distance_hat=None) -> Sweep:
-        return Sweep(self.batches, state, self.layout, self.obs, plate_hat, control_hat, self.options, self.joint,
-                     distance_hat)
+        return Sweep(self.batches, At.of(state, self.layout, self.obs, plate_hat, control_hat), self.options,
+                     self.joint, distance_hat)
 
     def assemble(self, sweep: Sweep, iteration: int, keep: bool = False):
         return _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep)
@@ -401,7 +401,7 @@ def normal_matrix_at_approximations(project: Project, options: AdjustmentOptions
         batches, joint = JointGroups.of(project, build_batches(project))
         obs = observations_of(project, offset)
         assembly = Assembly.of(batches, state, layout, options.chunk_size)
-        sweep = Sweep(batches, state, layout, obs, obs.plate, obs.control, options, joint)
+        sweep = Sweep(batches, At.of(state, layout, obs, obs.plate, obs.control), options, joint)
         acc = _assemble_checked(sweep, build_parameter_observations(project, offset), assembly, project, 1)
     return acc.N, layout
 

@@ -38,7 +38,7 @@ from scipy.sparse.csgraph import connected_components
 from .conditions import first_pair_intersection
 from ..errors import InputError
 from .groups import COLLINEARITY, GroupBatch
-from .linearise import evaluate, linearise, unknown_blocks
+from .linearise import At, evaluate, linearise, unknown_blocks
 from .observations import observations_of
 from .groups import adjusted_kind, build_batches, rays_per_point
 from ..model import FULL, Project
@@ -163,15 +163,16 @@ class JointGroups:
         member_point = np.array([members[b].point_index[i] for b, i in member_of], dtype=int)
         return rest, JointGroups(project, members, member_of, distance_components(project, member_point))
 
-    def systems(self, state, layout, rotation_maps, obs, plate_hat, control_hat, distance_hat,
-                scale_form: str = "3d", transform=None) -> list[JointSystem]:
+    def systems(self, at, distance_hat, scale_form: str = "3d", transform=None) -> list[JointSystem]:
         """The linearised joint groups at (l^, x^) (module doc; DESIGN section 4): the members'
         own conditions as linearise forms them (scaled to unit variance), then one row per
         distance ``g = |X_a - X_b| - d^`` scaled likewise; ``w = g + A (l - l^)``.
-        distance_hat: (r,) the adjusted distances d + v_d (the observed ones at the start)."""
+        at: linearise.At, where; distance_hat: (r,) the adjusted distances d + v_d (the observed ones
+        at the start)."""
+        state, layout, rotation_maps, obs, plate_hat, control_hat = at
         per_batch = []
         for sub in self.member_batches:
-            s = linearise(sub, state, layout, rotation_maps, obs, plate_hat, control_hat, scale_form, transform)
+            s = linearise(sub, at, scale_form, transform)
             X, dXl, dXx = _points(sub, s, state, layout, rotation_maps, plate_hat, control_hat, obs.plate)
             per_batch.append((s, X, dXl, dXx))
         dist = self.project.distances
@@ -342,9 +343,9 @@ def joint_intersections(project: Project, result, xyz: np.ndarray, scale_form: s
     _, joint = JointGroups.of(project, build_batches(project))
     obs = observations_of(project, result.offset)
     lay, state, ip = result.layout, result.state, project.image_points
-    T_all = lay.rotation_maps(state)
-    systems = joint.systems(state, lay, T_all, obs, result.plate_adjusted, result.control_adjusted,
-                            project.distances.distance, scale_form)
+    at = At.of(state, lay, obs, result.plate_adjusted, result.control_adjusted)
+    T_all = at.rotation_maps
+    systems = joint.systems(at, project.distances.distance, scale_form)
     given, q_control, dist = project.points.given_axes, obs.q_control, project.distances
     out = []
     for js in systems:

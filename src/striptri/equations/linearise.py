@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -20,7 +21,7 @@ from ..errors import NumericalFailure
 from ..geometry.lens import NCP, ideal_from_observed
 from .conditions import collinearity, ray_chain, ray_conditions
 from .groups import COLLINEARITY, GroupBatch
-from .observations import Observations  # noqa: F401  (re-exported: striptri.equations.linearise.Observations)
+from .observations import Observations
 from .parameters import State, UnknownLayout
 from . import weights
 
@@ -103,23 +104,37 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     return replace(lin, d_plate=d_plate, d_interior=d_camera)
 
 
-def linearise(
-    batch: GroupBatch,
-    state: State,
-    layout: UnknownLayout,
-    rotation_maps: np.ndarray,
-    obs: Observations,
-    plate_hat: np.ndarray,
-    control_hat: np.ndarray,
-    scale_form: str = "3d",
-    transform=None,
-) -> GroupSystem:
-    """The Gauss-Helmert blocks of a chunk of groups (module doc).
+class At(NamedTuple):
+    """Where the conditions are linearised: the unknowns x^ (``state``, with their columns
+    ``layout`` and rotation_maps (n_photos, 3, 3) from UnknownLayout.rotation_maps) and the adjusted
+    observations l^ (``plate_hat``, ``control_hat``) of the observations ``obs``."""
 
-    rotation_maps: (n_photos, 3, 3) from UnknownLayout.rotation_maps. transform: optional
-    callable(batch) -> (m, nc, nc) invertible matrices that recombine each group's conditions
-    (used by the tests to show the result does not depend on it).
+    state: State
+    layout: UnknownLayout
+    rotation_maps: np.ndarray
+    obs: Observations
+    plate_hat: np.ndarray
+    control_hat: np.ndarray
+
+    @classmethod
+    def of(cls, state: State, layout: UnknownLayout, obs: Observations, plate_hat: np.ndarray,
+           control_hat: np.ndarray) -> "At":
+        return cls(state, layout, layout.rotation_maps(state), obs, plate_hat, control_hat)
+
+    @classmethod
+    def of_result(cls, result, obs: Observations) -> "At":
+        """At an adjustment's result (core.result.AdjustmentResult): its unknowns and adjusted
+        observations, where its precision and reliability are evaluated."""
+        return cls.of(result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted)
+
+
+def linearise(batch: GroupBatch, at: At, scale_form: str = "3d", transform=None) -> GroupSystem:
+    """The Gauss-Helmert blocks of a chunk of groups (module doc), linearised ``at`` (x^, l^).
+
+    transform: optional callable(batch) -> (m, nc, nc) invertible matrices that recombine each
+    group's conditions (used by the tests to show the result does not depend on it).
     """
+    state, layout, rotation_maps, obs, plate_hat, control_hat = at
     lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate)
     m, nc = lin.g.shape
     k = batch.k
@@ -166,10 +181,10 @@ class Sweep:
     (:meth:`systems`, :func:`linearise`) and those of the joint groups (:meth:`joint_systems`); the
     conditions method iterates over it, the precision and separability rebuild it at the result."""
 
-    def __init__(self, batches, state, layout, obs, plate_hat, control_hat, options, joint=None, distance_hat=None):
-        self.batches, self.state, self.layout = batches, state, layout
-        self.obs, self.plate_hat, self.control_hat, self.options = obs, plate_hat, control_hat, options
-        self.T = layout.rotation_maps(state)
+    def __init__(self, batches, at: At, options, joint=None, distance_hat=None):
+        """batches: the groups (groups.build_batches); at: where (At); options: core.options.AdjustmentOptions."""
+        self.batches, self.at, self.options = batches, at, options
+        self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat = at
         self.seconds = 0.0  # time spent evaluating and linearising the conditions
         # the joint groups of the points joined by distances (joint_groups; None without) and the
         # adjusted distances d + v_d (the observed ones when None)
@@ -181,8 +196,8 @@ class Sweep:
             return []
         t0 = time.perf_counter()
         d_hat = self.joint.project.distances.distance if self.distance_hat is None else self.distance_hat
-        out = self.joint.systems(self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat, d_hat,
-                                 self.options.conditions.scale_form, self.options.conditions.condition_transform)
+        out = self.joint.systems(self.at, d_hat, self.options.conditions.scale_form,
+                                 self.options.conditions.condition_transform)
         self.seconds += time.perf_counter() - t0
         return out
 
@@ -190,9 +205,7 @@ class Sweep:
         for batch in self.batches:
             for chunk in batch.chunks(self.options.chunk_size):
                 t0 = time.perf_counter()
-                system = linearise(
-                    chunk, self.state, self.layout, self.T, self.obs, self.plate_hat, self.control_hat,
-                    self.options.conditions.scale_form, self.options.conditions.condition_transform,
-                )
+                system = linearise(chunk, self.at, self.options.conditions.scale_form,
+                                   self.options.conditions.condition_transform)
                 self.seconds += time.perf_counter() - t0
                 yield chunk, system

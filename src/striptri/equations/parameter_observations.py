@@ -56,7 +56,7 @@ class ParameterObservations:
         grad[s, 0] = 1.0
         cols[s, 0] = layout.photo_cols[self.index[s], self.element[s]]
         if gnss:
-            _antenna_terms(np.flatnonzero(s), self.index, self.element, state, layout, rotation_maps, f, grad, cols)
+            _antenna_terms(np.flatnonzero(s), self, state, layout, rotation_maps, f, grad, cols)
             _gnss_element_terms(np.flatnonzero(self.what == GNSS_ELEMENT), self, state, layout, f, grad, cols)
         s = self.what == INTERIOR
         f[s] = state.interior[self.index[s], self.element[s]]
@@ -69,7 +69,7 @@ class ParameterObservations:
         cols[s, 1] = layout.photo_cols[self.other[s], self.element[s]]
         s = np.flatnonzero(self.what == ANGLE)
         if len(s) and gnss:
-            _imu_terms(s, self.index, self.element, state, layout, rotation_maps, f, grad, cols)
+            _imu_terms(s, self, state, layout, rotation_maps, f, grad, cols)
         elif len(s):
             photos = self.index[s]
             R_ground_from_cam = state.R_ground_from_cam[photos]
@@ -118,10 +118,11 @@ def build_parameter_observations(project: Project, offset: np.ndarray) -> Parame
     )
 
 
-def _antenna_terms(s, index, element, state: State, layout: UnknownLayout, T, f, grad, cols) -> None:
-    """The antenna position rows s (model.GnssModel): ``A = O + R e + shift + drift dt``, component
-    ``element``; adds to f and fills the gradient columns 1-8 (rotation 3, lever arm 3, shift,
-    drift). d(R Exp(d) e)/dd = -R [e]x."""
+def _antenna_terms(s, rows: "ParameterObservations", state: State, layout: UnknownLayout, T, f, grad, cols) -> None:
+    """The antenna position rows s of ``rows`` (model.GnssModel): ``A = O + R e + shift + drift
+    dt``, component ``element``; adds to f and fills the gradient columns 1-8 (rotation 3, lever arm
+    3, shift, drift). d(R Exp(d) e)/dd = -R [e]x."""
+    index, element = rows.index, rows.element
     if not len(s):
         return
     g, gc = state.gnss, layout.gnss_cols
@@ -146,9 +147,10 @@ def _antenna_terms(s, index, element, state: State, layout: UnknownLayout, T, f,
     cols[sh, 8] = gc.drift[st, ah]
 
 
-def _imu_terms(s, index, element, state: State, layout: UnknownLayout, T, f, grad, cols) -> None:
-    """The IMU angle rows s: ``angles(R Exp(b))`` (model.GnssModel), R <- R Exp(d) and
-    Exp(b) <- Exp(b) Exp(db): d/dd = J(R Exp(b)) Exp(b)^T T, d/ddb = J(R Exp(b))."""
+def _imu_terms(s, rows: "ParameterObservations", state: State, layout: UnknownLayout, T, f, grad, cols) -> None:
+    """The IMU angle rows s of ``rows``: ``angles(R Exp(b))`` (model.GnssModel), R <- R Exp(d)
+    and Exp(b) <- Exp(b) Exp(db): d/dd = J(R Exp(b)) Exp(b)^T T, d/ddb = J(R Exp(b))."""
+    index, element = rows.index, rows.element
     photos = index[s]
     m = np.arange(len(s))
     cam = state.camera_of_photo[photos]

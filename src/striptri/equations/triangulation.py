@@ -77,21 +77,18 @@ class PairTriangulation:
     misclosure: np.ndarray  # (m,) coplanarity of the adjusted observations (final check)
 
 
-def independent_pair_triangulation(R1_ground_from_cam, xyz_centre1, int1, xy1, R2_ground_from_cam, xyz_centre2,
-                                   int2, xy2, sigma_xy, iterations: int = 5):
+def independent_pair_triangulation(R_ground_from_cam, xyz_centre, interior, xy, sigma_xy, iterations: int = 5):
     """Schmid's independent triangulation (75-80) with the orientation held.
 
-    R*_ground_from_cam: (m, 3, 3); xyz_centre*, int*: (m, 3); xy*: (m, 2); sigma_xy: (m, 4)
-    standard deviations of x', y', x'', y''. The single condition (20) ``{a} v + w = 0`` gives ``N = sum a^2/p`` (78),
+    Of m points, each in two photographs (the second axis): R_ground_from_cam (m, 2, 3, 3);
+    xyz_centre, interior (m, 2, 3); xy, sigma_xy (m, 4) plate coordinates x', y', x'', y'' and their
+    standard deviations. The single condition (20) ``{a} v + w = 0`` gives ``N = sum a^2/p`` (78),
     ``k = -w / N`` (77), ``v = a k / p`` (79) and the check ``v^T P v = -w k`` (80), iterated at
     the adjusted observations until the condition holds.
     """
-    l = np.concatenate([xy1, xy2], axis=1)
+    l = np.asarray(xy, dtype=float)
     q = sigma_xy**2
     lhat = l.copy()
-    R_ground_from_cam = np.stack([R1_ground_from_cam, R2_ground_from_cam], 1)
-    xyz_centre = np.stack([xyz_centre1, xyz_centre2], 1)
-    interior = np.stack([int1, int2], 1)
     for _ in range(iterations):
         xy = lhat.reshape(-1, 2, 2)
         p = plate_vector(xy, interior)

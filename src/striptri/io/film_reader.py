@@ -25,6 +25,7 @@ from striptri.film import fiducials as fid
 from striptri.film import transform
 from striptri.film.data import CameraCalibration, FilmData
 from striptri.io.csvtable import CsvTable, decode_text, parse_csv
+from striptri.io.toml_file import TomlFile
 from striptri.geometry.lens import PLATE
 
 try:  # Python >= 3.11
@@ -43,17 +44,17 @@ CALIBRATION_KEYS = ("focal_length_mm", "pbs_mm", "ppa_mm", "radius_mm", "field_a
                     "radial_terms", "linear_term", "decentering_p1", "decentering_p2")
 
 
-def read_film(files, toml_path, toml_text: str, toml_data: dict, line_of, image_table: CsvTable,
-              cameras: model.Cameras, photos: model.Photos, image_points: model.ImagePoints):
+def read_film(files, toml: TomlFile, image_table: CsvTable, cameras: model.Cameras, photos: model.Photos,
+              image_points: model.ImagePoints):
     """Apply the film inputs (module doc). files: the reader's file access (present, content, path);
-    line_of(section, key) -> line in project.toml. Returns (film or None, cameras, image_points, notes)."""
-    section = toml_data.get(TOML_SECTION, {})
+    toml: project.toml as read. Returns (film or None, cameras, image_points, notes)."""
+    section = toml.data.get(TOML_SECTION, {})
     has_calibration = files.present(CALIBRATION)
     if not section and not has_calibration:
         return None, cameras, image_points, []
 
     def fail(key: str, reason: str) -> InputError:
-        return InputError(toml_path, line_of(TOML_SECTION, key), f"[{TOML_SECTION}] {key}: {reason}")
+        return InputError(toml.path, toml.line(TOML_SECTION, key), f"[{TOML_SECTION}] {key}: {reason}")
 
     units = section.get("image_points", "plate")
     if units not in IMAGE_POINT_UNITS:

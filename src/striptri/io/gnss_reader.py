@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
@@ -24,6 +23,7 @@ from ..errors import InputError
 from ..model import GNSS_MODES, default_gnss
 from . import plausibility as limits
 from .csvtable import CsvTable
+from .toml_file import TomlFile
 
 TOML_SECTION = "gnss"
 TOML_KEYS = ("shift", "drift", "sigma_shift", "sigma_drift")
@@ -33,10 +33,11 @@ LEVER_LIMIT_M = 100.0  # a lever arm beyond this is a unit error (mm for m)
 
 
 def read_gnss(cameras_table: CsvTable, photos_table: CsvTable, cameras, photos, radians_per_unit: float,
-              toml_path: Path | None, toml_text: str, toml_data: dict, toml_line):
-    """GnssModel or None (module doc). toml_line(section, key) -> line or None. Raises InputError
-    naming the file, line and reason."""
-    section = toml_data.get(TOML_SECTION, {}) if toml_data else {}
+              toml: TomlFile):
+    """GnssModel or None (module doc); toml: project.toml as read. Raises InputError naming the
+    file, line and reason."""
+    toml_path, toml_line = toml.path, toml.line
+    section = toml.data.get(TOML_SECTION, {}) if toml.data else {}
     names = LEVER + BORESIGHT + tuple(f"sigma_{n}" for n in LEVER + BORESIGHT)
     has_camera_columns = any(cameras_table.has(n) for n in names)
     has_time = photos_table.has("time")
@@ -84,7 +85,7 @@ def read_gnss(cameras_table: CsvTable, photos_table: CsvTable, cameras, photos, 
     model = replace(g, lever=lever, sigma_lever=sigma_lever, boresight=boresight, sigma_boresight=sigma_boresight,
                     time=time, shift=modes["shift"], drift=modes["drift"], sigma_shift=sigmas["shift"],
                     sigma_drift=sigmas["drift"])
-    _check_consistency(model, cameras_table, photos_table, photos, toml_path, toml_line)
+    _check_consistency(model, cameras_table, photos_table, photos, toml)
     return model
 
 
@@ -108,7 +109,7 @@ def _check_limit(table: CsvTable, names, values: np.ndarray, limit: float, unit:
                              f"{limits.number_text(limit)} {unit} for a lever arm, in magnitude")
 
 
-def _check_consistency(g, cameras_table: CsvTable, photos_table: CsvTable, photos, toml_path, toml_line) -> None:
+def _check_consistency(g, cameras_table: CsvTable, photos_table: CsvTable, photos, toml: TomlFile) -> None:
     """What the model needs: observed centres for a lever arm, shift or drift; observed angles for
     a boresight; times for a drift."""
     observed_centre = (photos.sigma_xyz0 > 0).any(axis=1)
@@ -123,7 +124,7 @@ def _check_consistency(g, cameras_table: CsvTable, photos_table: CsvTable, photo
                                          "this camera has observed (IMU) angles in photos.csv")
     for key, mode in (("shift", g.shift), ("drift", g.drift)):
         if mode != "none" and not (observed_centre & (g.strip >= 0)).any():
-            raise InputError(toml_path, toml_line(TOML_SECTION, key),
+            raise InputError(toml.path, toml.line(TOML_SECTION, key),
                              f"[gnss] {key} = {mode!r} but no photo with a strip_id has an observed (GNSS) centre "
                              "in photos.csv")
     if g.drift != "none":

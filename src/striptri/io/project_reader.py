@@ -47,12 +47,13 @@ from striptri.io.film_reader import FILE_NAMES as FILM_FILES, read_film
 from striptri.io.gnss_reader import read_gnss
 from striptri.io.project_notes import project_notes, unread_files_note
 from striptri.io.settings_reader import (  # noqa: F401  (read_settings, parse_settings: this module's API)
-    TOML_KEYS, _check_datum_points, _parse_toml, _toml_line, parse_settings, read_settings,
+    TOML_KEYS, _check_datum_points, _parse_toml, parse_settings, read_settings,
 )
 from striptri.io.table_readers import (  # noqa: F401  (ANGLE_COLUMNS, BASE_AXES: the writer's)
     ANGLE_COLUMNS, BASE_AXES, _active_column, _check_plate_geometry, _Control, _object_points, _read_approx_points,
     _read_bases, _read_cameras, _read_control, _read_image_points, _read_photos, _rows,
 )
+from striptri.io.toml_file import TomlFile
 
 
 FILE_NAMES = ("cameras.csv", "photos.csv", "image_points.csv", "control.csv", "bases.csv", "approx_points.csv",
@@ -179,28 +180,25 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
     )
 
 
+def _project_toml(files) -> TomlFile:
+    """project.toml as read (an empty TomlFile when the project has none)."""
+    toml = "project.toml"
+    if not files.present(toml):
+        return TomlFile(None, {})
+    path = files.path(toml)
+    text = decode_text(path, files.content(toml))
+    return TomlFile(path, _parse_toml(path, text), text)
+
+
 def _read_gnss(files, tables: dict, cameras: model.Cameras, photos: model.Photos, settings: model.ProjectSettings):
     """The GNSS/IMU model (io.gnss_reader), with project.toml's [gnss] section."""
-    toml = "project.toml"
-    path, text, data = None, "", {}
-    if files.present(toml):
-        path = files.path(toml)
-        text = decode_text(path, files.content(toml))
-        data = _parse_toml(path, text)
     return read_gnss(tables["cameras.csv"], tables["photos.csv"], cameras, photos,
-                     RADIANS_PER_UNIT[settings.angle_unit], path, text, data,
-                     lambda section, key: _toml_line(text, section, key))
+                     RADIANS_PER_UNIT[settings.angle_unit], _project_toml(files))
 
 
 def _read_film(files, tables: dict, cameras, photos, image_points):
     """Scanned film (striptri.film.data): fiducials to the plate, calibration.toml's cameras."""
-    toml = "project.toml"
-    path, text, data = files.path(toml), "", {}
-    if files.present(toml):
-        text = decode_text(path, files.content(toml))
-        data = _parse_toml(path, text)
-    return read_film(files, path, text, data, lambda section, key: _toml_line(text, section, key),
-                     tables["image_points.csv"], cameras, photos, image_points)
+    return read_film(files, _project_toml(files), tables["image_points.csv"], cameras, photos, image_points)
 
 
 def _require_rows(table: CsvTable, what: str) -> None:

@@ -14,6 +14,7 @@ from striptri.core.options import DATUMS, METHODS
 from striptri.crs.settings import KEYS, parse_coordinates
 from striptri.io import plausibility as limits
 from striptri.io.csvtable import decode_text, input_present, read_input_bytes
+from striptri.io.toml_file import toml_line
 from striptri.io.film_reader import TOML_KEYS as FILM_TOML_KEYS
 from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION
 from striptri.equations.plate_corrections import EARTH_RADIUS_RANGE_M
@@ -65,7 +66,7 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
         return data.get(section, {}).get(key, default)
 
     def fail(section: str, key: str, reason: str) -> InputError:
-        return InputError(path, _toml_line(text, section, key), f"[{section}] {key}: {reason}")
+        return InputError(path, toml_line(text, section, key), f"[{section}] {key}: {reason}")
 
     def choice(section: str, key: str, allowed: tuple[str, ...], default: str, meaning: str = "") -> str:
         value = get(section, key, default)
@@ -143,7 +144,7 @@ def _check_datum_points(files, settings: model.ProjectSettings, points: model.Ob
     if unknown:
         path = files.path("project.toml")
         text = decode_text(path, files.content("project.toml"))
-        raise InputError(path, _toml_line(text, "datum", "points"),
+        raise InputError(path, toml_line(text, "datum", "points"),
                          f"[datum] points: {', '.join(unknown)} not among the object points of the project")
 
 
@@ -166,12 +167,12 @@ def _check_toml_keys(path: Path, text: str, data: dict) -> None:
             reason = f"unknown section [{section}] (known: {known})"
             raise InputError(path, _toml_section_line(text, section), reason)
         if not isinstance(table, dict):
-            raise InputError(path, _toml_line(text, "", section), f"'{section}' must be a section [{section}]")
+            raise InputError(path, toml_line(text, "", section), f"'{section}' must be a section [{section}]")
         for key in table:
             if key not in TOML_KEYS[section]:
                 known = ", ".join(TOML_KEYS[section])
                 raise InputError(
-                    path, _toml_line(text, section, key), f"unknown key '{key}' in [{section}] (known: {known})"
+                    path, toml_line(text, section, key), f"unknown key '{key}' in [{section}] (known: {known})"
                 )
 
 
@@ -179,18 +180,6 @@ def _toml_section_line(text: str, section: str) -> int | None:
     """Line of the header [section], or None."""
     for number, line in enumerate(text.splitlines(), start=1):
         if re.match(rf"\s*\[\s*{re.escape(section)}\s*\]", line):
-            return number
-    return None
-
-
-def _toml_line(text: str, section: str, key: str) -> int | None:
-    """Line of ``key = ...`` inside [section] (section "" = top level), or None if not found."""
-    current = ""
-    for number, line in enumerate(text.splitlines(), start=1):
-        header = re.match(r"\s*\[\s*([^\]]+?)\s*\]", line)
-        if header:
-            current = header.group(1)
-        elif current == section and re.match(rf"\s*\"?{re.escape(key)}\"?\s*=", line):
             return number
     return None
 

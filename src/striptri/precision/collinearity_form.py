@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -140,8 +141,9 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
                                                   tri.xyz[sel], result.plate_adjusted[rows], obs.plate[rows], lens)
             Jc = np.concatenate([dO, drot @ T[ph], dcam[..., elements]], 3)  # (m, k, 2, 6 + e)
             Qm, pJX = tri.cov_measurement[sel], dX * weights.inverse_variance(obs.q_plate[rows])[..., None]
-            chunk = _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], layout.photo_cols,
-                                   camera_cols, obs.q_plate[rows], full=blocks is not None, residuals=residuals)
+            rays = _Rays(Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], obs.q_plate[rows])
+            chunk = _ray_cofactors(gather, rays, layout.photo_cols, camera_cols, full=blocks is not None,
+                                   residuals=residuals)
             cov_orientation[sel] = chunk.orientation
             if not residuals:
                 continue
@@ -199,12 +201,25 @@ def _qcc_reader(result: AdjustmentResult):
     return gather
 
 
-def _ray_cofactors(gather, Jc, dX, Qm, pJX, ph, camera, photo_cols, camera_cols, q, full: bool,
-                   residuals: bool = True) -> _RayChunk:
-    """Qvv of the rays of m points of k rays each and their Q_pp (module doc). Jc: (m, k, 2, 6 + e);
-    gather: _qcc_reader's; dX, pJX: (m, k, 2, 3); Qm: (m, 3, 3) N_pp^-1; ph, camera: (m, k) photo and camera of each ray;
-    photo_cols (n_photos, 6), camera_cols (n_cameras, e): columns of Qcc; q: (m, k, 2) plate cofactors.
-    full: also the whole plate block of Qvv; residuals=False: Q_pp and its orientation part only."""
+class _Rays(NamedTuple):
+    """The rays of m points of k rays each: Jc (m, k, 2, 6 + e) their derivatives by the photo and
+    camera unknowns; dX, pJX (m, k, 2, 3) by the point, and those times the plate weights; Qm (m,
+    3, 3) N_pp^-1; ph, camera (m, k) the photo and camera of each ray; q (m, k, 2) plate cofactors."""
+
+    Jc: np.ndarray
+    dX: np.ndarray
+    Qm: np.ndarray
+    pJX: np.ndarray
+    ph: np.ndarray
+    camera: np.ndarray
+    q: np.ndarray
+
+
+def _ray_cofactors(gather, rays: _Rays, photo_cols, camera_cols, full: bool, residuals: bool = True) -> _RayChunk:
+    """Qvv of the rays (m points of k rays each) and their Q_pp (module doc). gather: _qcc_reader's;
+    photo_cols (n_photos, 6), camera_cols (n_cameras, e): columns of Qcc. full: also the whole
+    plate block of Qvv; residuals=False: Q_pp and its orientation part only."""
+    Jc, dX, Qm, pJX, ph, camera, q = rays
     m, k = ph.shape
     # G per ray: -N_pp^-1 Jp_a^T P_a Jc_a, (m, 3, k, 6 + e); ray_slots (in orientation_part) makes the
     # point's unknown sets (its k photos, then its camera once when its rays share one, else one

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..equations.linearise import Sweep
+from ..equations.linearise import At, Sweep
 from . import collinearity_form
 from ..equations.observations import observations_of
 from ..core.options import AdjustmentOptions
@@ -134,8 +134,7 @@ def _conditions_cofactors(project: Project, result: AdjustmentResult, options: A
                                                     point_index=ip.point_index[rows], xy=ip.xy[rows],
                                                     sigma_xy=ip.sigma_xy[rows]))
         batches = [replace(b, image_rows=rows[b.image_rows]) for b in build_batches(own)]
-    sweep = Sweep(batches, result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted,
-                  options, joint)
+    sweep = Sweep(batches, At.of_result(result, obs), options, joint)
     cov = result.covariance
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
@@ -179,7 +178,7 @@ def distance_cofactors(project: Project, result: AdjustmentResult,
     groups). Empty arrays without distances."""
     obs = observations_of(project, result.offset)
     _, joint = JointGroups.of(project, build_batches(project))
-    sweep = Sweep([], result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted, options, joint)
+    sweep = Sweep([], At.of_result(result, obs), options, joint)
     return _joint_residual_cofactors(sweep.joint_systems(), result, project, np.zeros_like(obs.plate),
                                      np.zeros_like(obs.control), None)
 
@@ -275,8 +274,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
     form no group). Returns (n_points, 3, 3) cofactors (times sigma0^2 for covariances).
     """
     obs = observations_of(project, result.offset)
-    sweep = Sweep(build_batches(project), result.state, result.layout, obs, result.plate_adjusted,
-                  result.control_adjusted, options)
+    sweep = Sweep(build_batches(project), At.of_result(result, obs), options)
     cov = result.covariance
     out = tri.cov_measurement + tri.cov_orientation
     state = result.state

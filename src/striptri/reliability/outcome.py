@@ -4,6 +4,7 @@ knowing which rows take part, the residuals of rows left out, the per-row result
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -244,11 +245,22 @@ def predicted_residuals(project: Project, adjusted: Project, result: AdjustmentR
     return -res[:, 0]
 
 
-def blunder_result(method: str, project: Project, adjusted: Project, result: AdjustmentResult,
-                   rel: PlateReliability, rows: np.ndarray, rejected: list[Rejection], rounds: list[Round],
-                   stopped: str, seconds: float, weights: np.ndarray | None = None) -> BlunderResult:
-    """The per-row results over the original rows (BlunderResult) from the final adjustment of the
-    rows ``rows`` of ``project`` (``adjusted``, ``result``, ``rel``)."""
+class FinalAdjustment(NamedTuple):
+    """The last adjustment of a blunder procedure: ``adjusted`` the project of the rows it kept,
+    its ``result`` and reliability ``rel``, ``rows`` the indices of those rows in the original."""
+
+    adjusted: Project
+    result: AdjustmentResult
+    rel: PlateReliability
+    rows: np.ndarray
+
+
+def blunder_result(method: str, project: Project, final: FinalAdjustment, rejected: list[Rejection],
+                   rounds: list[Round], stopped: str, seconds: float,
+                   weights: np.ndarray | None = None) -> BlunderResult:
+    """The per-row results over the original rows of ``project`` (BlunderResult) from the final
+    adjustment of the rows it kept (``final``)."""
+    adjusted, result, rel, rows = final
     m = len(project.image_points)
     keep = np.zeros(m, dtype=bool)
     keep[rows] = True

@@ -37,6 +37,7 @@ from .outcome import (
     BlunderResult,
     Rejection,
     Round,
+    FinalAdjustment,
     blunder_result,
     subset,
     succeeded,
@@ -148,5 +149,6 @@ def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
                   np.full(2, np.nan))
         for i in cand
     ]
-    return blunder_result("robust", project, current, result, rel, np.flatnonzero(keep), rejected, rounds, stopped,
-                          time.perf_counter() - t_start, weights=np.repeat(p[:, None], 2, axis=1))
+    final = FinalAdjustment(current, result, rel, np.flatnonzero(keep))
+    return blunder_result("robust", project, final, rejected, rounds, stopped, time.perf_counter() - t_start,
+                          weights=np.repeat(p[:, None], 2, axis=1))

@@ -50,6 +50,7 @@ from .outcome import (
     BlunderResult,
     Rejection,
     Round,
+    FinalAdjustment,
     blunder_result,
     subset,
     succeeded,
@@ -160,8 +161,7 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     partial = bool(np.any(factor > 1.0))
     if partial:
         last = _without_coordinates(*last, factor)
-    current, result, rel, rows = last
-    det = blunder_result("snoop", project, current, result, rel, rows, rejected, rounds, stopped,
+    det = blunder_result("snoop", project, FinalAdjustment(*last), rejected, rounds, stopped,
                          time.perf_counter() - t_start, weights=weights.weight(factor) if partial else None)
     if partial:
         _flag_rejected(det, rejected)

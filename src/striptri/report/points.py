@@ -5,6 +5,7 @@ largest measurements."""
 from __future__ import annotations
 
 import html
+from typing import NamedTuple
 import numpy as np
 
 from . import figures as fig
@@ -68,8 +69,8 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
                       f"magnified <b>{mag:g} times</b>; the bar is {bar_label} of error. Fixed control has no "
                       f"ellipse.")
     else:
-        figure, worst_table = _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every,
-                                             extent, spacing)
+        spread = _Spread(xyz, centres, kind_names, cov, sig, a, pos, every, extent, spacing)
+        figure, worst_table = _precision_map(project, points, spread)
     rows = []
     factor, unit = length_unit(sig[points.determined])
     for k in sorted(KIND_NAMES):
@@ -91,10 +92,30 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
     ]
 
 
-def _precision_map(project, points, xyz, centres, kind_names, cov, sig, a, pos, every, extent, spacing):
+class _Spread(NamedTuple):
+    """The points over the block, as _points_section computes them for its plan views: xyz (n_pt,
+    3) and centres (n_ph, 3) ground coordinates (m); kind_names (n_pt,); cov (n_pt, 3, 3) m^2 and
+    sig (n_pt, 3) m; a (n_pt,) the semi-major axis of the horizontal error ellipse (nan where
+    undetermined), pos where it is finite and > 0; every (k, 2) X, Y of the determined points and
+    the centres; extent (m) the block's larger side; spacing (m) the mean spacing of the points."""
+
+    xyz: np.ndarray
+    centres: np.ndarray
+    kind_names: np.ndarray
+    cov: np.ndarray
+    sig: np.ndarray
+    a: np.ndarray
+    pos: np.ndarray
+    every: np.ndarray
+    extent: float
+    spacing: float
+
+
+def _precision_map(project, points, spread: _Spread):
     """The error ellipses of a large block summarised: rasters of the RMS horizontal (semi-major
     axis) and vertical error per cell of a grid over the block, the page.WORST_ELLIPSES worst drawn on
     top, and a table of the page.WORST_POINT_ROWS points with the largest error. -> (figure, table) HTML."""
+    xyz, centres, kind_names, cov, sig, a, pos, every, extent, spacing = spread
     pts = project.points
     lo, hi = every.min(axis=0), every.max(axis=0)
     cell = max(extent / page.MAP_CELLS, 4.0 * spacing, 1e-9)  # about 16 points per cell at least

@@ -115,8 +115,11 @@ def _single_strip(project: Project) -> None:
         raise InputError(photos_csv, None, "the sequential method (--method sequential) needs at least two photographs")
 
 
-def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_xy, cop_sig, kw, names) -> PhotoStep:
-    """Dependent relative orientation of photo j to photo i (held), robust to rough approximations.
+def _relative_orientation(held_photo: Pose, interior_j, approximate, measured: StepMeasurements, kw,
+                          names) -> PhotoStep:
+    """Dependent relative orientation of photo j to photo i (``held_photo``), robust to rough
+    approximations. approximate: (R_rel0, b_cam0), the approximate relative rotation ``R_i^T R_j``
+    and base (camera frame of i); measured: the points for coplanarity (StepMeasurements).
 
     The held base component (Schut's bx) is the one along the plate axis nearest the base as the
     plates show it (the base that best satisfies coplanarity with parallel photographs), held at +/-
@@ -128,6 +131,9 @@ def _relative_orientation(R_i, O_i, interior_i, interior_j, R_rel0, b_cam0, cop_
     the converged solutions that put every point in front of both photographs the one with the
     smallest v^T P v is taken.
     """
+    R_i, O_i, interior_i = held_photo
+    R_rel0, b_cam0 = approximate
+    cop_xy, cop_sig = measured.cop_xy, measured.cop_sigma
     b_image = _linear_base(np.eye(3), cop_xy, interior_i, interior_j)
     held = int(np.argmax(np.abs(b_image)))
     length = float(np.linalg.norm(b_cam0))
@@ -241,8 +247,9 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
         cop_rows = np.stack([row[i, common], row[j, common]], 1)
         cop_xy = ip.xy[cop_rows].reshape(-1, 4)
         cop_sig = ip.sigma_xy[cop_rows].reshape(-1, 4)
-        ro = _relative_orientation(Rm[i], Om[i], interior[i], interior[j], Ra[i].T @ Ra[j], Ra[i].T @ (Oa[j] - Oa[i]),
-                                   cop_xy, cop_sig, kw, (ph.ids[i], ph.ids[j]))
+        ro = _relative_orientation(Pose(Rm[i], Om[i], interior[i]), interior[j],
+                                   (Ra[i].T @ Ra[j], Ra[i].T @ (Oa[j] - Oa[i])), StepMeasurements(cop_xy, cop_sig), kw,
+                                   (ph.ids[i], ph.ids[j]))
         # the model (i, j) from the adjusted rays, at the scale of the held base component
         xy = ro.plate_cop.reshape(-1, 2, 2)
         Rij = np.stack([Rm[i], ro.R_j])
