@@ -236,3 +236,21 @@ def test_the_weight_finder_finds_the_forms_it_looks_for():
                      "e = 1.0 / q_control\nf = 1.0 / np.where(w, q, 1.0)\ng = (1.0 / sigma)[..., None]\n"
                      "ok = x / y**2 + 1.0 / n\n")
     assert sigma_to_weight_sites(tree) == [1, 2, 3, 4, 5, 6, 7]
+
+
+PARAMETERS_MAX = 8  # beyond this a function takes an options object (issue 27)
+
+
+def test_no_function_takes_more_than_eight_parameters():
+    """A function with more than PARAMETERS_MAX parameters (self and cls not counted; *args and
+    **kwargs not counted: a click command takes its options by name and builds one object of them)
+    takes an options object instead."""
+    long = []
+    for name, path in module_files().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                a = node.args
+                params = [x.arg for x in a.posonlyargs + a.args + a.kwonlyargs if x.arg not in ("self", "cls")]
+                if len(params) > PARAMETERS_MAX:
+                    long.append(f"{name}:{node.lineno} {node.name} ({len(params)})")
+    assert not long, "\n".join(long)

@@ -238,7 +238,7 @@ def test_large_projects_are_drawn_as_rasters_with_the_worst_on_top(name, product
     timings = {}
     text = report.html_report(products.project, products.result, products.summary, _normalised(name),
                               points=products.points, flags=products.blunders.flag[products.blunders.rows],
-                              timings=timings)
+                              parts=report.ReportParts(timings=timings))
     m = len(products.project.image_points)
     assert f"the RMS length of the residuals of all {m} measurements in each cell" in text
     assert "the 7 with the largest normalised residual |w|" in text

@@ -113,7 +113,10 @@ def worker(phase: str, arg: str) -> dict:
         return {"cpu": cpu, "wall": wall}
     if phase == "report":
         sections: dict = {}
-        kwargs = {"timings": sections} if "timings" in report.html_report.__code__.co_varnames else {}
+        if hasattr(report, "ReportParts"):  # the trees since issue 27
+            kwargs = {"parts": report.ReportParts(timings=sections)}
+        else:
+            kwargs = {"timings": sections} if "timings" in report.html_report.__code__.co_varnames else {}
         text, cpu, wall = _timed(lambda: report.html_report(project, result, summary, det.w[det.rows], points=points,
                                                             flags=det.flag[det.rows], **kwargs))
         return {"cpu": cpu, "wall": wall, "bytes": len(text.encode()), "sections": sections}

@@ -352,7 +352,8 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos),
                                         labels=structure_labels(adjusted, result.layout))
     html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
-                              flags=det.flag[det.rows], figures={"structure": structure}, distances=distance_cols)
+                              flags=det.flag[det.rows],
+                              parts=report.ReportParts(figures={"structure": structure}, distances=distance_cols))
     summary.timings_s["report"] = round(time.perf_counter() - t0, 6)
     progress.phase("report", summary.timings_s["report"])
     files = {**tables, "summary.json": summary.json(), "report.html": html}

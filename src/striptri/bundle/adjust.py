@@ -501,7 +501,7 @@ def _solve_or_explain(normals: ReducedNormals, solver, state: State, problem: _P
     defect or a singularity explained); numbers that are not finite explained first."""
     if not (np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
         raise NumericalFailure(bundle_not_formed_message(problem.project, "at the current values"), reason="not_finite")
-    return solve_or_explain(normals, normals.b, solver, state, problem.layout, problem.project, problem.offset,
+    return solve_or_explain(normals, normals.b, solver, state, problem,
                             "the reduced normal equations of the bundle adjustment are singular")
 
 

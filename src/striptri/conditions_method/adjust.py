@@ -184,12 +184,13 @@ def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork
     return solvers.SolveResult(dx, solved.solver, solved.info)
 
 
-def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
-                      project: Project, offset, free_network=None, diagnose: bool = True) -> solvers.SolveResult:
-    """Solve N dx = -u (core.explain.solve_or_explain); a free network by minimum constraints and
-    the S-transformation onto its inner constraints, a singular one explained."""
+def _solve_or_explain(acc: NormalAccumulator, solver: solvers.NormalSolver, state: State, problem: "_Problem",
+                      diagnose: bool = True) -> solvers.SolveResult:
+    """Solve N dx = -u (core.explain.solve_or_explain); a free network (problem.free_network) by
+    minimum constraints and the S-transformation onto its inner constraints, a singular one explained."""
+    project, layout, free_network = problem.project, problem.layout, problem.free_network
     if free_network is None:
-        return solve_or_explain(acc, -acc.u, solver, state, layout, project, offset, diagnose=diagnose)
+        return solve_or_explain(acc, -acc.u, solver, state, problem, diagnose=diagnose)
     try:
         return _solve_free_network(acc, solver, free_network)
     except (solvers.SingularNormalMatrix, np.linalg.LinAlgError) as exc:
@@ -341,8 +342,7 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     t1 = time.perf_counter()
     if problem.free_network is not None:
         problem.free_network = problem.datum_at(state, acc.N, now.plate_hat)
-    solved = _solve_or_explain(acc, solver, state, layout, problem.project, problem.offset, problem.free_network,
-                               diagnose=not history)
+    solved = _solve_or_explain(acc, solver, state, problem, diagnose=not history)
     dx = solved.dx
     t2 = time.perf_counter()
     with np.errstate(over="ignore", invalid="ignore"):

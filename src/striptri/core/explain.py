@@ -22,14 +22,15 @@ def solver_for(options, layout: UnknownLayout, project: Project) -> solvers.Norm
                                                  layout.block_groups(project.photos.strip_ids)))
 
 
-def solve_or_explain(normals, rhs: np.ndarray, solver: solvers.NormalSolver, state: State, layout: UnknownLayout,
-                     project: Project, offset: np.ndarray, what: str = "the normal equations are singular",
-                     diagnose: bool = True) -> solvers.SolveResult:
-    """Solve ``normals.N dx = rhs``. A datum defect (tested before the solve when ``diagnose``, and
+def solve_or_explain(normals, rhs: np.ndarray, solver: solvers.NormalSolver, state: State, problem,
+                     what: str = "the normal equations are singular", diagnose: bool = True) -> solvers.SolveResult:
+    """Solve ``normals.N dx = rhs`` of a method's ``problem`` (its project, the layout of its
+    unknowns and its reduction offset, as each method's problem holds them). A datum defect (tested before the solve when ``diagnose``, and
     whenever the solver finds N singular; datum.diagnose reads N and the misclosure sums of
     ``normals``) is a NumericalFailure "datum_defect" naming the free directions; any other
     singularity one "singular" naming the first element that is not determined (``what`` says
     which equations)."""
+    project, layout, offset = problem.project, problem.layout, problem.offset
     defects = datum.diagnose(normals, state, layout, offset=offset) if diagnose else []
     if defects:
         raise datum_defect_failure(project, defects)

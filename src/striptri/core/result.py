@@ -169,11 +169,12 @@ class AdjustmentResult:
     @classmethod
     def of(cls, project, obs: Observations, *, plate_adjusted: np.ndarray, control_adjusted: np.ndarray,
            vtpv: float, redundancy: int, history: list[Iteration], layout: UnknownLayout,
-           iterations: int | None = None, **rest) -> "AdjustmentResult":
+           **rest) -> "AdjustmentResult":
         """The result of a method, with what every method computes alike: sigma0 (sigma0_of), the
         residuals ``l^ - l`` of the adjusted plate and control observations, the number of
         unknowns, the ids that name them, and ``iterations`` (by default one per history entry).
-        ``rest``: the other fields, by name."""
+        ``rest``: the other fields, by name (``iterations`` among them when not one per entry)."""
+        iterations = rest.pop("iterations", None)
         return cls(sigma0=sigma0_of(vtpv, redundancy), redundancy=int(redundancy), vtpv=float(vtpv),
                    history=history, iterations=len(history) if iterations is None else int(iterations),
                    layout=layout, n_unknowns=layout.n_unknowns,

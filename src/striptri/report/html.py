@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import html
 import time
+from dataclasses import dataclass, field
 import numpy as np
 
 from . import figures as fig
@@ -438,22 +439,31 @@ def _gnss_section(project: Project, result: AdjustmentResult) -> list[str]:
 # ---------------------------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class ReportParts:
+    """What the caller of html_report made already or wants back: figures, name -> PNG bytes made
+    elsewhere ("structure": the normal matrix pattern); distances, distances.csv's columns
+    (reliability.distances.distance_table) when the caller formed them (formed here otherwise);
+    timings, a dict that receives the seconds each section took (section id -> s; "total" for
+    the whole report)."""
+
+    figures: dict = field(default_factory=dict)
+    distances: dict | None = None
+    timings: dict | None = None
+
+
 def html_report(project: Project, result: AdjustmentResult, summary: RunSummary, w: np.ndarray,
-                points: Triangulated | None = None, flags=None, figures=None, timings: dict | None = None,
-                distances: dict | None = None) -> str:
+                points: Triangulated | None = None, flags=None, parts: ReportParts = ReportParts()) -> str:
     """The report as one self-contained HTML text.
 
     summary: the run's runs.RunSummary (summary.json's typed form); w: (m, 2) normalised
     residuals of the plate coordinates (nan where undefined); points: the triangulated points (pipeline.triangulate_result), needed for the error
     ellipses and the check-point table; flags: optional (m,) flags of the plate measurements (bool, or
-    residuals.csv's "flag" strings); by default residuals.csv's rule |w| > 3.29. figures: optional
-    name -> PNG bytes made elsewhere ("structure": the normal matrix pattern). timings: optional dict
-    that receives the seconds each section took (section id -> s; "total" for the whole report).
-    distances: distances.csv's columns (reliability.distances.distance_table) when the caller formed
-    them; formed here otherwise.
+    residuals.csv's "flag" strings); by default residuals.csv's rule |w| > 3.29. parts: figures,
+    tables and a timing dict of the caller (ReportParts).
     """
     t0 = time.perf_counter()
-    figures = figures or {}
+    figures, distances, timings = parts.figures or {}, parts.distances, parts.timings
     w = np.asarray(w, dtype=float)
     absw = np.nan_to_num(np.abs(w), nan=0.0).max(axis=1) if len(w) else np.zeros(0)
     flagged = _flags_of(flags, w)

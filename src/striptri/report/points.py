@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import figures as fig
+from . import plan_views
 from ..core.result import AdjustmentResult
 from ..model import CHECK, KIND_NAMES, Project
 from ..equations.triangulation import Triangulated
@@ -57,9 +58,9 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
     bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
     worst_table = ""
     if n_determined <= page.MAX_ELLIPSES:
-        strips = fig.flies_strips(result.state.R_ground_from_cam)
-        plan = fig.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
-        png = fig.error_ellipses(plan, cov[:, :2, :2], fig.ScaleBar(mag, bar, bar_label), labels=pts.ids)
+        strips = plan_views.flies_strips(result.state.R_ground_from_cam)
+        plan = plan_views.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
+        png = plan_views.error_ellipses(plan, cov[:, :2, :2], fig.ScaleBar(mag, bar, bar_label), labels=pts.ids)
         stations = ("projection centres (+) along their flight lines (arrow: direction of flight)" if strips else
                     "camera stations (+; convergent photographs, no flight lines)")
         figure = _img(png, "error ellipses of the ground points",
@@ -141,13 +142,13 @@ def _precision_map(project, points, spread: _Spread):
     bar_label = f"{bar:g} m" if bar >= 1 else f"{bar * 100:g} cm"
     finite = np.concatenate([grid_h[np.isfinite(grid_h)], grid_z[np.isfinite(grid_z)]])
     unit, scale = ("cm", 100.0) if len(finite) == 0 or np.percentile(finite, 99) < 1.0 else ("m", 1.0)
-    strips = fig.flies_strips(project.photos.R_ground_from_cam)
-    plan = fig.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
-    png = fig.precision_map(plan, grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
+    strips = plan_views.flies_strips(project.photos.R_ground_from_cam)
+    plan = plan_views.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
+    png = plan_views.precision_map(plan, grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
                             fig.ScaleBar(mag, bar, bar_label))
     n_shown = int(pos.sum())
     n_strips = len(set(project.photos.strip_ids))
-    lines = " with its flight lines" if strips and n_strips <= fig.MAP_FLIGHT_LINES else ""
+    lines = " with its flight lines" if strips and n_strips <= plan_views.MAP_FLIGHT_LINES else ""
     figure = _img(png, "precision of the ground points over the block",
                   f"Plan view of the block{lines} and control (full control: red triangles, plan: orange, height: "
                   f"green, check points: purple diamonds). With {n_shown} error ellipses too many to draw one by "
