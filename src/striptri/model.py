@@ -116,6 +116,9 @@ class Cameras:
     (striptri.geometry.balanced; nan = none, None = no camera): ``interior`` always holds the Gaussian form,
     r0 only says how to write the camera back.
     Tables with only the first columns (c, xp, yp) are padded: distortion 0 and held fixed.
+    size_px: (ncam, 2) width and height in pixels of a digital frame camera's images, and
+    pixel_size: (ncam,) the size of its pixels in plate units (striptri.geometry.pixels); nan for a
+    camera without them, None when no camera has them.
     """
 
     ids: list[str]
@@ -123,6 +126,8 @@ class Cameras:
     sigma_interior: np.ndarray
     convention: np.ndarray | None = None
     r0: np.ndarray | None = None
+    size_px: np.ndarray | None = None
+    pixel_size: np.ndarray | None = None
     interior_state: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):

@@ -13,8 +13,9 @@ Frames:
   ``xp = yp = 0`` and plate coordinates = BAL pixels (plate unit: pixel).
 * COLMAP: ``P = R_cw X + t``, x right, y down, looking along +z, pixels from the top-left corner,
   y down. With ``D = diag(1, -1, -1)``: ``R_cw = D R_ground_from_cam^T``, ``t = -R_cw O``; with s
-  plate units per pixel and an image of W x H pixels: ``x = (u - W/2) s``, ``y = (H/2 - v) s``,
-  ``c = f s``, ``xp = (cx - W/2) s``, ``yp = (H/2 - cy) s``.
+  plate units per pixel and an image of W x H pixels: ``x = (u - W/2) s``, ``y = (H/2 - v) s``
+  (geometry.pixels, the convention of cameras.csv's digital frame cameras), ``c = f s``,
+  ``xp = (cx - W/2) s``, ``yp = (H/2 - cy) s``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 from striptri.geometry import lens, rotations
 from striptri import model
 from striptri.geometry.camera import ray_ground
+from striptri.geometry.pixels import pixel_from_plate, plate_from_pixel
 from striptri.errors import InputError
 from striptri.formats.bal import BalProblem, behind_camera
 from striptri.formats.colmap import ColmapModel, R_from_quaternion, quaternion_from_R
@@ -220,7 +222,7 @@ def colmap_to_project(colmap: ColmapModel, pixel_size: float = 1.0, names: Colma
     obs_point = np.array([point_row[int(p)] for p in colmap.obs_point3d_id[keep]], dtype=np.int64)
     cam = colmap.image_camera[obs_image]
     uv = colmap.obs_xy[keep]
-    xy = np.stack([(uv[:, 0] - half[cam, 0]) * s, (half[cam, 1] - uv[:, 1]) * s], 1)
+    xy = plate_from_pixel(uv, colmap.width_height[cam], s)
     pair = obs_image * max(len(point_row), 1) + obs_point
     _, first, counts = np.unique(pair, return_index=True, return_counts=True)
     if np.any(counts > 1):
@@ -336,7 +338,7 @@ def project_to_colmap(project: model.Project, xyz_ground: np.ndarray | None = No
     known = np.all(np.isfinite(xyz), axis=1)
     point3d_id = np.full(len(project.points), -1, dtype=np.int64)
     point3d_id[known] = np.arange(1, known.sum() + 1)
-    uv = np.stack([ip.xy[:, 0] / s + half[cam_of_obs, 0], half[cam_of_obs, 1] - ip.xy[:, 1] / s], 1)
+    uv = pixel_from_plate(ip.xy, wh[cam_of_obs], s)
     colmap = ColmapModel(
         camera_ids=np.arange(1, ncam + 1), camera_models=[_colmap_model_of(cams, j, Path(project.source or '.') / 'cameras.csv') for j in range(ncam)],
         width_height=wh, focal=focal, principal=principal, distortion=lens_to_colmap_distortion(cams.interior),

@@ -147,6 +147,10 @@ def _camera_columns(cameras: model.Cameras) -> dict[str, Sequence]:
         columns["distortion"] = [CONVENTION_NAMES[int(c)] for c in cameras.convention]
     if r0 is not None:
         columns["r0"] = r0
+    if cameras.size_px is not None:  # a digital frame camera (striptri.geometry.pixels)
+        columns["width_px"] = [int(v) if np.isfinite(v) else float("nan") for v in cameras.size_px[:, 0]]
+        columns["height_px"] = [int(v) if np.isfinite(v) else float("nan") for v in cameras.size_px[:, 1]]
+        columns["pixel_size"] = cameras.pixel_size
     for j, name in enumerate(names):
         columns[f"sigma_{name}"] = [_camera_sigma(s) for s in cameras.sigma_interior[:, j]]
     return columns

@@ -14,6 +14,7 @@ from striptri import model
 from striptri.geometry.lens import CAMERA_ELEMENTS, CONVENTIONS, NCP
 from striptri.geometry.rotations import RADIANS_PER_UNIT
 from striptri.io import plausibility as limits
+from striptri.errors import InputError
 from striptri.io.csvtable import CsvTable
 
 
@@ -61,13 +62,43 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
                                  f"DBAT/photogrammetry) or 'image' (applied to the projected point, "
                                  f"BAL/COLMAP/OpenCV), not '{word}'")
         convention[i] = CONVENTIONS[word]
+    size_px, pixel_size = _digital_frame(table)
     r0 = _balanced_radius(table, sigma) if table.has("r0") else None
     if r0 is not None:
         interior = balanced.gaussian_from_balanced(interior, r0, convention)
         for i in np.flatnonzero(np.isfinite(r0) & ~(interior[:, 0] > 0)):
             raise table.error(i, f"with r0 = {table.text(i, 'r0')} the balanced radial distortion gives a principal "
                                  f"distance {interior[i, 0]:.6g} <= 0: check k1, k2, k3 and r0")
-    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma, convention=convention, r0=r0)
+    return model.Cameras(ids=ids, interior=interior, sigma_interior=sigma, convention=convention, r0=r0,
+                         size_px=size_px, pixel_size=pixel_size)
+
+
+DIGITAL_FRAME = ("width_px", "height_px", "pixel_size")
+
+
+def _digital_frame(table: CsvTable) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """cameras.csv's optional width_px, height_px, pixel_size (a digital frame camera,
+    striptri.geometry.pixels): the three columns together; per row all three or none; width and
+    height whole numbers > 0, pixel_size > 0 (plate units per pixel). -> (size_px (n, 2),
+    pixel_size (n,)), nan where a row has none; (None, None) without the columns."""
+    present = [name for name in DIGITAL_FRAME if table.has(name)]
+    if not present:
+        return None, None
+    if len(present) < len(DIGITAL_FRAME):
+        missing = [name for name in DIGITAL_FRAME if name not in present]
+        raise InputError(table.path, table.header_line, f"a digital frame camera needs width_px, height_px and "
+                                                        f"pixel_size together: {', '.join(missing)} missing")
+    values = np.column_stack([table.optional_floats(name) for name in DIGITAL_FRAME])
+    given = np.isfinite(values)
+    for i in np.flatnonzero(given.any(axis=1) & ~given.all(axis=1))[:1]:
+        raise table.error(i, "width_px, height_px and pixel_size: give all three or none")
+    for j, name in enumerate(DIGITAL_FRAME):
+        for i in np.flatnonzero(given[:, j] & ~(values[:, j] > 0))[:1]:
+            raise table.error(i, f"column '{name}' must be > 0 (got {table.text(i, name)})")
+        if j < 2:
+            for i in np.flatnonzero(given[:, j] & (values[:, j] != np.round(values[:, j])))[:1]:
+                raise table.error(i, f"column '{name}' must be a whole number of pixels (got {table.text(i, name)})")
+    return values[:, :2], values[:, 2]
 
 
 def _balanced_radius(table: CsvTable, sigma: np.ndarray) -> np.ndarray:
