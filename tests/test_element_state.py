@@ -54,13 +54,15 @@ def test_each_table_translates_its_own_convention():
     assert gnss.lever_state.tolist() == [[FREE, OBSERVED, HELD]] and gnss.in_play
 
 
-def test_the_state_follows_a_replaced_sigma():
-    """The state is derived when a table is made, so a replace() of its sigma cannot leave it stale."""
+def test_the_state_follows_the_sigma():
+    """The state is read off the sigma each time, so neither a replace() of a table nor an edit of
+    its sigma array in place can leave it stale."""
     photos = Photos(["1"], np.zeros(1, dtype=int), [""], np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)),
                     np.full((1, 3), nan), np.full((1, 3), nan))
     held = replace(photos, sigma_xyz0=np.zeros((1, 3)))
     assert (photos.centre_state == FREE).all() and (held.centre_state == HELD).all()
-    assert not held.centre_state.flags.writeable
+    photos.sigma_xyz0[0, 2] = 0.05
+    assert photos.centre_state.tolist() == [[FREE, FREE, OBSERVED]]
 
 
 def test_element_states_codes():

@@ -10,8 +10,8 @@ Conventions (DESIGN.md section 1):
 * every element (camera, photo, point, GNSS) is held, observed or free (:class:`ElementState`). The
   tables keep the files' sigma conventions, which differ by file for good reasons (an empty sigma
   leaves a photo free, holds a control coordinate or a camera element, Schmid 24's enforced
-  elements are a sigma of 0); each table translates its own once, into its ``*_state`` arrays,
-  and everything below reads those (docs/decisions.md, "One element state").
+  elements are a sigma of 0); each table translates its own, in one place, into its ``*_state``
+  arrays, and everything below reads those (docs/decisions.md, "One element state").
 """
 
 from __future__ import annotations
@@ -99,11 +99,6 @@ def element_states(sigma: np.ndarray, missing: ElementState) -> np.ndarray:
     return state
 
 
-def _set_state(table, name: str, state: np.ndarray) -> None:
-    state.setflags(write=False)
-    object.__setattr__(table, name, state)
-
-
 @dataclass(frozen=True)
 class Cameras:
     """Interior orientation and additional parameters per camera (striptri.geometry.lens).
@@ -128,7 +123,6 @@ class Cameras:
     r0: np.ndarray | None = None
     size_px: np.ndarray | None = None
     pixel_size: np.ndarray | None = None
-    interior_state: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         n = len(self.ids)
@@ -142,7 +136,11 @@ class Cameras:
         object.__setattr__(self, "interior", interior)
         object.__setattr__(self, "sigma_interior", sigma)
         object.__setattr__(self, "convention", conv.reshape(n).copy())
-        _set_state(self, "interior_state", element_states(sigma, HELD))
+
+    @property
+    def interior_state(self) -> np.ndarray:
+        """(ncam, NCP) ElementState of each camera element (an empty sigma holds it)."""
+        return element_states(self.sigma_interior, HELD)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -166,12 +164,15 @@ class Photos:
     angles: np.ndarray
     sigma_xyz0: np.ndarray
     sigma_angles: np.ndarray
-    centre_state: np.ndarray = field(init=False, repr=False, compare=False)
-    angle_state: np.ndarray = field(init=False, repr=False, compare=False)
+    @property
+    def centre_state(self) -> np.ndarray:
+        """(n, 3) ElementState of X0, Y0, Z0 (an empty sigma leaves it free)."""
+        return element_states(self.sigma_xyz0, FREE)
 
-    def __post_init__(self):
-        _set_state(self, "centre_state", element_states(self.sigma_xyz0, FREE))
-        _set_state(self, "angle_state", element_states(self.sigma_angles, FREE))
+    @property
+    def angle_state(self) -> np.ndarray:
+        """(n, 3) ElementState of the three angles (an empty sigma leaves it free)."""
+        return element_states(self.sigma_angles, FREE)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -208,12 +209,13 @@ class ObjectPoints:
     xyz_given: np.ndarray
     sigma_given: np.ndarray
     xyz_approx: np.ndarray | None = None
-    given_state: np.ndarray = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self):
+    @property
+    def given_state(self) -> np.ndarray:
+        """(np, 3) ElementState of each coordinate: held or observed where the point gives it, free
+        elsewhere (an empty sigma of a given coordinate holds it)."""
         given = self.given_axes & np.isfinite(np.asarray(self.xyz_given, dtype=float).reshape(len(self), 3))
         state = element_states(np.asarray(self.sigma_given, dtype=float).reshape(len(self), 3), HELD)
-        _set_state(self, "given_state", np.where(given, state, np.int8(FREE)).astype(np.int8))
+        return np.where(given, state, np.int8(FREE)).astype(np.int8)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -368,12 +370,15 @@ class GnssModel:
     drift: str = "none"
     sigma_shift: float = float("nan")
     sigma_drift: float = float("nan")
-    lever_state: np.ndarray = field(init=False, repr=False, compare=False)
-    boresight_state: np.ndarray = field(init=False, repr=False, compare=False)
+    @property
+    def lever_state(self) -> np.ndarray:
+        """(ncam, 3) ElementState of the lever arm's components."""
+        return element_states(self.sigma_lever, HELD)
 
-    def __post_init__(self):
-        _set_state(self, "lever_state", element_states(self.sigma_lever, HELD))
-        _set_state(self, "boresight_state", element_states(self.sigma_boresight, HELD))
+    @property
+    def boresight_state(self) -> np.ndarray:
+        """(ncam, 3) ElementState of the boresight's components."""
+        return element_states(self.sigma_boresight, HELD)
 
     @property
     def n_strips(self) -> int:

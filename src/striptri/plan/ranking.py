@@ -86,6 +86,7 @@ def rank_control_fast(plan: Project, result: AdjustmentResult, sigma_points: np.
     order = np.argsort(ip.point_index, kind="stable")
     starts = np.searchsorted(ip.point_index[order], np.arange(n_pt + 1))
     out = []
+    given_state = pts.given_state  # read off the sigmas once
     for k in np.flatnonzero(np.isin(pts.kind, list(CONTROL_KINDS.values()))):
         rows = order[starts[k]:starts[k + 1]]
         C = np.unique(cols[rows][cols[rows] >= 0])
@@ -98,10 +99,10 @@ def rank_control_fast(plan: Project, result: AdjustmentResult, sigma_points: np.
             valid = cols[rows][:, a] >= 0
             np.add.at(U.T, where[valid, a], U_ray[rows][valid][:, :, a])
         dB = -U.T @ Minv[k] @ U
-        held = pts.given_state[k] == HELD
+        held = given_state[k] == HELD
         free = ~held
         if free.any():
-            w = weights.variance_weight(np.nan_to_num(pts.sigma_given[k], nan=1.0)**2, pts.given_state[k] == OBSERVED)
+            w = weights.variance_weight(np.nan_to_num(pts.sigma_given[k], nan=1.0)**2, given_state[k] == OBSERVED)
             Mf = M[k][np.ix_(free, free)] + np.diag(w[free])
             Uf = U[free]
             dB += Uf.T @ np.linalg.solve(Mf, Uf)

@@ -82,10 +82,11 @@ def noisy_project(task: ProjectTask) -> model.Project:
     sigma_xy = np.full_like(ip.sigma_xy, task.sigma_image) if task.scale_sigma else ip.sigma_xy
     xy = ip.xy + rng.normal(0.0, 1.0, ip.xy.shape) * sigma_xy
     n = len(ph)
-    free_xyz, obs_xyz = ph.centre_state == FREE, ph.centre_state == OBSERVED
+    centre, angle = ph.centre_state, ph.angle_state
+    free_xyz, obs_xyz = centre == FREE, centre == OBSERVED
     xyz0 = ph.xyz0 + rng.normal(0.0, 1.0, (n, 3)) * np.where(
         free_xyz, APPROX_POSITION_ERROR, np.where(obs_xyz, np.nan_to_num(ph.sigma_xyz0), 0.0))
-    free_ang, obs_ang = ph.angle_state == FREE, ph.angle_state == OBSERVED
+    free_ang, obs_ang = angle == FREE, angle == OBSERVED
     d_ang = rng.normal(0.0, 1.0, (n, 3)) * np.where(
         free_ang, np.radians(APPROX_ANGLE_ERROR), np.where(obs_ang, np.nan_to_num(ph.sigma_angles), 0.0))
     convention = plan.settings.rotation
