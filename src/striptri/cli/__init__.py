@@ -10,4 +10,4 @@ from striptri.cli.base import (  # noqa: F401  (the command group, and what test
     main,
     reports_errors,
 )
-from striptri.cli import adjust, compare, convert, plan, simulate, structure  # noqa: F401,E402  (register the commands)
+from striptri.cli import adjust, compare, convert, match, plan, simulate, structure  # noqa: F401,E402  (register the commands)

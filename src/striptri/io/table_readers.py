@@ -74,6 +74,7 @@ def _read_cameras(table: CsvTable) -> model.Cameras:
 
 
 DIGITAL_FRAME = ("width_px", "height_px", "pixel_size")
+SOURCES = ("manual", "auto", "")  # image_points.csv's source: by a person, by striptri match (empty: manual)
 
 
 def _digital_frame(table: CsvTable) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -225,6 +226,9 @@ def _read_image_points(
     photo and point beside it (a rejected measurement kept with its re-measurement) are allowed.
     """
     table.require("photo_id", "point_id", "x", "y")
+    for i, word in enumerate(table.optional_strings("source", "manual")):  # striptri match (docs/matching.md)
+        if word.strip().lower() not in SOURCES:
+            raise table.error(i, f"column 'source': '{word}' is not one of {', '.join(SOURCES)} (how the row was measured)")
     photo_of = {pid: k for k, pid in enumerate(photos.ids)}
     photo_ids = table.strings("photo_id")
     measured_ids = table.strings("point_id")

@@ -1,0 +1,37 @@
+"""``striptri match``: automatic tie points for a block of digital frame photographs (docs/matching.md)."""
+
+from __future__ import annotations
+
+import click
+
+from striptri.cli.base import main, reports_errors
+
+
+@main.command()
+@click.argument("project_dir", type=click.Path(file_okay=False))
+@click.option("--images", "images_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder with one image per photo, named <photo_id>.jpg (.png, .tif).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Project folder to write: the inputs, image_points.csv with the automatic tie points appended.")
+@click.option("--scale", type=click.Choice(["1", "0.5", "0.25", "0.125"]), default="0.25", show_default=True,
+              help="Pyramid level the features are found on (JPEGs are decoded at that size).")
+@click.option("--features", "max_features", type=click.IntRange(min=100), default=8000, show_default=True,
+              help="Features per image (the strongest).")
+@click.option("--terrain-height", type=float, default=None,
+              help="Terrain height (m) for the photos' footprints [the mean height of the control points, else 0].")
+@click.option("--per-cell", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Tie points kept per cell of a 3 x 3 grid over each photo (the longest tracks first).")
+@click.option("--sigma-px", type=click.FloatRange(min=0.0, min_open=True), default=0.5, show_default=True,
+              help="Standard deviation of an automatic tie point's image coordinates (pixels).")
+@reports_errors
+def match(project_dir, images_dir, out_dir, scale, max_features, terrain_height, per_cell, sigma_px):
+    """Find tie points in the images of the photos of PROJECT_DIR and write a project to --out that
+    `striptri adjust` takes (false matches are expected: adjust it with --blunders snoop)."""
+    from striptri.match.pipeline import MatchOptions, run_match
+
+    options = MatchOptions(scale=float(scale), max_features=max_features, terrain_height=terrain_height,
+                           per_cell=per_cell, sigma_px=sigma_px)
+    p = run_match(project_dir, images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True))
+    click.echo(f"{len(p.features)} photos, median {int(sorted(p.features)[len(p.features) // 2]) if p.features else 0} "
+               f"features; {p.verified_pairs} of {p.pairs} pairs verified, {p.matches} matches; {p.tracks} tracks, "
+               f"{p.kept_tracks} kept with {p.rays} rays -> {p.out}")

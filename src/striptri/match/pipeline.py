@@ -1,0 +1,258 @@
+"""``striptri match PROJECT --images DIR --out OUT``: automatic tie points for a block of digital
+frame photographs (docs/matching.md).
+
+Read the project (image_points.csv optional), find the features of each photo's image at ``scale``
+(match.features), pair the photos (match.pairs: footprints at the terrain height from the
+approximate orientations, else the strips), match and verify each pair (match.pair_matching), join
+the matches into tracks (match.tracks), thin them (match.thinning) and write OUT: a complete project
+folder, every input file as it was, and image_points.csv with the user's rows (``source`` manual)
+followed by the automatic ones (``source`` auto). OUT is written whole or not at all.
+
+Cameras must be digital frame cameras (cameras.csv width_px, height_px, pixel_size); scanned film
+(fiducial marks found in the scans, match.fiducials) is still to come to the command.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry.pixels import plate_from_pixel
+from ..io.output import OutputReservation, check_output_location
+from ..io.project_reader import FILE_NAMES, read_project
+from ..model import FULL, HEIGHT, Project
+from .features import Features, cv2_module, detect
+from .pair_matching import match_pair
+from .pairs import footprints, overlap_pairs, strip_pairs
+from .thinning import thin_tracks
+from .tracks import build_tracks
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+
+
+@dataclass(frozen=True)
+class MatchOptions:
+    """scale: the pyramid level the features are found on (0.25: a quarter of the width);
+    max_features per image; terrain_height (m) for the footprints (None: the mean height of the
+    control points, else 0); cells, per_cell: the thinning; sigma_px: the standard deviation of an
+    automatic tie point's plate coordinates, in pixels; ground_tolerance: a track whose rays,
+    projected onto the terrain height with the approximate orientations, spread further than this
+    share of the height above the terrain is a false one (0.05: approximations within about 3
+    degrees)."""
+
+    scale: float = 0.25
+    max_features: int = 8000
+    terrain_height: float | None = None
+    cells: int = 3
+    per_cell: int = 4
+    sigma_px: float = 0.5
+    ground_tolerance: float = 0.05
+
+
+@dataclass
+class MatchProducts:
+    """What a run found: per photo the number of features; the candidate pairs and the verified
+    matches of each; the tracks before and after thinning and the rays written."""
+
+    features: list = field(default_factory=list)
+    pairs: int = 0
+    verified_pairs: int = 0
+    matches: int = 0
+    tracks: int = 0
+    split: int = 0
+    inconsistent: int = 0
+    kept_tracks: int = 0
+    rays: int = 0
+    out: Path | None = None
+
+
+def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOptions(), on_progress=None) -> MatchProducts:
+    """Match the photos of ``project_dir`` (module doc). InputError for bad input (exit status 2)."""
+    project_dir, images_dir = Path(project_dir), Path(images_dir)
+    inputs = [*_input_paths(project_dir), images_dir]
+    check_output_location(out_dir, inputs)
+    project = read_project(project_dir, plate_measurements_optional=True)
+    cams = project.cameras
+    if cams.size_px is None or not np.isfinite(cams.size_px[project.photos.camera_index]).all():
+        raise InputError(project_dir / "cameras.csv", None, "automatic tie points need digital frame cameras: give "
+                         "width_px, height_px and pixel_size of every camera the photos use (scanned film is "
+                         "still to come to striptri match)")
+    paths = _image_paths(project, images_dir)
+    say = on_progress or (lambda text: None)
+    products = MatchProducts()
+    feats = []
+    for k, path in enumerate(paths):
+        feats.append(_features(path, project, k, options))
+        products.features.append(len(feats[-1]))
+        say(f"features: photo {project.photos.ids[k]}: {len(feats[-1])}")
+    height = _terrain_height(project, options)
+    pairs = _pairs(project, height)
+    products.pairs = len(pairs)
+    offsets = np.cumsum([0] + [len(f) for f in feats])
+    photo_of = np.repeat(np.arange(len(feats)), [len(f) for f in feats])
+    a, b, score = [], [], []
+    for p, q in pairs:
+        m = match_pair(feats[p], feats[q])
+        if len(m.i):
+            products.verified_pairs += 1
+            a.append(offsets[p] + m.i), b.append(offsets[q] + m.j), score.append(m.distance)
+    say(f"pairs: {products.verified_pairs} of {len(pairs)} verified")
+    cat = (lambda x: np.concatenate(x) if x else np.zeros(0, dtype=np.int64))  # noqa: E731
+    a, b, score = cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0))
+    products.matches = len(a)
+    tracks = build_tracks(photo_of, a, b, score)
+    products.tracks, products.split = tracks.n_tracks, tracks.split
+    rows = np.flatnonzero(tracks.track >= 0)
+    xy_px = np.concatenate([f.xy for f in feats]) if feats else np.zeros((0, 2))
+    cam = project.photos.camera_index[photo_of]
+    plate = plate_from_pixel(xy_px, cams.size_px[cam], cams.pixel_size[cam])
+    half = 0.5 * cams.size_px[project.photos.camera_index] * cams.pixel_size[project.photos.camera_index][:, None]
+    consistent = _consistent(project, tracks.track[rows], photo_of[rows], plate[rows], height,
+                             options.ground_tolerance, tracks.n_tracks)
+    products.inconsistent = int((~consistent).sum())
+    rows = rows[consistent[tracks.track[rows]]]
+    keep = thin_tracks(tracks.track[rows], photo_of[rows], plate[rows], half, options.cells, options.per_cell)
+    keep &= consistent
+    products.kept_tracks = int(keep.sum())
+    chosen = rows[keep[tracks.track[rows]]]
+    products.rays = len(chosen)
+    say(f"tracks: {tracks.n_tracks} ({tracks.split} split, {products.inconsistent} off the approximate "
+        f"orientations), {products.kept_tracks} kept, {products.rays} rays")
+    files = _output_files(project_dir, project, tracks.track[chosen], photo_of[chosen], plate[chosen],
+                          options.sigma_px * cams.pixel_size[cam[chosen]])
+    with OutputReservation(out_dir, inputs) as reservation:
+        products.out = reservation.commit(files)
+    return products
+
+
+def _input_paths(project_dir: Path) -> list[Path]:
+    return [project_dir, *(project_dir / name for name in FILE_NAMES)]
+
+
+def _image_paths(project: Project, images_dir: Path) -> list[Path]:
+    """The image of each photo: DIR/<photo_id>.<ext> (IMAGE_EXTENSIONS, any case); InputError
+    naming the first photo without one."""
+    if not images_dir.is_dir():
+        raise InputError(images_dir, None, "--images must be a folder of one image per photo")
+    by_stem: dict[str, Path] = {}
+    for f in images_dir.iterdir():
+        if f.suffix.lower() in IMAGE_EXTENSIONS:
+            by_stem.setdefault(f.stem, f)
+    out = []
+    for pid in project.photos.ids:
+        if pid not in by_stem:
+            raise InputError(images_dir, None, f"no image of photo '{pid}' (expected {pid}.jpg, .png or .tif)")
+        out.append(by_stem[pid])
+    return out
+
+
+REDUCED = {0.5: "IMREAD_REDUCED_GRAYSCALE_2", 0.25: "IMREAD_REDUCED_GRAYSCALE_4", 0.125: "IMREAD_REDUCED_GRAYSCALE_8"}
+
+
+def _features(path: Path, project: Project, k: int, options: MatchOptions) -> Features:
+    """The photo's features in full-resolution pixels. At 1/2, 1/4, 1/8 the image is decoded at that
+    size (a JPEG never at full resolution); otherwise read whole and reduced (match.features)."""
+    cv2 = cv2_module()
+    W, H = project.cameras.size_px[project.photos.camera_index[k]]
+    flag = REDUCED.get(options.scale)
+    image = cv2.imread(str(path), getattr(cv2, flag) if flag else cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError(path, None, "not an image OpenCV can read")
+    factor = options.scale if flag else 1.0
+    h, w = image.shape[:2]
+    if abs(w - W * factor) > 1 or abs(h - H * factor) > 1:
+        raise InputError(path, None, f"the image is {int(round(w / factor))} x {int(round(h / factor))} pixels; "
+                                     f"cameras.csv says {int(W)} x {int(H)}")
+    found = detect(image, 1.0 if flag else options.scale, options.max_features)
+    # decoded reduced: the features are in the reduced image's corner-origin pixels
+    sx, sy = W / w if flag else 1.0, H / h if flag else 1.0
+    return Features(found.xy * [sx, sy], found.descriptors, found.size * np.sqrt(sx * sy))
+
+
+def _terrain_height(project: Project, options: MatchOptions) -> float:
+    """--terrain-height, else the mean height of the control points, else 0."""
+    if options.terrain_height is not None:
+        return float(options.terrain_height)
+    pts = project.points
+    control = np.isin(pts.kind, [FULL, HEIGHT]) & np.isfinite(pts.xyz_given[:, 2])
+    return float(np.mean(pts.xyz_given[control, 2])) if control.any() else 0.0
+
+
+def _consistent(project: Project, track, photo, plate, h: float, tolerance: float, n_tracks: int) -> np.ndarray:
+    """(n_tracks,) bool: tracks whose rays, each projected onto Z = h with its photo's approximate
+    orientation, lie within ``tolerance`` times the height above the terrain of their mean (a false
+    match that the epipolar test let through, e.g. along the epipolar line of a flat scene, lands
+    hundreds of metres off)."""
+    ph, cams = project.photos, project.cameras
+    cam = ph.camera_index[photo]
+    p = np.concatenate([plate - cams.interior[cam, 1:3], -cams.interior[cam, :1]], 1)
+    r = np.einsum("nij,nj->ni", ph.R_ground_from_cam[photo], p)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (h - ph.xyz0[photo, 2]) / r[:, 2]
+    ground = ph.xyz0[photo, :2] + s[:, None] * r[:, :2]
+    count = np.bincount(track, minlength=n_tracks)
+    mean = np.stack([np.bincount(track, ground[:, a], n_tracks) for a in range(2)], 1) / np.maximum(count, 1)[:, None]
+    far = np.zeros(n_tracks)
+    np.maximum.at(far, track, np.linalg.norm(ground - mean[track], axis=1))
+    limit = tolerance * float(np.median(np.abs(ph.xyz0[:, 2] - h)))
+    bad = np.zeros(n_tracks, dtype=bool)
+    np.logical_or.at(bad, track, ~(s > 0))
+    return (far <= limit) & ~bad
+
+
+def _pairs(project: Project, h: float) -> np.ndarray:
+    """Candidate pairs: footprints at the terrain height h, else the strips (match.pairs)."""
+    ph, cams = project.photos, project.cameras
+    cam = ph.camera_index
+    half = 0.5 * cams.size_px[cam] * cams.pixel_size[cam][:, None]
+    try:
+        fp = footprints(ph.R_ground_from_cam, ph.xyz0, cams.interior[cam, :3], half, h)
+    except ValueError:
+        return strip_pairs(ph.strip_ids)
+    return overlap_pairs(fp)
+
+
+def _output_files(project_dir: Path, project: Project, track, photo, plate, sigma) -> dict[str, bytes | str]:
+    """Every input file as it is, and image_points.csv with the user's rows (source manual) and the
+    automatic ones (source auto; point ids auto_<n>, unused by the project)."""
+    files: dict[str, bytes | str] = {}
+    for name in FILE_NAMES:
+        f = project_dir / name
+        if f.is_file() and name != "image_points.csv":
+            files[name] = f.read_bytes()
+    given = project_dir / "image_points.csv"
+    header, rows = ["photo_id", "point_id", "x", "y", "sigma_x", "sigma_y"], []
+    if given.is_file():
+        reader = csv.DictReader(io.StringIO(given.read_text(encoding="utf-8-sig")))
+        header = list(reader.fieldnames or header)
+        rows = [dict(r) for r in reader]
+    for name in ("sigma_x", "sigma_y"):
+        if name not in header:
+            header.append(name)
+    if "source" not in header:
+        header.append("source")
+        for r in rows:
+            r["source"] = "manual"
+    taken = set(project.points.ids)
+    n, prefix = 0, "auto_"
+    ids = {}
+    for t in np.unique(track):
+        while f"{prefix}{n}" in taken:
+            n += 1
+        ids[int(t)] = f"{prefix}{n}"
+        n += 1
+    for t, p, xy, s in zip(track.tolist(), photo.tolist(), plate, sigma):
+        rows.append({"photo_id": project.photos.ids[p], "point_id": ids[t], "x": repr(float(xy[0])),
+                     "y": repr(float(xy[1])), "sigma_x": repr(float(s)), "sigma_y": repr(float(s)),
+                     "source": "auto"})
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=header, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    files["image_points.csv"] = out.getvalue()
+    return files

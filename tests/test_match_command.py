@@ -1,0 +1,100 @@
+"""striptri match end to end (issue 28): a 2 x 3 block of rendered digital photographs of a
+textured flat terrain, approximate orientations and GNSS centres; the matched project adjusts,
+with snooping, to the true orientations."""
+
+from __future__ import annotations
+
+import csv
+import functools
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.ndimage import gaussian_filter
+
+cv2 = pytest.importorskip("cv2")
+
+from striptri.cli import main  # noqa: E402
+from striptri.core.runs import RunOptions  # noqa: E402
+from striptri.pipeline import run_adjust  # noqa: E402
+
+W, H, PIXEL, C, Z0 = 800, 600, 0.01, 50.0, 5000.0  # px, px, mm, mm, m: 1 m on the ground per pixel
+NX, NY = 1600, 1200  # the terrain texture, 1 m per texel
+CENTRES = [(x, y) for y in (300.0, 720.0) for x in (400.0, 720.0, 1040.0)]  # 60 % forward, 30 % side overlap
+
+
+@functools.lru_cache(maxsize=1)
+def _texture(seed: int = 11) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = gaussian_filter(rng.normal(size=(NY, NX)), 1.5) + 0.6 * gaussian_filter(rng.normal(size=(NY, NX)), 5.0)
+    return (255 * (t - t.min()) / (t.max() - t.min())).astype(np.uint8)
+
+
+def _photo(x0, y0):
+    """The vertical photo over (x0, y0): ground X, Y -> plate x = c (X - x0)/Z0, y = c (Y - y0)/Z0
+    -> pixel (corner origin); the texture's row v (corner origin) is Y = NY - v."""
+    k = C / (Z0 * PIXEL)
+    M = np.array([[k, 0.0, W / 2 - k * x0], [0.0, k, H / 2 - k * (NY - y0)], [0.0, 0.0, 1.0]])
+    shift = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])  # OpenCV pixel centres at integers
+    return cv2.warpPerspective(_texture(), np.linalg.inv(shift) @ M @ shift, (W, H), flags=cv2.INTER_CUBIC)
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    root = tmp_path_factory.mktemp("match")
+    project, images = root / "project", root / "images"
+    project.mkdir(), images.mkdir()
+    (project / "cameras.csv").write_text(f"camera_id,c,xp,yp,width_px,height_px,pixel_size\nC,{C},0,0,{W},{H},{PIXEL}\n")
+    rng = np.random.default_rng(2)
+    with (project / "photos.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["photo_id", "camera_id", "strip_id", "X0", "Y0", "Z0", "omega", "phi", "kappa",
+                    "sigma_X0", "sigma_Y0", "sigma_Z0"])
+        for k, (x, y) in enumerate(CENTRES):
+            gnss = np.array([x, y, Z0]) + rng.normal(0.0, 0.3, 3)
+            w.writerow([f"P{k}", "C", "S1" if k < 3 else "S2", *gnss.round(3), *rng.normal(0, 0.3, 3).round(3),
+                        0.3, 0.3, 0.3])
+    for k, (x, y) in enumerate(CENTRES):
+        cv2.imwrite(str(images / f"P{k}.png"), _photo(x, y))
+    return root
+
+
+def test_a_matched_block_adjusts_to_the_true_orientations(block):
+    out = block / "matched"
+    run = CliRunner().invoke(main, ["match", str(block / "project"), "--images", str(block / "images"), "--out",
+                                    str(out), "--scale", "0.5", "--features", "2000"])
+    assert run.exit_code == 0, run.output
+    assert (out / "cameras.csv").read_bytes() == (block / "project" / "cameras.csv").read_bytes()
+    rows = list(csv.DictReader((out / "image_points.csv").open()))
+    assert rows and {r["source"] for r in rows} == {"auto"}
+    n_points = len({r["point_id"] for r in rows})
+    assert n_points >= 6 * 9  # every photo's 3 x 3 cells
+    adjusted = run_adjust(out, block / "adjusted", RunOptions(blunders="snoop"))
+    assert adjusted.result.converged
+    # the photos are vertical (every true angle 0) and over the true centres: the adjusted values
+    # are the truth within their a-priori standard errors (photos.csv's scaled by sigma0 a posteriori,
+    # which is small: the matches are far better than sigma_px, while the datum, GNSS centres of
+    # 0.3 m, is as noisy as stated)
+    photos = list(csv.DictReader((block / "adjusted" / "photos.csv").open()))
+    sigma0 = adjusted.summary["sigma0"]
+    for names, truth in ((("omega", "phi", "kappa"), np.zeros((6, 3))), (("X0", "Y0", "Z0"),
+                                                                         [(x, y, Z0) for x, y in CENTRES])):
+        value = np.array([[float(r[a]) for a in names] for r in photos])
+        sigma = np.array([[float(r[f"sigma_{a}"]) for a in names] for r in photos]) / sigma0
+        assert np.all(np.abs(value - np.asarray(truth)) < 4.0 * sigma), (names, value, sigma)
+    assert adjusted.summary["sigma0"] < 0.2  # matched to a few hundredths of a pixel, sigma_px 0.5
+
+
+def test_a_missing_image_and_a_film_camera_are_input_errors(block, tmp_path):
+    images = tmp_path / "images"
+    images.mkdir()
+    run = CliRunner().invoke(main, ["match", str(block / "project"), "--images", str(images), "--out",
+                                    str(tmp_path / "o")])
+    assert run.exit_code == 2 and "no image of photo 'P0'" in run.output and not (tmp_path / "o").exists()
+    film = tmp_path / "film"
+    film.mkdir()
+    (film / "cameras.csv").write_text(f"camera_id,c,xp,yp\nC,{C},0,0\n")
+    (film / "photos.csv").write_bytes((block / "project" / "photos.csv").read_bytes())
+    run = CliRunner().invoke(main, ["match", str(film), "--images", str(block / "images"), "--out",
+                                    str(tmp_path / "o")])
+    assert run.exit_code == 2 and "digital frame cameras" in run.output and not (tmp_path / "o").exists()
