@@ -98,3 +98,48 @@ def test_a_missing_image_and_a_film_camera_are_input_errors(block, tmp_path):
     run = CliRunner().invoke(main, ["match", str(film), "--images", str(block / "images"), "--out",
                                     str(tmp_path / "o")])
     assert run.exit_code == 2 and "digital frame cameras" in run.output and not (tmp_path / "o").exists()
+
+
+def test_photos_csv_names_the_images(block, tmp_path):
+    """photos.csv's column image: a path inside --images, relative to it; outside or missing is an
+    error naming the line."""
+    from striptri.errors import InputError
+    from striptri.io import read_project
+    from striptri.match.pipeline import _image_paths
+
+    project = tmp_path / "p"
+    project.mkdir()
+    (project / "cameras.csv").write_bytes((block / "project" / "cameras.csv").read_bytes())
+    rows = list(csv.reader((block / "project" / "photos.csv").open()))
+    images = tmp_path / "images"
+    (images / "sub").mkdir(parents=True)
+    for k, r in enumerate(rows[1:]):
+        (images / "sub" / f"frame_{k}.png").write_bytes((block / "images" / f"{r[0]}.png").read_bytes())
+
+    def write(names):
+        with (project / "photos.csv").open("w", newline="") as f:
+            csv.writer(f).writerows([rows[0] + ["image"]] + [r + [n] for r, n in zip(rows[1:], names)])
+        return read_project(project, plate_measurements_optional=True)
+
+    got = _image_paths(write([f"sub/frame_{k}.png" for k in range(6)]), images, project)
+    assert [p.name for p in got] == [f"frame_{k}.png" for k in range(6)]
+    with pytest.raises(InputError, match="inside --images") as err:
+        _image_paths(write(["../x.png"] + [f"sub/frame_{k}.png" for k in range(1, 6)]), images, project)
+    assert err.value.line == 2
+    with pytest.raises(InputError, match="is not in") as err:
+        _image_paths(write([f"sub/frame_{k}.png" for k in range(5)] + ["sub/none.png"]), images, project)
+    assert err.value.line == 7
+
+
+def test_image_points_source_must_be_manual_or_auto(block, tmp_path):
+    from striptri.errors import InputError
+    from striptri.io import read_project
+
+    project = tmp_path / "p"
+    project.mkdir()
+    for name in ("cameras.csv", "photos.csv"):
+        (project / name).write_bytes((block / "project" / name).read_bytes())
+    (project / "image_points.csv").write_text("photo_id,point_id,x,y,source\nP0,a,0,0,auto\nP1,a,1,0,machine\n")
+    with pytest.raises(InputError, match="'machine' is not one of") as err:
+        read_project(project)
+    assert err.value.line == 3

@@ -153,6 +153,7 @@ def _read_photos(table: CsvTable, cameras: model.Cameras, settings: model.Projec
         )
         * to_rad
     )
+    table.optional_strings("image")  # the photo's image, for striptri match (match.pipeline reads it)
     return model.Photos(
         ids=ids,
         camera_index=camera_index,

@@ -82,7 +82,7 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         raise InputError(project_dir / "cameras.csv", None, "automatic tie points need digital frame cameras: give "
                          "width_px, height_px and pixel_size of every camera the photos use (scanned film is "
                          "still to come to striptri match)")
-    paths = _image_paths(project, images_dir)
+    paths = _image_paths(project, images_dir, project_dir)
     say = on_progress or (lambda text: None)
     products = MatchProducts()
     feats = []
@@ -134,21 +134,45 @@ def _input_paths(project_dir: Path) -> list[Path]:
     return [project_dir, *(project_dir / name for name in FILE_NAMES)]
 
 
-def _image_paths(project: Project, images_dir: Path) -> list[Path]:
-    """The image of each photo: DIR/<photo_id>.<ext> (IMAGE_EXTENSIONS, any case); InputError
-    naming the first photo without one."""
+def _image_paths(project: Project, images_dir: Path, project_dir: Path) -> list[Path]:
+    """The image of each photo: photos.csv's ``image`` (a path inside DIR, relative to it) where
+    given, else DIR/<photo_id>.<ext> (IMAGE_EXTENSIONS, any case). InputError naming the first
+    photo without one, or the line of an ``image`` outside DIR or missing."""
     if not images_dir.is_dir():
         raise InputError(images_dir, None, "--images must be a folder of one image per photo")
     by_stem: dict[str, Path] = {}
     for f in images_dir.iterdir():
         if f.suffix.lower() in IMAGE_EXTENSIONS:
             by_stem.setdefault(f.stem, f)
+    named = _image_column(project_dir / "photos.csv")
+    root = images_dir.resolve()
     out = []
     for pid in project.photos.ids:
-        if pid not in by_stem:
-            raise InputError(images_dir, None, f"no image of photo '{pid}' (expected {pid}.jpg, .png or .tif)")
-        out.append(by_stem[pid])
+        if pid in named:
+            line, text = named[pid]
+            path = (images_dir / text).resolve()
+            if Path(text).is_absolute() or root not in path.parents:
+                raise InputError(project_dir / "photos.csv", line, f"image '{text}' of photo '{pid}' must be a path "
+                                                                   "inside --images, relative to it")
+            if not path.is_file():
+                raise InputError(project_dir / "photos.csv", line, f"image '{text}' of photo '{pid}' is not in "
+                                                                   f"{images_dir}")
+            out.append(path)
+        elif pid in by_stem:
+            out.append(by_stem[pid])
+        else:
+            raise InputError(images_dir, None, f"no image of photo '{pid}' (expected {pid}.jpg, .png or .tif, or "
+                                               "photos.csv's column image)")
     return out
+
+
+def _image_column(photos_csv: Path) -> dict[str, tuple[int, str]]:
+    """photos.csv's optional ``image`` column: photo_id -> (line, path) where it is not empty."""
+    reader = csv.DictReader(io.StringIO(photos_csv.read_text(encoding="utf-8-sig")))
+    if "image" not in (reader.fieldnames or []):
+        return {}
+    return {r["photo_id"].strip(): (k + 2, r["image"].strip()) for k, r in enumerate(reader)
+            if (r.get("image") or "").strip()}
 
 
 REDUCED = {0.5: "IMREAD_REDUCED_GRAYSCALE_2", 0.25: "IMREAD_REDUCED_GRAYSCALE_4", 0.125: "IMREAD_REDUCED_GRAYSCALE_8"}
