@@ -84,6 +84,16 @@ _DEFAULT_OVERLAP = 0.6
 @click.option("--naive", is_flag=True, default=False,
               help="With --crs: write the same map coordinates without project.toml [coordinates], so that "
                    "striptri adjusts them as Cartesian grid coordinates (the flat-Earth comparison).")
+@click.option("--images", is_flag=True, default=False,
+              help="Render every photo into OUT/images/ from a textured terrain (the extra images: OpenCV); the "
+                   "camera becomes a digital frame camera and image_points.csv keeps only the control and check "
+                   "points, leaving the tie points to striptri match.")
+@click.option("--image-size", type=click.IntRange(64, 20000), default=1000, show_default=True,
+              help="With --images: the side of the square images (pixels).")
+@click.option("--image-noise", type=_Finite(min=0), default=0.0, show_default=True,
+              help="With --images: standard deviation of the noise added to the grey values (grey levels).")
+@click.option("--jpeg-quality", type=click.IntRange(1, 100), default=None,
+              help="With --images: write JPEG of this quality instead of PNG.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
 def simulate(kind, out_dir, seed, **given):
@@ -97,6 +107,10 @@ def simulate(kind, out_dir, seed, **given):
 
     check_output_location(out_dir)
     o = SimpleNamespace(**given)  # the command's options by name
+    if o.images:
+        return _simulate_images(kind, out_dir, seed, o)
+    if (o.image_size, o.image_noise, o.jpeg_quality) != (1000, 0.0, None):
+        raise click.UsageError("--image-size, --image-noise and --jpeg-quality need --images")
     try:
         project, truth = sim.simulate_project(kind, simulate_options(kind, o), seed)
     except ValueError as exc:
@@ -110,6 +124,40 @@ def simulate(kind, out_dir, seed, **given):
     folder = write_project(out_dir, project, truth_tables=truth)
     click.echo(f"wrote {folder}: {len(project.photos)} photos, {len(project.points)} points, "
                f"{len(project.image_points)} plate measurements")
+
+
+def _simulate_images(kind: str, out_dir, seed: int, o: SimpleNamespace) -> None:
+    """simulate --images: the project of a digital frame camera, and its photos rendered
+    (simulate.render) into OUT/images/, written whole or not at all."""
+    from striptri import simulate as sim
+    from striptri.io.csvtable import format_csv
+    from striptri.io.output import OutputReservation
+    from striptri.io.project_writer import project_files
+    from striptri.match.features import cv2_module
+    from striptri.simulate import render
+
+    if o.crs is not None:
+        raise click.UsageError("--images renders the photos in the local frame: leave out --crs")
+    cv2_module()  # the extra images, or a clear message before anything is computed
+    try:
+        options = simulate_options(kind, o)
+        image_options = render.ImageOptions(o.image_size, o.image_noise, o.jpeg_quality)
+        project, tables, truth = sim.simulate_with_truth(kind, options, seed)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from exc
+    camera_format = options.design.camera.format
+    project = render.digital_project(project, camera_format, image_options)
+    files = project_files(project)
+    files.update({f"truth/{name}": format_csv(columns) for name, columns in tables.items()})
+    with OutputReservation(out_dir) as reservation:
+        for k, (name, data) in enumerate(render.render_images(truth, camera_format, image_options,
+                                                              sim.images_rng(seed))):
+            reservation.stage({f"images/{name}": data})
+            click.echo(f"rendered {k + 1} of {len(project.photos)}: images/{name}", err=True)
+        folder = reservation.commit(files)
+    click.echo(f"wrote {folder}: {len(project.photos)} photos rendered ({o.image_size} x {o.image_size} px), "
+               f"{len(project.points)} points, {len(project.image_points)} plate measurements of control "
+               f"and check points")
 
 
 def simulate_options(kind: str, o: SimpleNamespace):

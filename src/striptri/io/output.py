@@ -97,6 +97,7 @@ class OutputReservation:
         self._tmp: Path | None = None
         self._fd: int | None = None
         self._created: list[Path] = []
+        self._staged: list[str] = []  # manifest lines of the files stage() wrote
         self.committed = False
 
     def __enter__(self) -> "OutputReservation":
@@ -136,6 +137,18 @@ class OutputReservation:
                 self._cleanup()
                 raise
 
+    def stage(self, files: Mapping[str, str | bytes]) -> None:
+        """Write some files of a folder output now (relative POSIX path -> text or bytes), so that a
+        large output made one piece at a time (rendered images) need not be held in memory whole;
+        commit() writes the rest and lists them all in the marker. A name written twice, or any
+        write error, is an InputError; the reservation still leaves nothing behind."""
+        if self._tmp is None or self.kind != "folder":
+            raise RuntimeError("stage() of an output that is not a reserved folder")
+        try:
+            self._staged += _write_payload(self._tmp, {_safe_relative(n): c for n, c in files.items()})
+        except OSError as exc:
+            raise _output_error(exc, self.path) from None
+
     def commit(self, files: Mapping[str, str | bytes] | bytes) -> Path:
         """Write the files (folder: relative POSIX path -> text or bytes; file: bytes), then swap
         them in for OUT. -> the absolute OUT."""
@@ -144,7 +157,7 @@ class OutputReservation:
         try:
             if self.kind == "folder":
                 relative = {_safe_relative(name): content for name, content in files.items()}
-                _write_files(self._tmp, relative)
+                _write_files(self._tmp, relative, self._staged)
                 os.unlink(self._tmp / PARTIAL)  # the marker with its manifest now says whose it is
             else:
                 write_file(self._tmp / PAYLOAD, bytes(files))
@@ -424,8 +437,14 @@ def _make_parents(parent: Path) -> list[Path]:
     return created
 
 
-def _write_files(folder: Path, files: Mapping[PurePosixPath, str | bytes]) -> None:
-    """Write every file, then the marker with the manifest of them all."""
+def _write_files(folder: Path, files: Mapping[PurePosixPath, str | bytes], staged: Iterable[str] = ()) -> None:
+    """Write every file, then the marker with the manifest of them all (and of those staged before)."""
+    lines = [*staged, *_write_payload(folder, files)]
+    write_file(folder / MARKER, (_MARKER_HEAD + "files (sha256 size path):\n" + "\n".join(lines) + "\n").encode())
+
+
+def _write_payload(folder: Path, files: Mapping[PurePosixPath, str | bytes]) -> list[str]:
+    """Write the files; -> their manifest lines (sha256 size path)."""
     lines = []
     for name, content in files.items():
         target = folder.joinpath(*name.parts)
@@ -433,7 +452,7 @@ def _write_files(folder: Path, files: Mapping[PurePosixPath, str | bytes]) -> No
         data = content.encode("utf-8") if isinstance(content, str) else bytes(content)
         write_file(target, data)
         lines.append(f"{hashlib.sha256(data).hexdigest()} {len(data)} {name}")
-    write_file(folder / MARKER, (_MARKER_HEAD + "files (sha256 size path):\n" + "\n".join(lines) + "\n").encode())
+    return lines
 
 
 def write_file(path: Path, data: bytes) -> None:

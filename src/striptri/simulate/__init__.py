@@ -8,6 +8,7 @@ SyntheticNoiseOptions).
 * :mod:`.noise` -- ``perturb(truth, noise, rng)``: the :class:`striptri.model.Project` an
   adjustment is given;
 * :mod:`.pipeline` -- ``simulate_project(kind, options, seed)`` and the truth tables.
+* :mod:`.render` -- the photos rendered from a textured terrain (``striptri simulate ... --images``).
 """
 
 from striptri.simulate.design import (
@@ -25,7 +26,9 @@ from striptri.simulate.design import (
 )
 from striptri.simulate.gnss import GnssOptions, add_gnss
 from striptri.simulate.noise import NoiseOptions, perturb
-from striptri.simulate.pipeline import KINDS, SimulateOptions, simulate_project, truth_tables
+from striptri.simulate.pipeline import (
+    KINDS, SimulateOptions, images_rng, simulate_project, simulate_with_truth, truth_tables,
+)
 from striptri.simulate.terrain import Terrain
 from striptri.simulate.truth import Truth, make_truth
 
@@ -50,6 +53,8 @@ __all__ = [
     "Truth",
     "make_truth",
     "perturb",
+    "images_rng",
     "simulate_project",
+    "simulate_with_truth",
     "truth_tables",
 ]

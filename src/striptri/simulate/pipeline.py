@@ -30,10 +30,18 @@ def simulate_project(
     """Simulate a ``kind`` ("pair", "strip" or "block") project. -> (project, truth tables).
     A pair and a strip are one strip; a block has two strips or more.
 
-    The seed feeds two independent streams (numpy SeedSequence.spawn): one for the truth, one for the
+    The seed feeds independent streams (numpy SeedSequence.spawn): one for the truth, one for the
     noise, so that the same seed with other noise options gives the same true flight.
     truth tables: file name -> columns, for io.project_writer.write_project (see truth_tables).
     """
+    project, tables, _ = simulate_with_truth(kind, options, seed)
+    return project, tables
+
+
+def simulate_with_truth(
+    kind: str, options: SimulateOptions, seed: int | None
+) -> tuple[model.Project, dict[str, dict[str, Sequence]], Truth]:
+    """simulate_project, and the Truth it was made from (for rendering its photos)."""
     _check_kind(kind, options.design)
     # a third stream for the GNSS block (spawn(3)[:2] are spawn(2)'s streams: the same flight and noise)
     streams = np.random.SeedSequence(seed).spawn(2 if options.gnss is None else 3)
@@ -43,7 +51,13 @@ def simulate_project(
     if options.gnss is not None:
         project, gnss_truth = add_gnss(project, truth, options.gnss, np.random.default_rng(streams[2]))
         tables.update(gnss_truth_tables(gnss_truth, project.cameras.ids))
-    return project, tables
+    return project, tables, truth
+
+
+def images_rng(seed: int | None) -> np.random.Generator:
+    """The fourth stream of the seed: the rendered images' texture and noise (simulate.render),
+    independent of the truth, the noise and GNSS."""
+    return np.random.default_rng(np.random.SeedSequence(seed).spawn(4)[3])
 
 
 def truth_tables(truth: Truth) -> dict[str, dict[str, Sequence]]:
