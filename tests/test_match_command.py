@@ -65,6 +65,11 @@ def test_a_matched_block_adjusts_to_the_true_orientations(block):
                                     str(out), "--scale", "0.5", "--features", "2000"])
     assert run.exit_code == 0, run.output
     assert (out / "cameras.csv").read_bytes() == (block / "project" / "cameras.csv").read_bytes()
+    report = (out / "match_report.html").read_text()
+    for section in ("Time per stage", "Pairs", "Photos", "Track lengths", "features", "pair matching"):
+        assert section in report
+    assert report.count("data:image/png;base64,") == 3  # the pair graph, the maps, the track lengths
+    assert "0.300 px" in report and "planar" in report  # a flat terrain: the default sigma, said why
     rows = list(csv.DictReader((out / "image_points.csv").open()))
     assert rows and {r["source"] for r in rows} == {"auto"}
     n_points = len({r["point_id"] for r in rows})

@@ -31,6 +31,7 @@ from .report.figures import normal_matrix_structure
 from .report.tables import (camera_table, check_point_statistics, finite_or_none, gnss_tables, photo_table,  # noqa: F401
                             point_covariances, point_table, residual_table)
 from .report import film as film_report
+from .io import sources
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
 from .solvers.threads import single_threaded
@@ -346,7 +347,8 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         distances=None if adjusted.distances is None else distances_summary(adjusted.distances, points.xyz,
                                                                             distance_cols),
         film=None if adjusted.film is None else film_report.summary_entry(adjusted.film),
-        frame=None if frame is None else frame.summary())
+        frame=None if frame is None else frame.summary(),
+        automatic_tie_points=sources.summary_entry(project, det.flag, det.v))
 
     t0 = time.perf_counter()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos),

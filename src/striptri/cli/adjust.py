@@ -85,6 +85,11 @@ def adjust(project_dir, out_dir, quiet, **given):
         click.echo(f"gross errors ({b['method']}): {b['rejected']} measurements rejected, "
                    f"{b.get('inseparable', 0)} in inseparable groups, {b['suspect']} suspect, "
                    f"{b['dropped']} dropped, in {b['adjustments']} adjustments")
+    auto = s.get("automatic_tie_points")
+    if auto:
+        rms = "n/a" if auto["rms_px"] is None else f"{auto['rms_px']:.3f} px"
+        click.echo(f"automatic tie points: {auto['removed']} of {auto['rays']} rays removed as gross errors, "
+                   f"{auto['points_left']} of {auto['points']} points left, image residual RMS {rms}")
     sigma0 = "n/a (no redundancy)" if s["sigma0"] is None else f"{s['sigma0']:.4f}"
     state = {"converged": "converged", "cost_flat": "converged (cost_flat: the sum of squares no longer decreased)"}.get(
         s["termination"], f"NOT converged ({s['termination']}; kept)")

@@ -21,8 +21,9 @@ from striptri.cli.base import main, reports_errors
               help="Terrain height (m) for the photos' footprints [the mean height of the control points, else 0].")
 @click.option("--per-cell", type=click.IntRange(min=1), default=4, show_default=True,
               help="Tie points kept per cell of a 3 x 3 grid over each photo (the longest tracks first).")
-@click.option("--sigma-px", type=click.FloatRange(min=0.0, min_open=True), default=0.5, show_default=True,
-              help="Standard deviation of an automatic tie point's image coordinates (pixels).")
+@click.option("--sigma-px", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="Standard deviation of an automatic tie point's image coordinates (pixels) "
+                   "[estimated from the verified matches' epipolar residuals].")
 @reports_errors
 def match(project_dir, images_dir, out_dir, scale, max_features, terrain_height, per_cell, sigma_px):
     """Find tie points in the images of the photos of PROJECT_DIR and write a project to --out that
@@ -34,4 +35,4 @@ def match(project_dir, images_dir, out_dir, scale, max_features, terrain_height,
     p = run_match(project_dir, images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True))
     click.echo(f"{len(p.features)} photos, median {int(sorted(p.features)[len(p.features) // 2]) if p.features else 0} "
                f"features; {p.verified_pairs} of {p.pairs} pairs verified, {p.matches} matches; {p.tracks} tracks, "
-               f"{p.kept_tracks} kept with {p.rays} rays -> {p.out}")
+               f"{p.kept_tracks} kept with {p.rays} rays, sigma {p.sigma_px:.3f} px -> {p.out}")

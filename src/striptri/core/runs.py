@@ -107,7 +107,7 @@ class RunSummary(Mapping):
     checks), history (per iteration). The run (pipeline.run_metadata): version, started, project,
     options. Then blunders (the gross-error procedure's counts and groups), warnings, and the
     sections that only some projects have, in this order: plate_corrections, inactive, gnss,
-    distances, film, frame.
+    distances, film, frame, automatic_tie_points (a project of striptri match: io.sources).
     """
 
     method: str
@@ -144,6 +144,7 @@ class RunSummary(Mapping):
     distances: dict | None = None
     film: dict | None = None
     frame: dict | None = None
+    automatic_tie_points: dict | None = None
 
     def as_dict(self) -> dict:
         """summary.json's object: every field in order, the optional sections only when present."""
@@ -166,5 +167,6 @@ class RunSummary(Mapping):
         return len(self.as_dict())
 
 
-OPTIONAL_SECTIONS = ("datum", "plate_corrections", "inactive", "gnss", "distances", "film", "frame")
+OPTIONAL_SECTIONS = ("datum", "plate_corrections", "inactive", "gnss", "distances", "film", "frame",
+                     "automatic_tie_points")
 FIELD_NAMES = frozenset(f.name for f in fields(RunSummary))

@@ -11,7 +11,7 @@ octave doubles the image such that every keypoint comes out 0.25 pixel (of the l
 too far right and down, measured on rendered photographs (tests/test_match_images.py: an offset
 of 0.2497, 0.2499 px at full resolution, 0.499 px at half; with the precise upscaling 0.0004 px).
 
-OpenCV comes from the optional extra ``striptri[match]`` (opencv-python-headless, wheels): the
+OpenCV comes from the optional extra ``striptri[images]`` (opencv-python-headless, wheels): the
 rest of striptri never imports it.
 """
 
@@ -42,7 +42,7 @@ def cv2_module():
     try:
         import cv2
     except ImportError as exc:  # pragma: no cover - the message is the point
-        raise ImportError("automatic tie points need OpenCV: pip install 'striptri[match]' "
+        raise ImportError("automatic tie points need OpenCV: pip install 'striptri[images]' "
                           "(opencv-python-headless)") from exc
     return cv2
 

@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import csv
 import io
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,12 +30,15 @@ from ..io.output import OutputReservation, check_output_location
 from ..io.project_reader import FILE_NAMES, read_project
 from ..model import FULL, HEIGHT, Project
 from .features import Features, cv2_module, detect
-from .pair_matching import match_pair
+from .pair_matching import match_pair, sigma_from_epipolar
 from .pairs import footprints, overlap_pairs, strip_pairs
 from .thinning import thin_tracks
 from .tracks import build_tracks
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+REPORT_NAME = "match_report.html"  # the matching report, in OUT beside the project files
+HEIGHT_RANGE = 0.3  # a tie point further from the terrain height than this share of the flying height is false
+FALLBACK_SIGMA_PX = 0.3  # an automatic tie point's sigma where the matches cannot tell (planar scenes only)
 
 
 @dataclass(frozen=True)
@@ -40,18 +46,20 @@ class MatchOptions:
     """scale: the pyramid level the features are found on (0.25: a quarter of the width);
     max_features per image; terrain_height (m) for the footprints (None: the mean height of the
     control points, else 0); cells, per_cell: the thinning; sigma_px: the standard deviation of an
-    automatic tie point's plate coordinates, in pixels; ground_tolerance: a track whose rays,
-    projected onto the terrain height with the approximate orientations, spread further than this
-    share of the height above the terrain is a false one (0.05: approximations within about 3
-    degrees)."""
+    automatic tie point's plate coordinates, in pixels (None: estimated from the verified matches'
+    epipolar residuals, match.pair_matching.sigma_from_epipolar; FALLBACK_SIGMA_PX where every pair
+    is of a planar scene); ground_tolerance: a track one of whose rays, with the approximate
+    orientations, passes further from the track's intersection than this share of the height
+    above the terrain is a false one (0.10: approximations within about 2 degrees, 3 standard
+    deviations; _consistent)."""
 
     scale: float = 0.25
     max_features: int = 8000
     terrain_height: float | None = None
     cells: int = 3
     per_cell: int = 4
-    sigma_px: float = 0.5
-    ground_tolerance: float = 0.05
+    sigma_px: float | None = None
+    ground_tolerance: float = 0.10
 
 
 @dataclass
@@ -68,7 +76,21 @@ class MatchProducts:
     inconsistent: int = 0
     kept_tracks: int = 0
     rays: int = 0
+    sigma_px: float = float("nan")
+    sigma_estimated: bool = False
+    sigma_how: str = ""
     out: Path | None = None
+    # for the matching report (match.report)
+    photo_ids: list = field(default_factory=list)
+    centres: np.ndarray | None = None  # (n, 2) the approximate centres X0, Y0
+    pair_list: np.ndarray | None = None  # (pairs, 2) the candidate pairs
+    pair_matches: np.ndarray | None = None  # (pairs,) verified matches of each (0: not verified)
+    track_lengths: np.ndarray | None = None  # (tracks,) rays of every track, before the ground check
+    kept_lengths: np.ndarray | None = None  # (kept,) rays of the tracks written
+    ray_photo: np.ndarray | None = None  # (rays,) the photo of each ray written
+    ray_plate: np.ndarray | None = None  # (rays, 2) its plate coordinates
+    half_format: np.ndarray | None = None  # (n, 2) each photo's half width and height (plate units)
+    seconds: dict = field(default_factory=dict)  # stage -> seconds
 
 
 def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOptions(), on_progress=None) -> MatchProducts:
@@ -84,34 +106,54 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
                          "still to come to striptri match)")
     paths = _image_paths(project, images_dir, project_dir)
     say = on_progress or (lambda text: None)
-    products = MatchProducts()
+    products = MatchProducts(photo_ids=list(project.photos.ids), centres=project.photos.xyz0[:, :2].copy())
+    clock = _Clock(products.seconds)
     feats = []
-    for k, path in enumerate(paths):
-        feats.append(_features(path, project, k, options))
-        products.features.append(len(feats[-1]))
-        say(f"features: photo {project.photos.ids[k]}: {len(feats[-1])}")
+    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # OpenCV releases the GIL
+        for k, found in enumerate(pool.map(lambda k: _features(paths[k], project, k, options), range(len(paths)))):
+            feats.append(found)
+            products.features.append(len(found))
+            say(f"features: photo {project.photos.ids[k]}: {len(found)}")
+    clock.lap("features")
     height = _terrain_height(project, options)
     pairs = _pairs(project, height)
     products.pairs = len(pairs)
+    products.pair_list = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    products.pair_matches = np.zeros(len(pairs), dtype=np.int64)
+    clock.lap("candidate pairs")
     offsets = np.cumsum([0] + [len(f) for f in feats])
     photo_of = np.repeat(np.arange(len(feats)), [len(f) for f in feats])
-    a, b, score = [], [], []
-    for p, q in pairs:
+    a, b, score, epipolar = [], [], [], []
+    for n, (p, q) in enumerate(pairs):
         m = match_pair(feats[p], feats[q])
+        products.pair_matches[n] = len(m.i)
         if len(m.i):
             products.verified_pairs += 1
             a.append(offsets[p] + m.i), b.append(offsets[q] + m.j), score.append(m.distance)
-    say(f"pairs: {products.verified_pairs} of {len(pairs)} verified")
+            if not m.planar:
+                epipolar.append(m.epipolar)
+    clock.lap("pair matching")
+    products.sigma_px, how = float(options.sigma_px or "nan"), "given"
+    if options.sigma_px is None:
+        products.sigma_px, how = sigma_from_epipolar(np.concatenate(epipolar) if epipolar else np.zeros(0)), \
+            "estimated from the epipolar residuals"
+        if not np.isfinite(products.sigma_px):
+            products.sigma_px, how = FALLBACK_SIGMA_PX, "no pair but planar ones to estimate it from: the default"
+    products.sigma_estimated, products.sigma_how = how.startswith("estimated"), how
+    say(f"pairs: {products.verified_pairs} of {len(pairs)} verified; image coordinates to "
+        f"{products.sigma_px:.3f} px ({how})")
     cat = (lambda x: np.concatenate(x) if x else np.zeros(0, dtype=np.int64))  # noqa: E731
     a, b, score = cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0))
     products.matches = len(a)
     tracks = build_tracks(photo_of, a, b, score)
     products.tracks, products.split = tracks.n_tracks, tracks.split
     rows = np.flatnonzero(tracks.track >= 0)
+    products.track_lengths = np.bincount(tracks.track[rows], minlength=tracks.n_tracks)
     xy_px = np.concatenate([f.xy for f in feats]) if feats else np.zeros((0, 2))
     cam = project.photos.camera_index[photo_of]
     plate = plate_from_pixel(xy_px, cams.size_px[cam], cams.pixel_size[cam])
     half = 0.5 * cams.size_px[project.photos.camera_index] * cams.pixel_size[project.photos.camera_index][:, None]
+    products.half_format = half
     consistent = _consistent(project, tracks.track[rows], photo_of[rows], plate[rows], height,
                              options.ground_tolerance, tracks.n_tracks)
     products.inconsistent = int((~consistent).sum())
@@ -121,13 +163,33 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     products.kept_tracks = int(keep.sum())
     chosen = rows[keep[tracks.track[rows]]]
     products.rays = len(chosen)
+    products.kept_lengths = products.track_lengths[keep]
+    products.ray_photo, products.ray_plate = photo_of[chosen], plate[chosen]
+    clock.lap("tracks and thinning")
     say(f"tracks: {tracks.n_tracks} ({tracks.split} split, {products.inconsistent} off the approximate "
         f"orientations), {products.kept_tracks} kept, {products.rays} rays")
     files = _output_files(project_dir, project, tracks.track[chosen], photo_of[chosen], plate[chosen],
-                          options.sigma_px * cams.pixel_size[cam[chosen]])
+                          products.sigma_px * cams.pixel_size[cam[chosen]])
+    clock.lap("output tables")
+    from .report import match_report  # matplotlib: only once there is something to draw
+
+    files[REPORT_NAME] = match_report(products, project_dir, images_dir)
+    clock.lap("report")
     with OutputReservation(out_dir, inputs) as reservation:
         products.out = reservation.commit(files)
     return products
+
+
+class _Clock:
+    """Seconds per stage, into ``seconds``."""
+
+    def __init__(self, seconds: dict):
+        self.seconds, self.t = seconds, time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self.t
+        self.t = now
 
 
 def _input_paths(project_dir: Path) -> list[Path]:
@@ -208,25 +270,42 @@ def _terrain_height(project: Project, options: MatchOptions) -> float:
 
 
 def _consistent(project: Project, track, photo, plate, h: float, tolerance: float, n_tracks: int) -> np.ndarray:
-    """(n_tracks,) bool: tracks whose rays, each projected onto Z = h with its photo's approximate
-    orientation, lie within ``tolerance`` times the height above the terrain of their mean (a false
-    match that the epipolar test let through, e.g. along the epipolar line of a flat scene, lands
-    hundreds of metres off)."""
+    """(n_tracks,) bool: the tracks whose rays, with the approximate orientations, meet. Each track
+    is intersected (least squares over its rays); it is false when a ray passes further from the
+    intersection than ``tolerance`` times the height above the terrain (approximations within
+    about 3 degrees), when the intersection lies behind a photo, or when it lies further from the
+    terrain height h than HEIGHT_RANGE times the height above it: a false match along the
+    epipolar line of a flat scene passes the epipolar test and its rays do meet, but hundreds of
+    metres above or below the ground (on the flat rendered block of tests/test_match_command.py,
+    7 of 3,857 tracks). A ray's miss distance, unlike its footprint on a plane, does not grow with
+    the relief: tracks on hills seen from two strips are kept."""
     ph, cams = project.photos, project.cameras
     cam = ph.camera_index[photo]
     p = np.concatenate([plate - cams.interior[cam, 1:3], -cams.interior[cam, :1]], 1)
     r = np.einsum("nij,nj->ni", ph.R_ground_from_cam[photo], p)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = (h - ph.xyz0[photo, 2]) / r[:, 2]
-    ground = ph.xyz0[photo, :2] + s[:, None] * r[:, :2]
+    r /= np.linalg.norm(r, axis=1, keepdims=True)
+    O = ph.xyz0[photo]
+    P = np.eye(3) - r[:, :, None] * r[:, None, :]  # projector across each ray
+    A = np.zeros((n_tracks, 3, 3))
+    b = np.zeros((n_tracks, 3))
+    np.add.at(A, track, P)
+    np.add.at(b, track, np.einsum("nij,nj->ni", P, O))
     count = np.bincount(track, minlength=n_tracks)
-    mean = np.stack([np.bincount(track, ground[:, a], n_tracks) for a in range(2)], 1) / np.maximum(count, 1)[:, None]
+    ok = count >= 2
+    X = np.full((n_tracks, 3), np.nan)
+    with np.errstate(invalid="ignore"):
+        good = ok & (np.abs(np.linalg.det(A)) > 1e-12)
+        X[good] = np.linalg.solve(A[good], b[good][..., None])[..., 0]
+    d = X[track] - O
+    miss = np.linalg.norm(d - np.einsum("ni,ni->n", d, r)[:, None] * r, axis=1)
     far = np.zeros(n_tracks)
-    np.maximum.at(far, track, np.linalg.norm(ground - mean[track], axis=1))
-    limit = tolerance * float(np.median(np.abs(ph.xyz0[:, 2] - h)))
-    bad = np.zeros(n_tracks, dtype=bool)
-    np.logical_or.at(bad, track, ~(s > 0))
-    return (far <= limit) & ~bad
+    np.maximum.at(far, track, np.nan_to_num(miss, nan=np.inf))
+    behind = np.zeros(n_tracks, dtype=bool)
+    np.logical_or.at(behind, track, ~(np.einsum("ni,ni->n", d, r) > 0))
+    above = float(np.median(np.abs(ph.xyz0[:, 2] - h)))
+    with np.errstate(invalid="ignore"):
+        level = np.abs(X[:, 2] - h) <= HEIGHT_RANGE * above
+    return good & (far <= tolerance * above) & ~behind & level
 
 
 def _pairs(project: Project, h: float) -> np.ndarray:

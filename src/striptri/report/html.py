@@ -216,6 +216,24 @@ def _inactive_section(summary: RunSummary, unit: "ResidualUnit") -> list[str]:
                    left=2)]
 
 
+def _automatic_section(summary: RunSummary) -> list[str]:
+    """The automatic tie points of striptri match (image_points.csv source auto): how many the
+    gross-error procedure removed and how well the others fit, in pixels (io.sources)."""
+    a = summary.automatic_tie_points
+    if a is None:
+        return []
+    rms = "n/a" if a["rms_px"] is None else f"{a['rms_px']:.3f} px"
+    cards = "".join([_card(f"{a['rays']:,}", "automatic rays"), _card(f"{a['removed']:,}", "removed as gross errors",
+                                                                     "bad" if a["removed"] else ""),
+                     _card(f"{a['points_left']:,} / {a['points']:,}", "tie points left (two rays or more)"),
+                     _card(rms, "image residual RMS of the rays left")])
+    return [_section("automatic"), f"<div class='cards'>{cards}</div>",
+            "<p>The tie points found by <code>striptri match</code> (image_points.csv, source auto). False "
+            "matches are expected among them; the gross-error procedure (--blunders) removes them. The "
+            "residuals of every photo, the automatic rays among them, are drawn under <a href='#residuals'>"
+            "Residuals on the photographs</a>.</p>"]
+
+
 def _checks_section(summary: RunSummary) -> list[str]:
     rows = []
     for k, v in summary.checks.items():
@@ -494,6 +512,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: RunSummary,
                  [_section("check-points"), "<p>Not available (no triangulated points given).</p>"]]
     body += [timed("flagged", lambda: _flagged_section(project, result, w, absw, flagged, flag_text)),
              timed("rejected", lambda: _rejected_section(summary)),
+             _automatic_section(summary),
              _inactive_section(summary, residual_unit(project)),
              _distances_section(project, result, summary, points, distances),
              timed("largest", lambda: _largest_section(project, result, w, absw)),
@@ -519,6 +538,7 @@ def html_report(project: Project, result: AdjustmentResult, summary: RunSummary,
                    and (k != "gnss" or result.layout.gnss_cols is not None)
                    and (k != "film" or project.film is not None)
                    and (k != "inactive" or summary.inactive is not None)
+                   and (k != "automatic" or summary.automatic_tie_points is not None)
                    and (k != "distances" or (project.distances is not None and points is not None)))
     total = time.perf_counter() - t0
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)

@@ -45,6 +45,7 @@ SECTIONS = {  # id -> heading, in the order of the report
     "check-points": "Check points",
     "flagged": "Flagged measurements",
     "rejected": "Rejected measurements (gross errors)",
+    "automatic": "Automatic tie points",  # only for a project of striptri match (io.sources)
     "inactive": "Inactive measurements",  # only when image_points.csv has inactive rows
     "distances": "Distances between points",  # only with distances.csv (striptri.bundle.distances)
     "largest": "Largest normalised residuals",
@@ -150,12 +151,19 @@ def _img(png: bytes, alt: str, caption: str = "") -> str:
     return f"<figure><img alt='{html.escape(alt)}' src='data:image/png;base64,{data}'>{cap}</figure>"
 
 
+# the page's building blocks for the other striptri reports (match.report)
+html_table, figure_html = _table, _img
+
+
 def _section(key: str) -> str:
     return f"<h2 id='{key}'>{SECTIONS[key]}</h2>"
 
 
 def _card(value: str, label: str, cls: str = "") -> str:
     return f"<div class='card {cls}'><div class='v'>{value}</div><div class='k'>{label}</div></div>"
+
+
+card = _card
 
 
 @dataclass(frozen=True)

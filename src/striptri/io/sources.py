@@ -1,0 +1,52 @@
+"""image_points.csv's ``source`` column after the adjustment (issue 28; docs/matching.md): how many
+of the automatic tie points (source auto, written by striptri match) the gross-error procedure
+removed, and how well the others fit, in pixels. summary.json ``automatic_tie_points`` and the
+report's section of the same name."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import numpy as np
+
+from ..model import Project
+
+REMOVED = ("rejected", "inseparable", "dropped")  # residuals.csv flags of a measurement taken out
+
+
+def automatic_rows(project: Project) -> np.ndarray | None:
+    """(m,) bool over project.image_points (the active rows of image_points.csv, in the file's
+    order): True where ``source`` is auto. None without a source column or an auto row."""
+    if project.source is None or not (project.source / "image_points.csv").is_file():
+        return None
+    reader = csv.DictReader(io.StringIO((project.source / "image_points.csv").read_text(encoding="utf-8-sig")))
+    if "source" not in (reader.fieldnames or []):
+        return None
+    rows = [((r.get("source") or "").strip().lower() == "auto",
+             (r.get("active") or "1").strip().lower() not in ("0", "false")) for r in reader]
+    auto = np.array([a for a, active in rows if active], dtype=bool)
+    if len(auto) != len(project.image_points) or not auto.any():
+        return None
+    return auto
+
+
+def summary_entry(project: Project, flags, residuals: np.ndarray) -> dict | None:
+    """summary.json ``automatic_tie_points``: rays (automatic measurements), points, removed (rays
+    the gross-error procedure took out: rejected, inseparable or dropped), points_left (those that
+    still have two rays or more), rms_px (the RMS of the remaining automatic rays' residuals, x and
+    y together, in pixels of their camera). flags: (m,) residuals.csv's flag of each row;
+    residuals: (m, 2) plate units. None for a project without automatic rows."""
+    auto = automatic_rows(project)
+    if auto is None:
+        return None
+    ip, cams = project.image_points, project.cameras
+    removed = np.isin(np.asarray(flags, dtype=object), REMOVED)
+    left = auto & ~removed
+    pixel = np.full(len(ip), np.nan) if cams.pixel_size is None else cams.pixel_size[project.photos.camera_index[ip.photo_index]]
+    v = np.asarray(residuals, dtype=float)[left] / pixel[left, None]
+    rays_left = np.bincount(ip.point_index[left], minlength=len(project.points))
+    points = np.unique(ip.point_index[auto])
+    rms = float(np.sqrt(np.mean(v**2))) if len(v) and np.isfinite(v).all() else None
+    return {"rays": int(auto.sum()), "points": int(len(points)), "removed": int((auto & removed).sum()),
+            "points_left": int((rays_left[points] >= 2).sum()), "rms_px": rms}
