@@ -29,18 +29,9 @@ import numpy as np
 
 from striptri.errors import InputError
 from striptri.formats.bal import parse_number
+from striptri.formats.colmap_models import LAYOUT, MODELS  # noqa: F401  (MODELS: this module's API too)
 from striptri.io.csvtable import read_input_bytes
 
-MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8}
-# where each model keeps fx, fy, cx, cy and the distortion k1, k2, p1, p2 in its parameter list
-# (None: not in the model, 0; fy None: fy = fx)
-_LAYOUT = {
-    "SIMPLE_PINHOLE": (0, None, 1, 2, (None, None, None, None)),
-    "PINHOLE": (0, 1, 2, 3, (None, None, None, None)),
-    "SIMPLE_RADIAL": (0, None, 1, 2, (3, None, None, None)),
-    "RADIAL": (0, None, 1, 2, (3, 4, None, None)),
-    "OPENCV": (0, 1, 2, 3, (4, 5, 6, 7)),
-}
 FILES = ("cameras.txt", "images.txt", "points3D.txt")
 
 
@@ -124,18 +115,32 @@ def quaternion_from_R(R: np.ndarray) -> np.ndarray:
 
 
 def read_colmap(folder: str | Path) -> ColmapModel:
-    """Read cameras.txt, images.txt and points3D.txt of folder. Raises InputError; writes nothing."""
+    """Read the COLMAP model in folder: the binary model (cameras.bin, images.bin, points3D.bin,
+    formats.colmap_binary) where all three are there, as COLMAP itself prefers it, else the text
+    model (cameras.txt, images.txt, points3D.txt). Raises InputError; writes nothing."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, None, "COLMAP model folder not found" if not folder.exists() else "is not a folder")
-    cams = _read_cameras(folder / "cameras.txt")
-    imgs = _read_images(folder / "images.txt", cams["index"])
-    pts = _read_points(folder / "points3D.txt", imgs["index"])
-    known = set(pts["ids"])
-    for i, pid in enumerate(imgs["obs_point3d_id"]):
-        if pid != -1 and pid not in known:
-            raise InputError(folder / "images.txt", imgs["obs_lines"][i], f"POINT3D_ID {pid} is not in points3D.txt")
-    _check_tracks(folder, imgs, pts)
+    if all((folder / f"{name}.bin").is_file() for name in ("cameras", "images", "points3D")):
+        from striptri.formats.colmap_binary import read_binary
+
+        cams, imgs, pts = read_binary(folder)
+        binary = True
+    else:
+        cams = _read_cameras(folder / "cameras.txt")
+        imgs = _read_images(folder / "images.txt", cams["index"])
+        pts = _read_points(folder / "points3D.txt", imgs["index"])
+        binary = False
+    known = np.asarray(sorted(set(pts["ids"])), dtype=np.int64)
+    obs_pid = np.asarray(imgs["obs_point3d_id"], dtype=np.int64)
+    unknown = np.flatnonzero((obs_pid != -1) & ~np.isin(obs_pid, known))
+    if len(unknown):
+        i = int(unknown[0])
+        name = "images.bin" if binary else "images.txt"
+        reason = f"POINT3D_ID {obs_pid[i]} is not in points3D.{'bin' if binary else 'txt'}"
+        raise (InputError(folder / name, None, f"record {imgs['obs_lines'][i]}: {reason}") if binary
+               else InputError(folder / name, imgs["obs_lines"][i], reason))
+    _check_tracks(folder, imgs, pts, binary)
     return ColmapModel(
         camera_ids=np.array(cams["ids"], dtype=np.int64),
         camera_models=cams["models"],
@@ -158,10 +163,17 @@ def read_colmap(folder: str | Path) -> ColmapModel:
     )
 
 
-def _check_tracks(folder: Path, imgs: dict, pts: dict) -> None:
-    """Tracks of points3D.txt against the POINTS2D of images.txt (module doc). InputError naming the
-    file and line of the first disagreement."""
-    images_txt, points_txt = folder / "images.txt", folder / "points3D.txt"
+def _check_tracks(folder: Path, imgs: dict, pts: dict, binary: bool = False) -> None:
+    """Tracks of points3D against the POINTS2D of images (module doc). InputError naming the file
+    and line (the text model) or record (the binary one: the lines below are record numbers) of
+    the first disagreement."""
+    suffix = ".bin" if binary else ".txt"
+    images_txt, points_txt = folder / f"images{suffix}", folder / f"points3D{suffix}"
+    unit = "record" if binary else "line"
+
+    def error(path, where, reason):  # noqa: ANN001
+        return InputError(path, None, f"record {where}: {reason}") if binary else InputError(path, where, reason)
+
     n_img = len(imgs["ids"])
     obs_image = np.asarray(imgs["obs_image"], dtype=np.int64)
     obs_pid = np.asarray(imgs["obs_point3d_id"], dtype=np.int64)
@@ -175,32 +187,32 @@ def _check_tracks(folder: Path, imgs: dict, pts: dict) -> None:
     if len(outside):
         k = int(outside[0])
         img = int(t_image[k])
-        raise InputError(points_txt, int(t_line[k]),
+        raise error(points_txt, int(t_line[k]),
                          f"track entry (IMAGE_ID {imgs['ids'][img]}, POINT2D_IDX {int(t_idx[k])}): image "
-                         f"{imgs['ids'][img]} has {int(count[img])} 2D points in images.txt (line "
-                         f"{imgs['lines'][img]}); is images.txt complete?")
+                         f"{imgs['ids'][img]} has {int(count[img])} 2D points in {images_txt.name} ({unit} "
+                         f"{imgs['lines'][img]}); is {images_txt.name} complete?")
     obs = start[t_image] + t_idx
     wrong = np.flatnonzero(obs_pid[obs] != t_pid)
     if len(wrong):
         k = int(wrong[0])
-        raise InputError(points_txt, int(t_line[k]),
+        raise error(points_txt, int(t_line[k]),
                          f"track of POINT3D_ID {int(t_pid[k])} names 2D point {int(t_idx[k])} of IMAGE_ID "
-                         f"{imgs['ids'][int(t_image[k])]}, whose POINT3D_ID in images.txt (line "
+                         f"{imgs['ids'][int(t_image[k])]}, whose POINT3D_ID in {images_txt.name} ({unit} "
                          f"{imgs['obs_lines'][int(obs[k])]}) is {int(obs_pid[obs[k]])}")
     uses = np.bincount(obs, minlength=len(obs_pid))
     twice = np.flatnonzero(uses > 1)
     if len(twice):
         o = int(twice[0])
         k = int(np.flatnonzero(obs == o)[1])
-        raise InputError(points_txt, int(t_line[k]),
+        raise error(points_txt, int(t_line[k]),
                          f"2D point {int(t_idx[k])} of IMAGE_ID {imgs['ids'][int(t_image[k])]} is in a track twice")
     missing = np.flatnonzero((obs_pid != -1) & (uses == 0))
     if len(missing):
         o = int(missing[0])
         img = int(obs_image[o])
-        raise InputError(images_txt, imgs["obs_lines"][o],
+        raise error(images_txt, imgs["obs_lines"][o],
                          f"2D point {o - int(start[img])} of IMAGE_ID {imgs['ids'][img]} has POINT3D_ID "
-                         f"{int(obs_pid[o])}, but the track of that point in points3D.txt does not name it")
+                         f"{int(obs_pid[o])}, but the track of that point in {points_txt.name} does not name it")
 
 
 def _lines(path: Path) -> list[tuple[int, str]]:
@@ -242,7 +254,7 @@ def _read_cameras(path: Path) -> dict:
             raise InputError(path, n, f"{model} has {MODELS[model]} parameters, found {len(params)}")
         if cid in out["index"]:
             raise InputError(path, n, f"CAMERA_ID {cid} occurs twice")
-        ifx, ify, icx, icy, idist = _LAYOUT[model]
+        ifx, ify, icx, icy, idist = LAYOUT[model]
         f = (params[ifx], params[ifx if ify is None else ify])
         if min(f) <= 0:
             raise InputError(path, n, f"focal length must be > 0, found {' '.join(tokens[4:])} ({model} parameters)")
@@ -355,7 +367,7 @@ def colmap_files(m: ColmapModel) -> dict[str, str]:
             f"# Number of cameras: {len(m.camera_ids)}"]
     for k, cid in enumerate(m.camera_ids):
         model = m.camera_models[k]
-        ifx, ify, icx, icy, idist = _LAYOUT[model]
+        ifx, ify, icx, icy, idist = LAYOUT[model]
         params = [0.0] * MODELS[model]
         params[ifx], params[icx], params[icy] = m.focal[k, 0], m.principal[k, 0], m.principal[k, 1]
         if ify is not None:

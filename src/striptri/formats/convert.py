@@ -65,16 +65,16 @@ class ConvertResult:
 
 def detect_format(src: str | Path) -> str:
     """dbat for an .xml file (a DBAT script), bal for another file, colmap for a folder with
-    cameras.txt, project for one with cameras.csv."""
+    cameras.txt or cameras.bin (a text or binary model), project for one with cameras.csv."""
     src = Path(src)
     if input_present(src) and not src.is_dir():  # a file (a FIFO or a device is refused by its reader)
         return "dbat" if src.suffix.lower() == ".xml" else "bal"
-    if src.is_dir() and input_present(src / "cameras.txt"):  # its reader refuses a folder or a FIFO there
-        return "colmap"
+    if src.is_dir() and (input_present(src / "cameras.txt") or input_present(src / "cameras.bin")):
+        return "colmap"  # its reader refuses a folder or a FIFO there
     if src.is_dir() and input_present(src / "cameras.csv"):
         return "project"
     raise InputError(src, None, "not found" if not src.exists() else
-                     "cannot tell the format (a BAL file, a DBAT script .xml, a COLMAP folder with cameras.txt, "
+                     "cannot tell the format (a BAL file, a DBAT script .xml, a COLMAP folder with cameras.txt or .bin, "
                      "or a project folder with cameras.csv); give --from")
 
 def read_scene(src: str | Path, source_format: str | None = None, pixel_size: float | None = None,
