@@ -148,3 +148,79 @@ def test_image_points_source_must_be_manual_or_auto(block, tmp_path):
     with pytest.raises(InputError, match="'machine' is not one of") as err:
         read_project(project)
     assert err.value.line == 3
+
+
+def _colmap_database(path, project, feats, pairs_matches):
+    """A COLMAP database (the tables striptri reads, as COLMAP's database.cc creates them): images
+    1.. in photo order named <photo_id>.png, keypoints as float32 (x, y, scale, orientation),
+    verified matches as uint32 pairs, config 2 (CALIBRATED)."""
+    import sqlite3
+
+    db = sqlite3.connect(path)
+    db.executescript("""
+        CREATE TABLE images (image_id INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL, name TEXT NOT NULL UNIQUE,
+                             camera_id INTEGER NOT NULL);
+        CREATE TABLE keypoints (image_id INTEGER PRIMARY KEY NOT NULL, rows INTEGER NOT NULL, cols INTEGER NOT NULL,
+                                data BLOB);
+        CREATE TABLE two_view_geometries (pair_id INTEGER PRIMARY KEY NOT NULL, rows INTEGER NOT NULL,
+                                          cols INTEGER NOT NULL, data BLOB, config INTEGER NOT NULL, F BLOB, E BLOB,
+                                          H BLOB, qvec BLOB, tvec BLOB);""")
+    for k, pid in enumerate(project.photos.ids):
+        kp = np.column_stack([feats[k].xy, np.ones(len(feats[k])), np.zeros(len(feats[k]))]).astype(np.float32)
+        db.execute("INSERT INTO images VALUES (?, ?, 1)", (k + 1, f"images/{pid}.png"))
+        db.execute("INSERT INTO keypoints VALUES (?, ?, 4, ?)", (k + 1, len(kp), kp.tobytes()))
+    for (p, q), (i, j) in pairs_matches:
+        m = np.column_stack([i, j]).astype(np.uint32)
+        db.execute("INSERT INTO two_view_geometries (pair_id, rows, cols, data, config) VALUES (?, ?, 2, ?, 2)",
+                   ((p + 1) * 2147483647 + q + 1, len(m), m.tobytes()))
+    db.commit()
+    db.close()
+
+
+def test_a_colmap_database_gives_the_matchers_own_tracks(block, tmp_path):
+    """The features and verified matches of striptri's matcher written into a COLMAP database: read
+    back, they make the same tracks as the matcher's own matches joined in the same order (the
+    database has no descriptor distances), and `striptri match --colmap-database` writes the project."""
+    from striptri.io import read_project
+    from striptri.match.colmap_database import matches_for_project
+    from striptri.match.pair_matching import match_pair
+    from striptri.match.pipeline import MatchOptions, _features, _image_paths, _pairs, _terrain_height
+    from striptri.match.tracks import build_tracks
+
+    project_dir = block / "project"
+    project = read_project(project_dir, plate_measurements_optional=True)
+    options = MatchOptions(scale=0.5, max_features=2000)
+    paths = _image_paths(project, block / "images", project_dir)
+    feats = [_features(path, project, k, options) for k, path in enumerate(paths)]
+    pairs_matches = []
+    for p, q in sorted(map(tuple, _pairs(project, _terrain_height(project, options)).tolist())):
+        m = match_pair(feats[p], feats[q])
+        if len(m.i):
+            pairs_matches.append(((p, q), (m.i, m.j)))
+    database = tmp_path / "database.db"
+    _colmap_database(database, project, feats, pairs_matches)
+
+    found = matches_for_project(database, project, project_dir)
+    offsets = np.cumsum([0] + [len(f) for f in feats])
+    a = np.concatenate([offsets[p] + i for (p, _), (i, _) in pairs_matches])
+    b = np.concatenate([offsets[q] + j for (_, q), (_, j) in pairs_matches])
+    photo_of = np.repeat(np.arange(len(feats)), [len(f) for f in feats])
+    ours, theirs = build_tracks(photo_of, a, b, np.zeros(len(a))), build_tracks(photo_of, found.a, found.b, found.score)
+
+    def partition(tracks):
+        groups = {}
+        for f, t in enumerate(tracks.track.tolist()):
+            if t >= 0:
+                groups.setdefault(t, set()).add(f)
+        return sorted(map(sorted, groups.values()))
+
+    np.testing.assert_array_equal(np.concatenate(found.xy), np.concatenate([f.xy for f in feats]).astype(np.float32))
+    assert ours.n_tracks > 100 and partition(ours) == partition(theirs)
+    run = CliRunner().invoke(main, ["match", str(project_dir), "--colmap-database", str(database), "--out",
+                                    str(tmp_path / "out"), "--sigma-px", "0.3"])
+    assert run.exit_code == 0, run.output
+    rows = list(csv.DictReader((tmp_path / "out" / "image_points.csv").open()))
+    assert len({r["point_id"] for r in rows if r["source"] == "auto"}) >= 6 * 9
+    both = CliRunner().invoke(main, ["match", str(project_dir), "--colmap-database", str(database), "--images",
+                                     str(block / "images"), "--out", str(tmp_path / "o2")])
+    assert both.exit_code == 2 and not (tmp_path / "o2").exists()

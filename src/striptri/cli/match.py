@@ -9,8 +9,11 @@ from striptri.cli.base import main, reports_errors
 
 @main.command()
 @click.argument("project_dir", type=click.Path(file_okay=False))
-@click.option("--images", "images_dir", required=True, type=click.Path(file_okay=False),
+@click.option("--images", "images_dir", default=None, type=click.Path(file_okay=False),
               help="Folder with one image per photo, named <photo_id>.jpg (.png, .tif).")
+@click.option("--colmap-database", "database", default=None, type=click.Path(dir_okay=False),
+              help="Instead of --images: a COLMAP database.db whose keypoints and verified matches are taken "
+                   "(images named <photo_id>.<ext>, or photos.csv's image).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Project folder to write: the inputs, image_points.csv with the automatic tie points appended.")
 @click.option("--scale", type=click.Choice(["1", "0.5", "0.25", "0.125"]), default="0.25", show_default=True,
@@ -25,14 +28,17 @@ from striptri.cli.base import main, reports_errors
               help="Standard deviation of an automatic tie point's image coordinates (pixels) "
                    "[estimated from the verified matches' epipolar residuals].")
 @reports_errors
-def match(project_dir, images_dir, out_dir, scale, max_features, terrain_height, per_cell, sigma_px):
+def match(project_dir, images_dir, database, out_dir, scale, max_features, terrain_height, per_cell, sigma_px):
     """Find tie points in the images of the photos of PROJECT_DIR and write a project to --out that
     `striptri adjust` takes (false matches are expected: adjust it with --blunders snoop)."""
     from striptri.match.pipeline import MatchOptions, run_match
 
+    if (images_dir is None) == (database is None):
+        raise click.UsageError("give --images (find the tie points) or --colmap-database (take COLMAP's matches)")
     options = MatchOptions(scale=float(scale), max_features=max_features, terrain_height=terrain_height,
                            per_cell=per_cell, sigma_px=sigma_px)
-    p = run_match(project_dir, images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True))
+    p = run_match(project_dir, images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True),
+                  database=database)
     click.echo(f"{len(p.features)} photos, median {int(sorted(p.features)[len(p.features) // 2]) if p.features else 0} "
                f"features; {p.verified_pairs} of {p.pairs} pairs verified, {p.matches} matches; {p.tracks} tracks, "
                f"{p.kept_tracks} kept with {p.rays} rays, sigma {p.sigma_px:.3f} px -> {p.out}")

@@ -93,10 +93,14 @@ class MatchProducts:
     seconds: dict = field(default_factory=dict)  # stage -> seconds
 
 
-def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOptions(), on_progress=None) -> MatchProducts:
-    """Match the photos of ``project_dir`` (module doc). InputError for bad input (exit status 2)."""
-    project_dir, images_dir = Path(project_dir), Path(images_dir)
-    inputs = [*_input_paths(project_dir), images_dir]
+def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOptions(), on_progress=None,
+              database=None) -> MatchProducts:
+    """Match the photos of ``project_dir`` (module doc). InputError for bad input (exit status 2).
+    database: instead of images_dir, a COLMAP database whose keypoints and verified matches
+    (two_view_geometries) are taken as they are (match.colmap_database)."""
+    project_dir = Path(project_dir)
+    source = Path(database if database is not None else images_dir)
+    inputs = [*_input_paths(project_dir), source]
     check_output_location(out_dir, inputs)
     project = read_project(project_dir, plate_measurements_optional=True)
     cams = project.cameras
@@ -104,52 +108,39 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         raise InputError(project_dir / "cameras.csv", None, "automatic tie points need digital frame cameras: give "
                          "width_px, height_px and pixel_size of every camera the photos use (scanned film is "
                          "still to come to striptri match)")
-    paths = _image_paths(project, images_dir, project_dir)
     say = on_progress or (lambda text: None)
     products = MatchProducts(photo_ids=list(project.photos.ids), centres=project.photos.xyz0[:, :2].copy())
     clock = _Clock(products.seconds)
-    feats = []
-    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # OpenCV releases the GIL
-        for k, found in enumerate(pool.map(lambda k: _features(paths[k], project, k, options), range(len(paths)))):
-            feats.append(found)
-            products.features.append(len(found))
-            say(f"features: photo {project.photos.ids[k]}: {len(found)}")
-    clock.lap("features")
     height = _terrain_height(project, options)
-    pairs = _pairs(project, height)
-    products.pairs = len(pairs)
-    products.pair_list = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    products.pair_matches = np.zeros(len(pairs), dtype=np.int64)
-    clock.lap("candidate pairs")
-    offsets = np.cumsum([0] + [len(f) for f in feats])
-    photo_of = np.repeat(np.arange(len(feats)), [len(f) for f in feats])
-    a, b, score, epipolar = [], [], [], []
-    for n, (p, q) in enumerate(pairs):
-        m = match_pair(feats[p], feats[q])
-        products.pair_matches[n] = len(m.i)
-        if len(m.i):
-            products.verified_pairs += 1
-            a.append(offsets[p] + m.i), b.append(offsets[q] + m.j), score.append(m.distance)
-            if not m.planar:
-                epipolar.append(m.epipolar)
-    clock.lap("pair matching")
+    if database is None:
+        xy, a, b, score, epipolar = _matched_images(project, project_dir, source, options, products, clock, say, height)
+    else:
+        from .colmap_database import matches_for_project
+
+        found = matches_for_project(source, project, project_dir)
+        xy, a, b, score, epipolar = found.xy, found.a, found.b, found.score, []
+        products.features = [len(x) for x in xy]
+        products.pairs = products.verified_pairs = len(found.pairs)
+        products.pair_list, products.pair_matches = found.pairs, found.pair_matches
+        clock.lap("reading the database")
+        say(f"database: {len(found.pairs)} verified pairs, {len(a)} matches")
     products.sigma_px, how = float(options.sigma_px or "nan"), "given"
     if options.sigma_px is None:
         products.sigma_px, how = sigma_from_epipolar(np.concatenate(epipolar) if epipolar else np.zeros(0)), \
             "estimated from the epipolar residuals"
         if not np.isfinite(products.sigma_px):
-            products.sigma_px, how = FALLBACK_SIGMA_PX, "no pair but planar ones to estimate it from: the default"
+            products.sigma_px, how = FALLBACK_SIGMA_PX, ("the default: no pair but planar ones to estimate it from"
+                                                         if database is None else "the default for a COLMAP database")
     products.sigma_estimated, products.sigma_how = how.startswith("estimated"), how
-    say(f"pairs: {products.verified_pairs} of {len(pairs)} verified; image coordinates to "
+    say(f"pairs: {products.verified_pairs} of {products.pairs} verified; image coordinates to "
         f"{products.sigma_px:.3f} px ({how})")
-    cat = (lambda x: np.concatenate(x) if x else np.zeros(0, dtype=np.int64))  # noqa: E731
-    a, b, score = cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0))
+    photo_of = np.repeat(np.arange(len(xy)), [len(x) for x in xy])
     products.matches = len(a)
     tracks = build_tracks(photo_of, a, b, score)
     products.tracks, products.split = tracks.n_tracks, tracks.split
     rows = np.flatnonzero(tracks.track >= 0)
     products.track_lengths = np.bincount(tracks.track[rows], minlength=tracks.n_tracks)
-    xy_px = np.concatenate([f.xy for f in feats]) if feats else np.zeros((0, 2))
+    xy_px = np.concatenate(xy) if xy else np.zeros((0, 2))
     cam = project.photos.camera_index[photo_of]
     plate = plate_from_pixel(xy_px, cams.size_px[cam], cams.pixel_size[cam])
     half = 0.5 * cams.size_px[project.photos.camera_index] * cams.pixel_size[project.photos.camera_index][:, None]
@@ -173,11 +164,42 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     clock.lap("output tables")
     from .report import match_report  # matplotlib: only once there is something to draw
 
-    files[REPORT_NAME] = match_report(products, project_dir, images_dir)
+    files[REPORT_NAME] = match_report(products, project_dir, source)
     clock.lap("report")
     with OutputReservation(out_dir, inputs) as reservation:
         products.out = reservation.commit(files)
     return products
+
+
+def _matched_images(project, project_dir, images_dir, options, products, clock, say, height):
+    """Features and verified matches from the images: -> (xy per photo, a, b, score, epipolar
+    distances of the non-planar pairs); a, b index the photos' features concatenated."""
+    paths = _image_paths(project, images_dir, project_dir)
+    feats = []
+    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # OpenCV releases the GIL
+        for k, found in enumerate(pool.map(lambda k: _features(paths[k], project, k, options), range(len(paths)))):
+            feats.append(found)
+            products.features.append(len(found))
+            say(f"features: photo {project.photos.ids[k]}: {len(found)}")
+    clock.lap("features")
+    pairs = _pairs(project, height)
+    products.pairs = len(pairs)
+    products.pair_list = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    products.pair_matches = np.zeros(len(pairs), dtype=np.int64)
+    clock.lap("candidate pairs")
+    offsets = np.cumsum([0] + [len(f) for f in feats])
+    a, b, score, epipolar = [], [], [], []
+    for n, (p, q) in enumerate(pairs):
+        m = match_pair(feats[p], feats[q])
+        products.pair_matches[n] = len(m.i)
+        if len(m.i):
+            products.verified_pairs += 1
+            a.append(offsets[p] + m.i), b.append(offsets[q] + m.j), score.append(m.distance)
+            if not m.planar:
+                epipolar.append(m.epipolar)
+    clock.lap("pair matching")
+    cat = (lambda x: np.concatenate(x) if x else np.zeros(0, dtype=np.int64))  # noqa: E731
+    return [f.xy for f in feats], cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0)), epipolar
 
 
 class _Clock:
