@@ -224,3 +224,46 @@ def test_a_colmap_database_gives_the_matchers_own_tracks(block, tmp_path):
     both = CliRunner().invoke(main, ["match", str(project_dir), "--colmap-database", str(database), "--images",
                                      str(block / "images"), "--out", str(tmp_path / "o2")])
     assert both.exit_code == 2 and not (tmp_path / "o2").exists()
+
+
+def test_control_points_get_image_chips_at_their_predicted_positions(block, tmp_path):
+    """Two control points on the flat terrain (Z = 0) and a height point: every photo whose image
+    the approximate orientation puts a plan point in gets a chip, cut from the image around the
+    prediction (chips.csv's col0, row0 place it), the prediction marked; the height point gets none."""
+    import shutil
+
+    from striptri.geometry.camera import project as plate_of
+    from striptri.geometry.pixels import pixel_from_plate
+    from striptri.io import read_project
+
+    project_dir = tmp_path / "project"
+    shutil.copytree(block / "project", project_dir)
+    (project_dir / "control.csv").write_text("point_id,kind,X,Y,Z\nA,XYZ,560,420,0\nB,XY,880,700,0\nH,Z,,,0\n")
+    run = CliRunner().invoke(main, ["match", str(project_dir), "--images", str(block / "images"), "--out",
+                                    str(tmp_path / "out"), "--scale", "0.5", "--features", "1000"])
+    assert run.exit_code == 0, run.output
+    listed = list(csv.DictReader((tmp_path / "out" / "chips" / "chips.csv").open()))
+    project = read_project(project_dir, plate_measurements_optional=True)
+    ph = project.photos
+    expected = set()
+    for point, X in (("A", [560.0, 420.0, 0.0]), ("B", [880.0, 700.0, 0.0])):
+        plate = plate_of(ph.R_ground_from_cam, ph.xyz0, project.cameras.interior[0, :3], np.array(X))
+        colrow = pixel_from_plate(plate, np.array([W, H]), PIXEL)
+        for k in np.flatnonzero(((colrow >= 0) & (colrow <= [W, H])).all(1)):
+            expected.add((point, ph.ids[k], *colrow[k].round(6)))
+    assert {(r["point_id"], r["photo_id"], round(float(r["col"]), 6), round(float(r["row"]), 6)) for r in listed} == expected
+    assert len(expected) >= 4
+    cv2_ = pytest.importorskip("cv2")
+    for r in listed:
+        chip = cv2_.imread(str(tmp_path / "out" / "chips" / r["chip"]), cv2_.IMREAD_COLOR)
+        image = cv2_.imread(str(block / "images" / f"{r['photo_id']}.png"), cv2_.IMREAD_GRAYSCALE)
+        assert chip.shape[:2] == (201, 201)
+        c0, r0 = int(r["col0"]), int(r["row0"])
+        grey = chip[:, :, 0] == chip[:, :, 2]  # the red mark aside, the chip is the image
+        window = np.zeros((201, 201), dtype=np.uint8)
+        a0, b0, a1, b1 = max(c0, 0), max(r0, 0), min(c0 + 201, W), min(r0 + 201, H)
+        window[b0 - r0:b1 - r0, a0 - c0:a1 - c0] = image[b0:b1, a0:a1]
+        assert grey.mean() > 0.97 and np.array_equal(chip[:, :, 0][grey], window[grey])
+        u, v = float(r["col"]) - c0, float(r["row"]) - r0
+        assert 100 <= u <= 101 and 100 <= v <= 101  # the prediction in the chip's middle pixel
+        assert (chip[int(v), int(u) + 10, 2] > chip[int(v), int(u) + 10, 0])  # the mark's arm, red

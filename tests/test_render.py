@@ -14,7 +14,7 @@ from striptri import simulate as sim
 from striptri.geometry.camera import ray_ground
 from striptri.geometry.pixels import plate_from_pixel
 from striptri.io.output import MARKER, OutputReservation
-from striptri.simulate.render import GroundTexture, ground_of_rays, render_photo
+from striptri.simulate.render import GroundTexture, Targets, ground_of_rays, render_photo
 
 
 def _truth():
@@ -105,3 +105,29 @@ def test_staged_files_are_part_of_the_output_or_of_nothing(tmp_path):
             reservation.stage({"images/a.bin": b"\x00"})
             raise KeyboardInterrupt
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_signalised_points_are_painted_where_they_project():
+    """A target on the ground shows in the photo as a white disc centred (the centroid of its
+    brightness) on the control point's projection, within a few hundredths of a pixel."""
+    from striptri.geometry.camera import project as plate_of
+    from striptri.geometry.pixels import pixel_from_plate
+
+    truth = _truth()
+    n, pixel = 300, 230.0 / 300
+    gsd = pixel * 9.87
+    texture = GroundTexture(seed=2, finest=1.5 * gsd, octaves=5)
+    k = 1
+    X = truth.xyz_ground[truth.point_index[truth.photo_index == k][0]]
+    plain = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel, n, truth.terrain, texture)
+    image = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel, n, truth.terrain, texture,
+                         Targets(X[None, :2], 3.0 * gsd))
+    expected = pixel_from_plate(plate_of(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, X), np.array([n, n]), pixel)
+    changed = np.argwhere(np.abs(image - plain) > 1e-9)
+    assert len(changed) and np.abs(changed[:, ::-1] + 0.5 - expected).max() < 2.0 * 3.0 * 1.1  # only around it
+    rows, cols = np.mgrid[0:n, 0:n]
+    # inside the black ring (out to 5.4 px) the photo is the disc alone: 255 x its coverage
+    near = np.hypot(cols + 0.5 - expected[0], rows + 0.5 - expected[1]) < 4.5
+    white = np.where(near, image, 0.0)
+    centroid = np.array([(white * (cols + 0.5)).sum(), (white * (rows + 0.5)).sum()]) / white.sum()
+    assert np.abs(centroid - expected).max() < 0.05

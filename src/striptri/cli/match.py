@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import click
 
 from striptri.cli.base import main, reports_errors
@@ -28,17 +30,18 @@ from striptri.cli.base import main, reports_errors
               help="Standard deviation of an automatic tie point's image coordinates (pixels) "
                    "[estimated from the verified matches' epipolar residuals].")
 @reports_errors
-def match(project_dir, images_dir, database, out_dir, scale, max_features, terrain_height, per_cell, sigma_px):
+def match(project_dir, out_dir, **given):
     """Find tie points in the images of the photos of PROJECT_DIR and write a project to --out that
     `striptri adjust` takes (false matches are expected: adjust it with --blunders snoop)."""
     from striptri.match.pipeline import MatchOptions, run_match
 
-    if (images_dir is None) == (database is None):
+    o = SimpleNamespace(**given)  # the command's options by name
+    if (o.images_dir is None) == (o.database is None):
         raise click.UsageError("give --images (find the tie points) or --colmap-database (take COLMAP's matches)")
-    options = MatchOptions(scale=float(scale), max_features=max_features, terrain_height=terrain_height,
-                           per_cell=per_cell, sigma_px=sigma_px)
-    p = run_match(project_dir, images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True),
-                  database=database)
+    options = MatchOptions(scale=float(o.scale), max_features=o.max_features, terrain_height=o.terrain_height,
+                           per_cell=o.per_cell, sigma_px=o.sigma_px)
+    p = run_match(project_dir, o.images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True),
+                  database=o.database)
     click.echo(f"{len(p.features)} photos, median {int(sorted(p.features)[len(p.features) // 2]) if p.features else 0} "
                f"features; {p.verified_pairs} of {p.pairs} pairs verified, {p.matches} matches; {p.tracks} tracks, "
                f"{p.kept_tracks} kept with {p.rays} rays, sigma {p.sigma_px:.3f} px -> {p.out}")

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..model import Project
+from .image_names import image_column
 
 PAIR_BASE = 2147483647  # COLMAP's kMaxNumImages: pair_id = id1 * PAIR_BASE + id2
 UNUSABLE_CONFIGS = (0, 1, 7)  # UNDEFINED, DEGENERATE, WATERMARK (TwoViewGeometry::ConfigurationType)
@@ -79,10 +80,8 @@ def read_database(path: Path) -> tuple[dict, dict, dict]:
 def matches_for_project(path: Path, project: Project, project_dir: Path) -> DatabaseMatches:
     """The database's keypoints and verified matches for the photos of project (module doc).
     InputError naming a photo without an image in the database, or a match outside its keypoints."""
-    from .pipeline import _image_column
-
     names, keypoints, matches = read_database(path)
-    named = {text: pid for pid, (_, text) in _image_column(project_dir / "photos.csv").items()}
+    named = {text: pid for pid, (_, text) in image_column(project_dir / "photos.csv").items()}
     photo_of = {pid: k for k, pid in enumerate(project.photos.ids)}
     image_photo = {}
     for image_id, name in names.items():

@@ -33,6 +33,7 @@ from .features import Features, cv2_module, detect
 from .pair_matching import match_pair, sigma_from_epipolar
 from .pairs import footprints, overlap_pairs, strip_pairs
 from .thinning import thin_tracks
+from .image_names import image_column
 from .tracks import build_tracks
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
@@ -91,6 +92,7 @@ class MatchProducts:
     ray_plate: np.ndarray | None = None  # (rays, 2) its plate coordinates
     half_format: np.ndarray | None = None  # (n, 2) each photo's half width and height (plate units)
     seconds: dict = field(default_factory=dict)  # stage -> seconds
+    chips: int = 0  # image chips of control points written (match.chips)
 
 
 def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOptions(), on_progress=None,
@@ -112,8 +114,10 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     products = MatchProducts(photo_ids=list(project.photos.ids), centres=project.photos.xyz0[:, :2].copy())
     clock = _Clock(products.seconds)
     height = _terrain_height(project, options)
+    paths = None
     if database is None:
-        xy, a, b, score, epipolar = _matched_images(project, project_dir, source, options, products, clock, say, height)
+        paths = _image_paths(project, source, project_dir)
+        xy, a, b, score, epipolar = _matched_images(project, paths, options, products, clock, say, height)
     else:
         from .colmap_database import matches_for_project
 
@@ -162,6 +166,15 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     files = _output_files(project_dir, project, tracks.track[chosen], photo_of[chosen], plate[chosen],
                           products.sigma_px * cams.pixel_size[cam[chosen]])
     clock.lap("output tables")
+    if paths is not None:  # the control points' chips (match.chips)
+        from .chips import chip_files
+
+        chips = chip_files(project, paths)
+        products.chips = sum(name.endswith(".png") for name in chips)
+        files.update(chips)
+        clock.lap("control point chips")
+        if products.chips:
+            say(f"chips: {products.chips} of control and check points (chips/chips.csv)")
     from .report import match_report  # matplotlib: only once there is something to draw
 
     files[REPORT_NAME] = match_report(products, project_dir, source)
@@ -171,10 +184,10 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     return products
 
 
-def _matched_images(project, project_dir, images_dir, options, products, clock, say, height):
-    """Features and verified matches from the images: -> (xy per photo, a, b, score, epipolar
-    distances of the non-planar pairs); a, b index the photos' features concatenated."""
-    paths = _image_paths(project, images_dir, project_dir)
+def _matched_images(project, paths, options, products, clock, say, height):
+    """Features and verified matches from the images (paths: one per photo): -> (xy per photo, a,
+    b, score, epipolar distances of the non-planar pairs); a, b index the photos' features
+    concatenated."""
     feats = []
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # OpenCV releases the GIL
         for k, found in enumerate(pool.map(lambda k: _features(paths[k], project, k, options), range(len(paths)))):
@@ -228,7 +241,7 @@ def _image_paths(project: Project, images_dir: Path, project_dir: Path) -> list[
     for f in images_dir.iterdir():
         if f.suffix.lower() in IMAGE_EXTENSIONS:
             by_stem.setdefault(f.stem, f)
-    named = _image_column(project_dir / "photos.csv")
+    named = image_column(project_dir / "photos.csv")
     root = images_dir.resolve()
     out = []
     for pid in project.photos.ids:
@@ -248,15 +261,6 @@ def _image_paths(project: Project, images_dir: Path, project_dir: Path) -> list[
             raise InputError(images_dir, None, f"no image of photo '{pid}' (expected {pid}.jpg, .png or .tif, or "
                                                "photos.csv's column image)")
     return out
-
-
-def _image_column(photos_csv: Path) -> dict[str, tuple[int, str]]:
-    """photos.csv's optional ``image`` column: photo_id -> (line, path) where it is not empty."""
-    reader = csv.DictReader(io.StringIO(photos_csv.read_text(encoding="utf-8-sig")))
-    if "image" not in (reader.fieldnames or []):
-        return {}
-    return {r["photo_id"].strip(): (k + 2, r["image"].strip()) for k, r in enumerate(reader)
-            if (r.get("image") or "").strip()}
 
 
 REDUCED = {0.5: "IMREAD_REDUCED_GRAYSCALE_2", 0.25: "IMREAD_REDUCED_GRAYSCALE_4", 0.125: "IMREAD_REDUCED_GRAYSCALE_8"}

@@ -131,14 +131,24 @@ def ground_of_rays(origin: np.ndarray, ray: np.ndarray, terrain: Terrain, tolera
     raise ValueError("a ray does not settle on the terrain (too steep a terrain for the view)")
 
 
+@dataclass(frozen=True)
+class Targets:
+    """Signalised ground points: xy (t, 2) ground X, Y (m); radius of the white disc (m)."""
+
+    xy: np.ndarray
+    radius: float
+
+
 def render_photo(R: np.ndarray, xyz0: np.ndarray, interior: np.ndarray, pixel_size: float, size_px: int,
-                 terrain: Terrain, texture: GroundTexture) -> np.ndarray:
+                 terrain: Terrain, texture: GroundTexture, targets: Targets | None = None) -> np.ndarray:
     """The grey image (size_px, size_px) float of a photo of rotation R (ground from camera),
     centre xyz0 and interior (c, xp, yp), with square pixels of pixel_size plate units: every
     pixel centre's ray to the terrain, the texture there. The rays are followed exactly at nodes
     every _NODE_STEP pixels and interpolated between them by a bicubic interpolating spline (the
     ground position is a smooth function of the pixel: the error is far below a thousandth of a
-    pixel)."""
+    pixel). targets: signalised points, each painted as a white disc of targets.radius metres in
+    a black ring out to 1.8 times that (anti-aliased over a ground pixel), as control points are
+    signalised before a flight."""
     n = size_px
     nodes = np.arange(-2 * _NODE_STEP, n + 3 * _NODE_STEP, _NODE_STEP, dtype=float) + 0.5
     col, row = np.meshgrid(nodes, nodes)
@@ -146,7 +156,18 @@ def render_photo(R: np.ndarray, xyz0: np.ndarray, interior: np.ndarray, pixel_si
     ground = ground_of_rays(xyz0, ray_ground(R, plate, interior[:3]), terrain)
     centres = np.arange(n, dtype=float) + 0.5
     X, Y = (RectBivariateSpline(nodes, nodes, ground[..., a], kx=3, ky=3, s=0)(centres, centres) for a in (0, 1))
-    return texture.grey(X, Y)
+    grey = texture.grey(X, Y)
+    if targets is not None and len(targets.xy) and targets.radius > 0:
+        target_radius, xy = targets.radius, np.asarray(targets.xy, dtype=float)
+        ground_pixel = float(np.hypot(X[0, 1] - X[0, 0], Y[0, 1] - Y[0, 0]))
+        lo, hi = np.array([X.min(), Y.min()]) - 2 * target_radius, np.array([X.max(), Y.max()]) + 2 * target_radius
+        for tx, ty in xy[((xy >= lo) & (xy <= hi)).all(1)]:  # the few in this photo
+            d = np.hypot(X - tx, Y - ty)
+            near = d < 2.0 * target_radius + ground_pixel
+            ring = np.clip((1.8 * target_radius - d[near]) / ground_pixel + 0.5, 0.0, 1.0)
+            disc = np.clip((target_radius - d[near]) / ground_pixel + 0.5, 0.0, 1.0)
+            grey[near] = grey[near] * (1.0 - ring) + 255.0 * disc  # black ring, white disc
+    return grey
 
 
 def to_image(grey: np.ndarray, options: ImageOptions, rng: np.random.Generator) -> np.ndarray:
@@ -189,17 +210,19 @@ def render_images(truth: Truth, format_mm: float, options: ImageOptions, rng: np
                   workers: int | None = None) -> Iterator[tuple[str, bytes]]:
     """Render every photo of the truth: -> (file name ``<photo_id>.png`` or ``.jpg``, its bytes),
     in photo order, a few photos at a time on ``workers`` threads (scipy's interpolation releases
-    the GIL; default: one per core), so that memory holds only the photos in flight."""
+    the GIL; default: one per core), so that memory holds only the photos in flight. Control and
+    check points are signalised: a white disc of 3 ground pixels' radius in a black ring."""
     n = options.size_px
     pixel_size = format_mm / n
     scale = float(np.median(truth.xyz0[:, 2]) - truth.terrain.mean_z) / truth.interior[0]  # m per plate unit
     texture = texture_for(truth.terrain, pixel_size * scale, format_mm * scale, int(rng.integers(2**31)))
     noise_seeds = rng.spawn(len(truth.photo_ids))
+    targets = Targets(truth.xyz_ground[truth.kind != TIE, :2], 3.0 * pixel_size * scale)  # control, check points
     workers = workers or os.cpu_count() or 1
 
     def one(k: int) -> bytes:
         grey = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel_size, n,
-                            truth.terrain, texture)
+                            truth.terrain, texture, targets)
         return encode(to_image(grey, options, noise_seeds[k]), options)
 
     with ThreadPoolExecutor(workers) as pool:
