@@ -60,9 +60,11 @@ def synthetic_mark(kind: str, size_px: int, line_px: float = 3.0, bright: bool =
 
 def find_marks(scan: np.ndarray, fiducials: dict[str, tuple[float, float]], template: np.ndarray,
                px_per_mm: float, search_mm: float = 3.0, min_correlation: float = MIN_CORRELATION,
-               ambiguity: float = AMBIGUITY) -> list[FoundMark]:
+               ambiguity: float = AMBIGUITY, predicted: dict | None = None) -> list[FoundMark]:
     """The fiducial marks of one scan (module doc). scan: (H, W) grey; fiducials: id -> calibrated
-    (x, y) plate mm; template: (h, w) the mark, its centre the template's centre."""
+    (x, y) plate mm; template: (h, w) the mark, its centre the template's centre; predicted:
+    id -> (col, row) where to centre a mark's window instead of the prediction from the scan's
+    centre (find_marks_turned)."""
     cv2 = cv2_module()
     scan = np.asarray(scan, dtype=np.float32)
     template = np.asarray(template, dtype=np.float32)
@@ -71,7 +73,7 @@ def find_marks(scan: np.ndarray, fiducials: dict[str, tuple[float, float]], temp
     half = search_mm * px_per_mm
     out = []
     for fid, (x, y) in fiducials.items():
-        col0, row0 = W / 2.0 + x * px_per_mm, H / 2.0 - y * px_per_mm  # predicted centre
+        col0, row0 = (W / 2.0 + x * px_per_mm, H / 2.0 - y * px_per_mm) if predicted is None else predicted[fid]
         c0, c1 = int(np.floor(col0 - half - tw / 2)), int(np.ceil(col0 + half + tw / 2))
         r0, r1 = int(np.floor(row0 - half - th / 2)), int(np.ceil(row0 + half + th / 2))
         c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, W), min(r1, H)
@@ -101,6 +103,30 @@ def find_marks(scan: np.ndarray, fiducials: dict[str, tuple[float, float]], temp
         col, row = _refined(cv2, window, template, u, v)
         out.append(FoundMark(fid, c0 + col, r0 + row, best))
     return out
+
+
+def find_marks_turned(scan: np.ndarray, fiducials: dict[str, tuple[float, float]], template: np.ndarray,
+                      px_per_mm: float, wide_mm: float = 15.0, narrow_mm: float = 1.5) -> list[FoundMark]:
+    """The marks of a scan that may lie turned (a few degrees) and shifted (a few mm) on the
+    scanner, in two passes: every mark in a wide window about its position predicted from the
+    scan's centre (wide_mm: a 2 degree turn moves a corner mark 150 mm from the centre by 5 mm);
+    a similarity transformation fitted to the marks found (two or more) predicts them all again,
+    and each is searched once more in a narrow window there. The second pass decides: a mark
+    found in the wide window but not in the narrow one (a look-alike in the wide window) is listed
+    as not found, as is every mark when fewer than two were found in the first pass."""
+    first = find_marks(scan, fiducials, template, px_per_mm, wide_mm)
+    ok = [m for m in first if m.found]
+    if len(ok) < 2:
+        return first
+    xy = np.array([fiducials[m.fiducial_id] for m in ok], dtype=float)
+    cr = np.array([(m.col, m.row) for m in ok])
+    # col = a x - b y + c, row = -(b x + a y) + d: a similarity from the plate (y up) to pixels (row down)
+    A = np.zeros((2 * len(ok), 4))
+    A[0::2] = np.column_stack([xy[:, 0], -xy[:, 1], np.ones(len(ok)), np.zeros(len(ok))])
+    A[1::2] = np.column_stack([-xy[:, 1], -xy[:, 0], np.zeros(len(ok)), np.ones(len(ok))])
+    a, b, c, d = np.linalg.lstsq(A, cr.ravel(), rcond=None)[0]
+    predicted = {fid: (a * x - b * y + c, -(b * x + a * y) + d) for fid, (x, y) in fiducials.items()}
+    return find_marks(scan, fiducials, template, px_per_mm, narrow_mm, predicted=predicted)
 
 
 UPSAMPLE = 4  # the refinement correlates the window and the template upsampled this many times

@@ -85,13 +85,15 @@ def distort(xy_ideal: np.ndarray, elements: np.ndarray, iterations: int = 50) ->
     return m + pp
 
 
-def scan_params(n: int, pixel_mm: float, rng: np.random.Generator) -> np.ndarray:
+def scan_params(n: int, pixel_mm: float, rng: np.random.Generator, centre_px: tuple = (6000.0, 6000.0),
+                max_rotation_deg: float = 1.0) -> np.ndarray:
     """One affine scan transformation per photo (q = F(xy), striptri.film.transform): 1/pixel_mm px per
-    mm, rotation up to 1 deg, film shrinkage up to 2e-4 per axis, centre near (6000, -6000) px."""
+    mm, rotation up to max_rotation_deg, film shrinkage up to 2e-4 per axis, the plate origin within
+    30 px of centre_px (col, row)."""
     s = 1.0 / pixel_mm
-    angle = np.radians(rng.uniform(-1, 1, n))
+    angle = np.radians(rng.uniform(-1, 1, n) * max_rotation_deg)
     sx, sy = s * (1 - rng.uniform(0, 2e-4, n)), s * (1 - rng.uniform(0, 2e-4, n))
-    t = np.column_stack([6000 + rng.uniform(-30, 30, n), -6000 + rng.uniform(-30, 30, n)])
+    t = np.column_stack([centre_px[0] + rng.uniform(-30, 30, n), -centre_px[1] + rng.uniform(-30, 30, n)])
     return np.column_stack([t[:, 0], sx * np.cos(angle), -sy * np.sin(angle),
                             t[:, 1], sx * np.sin(angle), sy * np.cos(angle)])
 
