@@ -238,3 +238,11 @@ def test_tracks_whose_rays_do_not_meet_near_the_ground_are_dropped():
     ok = _consistent(project, track, photo, plate, h, 0.10, n + 2)
     assert ok[:n].all()
     assert not ok[n] and not ok[n + 1]
+
+
+def test_thinning_answers_for_every_track_when_the_last_ones_have_no_rays_left():
+    """After the consistency check drops the last tracks, their observations are gone: the answer
+    still has one entry per track (the command broadcast a shorter one against the check's)."""
+    track = np.array([0, 0, 1, 1])
+    keep = thin_tracks(track, np.array([0, 1, 0, 1]), np.zeros((4, 2)), np.ones((2, 2)), n_tracks=4)
+    assert keep.tolist() == [True, True, False, False]

@@ -136,6 +136,7 @@ def study():
     return out
 
 
+@pytest.mark.xdist_group("separability_study")  # one worker makes the study for both tests
 def test_separable_snooping_meets_the_issue_targets(study):
     """>= 95 % of the 68 gross errors rejected (alone or in their inseparable group), false alarms
     <= 1 % of the clean rows outside those groups, check-point RMS (3D, 48 check points over the
@@ -151,6 +152,7 @@ def test_separable_snooping_meets_the_issue_targets(study):
     assert s["worst_rms_ratio"] <= 1.10
 
 
+@pytest.mark.xdist_group("separability_study")
 def test_separable_snooping_is_better_than_the_classic_and_robust(study):
     """Measured: snoop 67/68 with 10 false alarms, classic 63/68 with 11, robust 59/68 with 16."""
     new, classic, rob = study["snoop"], study["snoop-classic"], study["robust"]

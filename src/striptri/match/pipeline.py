@@ -153,7 +153,8 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
                              options.ground_tolerance, tracks.n_tracks)
     products.inconsistent = int((~consistent).sum())
     rows = rows[consistent[tracks.track[rows]]]
-    keep = thin_tracks(tracks.track[rows], photo_of[rows], plate[rows], half, options.cells, options.per_cell)
+    keep = thin_tracks(tracks.track[rows], photo_of[rows], plate[rows], half, options.cells, options.per_cell,
+                       n_tracks=tracks.n_tracks)
     keep &= consistent
     products.kept_tracks = int(keep.sum())
     chosen = rows[keep[tracks.track[rows]]]

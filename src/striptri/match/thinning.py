@@ -14,15 +14,17 @@ import numpy as np
 
 
 def thin_tracks(track: np.ndarray, photo: np.ndarray, xy: np.ndarray, half_format: np.ndarray, cells: int = 3,
-                per_cell: int = 4, score: np.ndarray | None = None) -> np.ndarray:
+                per_cell: int = 4, score: np.ndarray | None = None, n_tracks: int | None = None) -> np.ndarray:
     """(n_tracks,) bool: the tracks kept (module doc).
 
     Per observation (a feature in a track): track (m,) its track (0..n_tracks-1, -1 none), photo
     (m,), xy (m, 2) plate coordinates about the principal point; half_format (n_photos, 2) half
-    the format's width and height; score (m,) smaller is better (None: no preference).
+    the format's width and height; score (m,) smaller is better (None: no preference); n_tracks:
+    the number of tracks (None: the largest track number given, plus one; give it when the last
+    tracks may have no observation here, e.g. after dropping false ones).
     """
     track = np.asarray(track, dtype=np.int64)
-    n_tracks = int(track.max(initial=-1)) + 1
+    n_tracks = int(track.max(initial=-1)) + 1 if n_tracks is None else int(n_tracks)
     use = np.flatnonzero(track >= 0)
     length = np.bincount(track[use], minlength=n_tracks)
     ph = np.asarray(photo, dtype=np.int64)[use]
