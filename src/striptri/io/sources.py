@@ -18,11 +18,14 @@ REMOVED = ("rejected", "inseparable", "dropped")  # residuals.csv flags of a mea
 def automatic_rows(project: Project) -> np.ndarray | None:
     """(m,) bool over project.image_points (the active rows of image_points.csv, in the file's
     order): True where ``source`` is auto. None without a source column or an auto row."""
-    if project.source is None or not (project.source / "image_points.csv").is_file():
+    path = None if project.source is None else project.source / "image_points.csv"
+    if path is None or not path.is_file():
         return None
-    reader = csv.DictReader(io.StringIO((project.source / "image_points.csv").read_text(encoding="utf-8-sig")))
-    if "source" not in (reader.fieldnames or []):
+    with path.open(encoding="utf-8-sig", newline="") as f:  # the header alone decides, for every adjust run
+        header = next(csv.reader(f), [])
+    if "source" not in (h.strip() for h in header):
         return None
+    reader = csv.DictReader(io.StringIO(path.read_text(encoding="utf-8-sig")))
     rows = [((r.get("source") or "").strip().lower() == "auto",
              (r.get("active") or "1").strip().lower() not in ("0", "false")) for r in reader]
     auto = np.array([a for a, active in rows if active], dtype=bool)
