@@ -183,6 +183,7 @@ def test_a_colmap_database_gives_the_matchers_own_tracks(block, tmp_path):
     database has no descriptor distances), and `striptri match --colmap-database` writes the project."""
     from striptri.io import read_project
     from striptri.match.colmap_database import matches_for_project
+    from striptri.match.frames import digital_frames
     from striptri.match.pair_matching import match_pair
     from striptri.match.pipeline import MatchOptions, _features, _image_paths, _pairs, _terrain_height
     from striptri.match.tracks import build_tracks
@@ -193,7 +194,8 @@ def test_a_colmap_database_gives_the_matchers_own_tracks(block, tmp_path):
     paths = _image_paths(project, block / "images", project_dir)
     feats = [_features(path, project, k, options) for k, path in enumerate(paths)]
     pairs_matches = []
-    for p, q in sorted(map(tuple, _pairs(project, _terrain_height(project, options)).tolist())):
+    half = digital_frames(project).half
+    for p, q in sorted(map(tuple, _pairs(project, _terrain_height(project, options), half).tolist())):
         m = match_pair(feats[p], feats[q])
         if len(m.i):
             pairs_matches.append(((p, q), (m.i, m.j)))

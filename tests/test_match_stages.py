@@ -11,7 +11,7 @@ import pytest
 from striptri import simulate as sim
 from striptri.match.pairs import _bilinear, _inside, footprints, overlap_pairs, strip_pairs, GRID
 from striptri.match.thinning import thin_tracks
-from striptri.match.tracks import build_tracks
+from striptri.match.tracks import build_tracks, same_place
 
 
 # ------------------------------------------------------------------------------------------ tracks
@@ -31,6 +31,25 @@ def test_a_track_with_two_features_in_one_photo_is_split_best_match_first():
     # with the false match the best, it is the one kept and 0 is left alone
     t = build_tracks(photo, [0, 2, 3], [2, 3, 1], score=[0.9, 0.2, 0.1])
     assert t.track.tolist() == [-1, 0, 0, 0]
+
+
+def test_twin_keypoints_at_one_place_give_one_track_not_two_nor_a_split():
+    """SIFT's keypoint with two orientations is two features at one place: matched through both
+    twins, the point is one track of two rays (without joining the twins: a split track, or two
+    tracks with the same ray)."""
+    photo = np.array([0, 0, 1, 1, 2])
+    xy = np.array([[10.0, 20.0], [10.0, 20.0], [30.0, 40.0], [30.0, 40.0], [5.0, 5.0]])
+    twin = same_place(photo, xy)
+    np.testing.assert_array_equal(twin, [0, 0, 2, 2, 4])
+    a, b = np.array([0, 1]), np.array([2, 3])  # twin 0 <-> twin 2, twin 1 <-> twin 3
+    apart = build_tracks(photo, a, b)
+    assert apart.n_tracks == 2  # the same ray twice, as two points
+    joined = build_tracks(photo, twin[a], twin[b])
+    assert joined.n_tracks == 1 and (joined.track >= 0).sum() == 2 and joined.split == 0
+    crossed = build_tracks(photo, np.array([0, 1]), np.array([2, 2]))  # both twins to one feature
+    assert crossed.split == 1  # without joining: a track with photo 0 twice
+    # another photo's feature at the same pixel is not a twin
+    assert same_place(np.array([0, 1]), np.array([[1.0, 1.0], [1.0, 1.0]])).tolist() == [0, 1]
 
 
 def test_a_match_within_one_photo_is_refused():

@@ -1,4 +1,5 @@
-"""``striptri match``: automatic tie points for a block of digital frame photographs (docs/matching.md)."""
+"""``striptri match``: automatic tie points for a block of digital frame photographs or film scans
+(docs/matching.md)."""
 
 from __future__ import annotations
 
@@ -29,17 +30,29 @@ from striptri.cli.base import main, reports_errors
 @click.option("--sigma-px", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="Standard deviation of an automatic tie point's image coordinates (pixels) "
                    "[estimated from the verified matches' epipolar residuals].")
+@click.option("--scan-pixel-size", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="Scanned film: the scans' pixel size in micrometres, to find the fiducial marks (needed unless "
+                   "the project has fiducial_measurements.csv).")
+@click.option("--fiducial-mark", default="cross", show_default=True,
+              help="Scanned film: the mark to find, 'cross', 'dot', or an image of one mark cut from a scan "
+                   "(its centre the mark's centre).")
+@click.option("--mark-size", type=click.FloatRange(min=0.0, min_open=True), default=5.0, show_default=True,
+              help="Scanned film: a synthetic cross's extent, tip to tip (mm on the film).")
+@click.option("--mark-line", type=click.FloatRange(min=0.0, min_open=True), default=0.5, show_default=True,
+              help="Scanned film: a synthetic mark's line width, or a dot's diameter (mm on the film).")
 @reports_errors
 def match(project_dir, out_dir, **given):
     """Find tie points in the images of the photos of PROJECT_DIR and write a project to --out that
     `striptri adjust` takes (false matches are expected: adjust it with --blunders snoop)."""
+    from striptri.match.film_scans import FiducialOptions
     from striptri.match.pipeline import MatchOptions, run_match
 
     o = SimpleNamespace(**given)  # the command's options by name
     if (o.images_dir is None) == (o.database is None):
         raise click.UsageError("give --images (find the tie points) or --colmap-database (take COLMAP's matches)")
     options = MatchOptions(scale=float(o.scale), max_features=o.max_features, terrain_height=o.terrain_height,
-                           per_cell=o.per_cell, sigma_px=o.sigma_px)
+                           per_cell=o.per_cell, sigma_px=o.sigma_px,
+                           fiducials=FiducialOptions(o.scan_pixel_size, o.fiducial_mark, o.mark_size, o.mark_line))
     p = run_match(project_dir, o.images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True),
                   database=o.database)
     click.echo(f"{len(p.features)} photos, median {int(sorted(p.features)[len(p.features) // 2]) if p.features else 0} "

@@ -94,6 +94,12 @@ _DEFAULT_OVERLAP = 0.6
               help="With --images: standard deviation of the noise added to the grey values (grey levels).")
 @click.option("--jpeg-quality", type=click.IntRange(1, 100), default=None,
               help="With --images: write JPEG of this quality instead of PNG.")
+@click.option("--film", is_flag=True, default=False,
+              help="With strip --images: scanned film instead of a digital camera: the synthetic film strip "
+                   "(153 mm camera, 60 % overlap, 4 control points at the start only) rendered as scans turned "
+                   "by up to 2 degrees and shifted on the scanner, with fiducial marks; fiducial_measurements.csv "
+                   "is left to striptri match (the true marks in truth/fiducial_marks.csv). Takes --photos, "
+                   "--check-points, --sigma-image and the image options.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @reports_errors
 def simulate(kind, out_dir, seed, **given):
@@ -107,6 +113,8 @@ def simulate(kind, out_dir, seed, **given):
 
     check_output_location(out_dir)
     o = SimpleNamespace(**given)  # the command's options by name
+    if o.film:
+        return _simulate_film_images(kind, out_dir, seed, o)
     if o.images:
         return _simulate_images(kind, out_dir, seed, o)
     if (o.image_size, o.image_noise, o.jpeg_quality) != (1000, 0.0, None):
@@ -130,8 +138,6 @@ def _simulate_images(kind: str, out_dir, seed: int, o: SimpleNamespace) -> None:
     """simulate --images: the project of a digital frame camera, and its photos rendered
     (simulate.render) into OUT/images/, written whole or not at all."""
     from striptri import simulate as sim
-    from striptri.io.csvtable import format_csv
-    from striptri.io.output import OutputReservation
     from striptri.io.project_writer import project_files
     from striptri.match.features import cv2_module
     from striptri.simulate import render
@@ -147,17 +153,60 @@ def _simulate_images(kind: str, out_dir, seed: int, o: SimpleNamespace) -> None:
         raise click.UsageError(str(exc)) from exc
     camera_format = options.design.camera.format
     project = render.digital_project(project, camera_format, image_options)
-    files = project_files(project)
-    files.update({f"truth/{name}": format_csv(columns) for name, columns in tables.items()})
-    with OutputReservation(out_dir) as reservation:
-        for k, (name, data) in enumerate(render.render_images(truth, camera_format, image_options,
-                                                              sim.images_rng(seed))):
-            reservation.stage({f"images/{name}": data})
-            click.echo(f"rendered {k + 1} of {len(project.photos)}: images/{name}", err=True)
-        folder = reservation.commit(files)
+    folder = _write_rendered(out_dir, project_files(project), tables,
+                             render.render_images(truth, camera_format, image_options, sim.images_rng(seed)),
+                             len(project.photos))
     click.echo(f"wrote {folder}: {len(project.photos)} photos rendered ({o.image_size} x {o.image_size} px), "
                f"{len(project.points)} points, {len(project.image_points)} plate measurements of control "
                f"and check points")
+
+
+def _write_rendered(out_dir, files: dict, tables: dict, images, n: int):
+    """OUT: the project's files, its truth tables in truth/ and the rendered images (name, bytes)
+    staged into images/ one by one as they come, all or nothing (io.output.OutputReservation)."""
+    from striptri.io.csvtable import format_csv
+    from striptri.io.output import OutputReservation
+
+    files = {**files, **{f"truth/{name}": format_csv(columns) for name, columns in tables.items()}}
+    with OutputReservation(out_dir) as reservation:
+        for k, (name, data) in enumerate(images):
+            reservation.stage({f"images/{name}": data})
+            click.echo(f"rendered {k + 1} of {n}: images/{name}", err=True)
+        return reservation.commit(files)
+
+
+FILM_OPTIONS = {"film", "images", "photos", "check_points", "sigma_image", "image_size", "image_noise", "jpeg_quality"}
+
+
+def _simulate_film_images(kind: str, out_dir, seed: int, o: SimpleNamespace) -> None:
+    """simulate strip --film --images: the rendered film strip (simulate.film_render), the project
+    of its scans without fiducial measurements, written whole or not at all."""
+    from click.core import ParameterSource
+
+    from striptri.match.features import cv2_module
+    from striptri.simulate import film, film_render, images_rng
+    from striptri.simulate.render import ImageOptions
+
+    ctx = click.get_current_context()
+    others = sorted(name for name in ctx.params if name not in FILM_OPTIONS | {"kind", "out_dir", "seed"}
+                    and ctx.get_parameter_source(name) is not ParameterSource.DEFAULT)
+    if kind != "strip" or not o.images:
+        raise click.UsageError("--film renders a strip of film scans: striptri simulate strip --film --images ...")
+    if others:
+        raise click.UsageError("--film makes the synthetic film strip of striptri.simulate.film; it takes --photos, "
+                               "--check-points, --sigma-image and the image options, not "
+                               + ", ".join("--" + n.replace("_", "-") for n in others))
+    cv2_module()  # the extra images, or a clear message before anything is computed
+    image = ImageOptions(o.image_size, o.image_noise, o.jpeg_quality)
+    options = film_render.film_scan_options(o.photos or 8, o.image_size, o.sigma_image, o.check_points)
+    lens = film.FilmLens()
+    files, tables, truth, params = film.film_files_and_truth(options, lens, seed, rendered=True)
+    folder = _write_rendered(out_dir, files, tables,
+                             film_render.render_film_images(truth, params, lens, options, image, images_rng(seed)),
+                             len(params))
+    click.echo(f"wrote {folder}: {len(params)} film scans rendered ({o.image_size} x {o.image_size} px, "
+               f"{1000 * options.pixel_mm:.0f} um), without fiducial measurements (striptri match "
+               f"--scan-pixel-size {1000 * options.pixel_mm:g} finds them)")
 
 
 def simulate_options(kind: str, o: SimpleNamespace):

@@ -84,9 +84,9 @@ def read_film(files, toml: TomlFile, image_table: CsvTable, cameras: model.Camer
             if not files.present(name):
                 raise InputError(files.path(name), None, f"not found: [film] image_points = 'scan_px' needs {name}")
         fid_table = parse_csv(files.path(FIDUCIALS), files.content(FIDUCIALS))
-        fiducial_xy = _read_fiducials(fid_table, cameras)
+        fiducial_xy = read_fiducials(fid_table, cameras)
         meas_table = parse_csv(files.path(MEASUREMENTS), files.content(MEASUREMENTS))
-        photo_rows, names, xy_plate, q, sigma, measured = _read_measurements(meas_table, photos, fiducial_xy, sigma_px)
+        photo_rows, names, xy_plate, q, sigma, measured = read_measurements(meas_table, photos, fiducial_xy, sigma_px)
         _check_enough(files.path(MEASUREMENTS), kind, photos, photo_rows, measured, image_points)
         for k in np.flatnonzero(fid.undetermined(kind, xy_plate, measured))[:1]:
             raise InputError(files.path(MEASUREMENTS), None,
@@ -123,7 +123,7 @@ def _px_sigma(table: CsvTable, name: str, default: float) -> np.ndarray:
     return np.where(np.isnan(values), default, values)
 
 
-def _read_fiducials(table: CsvTable, cameras: model.Cameras) -> dict:
+def read_fiducials(table: CsvTable, cameras: model.Cameras) -> dict:
     """fiducials.csv: camera_id, fiducial_id, x, y (calibrated, plate mm) -> {camera_index: {fid: (x, y)}}."""
     table.require("camera_id", "fiducial_id", "x", "y")
     if not len(table):
@@ -145,7 +145,7 @@ def _read_fiducials(table: CsvTable, cameras: model.Cameras) -> dict:
     return out
 
 
-def _read_measurements(table: CsvTable, photos: model.Photos, fiducial_xy: dict, sigma_px: float):
+def read_measurements(table: CsvTable, photos: model.Photos, fiducial_xy: dict, sigma_px: float):
     """fiducial_measurements.csv: photo_id, fiducial_id, col, row[, sigma] (scan px) -> the fit's arrays
     for the photos that have measurements (photos.csv order)."""
     table.require("photo_id", "fiducial_id", "col", "row")

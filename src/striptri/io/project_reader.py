@@ -72,11 +72,13 @@ def read_project(folder: str | Path, plate_measurements_optional: bool = False) 
     return _read(_FolderFiles(folder), plate_measurements_optional)
 
 
-def parse_project(files: Mapping[str, str | bytes], folder: str | Path | None = None) -> model.Project:
+def parse_project(files: Mapping[str, str | bytes], folder: str | Path | None = None,
+                  plate_measurements_optional: bool = False) -> model.Project:
     """Read a project from the contents of its files (file name -> text or bytes, as written by
     project_files) with exactly the rules of read_project, in memory. folder: where the files would
-    be, for messages (None: messages name the bare file names). Raises InputError."""
-    return _read(_MemoryFiles(files, None if folder is None else Path(folder)))
+    be, for messages (None: messages name the bare file names); plate_measurements_optional as
+    read_project's. Raises InputError."""
+    return _read(_MemoryFiles(files, None if folder is None else Path(folder)), plate_measurements_optional)
 
 
 class _FolderFiles:

@@ -34,19 +34,35 @@ def automatic_rows(project: Project) -> np.ndarray | None:
     return auto
 
 
+def _pixel_of_photo(project: Project) -> np.ndarray:
+    """(n,) plate units per pixel of each photo: its digital camera's pixel_size, or for a film scan
+    the scale of its fiducial transformation (the root of the linear part's determinant); nan
+    where neither is known."""
+    ph, cams, film = project.photos, project.cameras, project.film
+    pixel = np.full(len(ph.ids), np.nan) if cams.pixel_size is None else cams.pixel_size[ph.camera_index].astype(float)
+    if film is not None and film.fit is not None:
+        from striptri.film import transform
+
+        linear = transform.homography(film.fit.kind, film.fit.params)[:, :2, :2]
+        row_of = {pid: k for k, pid in enumerate(ph.ids)}
+        rows = [row_of[pid] for pid in film.photo_ids]
+        pixel[rows] = 1.0 / np.sqrt(np.abs(np.linalg.det(linear)))
+    return pixel
+
+
 def summary_entry(project: Project, flags, residuals: np.ndarray) -> dict | None:
     """summary.json ``automatic_tie_points``: rays (automatic measurements), points, removed (rays
     the gross-error procedure took out: rejected, inseparable or dropped), points_left (those that
     still have two rays or more), rms_px (the RMS of the remaining automatic rays' residuals, x and
-    y together, in pixels of their camera). flags: (m,) residuals.csv's flag of each row;
+    y together, in pixels of their camera or scan). flags: (m,) residuals.csv's flag of each row;
     residuals: (m, 2) plate units. None for a project without automatic rows."""
     auto = automatic_rows(project)
     if auto is None:
         return None
-    ip, cams = project.image_points, project.cameras
+    ip = project.image_points
     removed = np.isin(np.asarray(flags, dtype=object), REMOVED)
     left = auto & ~removed
-    pixel = np.full(len(ip), np.nan) if cams.pixel_size is None else cams.pixel_size[project.photos.camera_index[ip.photo_index]]
+    pixel = _pixel_of_photo(project)[ip.photo_index]
     v = np.asarray(residuals, dtype=float)[left] / pixel[left, None]
     rays_left = np.bincount(ip.point_index[left], minlength=len(project.points))
     points = np.unique(ip.point_index[auto])

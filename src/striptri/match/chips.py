@@ -9,7 +9,8 @@ point there or confirm a measurement. ``chips/chips.csv`` lists each chip: point
 the predicted position (col, row: image pixels, the top-left pixel's centre at (0.5, 0.5)), the
 chip's file and the image pixel of its top-left corner (col0, row0), so that a position measured
 in the chip, (u, v) in the same convention, is (col0 + u, row0 + v) in the image. The measurements
-go into image_points.csv as plate coordinates as always (striptri.geometry.pixels).
+go into image_points.csv as always: plate coordinates of a digital camera (striptri.geometry.pixels),
+scan pixels of film (the chips of scans are predicted through each scan's fiducial transformation).
 
 A point whose height alone is given (kind Z) has no plan position to predict from and gets no chip.
 """
@@ -19,21 +20,22 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.camera import in_front, project as plate_of
-from ..geometry.pixels import pixel_from_plate
 from ..model import CHECK, FULL, PLAN, Project
 from .features import cv2_module
+from .frames import ImageFrames
 
 CHIP_PX = 201  # the side of a chip (odd: the predicted pixel in the middle)
 MARK = (0, 0, 255)  # red (OpenCV's blue, green, red)
 
 
-def predictions(project: Project) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def predictions(project: Project, frames: ImageFrames) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """-> (point, photo, colrow) of every control or check point with plan coordinates that the
-    approximate orientation of a photo puts inside its image (kind, plan, in front of the camera)."""
+    approximate orientation of a photo puts inside its image area (kind, plan, in front of the
+    camera; frames: the photos' pixels, match.frames)."""
     pts, ph, cams = project.points, project.photos, project.cameras
     xyz = pts.xyz_given
     usable = np.flatnonzero(np.isin(pts.kind, [FULL, PLAN, CHECK]) & np.isfinite(xyz[:, :2]).all(1))
-    if not len(usable) or cams.size_px is None:
+    if not len(usable):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 2))
     point, photo = (g.ravel() for g in np.meshgrid(usable, np.arange(len(ph)), indexing="ij"))
     X = xyz[point].copy()
@@ -42,16 +44,17 @@ def predictions(project: Project) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     cam = ph.camera_index[photo]
     front = in_front(ph.R_ground_from_cam[photo], ph.xyz0[photo], X)
     plate = plate_of(ph.R_ground_from_cam[photo], ph.xyz0[photo], cams.interior[cam, :3], X)
-    colrow = pixel_from_plate(plate, cams.size_px[cam], cams.pixel_size[cam])
-    inside = front & (colrow >= 0).all(1) & (colrow <= cams.size_px[cam]).all(1)
+    colrow = frames.pixel(photo, plate)
+    inside = front & frames.in_image(photo, colrow)
     return point[inside], photo[inside], colrow[inside]
 
 
-def chip_files(project: Project, image_paths: list, chip_px: int = CHIP_PX) -> dict[str, bytes | str]:
+def chip_files(project: Project, frames: ImageFrames, image_paths: list,
+               chip_px: int = CHIP_PX) -> dict[str, bytes | str]:
     """OUT/chips/<point_id>_<photo_id>.png for every prediction, and chips/chips.csv (module doc).
     Each photo's image is read once, at full resolution."""
     cv2 = cv2_module()
-    point, photo, colrow = predictions(project)
+    point, photo, colrow = predictions(project, frames)
     files: dict[str, bytes | str] = {}
     lines = ["point_id,photo_id,col,row,chip,col0,row0"]
     half = chip_px // 2

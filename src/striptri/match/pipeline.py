@@ -8,8 +8,11 @@ the matches into tracks (match.tracks), thin them (match.thinning) and write OUT
 folder, every input file as it was, and image_points.csv with the user's rows (``source`` manual)
 followed by the automatic ones (``source`` auto). OUT is written whole or not at all.
 
-Cameras must be digital frame cameras (cameras.csv width_px, height_px, pixel_size); scanned film
-(fiducial marks found in the scans, match.fiducials) is still to come to the command.
+Cameras are digital frame cameras (cameras.csv width_px, height_px, pixel_size), or the photos are
+film scans (project.toml ``[film] image_points = "scan_px"``): then the fiducial marks are taken from
+fiducial_measurements.csv or found in the scans (match.film_scans), each photo's fiducial
+transformation carries the features to the plate (match.frames), and the automatic rows are written
+in scan pixels like the user's.
 """
 
 from __future__ import annotations
@@ -25,16 +28,17 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..geometry.pixels import plate_from_pixel
 from ..io.output import OutputReservation, check_output_location
-from ..io.project_reader import FILE_NAMES, read_project
+from ..io.project_reader import FILE_NAMES, parse_project, read_project
 from ..model import FULL, HEIGHT, Project
+from . import film_scans
 from .features import Features, cv2_module, detect
+from .frames import FiducialMeasurements, digital_frames, film_frames
 from .pair_matching import match_pair, sigma_from_epipolar
 from .pairs import footprints, overlap_pairs, strip_pairs
 from .thinning import thin_tracks
 from .image_names import image_column
-from .tracks import build_tracks
+from .tracks import build_tracks, same_place
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 REPORT_NAME = "match_report.html"  # the matching report, in OUT beside the project files
@@ -61,6 +65,7 @@ class MatchOptions:
     per_cell: int = 4
     sigma_px: float | None = None
     ground_tolerance: float = 0.10
+    fiducials: film_scans.FiducialOptions = film_scans.FiducialOptions()
 
 
 @dataclass
@@ -93,6 +98,8 @@ class MatchProducts:
     half_format: np.ndarray | None = None  # (n, 2) each photo's half width and height (plate units)
     seconds: dict = field(default_factory=dict)  # stage -> seconds
     chips: int = 0  # image chips of control points written (match.chips)
+    fiducials: list | None = None  # film: per photo (id, marks, of, largest residual px, sigma0, not found)
+    fiducials_found: bool = False  # film: the marks were found in the scans (not given)
 
 
 def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOptions(), on_progress=None,
@@ -104,12 +111,28 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     source = Path(database if database is not None else images_dir)
     inputs = [*_input_paths(project_dir), source]
     check_output_location(out_dir, inputs)
-    project = read_project(project_dir, plate_measurements_optional=True)
-    cams = project.cameras
-    if cams.size_px is None or not np.isfinite(cams.size_px[project.photos.camera_index]).all():
-        raise InputError(project_dir / "cameras.csv", None, "automatic tie points need digital frame cameras: give "
-                         "width_px, height_px and pixel_size of every camera the photos use (scanned film is "
-                         "still to come to striptri match)")
+    film = film_scans.film_setting(project_dir)
+    scans = None
+    if film is None:
+        project = read_project(project_dir, plate_measurements_optional=True)
+        cams = project.cameras
+        if cams.size_px is None or not np.isfinite(cams.size_px[project.photos.camera_index]).all():
+            raise InputError(project_dir / "cameras.csv", None, "automatic tie points need digital frame cameras "
+                             "(give width_px, height_px and pixel_size of every camera the photos use) or scanned "
+                             "film (project.toml [film] image_points = \"scan_px\", with fiducials.csv)")
+    else:
+        if database is not None:
+            raise InputError(source, None, "a project of scanned film takes its tie points from the scans: give "
+                                           "--images (the fiducial marks are found there too)")
+        project, files_read = film_scans.read_film_project(project_dir)
+        scans = _Scans(film, files_read, film_scans.calibrated_fiducials(project_dir, files_read, project),
+                       options.fiducials)
+        if film_scans.MEASUREMENTS in files_read:
+            scans.given = film_scans.given_measurements(project_dir, files_read, project, scans.fiducials, film)
+        elif options.fiducials.pixel_size_um is None:
+            raise InputError(project_dir / film_scans.MEASUREMENTS, None,
+                             "not found, so the fiducial marks are to be found in the scans: give "
+                             "--scan-pixel-size (the scans' pixel size in micrometres, e.g. 15)")
     say = on_progress or (lambda text: None)
     products = MatchProducts(photo_ids=list(project.photos.ids), centres=project.photos.xyz0[:, :2].copy())
     clock = _Clock(products.seconds)
@@ -117,12 +140,14 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     paths = None
     if database is None:
         paths = _image_paths(project, source, project_dir)
-        xy, a, b, score, epipolar = _matched_images(project, paths, options, products, clock, say, height)
+        xy, a, b, score, epipolar, frames = _matched_images(project, paths, options, products, clock, say, height,
+                                                            scans)
     else:
         from .colmap_database import matches_for_project
 
         found = matches_for_project(source, project, project_dir)
         xy, a, b, score, epipolar = found.xy, found.a, found.b, found.score, []
+        frames = digital_frames(project)
         products.features = [len(x) for x in xy]
         products.pairs = products.verified_pairs = len(found.pairs)
         products.pair_list, products.pair_matches = found.pairs, found.pair_matches
@@ -139,21 +164,20 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     say(f"pairs: {products.verified_pairs} of {products.pairs} verified; image coordinates to "
         f"{products.sigma_px:.3f} px ({how})")
     photo_of = np.repeat(np.arange(len(xy)), [len(x) for x in xy])
+    xy_px = np.concatenate(xy) if xy else np.zeros((0, 2))
     products.matches = len(a)
-    tracks = build_tracks(photo_of, a, b, score)
+    twin = same_place(photo_of, xy_px)  # one feature per place: SIFT's orientations of one keypoint
+    tracks = build_tracks(photo_of, twin[a], twin[b], score)
     products.tracks, products.split = tracks.n_tracks, tracks.split
     rows = np.flatnonzero(tracks.track >= 0)
     products.track_lengths = np.bincount(tracks.track[rows], minlength=tracks.n_tracks)
-    xy_px = np.concatenate(xy) if xy else np.zeros((0, 2))
-    cam = project.photos.camera_index[photo_of]
-    plate = plate_from_pixel(xy_px, cams.size_px[cam], cams.pixel_size[cam])
-    half = 0.5 * cams.size_px[project.photos.camera_index] * cams.pixel_size[project.photos.camera_index][:, None]
-    products.half_format = half
+    plate = frames.plate(photo_of, xy_px) if len(xy_px) else np.zeros((0, 2))
+    products.half_format = frames.half
     consistent = _consistent(project, tracks.track[rows], photo_of[rows], plate[rows], height,
                              options.ground_tolerance, tracks.n_tracks)
     products.inconsistent = int((~consistent).sum())
     rows = rows[consistent[tracks.track[rows]]]
-    keep = thin_tracks(tracks.track[rows], photo_of[rows], plate[rows], half, options.cells, options.per_cell,
+    keep = thin_tracks(tracks.track[rows], photo_of[rows], plate[rows], frames.half, options.cells, options.per_cell,
                        n_tracks=tracks.n_tracks)
     keep &= consistent
     products.kept_tracks = int(keep.sum())
@@ -164,18 +188,25 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     clock.lap("tracks and thinning")
     say(f"tracks: {tracks.n_tracks} ({tracks.split} split, {products.inconsistent} off the approximate "
         f"orientations), {products.kept_tracks} kept, {products.rays} rays")
-    files = _output_files(project_dir, project, tracks.track[chosen], photo_of[chosen], plate[chosen],
-                          products.sigma_px * cams.pixel_size[cam[chosen]])
+    if frames.units == "plate":  # digital: plate coordinates and sigmas in plate units
+        measured, sigma = plate[chosen], products.sigma_px * frames.mm_per_px[photo_of[chosen]]
+    else:  # film: scan pixels (col, row), sigmas in pixels
+        measured, sigma = xy_px[chosen], np.full(len(chosen), products.sigma_px)
+    files = _output_files(project_dir, project, tracks.track[chosen], photo_of[chosen], measured, sigma)
+    if scans is not None and scans.found is not None:
+        files[film_scans.MEASUREMENTS] = film_scans.measurements_csv(project, scans.found)
     clock.lap("output tables")
     if paths is not None:  # the control points' chips (match.chips)
         from .chips import chip_files
 
-        chips = chip_files(project, paths)
+        chips = chip_files(project, frames, paths)
         products.chips = sum(name.endswith(".png") for name in chips)
         files.update(chips)
         clock.lap("control point chips")
         if products.chips:
             say(f"chips: {products.chips} of control and check points (chips/chips.csv)")
+    if scans is not None:  # OUT must read as a whole project: the fiducials carry every image point
+        parse_project({k: v for k, v in files.items() if k in FILE_NAMES}, project_dir)
     from .report import match_report  # matplotlib: only once there is something to draw
 
     files[REPORT_NAME] = match_report(products, project_dir, source)
@@ -185,18 +216,58 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     return products
 
 
-def _matched_images(project, paths, options, products, clock, say, height):
+@dataclass
+class _Scans:
+    """A project of scanned film (match.film_scans): its setting, input files and calibrated
+    fiducials; the marks given (fiducial_measurements.csv) or found in the scans (per photo)."""
+
+    setting: film_scans.FilmSetting
+    files: dict
+    fiducials: dict
+    options: film_scans.FiducialOptions
+    given: FiducialMeasurements | None = None
+    found: list | None = None
+
+
+def _matched_images(project, paths, options, products, clock, say, height, scans=None):
     """Features and verified matches from the images (paths: one per photo): -> (xy per photo, a,
-    b, score, epipolar distances of the non-planar pairs); a, b index the photos' features
-    concatenated."""
-    feats = []
+    b, score, epipolar distances of the non-planar pairs, the ImageFrames); a, b index the photos'
+    features concatenated. Scans (film): the fiducial marks are found in the same read of each
+    scan, unless given, and the features outside the image area (frame, film base, marks) dropped."""
+    ids = project.photos.ids
+    if scans is None:
+        work = (lambda k: (_features(paths[k], project, k, options), None))  # noqa: E731
+    else:
+        work = (lambda k: _scan_features(paths[k], project, k, options, scans))  # noqa: E731
+    feats, marks = [], []
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # OpenCV releases the GIL
-        for k, found in enumerate(pool.map(lambda k: _features(paths[k], project, k, options), range(len(paths)))):
+        for k, (found, found_marks) in enumerate(pool.map(work, range(len(paths)))):
             feats.append(found)
+            marks.append(found_marks)
             products.features.append(len(found))
-            say(f"features: photo {project.photos.ids[k]}: {len(found)}")
-    clock.lap("features")
-    pairs = _pairs(project, height)
+            text = f"features: photo {ids[k]}: {len(found)}"
+            if found_marks is not None:
+                missed = [f"{m.fiducial_id} ({m.reason})" for m in found_marks if not m.found]
+                text += (f"; fiducial marks: {len(found_marks) - len(missed)} of {len(found_marks)}"
+                         + (f", not found: {', '.join(missed)}" if missed else ""))
+            say(text)
+    clock.lap("features" if scans is None else "features and fiducial marks")
+    if scans is None:
+        frames = digital_frames(project)
+    else:
+        if scans.given is None:
+            scans.found = marks
+            measurements = film_scans.found_measurements(project, scans.fiducials, scans.setting, marks, paths)
+        else:
+            measurements = scans.given
+        frames, fit = film_frames(measurements)
+        products.fiducials = _fiducial_summary(project, measurements, fit, marks if scans.given is None else None)
+        products.fiducials_found = scans.given is None
+        for k, f in enumerate(feats):  # only the image area: the frame and the marks are alike in every scan
+            inside = frames.in_image(np.full(len(f), k), f.xy) if len(f) else np.zeros(0, dtype=bool)
+            feats[k] = Features(f.xy[inside], f.descriptors[inside], f.size[inside])
+            products.features[k] = int(inside.sum())
+    pairs = _pairs(project, height, frames.half)
     products.pairs = len(pairs)
     products.pair_list = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     products.pair_matches = np.zeros(len(pairs), dtype=np.int64)
@@ -213,7 +284,21 @@ def _matched_images(project, paths, options, products, clock, say, height):
                 epipolar.append(m.epipolar)
     clock.lap("pair matching")
     cat = (lambda x: np.concatenate(x) if x else np.zeros(0, dtype=np.int64))  # noqa: E731
-    return [f.xy for f in feats], cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0)), epipolar
+    return ([f.xy for f in feats], cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0)), epipolar,
+            frames)
+
+
+def _fiducial_summary(project, marks: FiducialMeasurements, fit, found) -> list:
+    """Per photo for the report: (photo_id, marks measured, marks of the camera, the fit's largest
+    residual (px), sigma0, the marks not found with the reason ('' where given))."""
+    out = []
+    for k, pid in enumerate(project.photos.ids):
+        total = sum(bool(n) for n in marks.names[k])
+        v = fit.v[k][marks.measured[k]]
+        largest = float(np.sqrt((v ** 2).sum(1)).max()) if len(v) else float("nan")
+        missed = "" if found is None else "; ".join(f"{m.fiducial_id}: {m.reason}" for m in found[k] if not m.found)
+        out.append((pid, int(marks.measured[k].sum()), total, largest, float(fit.sigma0[k]), missed))
+    return out
 
 
 class _Clock:
@@ -265,6 +350,21 @@ def _image_paths(project: Project, images_dir: Path, project_dir: Path) -> list[
 
 
 REDUCED = {0.5: "IMREAD_REDUCED_GRAYSCALE_2", 0.25: "IMREAD_REDUCED_GRAYSCALE_4", 0.125: "IMREAD_REDUCED_GRAYSCALE_8"}
+
+
+def _scan_features(path: Path, project: Project, k: int, options: MatchOptions, scans: _Scans):
+    """A film scan read once at full resolution: its fiducial marks (unless given) and its
+    features at ``options.scale`` (match.film_scans) -> (Features, [FoundMark] or None)."""
+    cv2 = cv2_module()
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError(path, None, "not an image OpenCV can read")
+    marks = None
+    if scans.given is None:
+        camera = scans.fiducials[int(project.photos.camera_index[k])]
+        px_per_mm = 1000.0 / float(scans.options.pixel_size_um)
+        marks = film_scans.find_in_scan(image, camera, film_scans.template(scans.options, px_per_mm), scans.options)
+    return detect(image, options.scale, options.max_features), marks
 
 
 def _features(path: Path, project: Project, k: int, options: MatchOptions) -> Features:
@@ -335,11 +435,11 @@ def _consistent(project: Project, track, photo, plate, h: float, tolerance: floa
     return good & (far <= tolerance * above) & ~behind & level
 
 
-def _pairs(project: Project, h: float) -> np.ndarray:
-    """Candidate pairs: footprints at the terrain height h, else the strips (match.pairs)."""
+def _pairs(project: Project, h: float, half: np.ndarray) -> np.ndarray:
+    """Candidate pairs: footprints at the terrain height h, else the strips (match.pairs); half (n,
+    2) each photo's half format (plate units)."""
     ph, cams = project.photos, project.cameras
     cam = ph.camera_index
-    half = 0.5 * cams.size_px[cam] * cams.pixel_size[cam][:, None]
     try:
         fp = footprints(ph.R_ground_from_cam, ph.xyz0, cams.interior[cam, :3], half, h)
     except ValueError:
@@ -349,7 +449,9 @@ def _pairs(project: Project, h: float) -> np.ndarray:
 
 def _output_files(project_dir: Path, project: Project, track, photo, plate, sigma) -> dict[str, bytes | str]:
     """Every input file as it is, and image_points.csv with the user's rows (source manual) and the
-    automatic ones (source auto; point ids auto_<n>, unused by the project)."""
+    automatic ones (source auto; point ids auto_<n>, unused by the project). plate, sigma: the
+    automatic rows' x, y and sigma in the units of the project's image points (plate, or scan
+    pixels)."""
     files: dict[str, bytes | str] = {}
     for name in FILE_NAMES:
         f = project_dir / name

@@ -51,6 +51,7 @@ def match_report(p, project_dir, images_dir) -> str:
         (f"<p>{p.chips} image chips of control and check points, each around the position the approximate "
          "orientations predict (marked), are in chips/ with chips/chips.csv: measure or confirm the points there "
          "and give the measurements in image_points.csv.</p>" if p.chips else ""),
+        _fiducial_section(p),
         "<h2 id='stages'>Time per stage</h2>",
         html_table(["stage", "seconds"], [[html.escape(k), f"{v:.2f}"] for k, v in p.seconds.items()], left=1),
         "<h2 id='pairs'>Pairs</h2>",
@@ -70,6 +71,30 @@ def match_report(p, project_dir, images_dir) -> str:
         "(source auto).</footer></main></body></html>",
     ]
     return "\n".join(parts)
+
+
+def _fiducial_section(p) -> str:
+    """Film scans: the fiducial marks of each photo, the fit's largest residual and sigma0, and every
+    mark that was not found with the reason (the rows with missing marks first)."""
+    if not p.fiducials:
+        return ""
+    found = p.fiducials_found
+    order = sorted(range(len(p.fiducials)), key=lambda k: (p.fiducials[k][1] - p.fiducials[k][2], k))
+    if len(order) > MAX_PHOTO_ROWS:
+        order = order[:MAX_PHOTO_ROWS // 2]
+    rows = [[html.escape(pid), f"{m} of {total}", f"{largest:.3f}", "n/a" if not np.isfinite(s0) else f"{s0:.2f}",
+             html.escape(missed) or "&ndash;"]
+            for pid, m, total, largest, s0, missed in (p.fiducials[k] for k in order)]
+    missing = sum(row[2] - row[1] for row in p.fiducials)
+    how = ("found in the scans by normalised cross-correlation (written to fiducial_measurements.csv; a mark "
+           "not found is left out, never guessed)" if found else "taken from the project's fiducial_measurements.csv")
+    return ("<h2 id='fiducials'>Fiducial marks</h2>"
+            f"<p>The fiducial marks were {how}. "
+            + ("Every mark was found. " if not missing else f"{missing} mark(s) missing in all. ")
+            + "Each scan's fiducial "
+            "transformation, fitted to its marks, carries the features to the plate.</p>"
+            + html_table(["photo", "marks", "largest residual (px)", "sigma0", "not found"], rows, left=1,
+                         row_classes=["bad" if p.fiducials[k][1] < p.fiducials[k][2] else "" for k in order]))
 
 
 def _spread(photo, plate, half, n) -> np.ndarray:

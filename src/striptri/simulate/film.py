@@ -72,6 +72,9 @@ class FilmOptions:
     sigma_fiducial_px: float = 0.5
     transformation: str = "affine"
     n_check: int = 6
+    scan_centre_px: tuple = (6000.0, 6000.0)
+    scan_offset_px: float = 30.0
+    max_rotation_deg: float = 1.0
 
 
 def distort(xy_ideal: np.ndarray, elements: np.ndarray, iterations: int = 50) -> np.ndarray:
@@ -86,20 +89,22 @@ def distort(xy_ideal: np.ndarray, elements: np.ndarray, iterations: int = 50) ->
 
 
 def scan_params(n: int, pixel_mm: float, rng: np.random.Generator, centre_px: tuple = (6000.0, 6000.0),
-                max_rotation_deg: float = 1.0) -> np.ndarray:
+                max_rotation_deg: float = 1.0, offset_px: float = 30.0) -> np.ndarray:
     """One affine scan transformation per photo (q = F(xy), striptri.film.transform): 1/pixel_mm px per
     mm, rotation up to max_rotation_deg, film shrinkage up to 2e-4 per axis, the plate origin within
-    30 px of centre_px (col, row)."""
+    offset_px of centre_px (col, row)."""
     s = 1.0 / pixel_mm
     angle = np.radians(rng.uniform(-1, 1, n) * max_rotation_deg)
     sx, sy = s * (1 - rng.uniform(0, 2e-4, n)), s * (1 - rng.uniform(0, 2e-4, n))
-    t = np.column_stack([centre_px[0] + rng.uniform(-30, 30, n), -centre_px[1] + rng.uniform(-30, 30, n)])
+    t = np.column_stack([centre_px[0] + rng.uniform(-offset_px, offset_px, n),
+                         -centre_px[1] + rng.uniform(-offset_px, offset_px, n)])
     return np.column_stack([t[:, 0], sx * np.cos(angle), -sy * np.sin(angle),
                             t[:, 1], sx * np.sin(angle), sy * np.cos(angle)])
 
 
 def film_truth(options: FilmOptions, lens: FilmLens, seed: int):
-    """(exact project in plate mm with the true ideal plates, truth tables, scan parameters (P, 6))."""
+    """(exact project in plate mm with the true ideal plates, truth tables, scan parameters (P, 6),
+    the noise stream, the Truth)."""
     streams = np.random.SeedSequence(seed).spawn(2)
     rng = np.random.default_rng(streams[0])
     el = lens.elements()
@@ -114,7 +119,9 @@ def film_truth(options: FilmOptions, lens: FilmLens, seed: int):
     kind[far] = model.TIE
     truth = replace(truth, kind=kind)
     project = perturb(truth, NoiseOptions(sigma_image=0.0, stated_sigma_image=0.005), rng)
-    return project, truth_tables(truth), scan_params(options.n_photos, options.pixel_mm, rng), streams[1]
+    params = scan_params(options.n_photos, options.pixel_mm, rng, options.scan_centre_px, options.max_rotation_deg,
+                         options.scan_offset_px)
+    return project, truth_tables(truth), params, streams[1], truth
 
 
 def film_project_files(options: FilmOptions = FilmOptions(), lens: FilmLens = FilmLens(), seed: int = 16,
@@ -127,7 +134,18 @@ def film_project_files(options: FilmOptions = FilmOptions(), lens: FilmLens = Fi
     Scans: image points and fiducials through the lens (distort) and each photo's scan
     transformation, plus Gaussian noise (sigma_point_px, sigma_fiducial_px) from the noise stream.
     """
-    project, truth, params, noise_stream = film_truth(options, lens, seed)
+    files, truth, _, _ = film_files_and_truth(options, lens, seed, noise_seed)
+    return files, truth
+
+
+def film_files_and_truth(options: FilmOptions = FilmOptions(), lens: FilmLens = FilmLens(), seed: int = 16,
+                         noise_seed: int | None = None, rendered: bool = False):
+    """film_project_files' (files, truth tables), and the Truth and scan parameters (P, 6).
+    rendered: the project of rendered scans (simulate.film_render): image_points.csv keeps only the
+    control and check points (the tie points are left to striptri match), fiducial_measurements.csv
+    is left out (the marks are to be found in the scans) and the truth gets fiducial_marks.csv, the
+    marks' true scan positions (photo_id, fiducial_id, col, row)."""
+    project, truth, params, noise_stream, true = film_truth(options, lens, seed)
     rng = np.random.default_rng(noise_stream if noise_seed is None else noise_seed)
     el = lens.elements()
     ip = project.image_points
@@ -160,7 +178,18 @@ def film_project_files(options: FilmOptions = FilmOptions(), lens: FilmLens = Fi
     truth = dict(truth)
     truth["scans.csv"] = {"photo_id": list(project.photos.ids),
                           **{f"a{j}": params[:, j] for j in range(3)}, **{f"b{j}": params[:, 3 + j] for j in range(3)}}
-    return files, truth
+    if rendered:
+        keep = project.points.kind[ip.point_index] != model.TIE
+        files["image_points.csv"] = format_csv({
+            "photo_id": [project.photos.ids[p] for p in ip.photo_index[keep]],
+            "point_id": [point_ids[p] for p in ip.point_index[keep]],
+            "x": np.round(colrow[keep, 0], 4), "y": np.round(colrow[keep, 1], 4)})
+        del files["fiducial_measurements.csv"]
+        exact = transform.colrow_from_q(qf)
+        truth["fiducial_marks.csv"] = {"photo_id": [pid for pid in project.photos.ids for _ in FIDUCIAL_IDS],
+                                       "fiducial_id": list(FIDUCIAL_IDS) * n,
+                                       "col": exact[..., 0].ravel(), "row": exact[..., 1].ravel()}
+    return files, truth, true, params
 
 
 def calibration_toml(lens: FilmLens) -> str:

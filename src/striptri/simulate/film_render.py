@@ -15,6 +15,8 @@ interpolated between them by bicubic splines.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,8 +25,10 @@ from scipy.interpolate import RectBivariateSpline
 from ..film import transform
 from ..geometry.camera import ray_ground
 from ..geometry.lens import NCP, brown
-from .render import GroundTexture, ground_of_rays
+from . import film
+from .render import GroundTexture, ImageOptions, encode, ground_of_rays, in_batches, texture_for, to_image
 from .terrain import Terrain
+from .truth import Truth
 
 IMAGE_HALF_MM = 110.0  # the exposed image area: |x|, |y| below this (a 230 mm format's frame)
 SURROUND_MM = 7.0  # the unexposed film about each fiducial
@@ -98,3 +102,39 @@ def fiducial_truth(scan: Scan) -> np.ndarray:
     """(f, 2) the true scan pixels (col, row) of the fiducial marks' centres."""
     q, _, _ = transform.scan_from_plate("affine", scan.params[None], scan.fiducials[None])
     return transform.colrow_from_q(q[0])
+
+
+SCAN_SPAN_MM = 260.0  # a rendered scan's side on the film: the 230 mm frame, the fiducials and a margin
+OFFSET_MM = 3.0  # the film's plate origin lies within this of the scan's centre
+
+
+def film_scan_options(n_photos: int, size_px: int, sigma_image_mm: float, n_check: int) -> film.FilmOptions:
+    """The film strip of ``striptri simulate strip --film --images``: scans of size_px x size_px
+    covering SCAN_SPAN_MM of film, turned by up to 2 degrees and shifted by up to OFFSET_MM; the
+    control points' measurements to sigma_image_mm on the film (in scan pixels)."""
+    pixel_mm = SCAN_SPAN_MM / size_px
+    sigma_px = max(sigma_image_mm / pixel_mm, 1e-4)
+    return film.FilmOptions(n_photos=n_photos, pixel_mm=pixel_mm, sigma_point_px=sigma_px, sigma_fiducial_px=sigma_px,
+                            n_check=n_check, scan_centre_px=(size_px / 2.0, size_px / 2.0),
+                            scan_offset_px=OFFSET_MM / pixel_mm, max_rotation_deg=2.0)
+
+
+def render_film_images(truth: Truth, params: np.ndarray, lens: film.FilmLens, options: film.FilmOptions,
+                       image: ImageOptions, rng: np.random.Generator,
+                       workers: int | None = None) -> Iterator[tuple[str, bytes]]:
+    """The scans of a film strip (film.film_files_and_truth's truth and scan parameters): ->
+    (file name ``<photo_id>.png`` or ``.jpg``, its bytes) in photo order, rendered on ``workers``
+    threads a few at a time (as simulate.render.render_images)."""
+    n = image.size_px
+    el = lens.elements()
+    scale = float(np.median(truth.xyz0[:, 2]) - truth.terrain.mean_z) / float(el[0])  # m per film mm
+    texture = texture_for(truth.terrain, options.pixel_mm * scale, 230.0 * scale, int(rng.integers(2**31)))
+    noise_seeds = rng.spawn(len(truth.photo_ids))
+    workers = workers or os.cpu_count() or 1
+
+    def one(k: int) -> bytes:
+        grey = render_scan(truth.R_ground_from_cam[k], truth.xyz0[k], Scan(params[k], (n, n), el, film.FIDUCIALS_MM),
+                           truth.terrain, texture)
+        return encode(to_image(grey, image, noise_seeds[k]), image)
+
+    yield from in_batches([f"{pid}{image.extension}" for pid in truth.photo_ids], one, workers)

@@ -225,8 +225,14 @@ def render_images(truth: Truth, format_mm: float, options: ImageOptions, rng: np
                             truth.terrain, texture, targets)
         return encode(to_image(grey, options, noise_seeds[k]), options)
 
+    yield from in_batches([f"{pid}{options.extension}" for pid in truth.photo_ids], one, workers)
+
+
+def in_batches(names: list, one, workers: int) -> Iterator[tuple[str, bytes]]:
+    """(names[k], one(k)) in order, computed on ``workers`` threads 2 x workers at a time, so that
+    memory holds only the images in flight."""
     with ThreadPoolExecutor(workers) as pool:
-        for start in range(0, len(truth.photo_ids), 2 * workers):
-            batch = range(start, min(start + 2 * workers, len(truth.photo_ids)))
+        for start in range(0, len(names), 2 * workers):
+            batch = range(start, min(start + 2 * workers, len(names)))
             for k, data in zip(batch, pool.map(one, batch)):
-                yield f"{truth.photo_ids[k]}{options.extension}", data
+                yield names[k], data
