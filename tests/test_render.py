@@ -107,25 +107,31 @@ def test_staged_files_are_part_of_the_output_or_of_nothing(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
-def test_signalised_points_are_painted_where_they_project():
+@pytest.mark.parametrize("size", [(300, 300), (330, 220)])
+def test_signalised_points_are_painted_where_they_project(size):
     """A target on the ground shows in the photo as a white disc centred (the centroid of its
-    brightness) on the control point's projection, within a few hundredths of a pixel."""
+    brightness) on the control point's projection, within a few hundredths of a pixel; in a
+    square image and in a wide one (width 3/2 of the height, as 3,000 x 2,000 px photos)."""
     from striptri.geometry.camera import project as plate_of
     from striptri.geometry.pixels import pixel_from_plate
 
     truth = _truth()
-    n, pixel = 300, 230.0 / 300
+    (W, H), pixel = size, 230.0 / 300
     gsd = pixel * 9.87
     texture = GroundTexture(seed=2, finest=1.5 * gsd, octaves=5)
     k = 1
-    X = truth.xyz_ground[truth.point_index[truth.photo_index == k][0]]
-    plain = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel, n, truth.terrain, texture)
-    image = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel, n, truth.terrain, texture,
-                         Targets(X[None, :2], 3.0 * gsd))
-    expected = pixel_from_plate(plate_of(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, X), np.array([n, n]), pixel)
+    seen = truth.xyz_ground[truth.point_index[truth.photo_index == k]]
+    X = seen[np.argmin(np.abs(plate_of(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, seen)[:, 1]))]
+    plain = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel, (W, H), truth.terrain,
+                         texture)
+    image = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel, (W, H), truth.terrain,
+                         texture, Targets(X[None, :2], 3.0 * gsd))
+    assert image.shape == (H, W)
+    expected = pixel_from_plate(plate_of(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, X), np.array([W, H]),
+                                pixel)
     changed = np.argwhere(np.abs(image - plain) > 1e-9)
     assert len(changed) and np.abs(changed[:, ::-1] + 0.5 - expected).max() < 2.0 * 3.0 * 1.1  # only around it
-    rows, cols = np.mgrid[0:n, 0:n]
+    rows, cols = np.mgrid[0:H, 0:W]
     # inside the black ring (out to 5.4 px) the photo is the disc alone: 255 x its coverage
     near = np.hypot(cols + 0.5 - expected[0], rows + 0.5 - expected[1]) < 4.5
     white = np.where(near, image, 0.0)

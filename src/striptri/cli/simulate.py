@@ -18,6 +18,24 @@ _LAYOUT_CHOICES = ["corners", "mixed", "schmid-minimal", "ends", "every-k", "per
 _DEFAULT_OVERLAP = 0.6
 
 
+class _ImageSize(click.ParamType):
+    """--image-size: N or WxH pixels, each 64 .. 20000 -> (W, H)."""
+
+    name = "N|WxH"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        parts = str(value).lower().split("x")
+        try:
+            sides = tuple(int(p) for p in parts)
+        except ValueError:
+            sides = ()
+        if len(sides) not in (1, 2) or not all(64 <= s <= 20000 for s in sides):
+            self.fail(f"{value!r} is not N or WxH with sides of 64 .. 20000 pixels", param, ctx)
+        return sides * 2 if len(sides) == 1 else sides
+
+
 @main.command()
 @click.argument("kind", type=click.Choice(["pair", "strip", "block"]))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Project folder to write.")
@@ -88,8 +106,9 @@ _DEFAULT_OVERLAP = 0.6
               help="Render every photo into OUT/images/ from a textured terrain (the extra images: OpenCV); the "
                    "camera becomes a digital frame camera and image_points.csv keeps only the control and check "
                    "points, leaving the tie points to striptri match.")
-@click.option("--image-size", type=click.IntRange(64, 20000), default=1000, show_default=True,
-              help="With --images: the side of the square images (pixels).")
+@click.option("--image-size", type=_ImageSize(), default="1000", show_default=True,
+              help="With --images: the images' size in pixels, N (square) or WxH, e.g. 3000x2000 (the camera's "
+                   "square format spans the shorter side; a longer width adds forward overlap).")
 @click.option("--image-noise", type=_Finite(min=0), default=0.0, show_default=True,
               help="With --images: standard deviation of the noise added to the grey values (grey levels).")
 @click.option("--jpeg-quality", type=click.IntRange(1, 100), default=None,
@@ -117,7 +136,7 @@ def simulate(kind, out_dir, seed, **given):
         return _simulate_film_images(kind, out_dir, seed, o)
     if o.images:
         return _simulate_images(kind, out_dir, seed, o)
-    if (o.image_size, o.image_noise, o.jpeg_quality) != (1000, 0.0, None):
+    if (o.image_size, o.image_noise, o.jpeg_quality) != ((1000, 1000), 0.0, None):
         raise click.UsageError("--image-size, --image-noise and --jpeg-quality need --images")
     try:
         project, truth = sim.simulate_project(kind, simulate_options(kind, o), seed)
@@ -147,7 +166,7 @@ def _simulate_images(kind: str, out_dir, seed: int, o: SimpleNamespace) -> None:
     cv2_module()  # the extra images, or a clear message before anything is computed
     try:
         options = simulate_options(kind, o)
-        image_options = render.ImageOptions(o.image_size, o.image_noise, o.jpeg_quality)
+        image_options = render.ImageOptions(o.image_size[0], o.image_noise, o.jpeg_quality, o.image_size[1])
         project, tables, truth = sim.simulate_with_truth(kind, options, seed)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from exc
@@ -156,7 +175,7 @@ def _simulate_images(kind: str, out_dir, seed: int, o: SimpleNamespace) -> None:
     folder = _write_rendered(out_dir, project_files(project), tables,
                              render.render_images(truth, camera_format, image_options, sim.images_rng(seed)),
                              len(project.photos))
-    click.echo(f"wrote {folder}: {len(project.photos)} photos rendered ({o.image_size} x {o.image_size} px), "
+    click.echo(f"wrote {folder}: {len(project.photos)} photos rendered ({o.image_size[0]} x {o.image_size[1]} px), "
                f"{len(project.points)} points, {len(project.image_points)} plate measurements of control "
                f"and check points")
 
@@ -196,15 +215,17 @@ def _simulate_film_images(kind: str, out_dir, seed: int, o: SimpleNamespace) -> 
         raise click.UsageError("--film makes the synthetic film strip of striptri.simulate.film; it takes --photos, "
                                "--check-points, --sigma-image and the image options, not "
                                + ", ".join("--" + n.replace("_", "-") for n in others))
+    if o.image_size[0] != o.image_size[1]:
+        raise click.UsageError("--film renders square scans: give --image-size N")
     cv2_module()  # the extra images, or a clear message before anything is computed
-    image = ImageOptions(o.image_size, o.image_noise, o.jpeg_quality)
-    options = film_render.film_scan_options(o.photos or 8, o.image_size, o.sigma_image, o.check_points)
+    image = ImageOptions(o.image_size[0], o.image_noise, o.jpeg_quality)
+    options = film_render.film_scan_options(o.photos or 8, o.image_size[0], o.sigma_image, o.check_points)
     lens = film.FilmLens()
     files, tables, truth, params = film.film_files_and_truth(options, lens, seed, rendered=True)
     folder = _write_rendered(out_dir, files, tables,
                              film_render.render_film_images(truth, params, lens, options, image, images_rng(seed)),
                              len(params))
-    click.echo(f"wrote {folder}: {len(params)} film scans rendered ({o.image_size} x {o.image_size} px, "
+    click.echo(f"wrote {folder}: {len(params)} film scans rendered ({o.image_size[0]} x {o.image_size[0]} px, "
                f"{1000 * options.pixel_mm:.0f} um), without fiducial measurements (striptri match "
                f"--scan-pixel-size {1000 * options.pixel_mm:g} finds them)")
 

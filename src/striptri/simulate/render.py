@@ -45,21 +45,40 @@ _NODE_STEP = 8  # pixels between the nodes where the rays are followed to the te
 
 @dataclass(frozen=True)
 class ImageOptions:
-    """size_px: the side of the square images (the simulated camera's format is square); noise:
-    standard deviation of Gaussian noise added to the grey values (grey levels, 0 = noise-free);
-    jpeg_quality: write JPEG of that quality (1..100), None = PNG (lossless)."""
+    """size_px: the width of the images (pixels); noise: standard deviation of Gaussian noise
+    added to the grey values (grey levels, 0 = noise-free); jpeg_quality: write JPEG of that
+    quality (1..100), None = PNG (lossless); height_px: the height (None: square images).
+
+    The simulated camera's format is square: its side spans the images' shorter side, and a
+    longer width (the camera's x, along the flight) widens the format that way, so that the
+    forward overlap grows and the sidelap stays (3,000 x 2,000 px with a 60 % design overlap: 73 %)."""
 
     size_px: int = 1000
     noise: float = 0.0
     jpeg_quality: int | None = None
+    height_px: int | None = None
 
     def __post_init__(self):
-        if not (isinstance(self.size_px, int) and 64 <= self.size_px <= 20000):
-            raise ValueError(f"images: the size must be 64 .. 20000 pixels, not {self.size_px}")
+        for side in (self.size_px, self.height):
+            if not (isinstance(side, int) and 64 <= side <= 20000):
+                raise ValueError(f"images: the size must be 64 .. 20000 pixels, not {side}")
         if not (np.isfinite(self.noise) and self.noise >= 0):
             raise ValueError(f"images: the noise must be >= 0 grey levels, not {self.noise}")
         if self.jpeg_quality is not None and not 1 <= self.jpeg_quality <= 100:
             raise ValueError(f"images: the JPEG quality must be 1 .. 100, not {self.jpeg_quality}")
+
+    @property
+    def height(self) -> int:
+        return self.size_px if self.height_px is None else self.height_px
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(width, height) pixels."""
+        return self.size_px, self.height
+
+    def pixel_size(self, format_mm: float) -> float:
+        """Plate units per pixel: the square format over the shorter side (class doc)."""
+        return format_mm / min(self.shape)
 
     @property
     def extension(self) -> str:
@@ -139,9 +158,10 @@ class Targets:
     radius: float
 
 
-def render_photo(R: np.ndarray, xyz0: np.ndarray, interior: np.ndarray, pixel_size: float, size_px: int,
+def render_photo(R: np.ndarray, xyz0: np.ndarray, interior: np.ndarray, pixel_size: float, size_px,
                  terrain: Terrain, texture: GroundTexture, targets: Targets | None = None) -> np.ndarray:
-    """The grey image (size_px, size_px) float of a photo of rotation R (ground from camera),
+    """The grey image (height, width) float, size_px = width or (width, height), of a photo of
+    rotation R (ground from camera),
     centre xyz0 and interior (c, xp, yp), with square pixels of pixel_size plate units: every
     pixel centre's ray to the terrain, the texture there. The rays are followed exactly at nodes
     every _NODE_STEP pixels and interpolated between them by a bicubic interpolating spline (the
@@ -149,13 +169,14 @@ def render_photo(R: np.ndarray, xyz0: np.ndarray, interior: np.ndarray, pixel_si
     pixel). targets: signalised points, each painted as a white disc of targets.radius metres in
     a black ring out to 1.8 times that (anti-aliased over a ground pixel), as control points are
     signalised before a flight."""
-    n = size_px
-    nodes = np.arange(-2 * _NODE_STEP, n + 3 * _NODE_STEP, _NODE_STEP, dtype=float) + 0.5
-    col, row = np.meshgrid(nodes, nodes)
-    plate = plate_from_pixel(np.stack([col, row], -1), np.array([n, n]), pixel_size)
+    W, H = (size_px, size_px) if np.ndim(size_px) == 0 else (int(size_px[0]), int(size_px[1]))
+    cols = np.arange(-2 * _NODE_STEP, W + 3 * _NODE_STEP, _NODE_STEP, dtype=float) + 0.5
+    rows = np.arange(-2 * _NODE_STEP, H + 3 * _NODE_STEP, _NODE_STEP, dtype=float) + 0.5
+    col, row = np.meshgrid(cols, rows)
+    plate = plate_from_pixel(np.stack([col, row], -1), np.array([W, H]), pixel_size)
     ground = ground_of_rays(xyz0, ray_ground(R, plate, interior[:3]), terrain)
-    centres = np.arange(n, dtype=float) + 0.5
-    X, Y = (RectBivariateSpline(nodes, nodes, ground[..., a], kx=3, ky=3, s=0)(centres, centres) for a in (0, 1))
+    at = (np.arange(H, dtype=float) + 0.5, np.arange(W, dtype=float) + 0.5)
+    X, Y = (RectBivariateSpline(rows, cols, ground[..., a], kx=3, ky=3, s=0)(*at) for a in (0, 1))
     grey = texture.grey(X, Y)
     if targets is not None and len(targets.xy) and targets.radius > 0:
         target_radius, xy = targets.radius, np.asarray(targets.xy, dtype=float)
@@ -193,12 +214,12 @@ def encode(image: np.ndarray, options: ImageOptions) -> bytes:
 
 def digital_project(project: Project, format_mm: float, options: ImageOptions) -> Project:
     """The simulated project as one of a digital frame camera whose images are rendered: cameras.csv
-    gets width_px = height_px = options.size_px and pixel_size = format / size_px, and
+    gets the images' width_px, height_px and pixel_size (ImageOptions.pixel_size), and
     image_points.csv keeps only the rows of control and check points (the measurements a user makes
     by hand); the tie points are left to ``striptri match``."""
     ncam = len(project.cameras)
-    cameras = replace(project.cameras, size_px=np.full((ncam, 2), float(options.size_px)),
-                      pixel_size=np.full(ncam, format_mm / options.size_px))
+    cameras = replace(project.cameras, size_px=np.tile(np.array(options.shape, dtype=float), (ncam, 1)),
+                      pixel_size=np.full(ncam, options.pixel_size(format_mm)))
     ip = project.image_points
     keep = project.points.kind[ip.point_index] != TIE
     image_points = replace(ip, photo_index=ip.photo_index[keep], point_index=ip.point_index[keep],
@@ -212,8 +233,7 @@ def render_images(truth: Truth, format_mm: float, options: ImageOptions, rng: np
     in photo order, a few photos at a time on ``workers`` threads (scipy's interpolation releases
     the GIL; default: one per core), so that memory holds only the photos in flight. Control and
     check points are signalised: a white disc of 3 ground pixels' radius in a black ring."""
-    n = options.size_px
-    pixel_size = format_mm / n
+    pixel_size = options.pixel_size(format_mm)
     scale = float(np.median(truth.xyz0[:, 2]) - truth.terrain.mean_z) / truth.interior[0]  # m per plate unit
     texture = texture_for(truth.terrain, pixel_size * scale, format_mm * scale, int(rng.integers(2**31)))
     noise_seeds = rng.spawn(len(truth.photo_ids))
@@ -221,7 +241,7 @@ def render_images(truth: Truth, format_mm: float, options: ImageOptions, rng: np
     workers = workers or os.cpu_count() or 1
 
     def one(k: int) -> bytes:
-        grey = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel_size, n,
+        grey = render_photo(truth.R_ground_from_cam[k], truth.xyz0[k], truth.interior, pixel_size, options.shape,
                             truth.terrain, texture, targets)
         return encode(to_image(grey, options, noise_seeds[k]), options)
 
