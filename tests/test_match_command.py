@@ -185,14 +185,18 @@ def test_a_colmap_database_gives_the_matchers_own_tracks(block, tmp_path):
     from striptri.match.colmap_database import matches_for_project
     from striptri.match.frames import digital_frames
     from striptri.match.pair_matching import match_pair
-    from striptri.match.pipeline import MatchOptions, _features, _image_paths, _pairs, _terrain_height
+    from striptri.match.pipeline import MatchOptions, _image_paths, _pairs, _terrain_height
+    from striptri.match.stages import FeatureTask, find_features, load_features
     from striptri.match.tracks import build_tracks
 
     project_dir = block / "project"
     project = read_project(project_dir, plate_measurements_optional=True)
     options = MatchOptions(scale=0.5, max_features=2000)
     paths = _image_paths(project, block / "images", project_dir)
-    feats = [_features(path, project, k, options) for k, path in enumerate(paths)]
+    size = tuple(project.cameras.size_px[0])
+    for k, path in enumerate(paths):
+        find_features(FeatureTask(k, str(path), str(tmp_path), options.scale, options.max_features, size))
+    feats = [load_features(tmp_path, k) for k in range(len(paths))]
     pairs_matches = []
     half = digital_frames(project).half
     for p, q in sorted(map(tuple, _pairs(project, _terrain_height(project, options), half).tolist())):
@@ -269,3 +273,34 @@ def test_control_points_get_image_chips_at_their_predicted_positions(block, tmp_
         u, v = float(r["col"]) - c0, float(r["row"]) - r0
         assert 100 <= u <= 101 and 100 <= v <= 101  # the prediction in the chip's middle pixel
         assert (chip[int(v), int(u) + 10, 2] > chip[int(v), int(u) + 10, 0])  # the mark's arm, red
+
+
+def test_the_tie_points_do_not_depend_on_where_the_work_runs(block, tmp_path):
+    """Features and pairs in this process, in two local processes and on a Dask cluster: the same
+    image_points.csv, byte for byte (the pairs' results are put in the pairs' order); the work
+    folder with the features (beside OUT) is gone afterwards, also after a failed run."""
+    distributed = pytest.importorskip("distributed")
+    from striptri.errors import InputError
+    from striptri.match.pipeline import MatchOptions, run_match
+
+    options = MatchOptions(scale=0.5, max_features=1000)
+    outputs = []
+    for n, where in enumerate([{"workers": 1}, {"workers": 2}, "dask"]):
+        out = tmp_path / f"out{n}"
+        if where == "dask":
+            with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                          dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+                run_match(block / "project", block / "images", out, options.__class__(
+                    **{**options.__dict__, "scheduler": client}))
+        else:
+            run_match(block / "project", block / "images", out, options.__class__(**{**options.__dict__, **where}))
+        outputs.append((out / "image_points.csv").read_bytes())
+    assert outputs[0] == outputs[1] == outputs[2] and outputs[0].count(b"\n") > 100
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out0", "out1", "out2"]  # no work folder left
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for p in (block / "images").iterdir():
+        (broken / p.name).write_bytes(b"not an image" if p.name == "P3.png" else p.read_bytes())
+    with pytest.raises(InputError, match="not an image"):
+        run_match(block / "project", broken, tmp_path / "out3", options)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken", "out0", "out1", "out2"]

@@ -19,9 +19,8 @@ from __future__ import annotations
 
 import csv
 import io
-import os
+import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,9 +31,10 @@ from ..io.output import OutputReservation, check_output_location
 from ..io.project_reader import FILE_NAMES, parse_project, read_project
 from ..model import FULL, HEIGHT, Project
 from . import film_scans
-from .features import Features, cv2_module, detect
+from ..parallel import map_unordered
 from .frames import FiducialMeasurements, digital_frames, film_frames
-from .pair_matching import match_pair, sigma_from_epipolar
+from .stages import FeatureTask, find_features, match_pairs, pair_tasks
+from .pair_matching import sigma_from_epipolar
 from .pairs import footprints, overlap_pairs, strip_pairs
 from .thinning import thin_tracks
 from .image_names import image_column
@@ -56,7 +56,9 @@ class MatchOptions:
     is of a planar scene); ground_tolerance: a track one of whose rays, with the approximate
     orientations, passes further from the track's intersection than this share of the height
     above the terrain is a false one (0.10: approximations within about 2 degrees, 3 standard
-    deviations; _consistent)."""
+    deviations; _consistent); fiducials: finding the marks of film scans (match.film_scans);
+    workers, scheduler: where the features and the pairs are worked on (striptri.parallel: local
+    processes, one per core by default, or a Dask cluster)."""
 
     scale: float = 0.25
     max_features: int = 8000
@@ -66,6 +68,8 @@ class MatchOptions:
     sigma_px: float | None = None
     ground_tolerance: float = 0.10
     fiducials: film_scans.FiducialOptions = film_scans.FiducialOptions()
+    workers: int | None = None  # local processes for features and pairs (None: one per core; 1: this one)
+    scheduler: object = None  # a Dask scheduler address or Client: features and pairs on that cluster
 
 
 @dataclass
@@ -140,8 +144,12 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     paths = None
     if database is None:
         paths = _image_paths(project, source, project_dir)
-        xy, a, b, score, epipolar, frames = _matched_images(project, paths, options, products, clock, say, height,
-                                                            scans)
+        out_parent = Path(out_dir).resolve().parent
+        while not out_parent.is_dir():  # OUT's folders are made when it is written
+            out_parent = out_parent.parent
+        with tempfile.TemporaryDirectory(prefix=".striptri-match-", dir=out_parent) as work:
+            xy, a, b, score, epipolar, frames = _matched_images(project, paths, options, products, clock, say, height,
+                                                                scans, work)
     else:
         from .colmap_database import matches_for_project
 
@@ -229,28 +237,36 @@ class _Scans:
     found: list | None = None
 
 
-def _matched_images(project, paths, options, products, clock, say, height, scans=None):
+def _matched_images(project, paths, options, products, clock, say, height, scans=None, work=None):
     """Features and verified matches from the images (paths: one per photo): -> (xy per photo, a,
     b, score, epipolar distances of the non-planar pairs, the ImageFrames); a, b index the photos'
-    features concatenated. Scans (film): the fiducial marks are found in the same read of each
-    scan, unless given, and the features outside the image area (frame, film base, marks) dropped."""
+    features concatenated. The features of each photo, and for scans their fiducial marks unless
+    given, are found by the tasks of match.stages (local processes, or the cluster of
+    options.scheduler) and written to the work folder ``work``; the pairs are matched from there.
+    Scans: only the features inside the image area (not the frame, film base or marks) are matched."""
     ids = project.photos.ids
-    if scans is None:
-        work = (lambda k: (_features(paths[k], project, k, options), None))  # noqa: E731
-    else:
-        work = (lambda k: _scan_features(paths[k], project, k, options, scans))  # noqa: E731
-    feats, marks = [], []
-    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # OpenCV releases the GIL
-        for k, (found, found_marks) in enumerate(pool.map(work, range(len(paths)))):
-            feats.append(found)
-            marks.append(found_marks)
-            products.features.append(len(found))
-            text = f"features: photo {ids[k]}: {len(found)}"
-            if found_marks is not None:
-                missed = [f"{m.fiducial_id} ({m.reason})" for m in found_marks if not m.found]
-                text += (f"; fiducial marks: {len(found_marks) - len(missed)} of {len(found_marks)}"
-                         + (f", not found: {', '.join(missed)}" if missed else ""))
-            say(text)
+    cams = project.cameras
+    tasks = []
+    for k, path in enumerate(paths):
+        if scans is None:
+            size = tuple(float(v) for v in cams.size_px[project.photos.camera_index[k]])
+            tasks.append(FeatureTask(k, str(path), str(work), options.scale, options.max_features, size))
+        else:
+            camera = scans.fiducials[int(project.photos.camera_index[k])] if scans.given is None else None
+            tasks.append(FeatureTask(k, str(path), str(work), options.scale, options.max_features, None,
+                                     None if camera is None else {f: tuple(xy) for f, xy in camera.items()},
+                                     scans.options))
+    xy, marks = [None] * len(paths), [None] * len(paths)
+    for done, (k, (found, found_marks)) in enumerate(map_unordered(find_features, tasks, options.workers,
+                                                                   options.scheduler), start=1):
+        xy[k], marks[k] = found, found_marks
+        text = f"features: photo {ids[k]}: {len(found)} ({done} of {len(paths)})"
+        if found_marks is not None:
+            missed = [f"{m.fiducial_id} ({m.reason})" for m in found_marks if not m.found]
+            text += (f"; fiducial marks: {len(found_marks) - len(missed)} of {len(found_marks)}"
+                     + (f", not found: {', '.join(missed)}" if missed else ""))
+        say(text)
+    products.features = [len(f) for f in xy]
     clock.lap("features" if scans is None else "features and fiducial marks")
     if scans is None:
         frames = digital_frames(project)
@@ -263,29 +279,32 @@ def _matched_images(project, paths, options, products, clock, say, height, scans
         frames, fit = film_frames(measurements)
         products.fiducials = _fiducial_summary(project, measurements, fit, marks if scans.given is None else None)
         products.fiducials_found = scans.given is None
-        for k, f in enumerate(feats):  # only the image area: the frame and the marks are alike in every scan
-            inside = frames.in_image(np.full(len(f), k), f.xy) if len(f) else np.zeros(0, dtype=bool)
-            feats[k] = Features(f.xy[inside], f.descriptors[inside], f.size[inside])
-            products.features[k] = int(inside.sum())
-    pairs = _pairs(project, height, frames.half)
+        products.features = [int(frames.in_image(np.full(len(f), k), f).sum()) if len(f) else 0
+                             for k, f in enumerate(xy)]
+    pairs = np.asarray(_pairs(project, height, frames.half), dtype=np.int64).reshape(-1, 2)
     products.pairs = len(pairs)
-    products.pair_list = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    products.pair_list = pairs
     products.pair_matches = np.zeros(len(pairs), dtype=np.int64)
     clock.lap("candidate pairs")
-    offsets = np.cumsum([0] + [len(f) for f in feats])
+    found_pairs = [None] * len(pairs)
+    jobs = pair_tasks(pairs, work, frames if scans is not None else None)
+    for _, results in map_unordered(match_pairs, jobs, options.workers, options.scheduler):
+        for n, *rest in results:
+            found_pairs[n] = rest
+    offsets = np.cumsum([0] + [len(f) for f in xy])
     a, b, score, epipolar = [], [], [], []
-    for n, (p, q) in enumerate(pairs):
-        m = match_pair(feats[p], feats[q])
-        products.pair_matches[n] = len(m.i)
-        if len(m.i):
+    for n, (p, q) in enumerate(pairs):  # in the order of the pairs: the tracks do not depend on the workers
+        i, j, distance, planar, residuals = found_pairs[n]
+        products.pair_matches[n] = len(i)
+        if len(i):
             products.verified_pairs += 1
-            a.append(offsets[p] + m.i), b.append(offsets[q] + m.j), score.append(m.distance)
-            if not m.planar:
-                epipolar.append(m.epipolar)
+            a.append(offsets[p] + i), b.append(offsets[q] + j), score.append(distance)
+            if not planar:
+                epipolar.append(residuals)
+    say(f"pairs: {len(pairs)} matched")
     clock.lap("pair matching")
     cat = (lambda x: np.concatenate(x) if x else np.zeros(0, dtype=np.int64))  # noqa: E731
-    return ([f.xy for f in feats], cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0)), epipolar,
-            frames)
+    return xy, cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0)), epipolar, frames
 
 
 def _fiducial_summary(project, marks: FiducialMeasurements, fit, found) -> list:
@@ -350,41 +369,6 @@ def _image_paths(project: Project, images_dir: Path, project_dir: Path) -> list[
 
 
 REDUCED = {0.5: "IMREAD_REDUCED_GRAYSCALE_2", 0.25: "IMREAD_REDUCED_GRAYSCALE_4", 0.125: "IMREAD_REDUCED_GRAYSCALE_8"}
-
-
-def _scan_features(path: Path, project: Project, k: int, options: MatchOptions, scans: _Scans):
-    """A film scan read once at full resolution: its fiducial marks (unless given) and its
-    features at ``options.scale`` (match.film_scans) -> (Features, [FoundMark] or None)."""
-    cv2 = cv2_module()
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(path, None, "not an image OpenCV can read")
-    marks = None
-    if scans.given is None:
-        camera = scans.fiducials[int(project.photos.camera_index[k])]
-        px_per_mm = 1000.0 / float(scans.options.pixel_size_um)
-        marks = film_scans.find_in_scan(image, camera, film_scans.template(scans.options, px_per_mm), scans.options)
-    return detect(image, options.scale, options.max_features), marks
-
-
-def _features(path: Path, project: Project, k: int, options: MatchOptions) -> Features:
-    """The photo's features in full-resolution pixels. At 1/2, 1/4, 1/8 the image is decoded at that
-    size (a JPEG never at full resolution); otherwise read whole and reduced (match.features)."""
-    cv2 = cv2_module()
-    W, H = project.cameras.size_px[project.photos.camera_index[k]]
-    flag = REDUCED.get(options.scale)
-    image = cv2.imread(str(path), getattr(cv2, flag) if flag else cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(path, None, "not an image OpenCV can read")
-    factor = options.scale if flag else 1.0
-    h, w = image.shape[:2]
-    if abs(w - W * factor) > 1 or abs(h - H * factor) > 1:
-        raise InputError(path, None, f"the image is {int(round(w / factor))} x {int(round(h / factor))} pixels; "
-                                     f"cameras.csv says {int(W)} x {int(H)}")
-    found = detect(image, 1.0 if flag else options.scale, options.max_features)
-    # decoded reduced: the features are in the reduced image's corner-origin pixels
-    sx, sy = W / w if flag else 1.0, H / h if flag else 1.0
-    return Features(found.xy * [sx, sy], found.descriptors, found.size * np.sqrt(sx * sy))
 
 
 def _terrain_height(project: Project, options: MatchOptions) -> float:

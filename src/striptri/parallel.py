@@ -1,0 +1,68 @@
+"""Independent tasks on the local cores or a Dask cluster, for studies (striptri.study.runner) and
+the matcher (striptri.match.stages).
+
+:func:`map_unordered` runs ``fn(task)`` for every task: in this process (one worker), in local
+processes (concurrent.futures.ProcessPoolExecutor, one per core by default) or on a Dask cluster
+(dask.distributed, the optional extra ``striptri[dask]``, imported only when a scheduler is
+given). ``fn`` must be a module-level function (it travels to the workers). Each worker process
+keeps its BLAS to one thread (threadpoolctl): the processes already fill the cores, and BLAS
+threads on top of them only contend.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+from striptri.errors import InputError
+
+
+def map_unordered(fn: Callable, tasks: Sequence, workers: int | None = None,
+                  scheduler=None) -> Iterator[tuple[int, object]]:
+    """(index of the task, fn(task)) for every task, in the order they finish. scheduler: None
+    (local), a Dask scheduler address ("tcp://host:8786") or a dask.distributed.Client; workers:
+    local processes (None: os.cpu_count(); 1: in this process). The first exception of a task is
+    raised here."""
+    if scheduler is not None:
+        yield from _dask(fn, tasks, scheduler)
+        return
+    workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError("workers must be >= 1")
+    if workers == 1 or len(tasks) <= 1:
+        for i, task in enumerate(tasks):
+            yield i, fn(task)
+        return
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=_one_blas_thread) as pool:
+        futures = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
+        try:
+            for future in as_completed(futures):
+                yield futures[future], future.result()
+        finally:
+            for future in futures:
+                future.cancel()
+
+
+def _one_blas_thread() -> None:
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+
+
+def _dask(fn, tasks, scheduler):
+    try:
+        from dask.distributed import Client, as_completed as dask_completed
+    except ImportError as exc:
+        raise InputError("--scheduler", None, "a Dask cluster needs dask.distributed: "
+                         "pip install 'striptri[dask]' (or 'dask[distributed]')") from exc
+    own = not isinstance(scheduler, Client)
+    client = Client(scheduler) if own else scheduler
+    try:
+        futures = client.map(fn, list(tasks), pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        for future in dask_completed(futures):
+            yield index[future.key], future.result()
+    finally:
+        if own:
+            client.close()
