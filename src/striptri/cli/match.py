@@ -40,6 +40,9 @@ from striptri.cli.base import main, reports_errors
               help="Scanned film: a synthetic cross's extent, tip to tip (mm on the film).")
 @click.option("--mark-line", type=click.FloatRange(min=0.0, min_open=True), default=0.5, show_default=True,
               help="Scanned film: a synthetic mark's line width, or a dot's diameter (mm on the film).")
+@click.option("--refine", is_flag=True, default=False,
+              help="Refine the tie points by least-squares matching at full resolution (worth it with --scale "
+                   "below 1); their sigma is then estimated from the refined points.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Local processes for the features and the pairs [one per core]; 1: in this process.")
 @click.option("--scheduler", default=None,
@@ -58,7 +61,7 @@ def match(project_dir, out_dir, **given):
     options = MatchOptions(scale=float(o.scale), max_features=o.max_features, terrain_height=o.terrain_height,
                            per_cell=o.per_cell, sigma_px=o.sigma_px,
                            fiducials=FiducialOptions(o.scan_pixel_size, o.fiducial_mark, o.mark_size, o.mark_line),
-                           workers=o.workers, scheduler=o.scheduler)
+                           refine=o.refine, workers=o.workers, scheduler=o.scheduler)
     p = run_match(project_dir, o.images_dir, out_dir, options, on_progress=lambda text: click.echo(text, err=True),
                   database=o.database)
     click.echo(f"{len(p.features)} photos, median {int(sorted(p.features)[len(p.features) // 2]) if p.features else 0} "

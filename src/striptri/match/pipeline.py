@@ -68,6 +68,7 @@ class MatchOptions:
     sigma_px: float | None = None
     ground_tolerance: float = 0.10
     fiducials: film_scans.FiducialOptions = film_scans.FiducialOptions()
+    refine: bool = False  # refine the tie points by least-squares matching at full resolution (match.lsm)
     workers: int | None = None  # local processes for features and pairs (None: one per core; 1: this one)
     scheduler: object = None  # a Dask scheduler address or Client: features and pairs on that cluster
 
@@ -102,6 +103,9 @@ class MatchProducts:
     half_format: np.ndarray | None = None  # (n, 2) each photo's half width and height (plate units)
     seconds: dict = field(default_factory=dict)  # stage -> seconds
     chips: int = 0  # image chips of control points written (match.chips)
+    refined: int = -1  # rays moved by least-squares matching (-1: not asked for)
+    refinable: int = 0  # rays it tried (all but each track's reference ray)
+    refine_shift: float = float("nan")  # their median shift (px)
     fiducials: list | None = None  # film: per photo (id, marks, of, largest residual px, sigma0, not found)
     fiducials_found: bool = False  # film: the marks were found in the scans (not given)
 
@@ -192,10 +196,17 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     chosen = rows[keep[tracks.track[rows]]]
     products.rays = len(chosen)
     products.kept_lengths = products.track_lengths[keep]
-    products.ray_photo, products.ray_plate = photo_of[chosen], plate[chosen]
     clock.lap("tracks and thinning")
     say(f"tracks: {tracks.n_tracks} ({tracks.split} split, {products.inconsistent} off the approximate "
         f"orientations), {products.kept_tracks} kept, {products.rays} rays")
+    if options.refine and paths is not None:  # least-squares matching at full resolution (match.lsm)
+        xy_px, plate = xy_px.copy(), plate.copy()
+        _refine(tracks.track[chosen], photo_of[chosen], chosen, xy_px, plate, frames, paths, options, products)
+        clock.lap("least-squares matching")
+        say(f"least-squares matching: {products.refined} of {products.refinable} rays refined (median shift "
+            f"{products.refine_shift:.3f} px); image coordinates to {products.sigma_px:.3f} px "
+            f"({products.sigma_how})")
+    products.ray_photo, products.ray_plate = photo_of[chosen], plate[chosen]
     if frames.units == "plate":  # digital: plate coordinates and sigmas in plate units
         measured, sigma = plate[chosen], products.sigma_px * frames.mm_per_px[photo_of[chosen]]
     else:  # film: scan pixels (col, row), sigmas in pixels
@@ -222,6 +233,27 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     with OutputReservation(out_dir, inputs) as reservation:
         products.out = reservation.commit(files)
     return products
+
+
+def _refine(track, photo, chosen, xy_px, plate, frames, paths, options, products) -> None:
+    """The chosen rays refined by least-squares matching (match.lsm), in place in xy_px and plate;
+    unless --sigma-px was given, the sigma estimated again from the matching's closures
+    (match.lsm.closure_sigma)."""
+    from .lsm import closure_sigma, refine
+
+    r = refine(track, photo, xy_px[chosen], paths, options.workers, options.scheduler)
+    xy_px[chosen] = r.colrow
+    plate[chosen] = frames.plate(photo, r.colrow)
+    products.refined, products.refinable = int(r.refined.sum()), int(np.isfinite(r.correlation).sum())
+    products.refine_shift = float(np.median(r.shift[r.refined])) if r.refined.any() else float("nan")
+    if options.sigma_px is None:
+        sigma, used = closure_sigma(track, photo, r, paths, options.workers, options.scheduler)
+        if np.isfinite(sigma) and used >= MIN_CLOSURES:
+            products.sigma_px = sigma
+            products.sigma_how = f"estimated from {used} closures of the least-squares matching"
+
+
+MIN_CLOSURES = 20  # the sigma after least-squares matching needs at least this many closures
 
 
 @dataclass
