@@ -48,6 +48,9 @@ def match_report(p, project_dir, images_dir) -> str:
         f"{p.tracks:,} tracks, {p.split} were split (two features of one photo) and {p.inconsistent} dropped "
         "because their rays, projected onto the terrain with the approximate orientations, do not meet. "
         "False matches remain among those written: adjust with <code>--blunders snoop</code>.</p>",
+        (f"<p>Least-squares matching at full resolution refined {p.refined} of the {p.refinable} rays that are not "
+         f"their track's reference (median shift {p.refine_shift:.3f} px); the others kept their features' "
+         "positions.</p>" if p.refined >= 0 else ""),
         (f"<p>{p.chips} image chips of control and check points, each around the position the approximate "
          "orientations predict (marked), are in chips/ with chips/chips.csv: measure or confirm the points there "
          "and give the measurements in image_points.csv.</p>" if p.chips else ""),
