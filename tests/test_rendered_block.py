@@ -91,11 +91,14 @@ def test_the_reported_orientation_precision_is_honest(block):
 
 
 @pytest.mark.xdist_group("rendered_block")
-def test_five_percent_false_matches_are_found_and_the_check_points_hold(block, tmp_path):
+@pytest.mark.parametrize("method", ["snoop", "robust-snoop"])
+def test_five_percent_false_matches_are_found_and_the_check_points_hold(block, tmp_path, method):
     """5 % of the automatic measurements moved by 1.5 to 15 pixels in a random direction (a wrong
-    feature taken for the right one): data snooping removes at least 95 % of them (a false ray of a
-    two-ray point is an inseparable pair: both rays go), and the check points' RMS stays within
-    10 % of the clean run's."""
+    feature taken for the right one): data snooping, alone or started by robust re-weighting,
+    removes at least 95 % of them (a false ray of a two-ray point is an inseparable pair: both rays
+    go), and the check points' RMS stays within 10 % of the clean run's. (Measured on the 500 px
+    block of seed 2: snoop removed 116 of 117 false rays and 91 true ones; robust-snoop 116 and
+    67, in as many seconds; robust alone stopped after 100 re-weightings with 11 false rays left.)"""
     bad = tmp_path / "bad"
     shutil.copytree(block / "m", bad)
     rows = list(csv.DictReader((bad / "image_points.csv").open()))
@@ -112,8 +115,9 @@ def test_five_percent_false_matches_are_found_and_the_check_points_hold(block, t
         writer = csv.DictWriter(f, header, lineterminator="\n")
         writer.writeheader()
         writer.writerows(rows)
-    result = run_adjust(bad, tmp_path / "out", RunOptions(blunders="snoop"))
-    assert result.result.converged
+    result = run_adjust(bad, tmp_path / "out", RunOptions(blunders=method))
+    assert result.result.converged and result.summary["blunders"]["method"] == method
+    assert result.summary["blunders"]["stopped"] == "clean"
     flags = {(r["photo_id"], r["point_id"]): r["flag"] for r in csv.DictReader((tmp_path / "out" / "residuals.csv").open())}
     removed = sum(flags[(rows[k]["photo_id"], rows[k]["point_id"])] in ("rejected", "inseparable", "dropped")
                   for k in wrong)

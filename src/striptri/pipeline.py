@@ -214,8 +214,8 @@ def adjust_products(project: Project, options: AdjustmentOptions, run: RunOption
                     on_warning: Callable[[str], None] | None = None,
                     seconds_reading: float | None = None, frame=None) -> AdjustmentProducts:
     """Adjust with ``options`` (the adjustment options of ``run`` already in them: options_for),
-    then run the gross-error procedure ``run.blunders`` ("off", "snoop", "snoop-classic" or
-    "robust") and build the output files with the point precision ``run.point_precision``.
+    then run the gross-error procedure ``run.blunders`` ("off", "snoop", "snoop-classic", "robust" or
+    "robust-snoop") and build the output files with the point precision ``run.point_precision``.
     Photos, points and the summary describe the adjustment of the measurements kept;
     residuals.csv lists every original measurement with its flag.
 

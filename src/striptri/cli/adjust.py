@@ -29,12 +29,14 @@ from striptri.solvers import SOLVERS
 @click.option("--point-precision", type=click.Choice(["schmid90", "joint92"]), default="schmid90", show_default=True,
               help="Mean errors of the ground points: orientation part + measurement part (Schmid 90) "
                    "or the rigorous joint form (92).")
-@click.option("--blunders", type=click.Choice(["off", "snoop", "snoop-classic", "robust"]), default="off",
+@click.option("--blunders", type=click.Choice(["off", "snoop", "snoop-classic", "robust", "robust-snoop"]), default="off",
               show_default=True,
               help="Gross errors: off (flag |w| > 3.29 only), snoop (Baarda data snooping: inseparable groups rejected "
                    "together, rejections re-tested), snoop-classic (only rows of equal |w| "
                    "rejected together, no re-test) "
-                   "or robust (re-weighting, then least squares of the survivors).")
+                   "robust (re-weighting, then least squares of the survivors) or robust-snoop (re-weighting "
+                   "finds the first rejections, then snooping from the survivors re-tests them: for automatic "
+                   "tie points).")
 @click.option("--covariance", "covariance_groups", default=None, metavar="GROUPS",
               help="Also write covariance.npz: the full covariance of these groups, comma-separated from photos, "
                    "camera, points (docs/file-formats.md); in the CRS's axes with [coordinates] crs.")

@@ -51,7 +51,7 @@ from striptri.cli.base import main, reports_errors
 @reports_errors
 def match(project_dir, out_dir, **given):
     """Find tie points in the images of the photos of PROJECT_DIR and write a project to --out that
-    `striptri adjust` takes (false matches are expected: adjust it with --blunders snoop)."""
+    `striptri adjust` takes (false matches are expected: adjust it with --blunders robust-snoop or snoop)."""
     from striptri.match.film_scans import FiducialOptions
     from striptri.match.pipeline import MatchOptions, run_match
 

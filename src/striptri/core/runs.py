@@ -47,7 +47,7 @@ class RunOptions:
     method, solver, datum, datum_points, max_iterations, cost_tolerance, init: AdjustmentOptions
     values (core.options), None for project.toml's. scale_form (conditions method), procedure,
     direction, polynomial_degree (sequential method): that method's options, None for the default.
-    blunders: the gross-error procedure, "off", "snoop", "snoop-classic" or "robust". point_precision: "schmid90"
+    blunders: the gross-error procedure, "off", "snoop", "snoop-classic", "robust" or "robust-snoop". point_precision: "schmid90"
     (the orientation plus the measurement part, Schmid 87-90) or "joint92" (the rigorous joint form
     (92)). earth_curvature, refraction: the plate corrections, None for project.toml's
     [corrections]. covariance: a :class:`CovarianceRequest` (covariance.npz is written too)

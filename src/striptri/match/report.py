@@ -47,7 +47,7 @@ def match_report(p, project_dir, images_dir) -> str:
         "the sigma of the automatic rows of image_points.csv. Of the "
         f"{p.tracks:,} tracks, {p.split} were split (two features of one photo) and {p.inconsistent} dropped "
         "because their rays, projected onto the terrain with the approximate orientations, do not meet. "
-        "False matches remain among those written: adjust with <code>--blunders snoop</code>.</p>",
+        "False matches remain among those written: adjust with <code>--blunders robust-snoop</code> (or <code>snoop</code>).</p>",
         (f"<p>Least-squares matching at full resolution refined {p.refined} of the {p.refinable} rays that are not "
          f"their track's reference (median shift {p.refine_shift:.3f} px); the others kept their features' "
          "positions.</p>" if p.refined >= 0 else ""),

@@ -62,7 +62,7 @@ from .outcome import (
     triangulate_adjusted,
     warm_start,
 )
-from .robust import robust, robust_weight, studentised_gross_errors
+from .robust import robust, robust_start, robust_weight, studentised_gross_errors
 from .snooping import select_rejections, snoop
 
 
@@ -76,6 +76,13 @@ def detect_blunders(project: Project, options: AdjustmentOptions = AdjustmentOpt
         return snoop(project, options, blunders, first)
     if blunders.method == "robust":
         return robust(project, options, blunders, first)
+    if blunders.method == "robust-snoop":
+        start = robust_start(project, options, blunders, first)
+        if isinstance(start, BlunderResult):
+            return start
+        out = snoop(project, options, blunders, None, start)
+        out.method = "robust-snoop"
+        return out
     out = snoop(project, options, replace(blunders, max_rejections=0), first)
     out.method, out.stopped = "off", "off"
     return out

@@ -19,7 +19,7 @@ from .measures import ALPHA0, BETA0, PlateReliability, critical_value, noncentra
 FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED = "", "suspect", "rejected", "dropped"
 FLAG_INSEPARABLE = "inseparable"  # rejected with others as one group: detected, not localisable
 FLAGS = (FLAG_OK, FLAG_SUSPECT, FLAG_REJECTED, FLAG_DROPPED, FLAG_INSEPARABLE)
-BLUNDER_METHODS = ("snoop", "robust", "off")
+BLUNDER_METHODS = ("snoop", "robust", "robust-snoop", "off")
 PROCEDURES = ("separable", "classic")
 PER_ROUND = ("separated", "single")
 
@@ -28,7 +28,8 @@ PER_ROUND = ("separated", "single")
 class BlunderOptions:
     """Options of gross-error detection (striptri.reliability).
 
-    method: "snoop" (data snooping), "robust" (reweighting) or "off" (flag only).
+    method: "snoop" (data snooping), "robust" (reweighting), "robust-snoop" (reweighting to find the
+    first rejections, then data snooping from the survivors) or "off" (flag only).
     alpha0, beta0: size and power of the w-test (critical value, MDB).
     per_round (snoop): "separated" rejects several well separated rows per round
     (snooping.select_rejections); "single" one row per round (textbook data snooping).
@@ -75,7 +76,7 @@ class BlunderOptions:
 
 
 def blunder_options(name: str) -> BlunderOptions:
-    """The options of a ``--blunders`` choice: "off", "snoop", "robust", or "snoop-classic" (data
+    """The options of a ``--blunders`` choice: "off", "snoop", "robust", "robust-snoop", or "snoop-classic" (data
     snooping with procedure "classic")."""
     if name == "snoop-classic":
         return BlunderOptions(method="snoop", procedure="classic")

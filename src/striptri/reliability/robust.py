@@ -29,7 +29,7 @@ import numpy as np
 
 from ..adjustment import AdjustmentOptions, AdjustmentResult, adjust
 from ..errors import NumericalFailure
-from ..model import Project
+from ..model import TIE, Project
 from ..precision.residuals import residual_cofactors
 from .measures import R_ZERO, critical_value, plate_reliability, row_abs
 from .outcome import (
@@ -47,6 +47,7 @@ from .outcome import (
 
 DOWNWEIGHTED = 0.5  # Round.rejected of a re-weighting counts the rows with a weight below this
 STABLE_ROUNDS = 3  # re-weighting stops when the rows above the critical value stay the same this often
+START_ROUNDS = 10  # robust-snoop: re-weightings at most before snooping takes over
 
 
 def robust_weight(u: np.ndarray, c: float) -> np.ndarray:
@@ -77,17 +78,10 @@ def studentised_gross_errors(v: np.ndarray, qvv: np.ndarray, q_current: np.ndarr
     return np.where(ok, u, np.nan)
 
 
-def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
-           blunders: BlunderOptions = BlunderOptions(), first: AdjustmentResult | None = None) -> BlunderResult:
-    """Re-weighting to convergence, rejection, final adjustment at full weight (module doc).
-
-    If the final adjustment of the survivors fails (or does not converge), all rows are adjusted
-    at full weight instead, the candidates are flagged "suspect" and ``stopped`` says why. Raises
-    NumericalFailure when the first adjustment fails; when it, or the re-weighting, does not
-    converge, nothing is tested (outcome.untested) on the adjustment of all rows at full weight.
-    first: the adjustment of all rows at full weight (the first round's) when the caller has made it.
-    """
-    t_start = time.perf_counter()
+def _reweighted(project: Project, options: AdjustmentOptions, blunders: BlunderOptions,
+                first: AdjustmentResult | None, t_start: float):
+    """Steps 1-4 of the module doc: -> (weights p (m,), u (m, 2), row u (m,), the last state,
+    rounds, converged), or the untested BlunderResult when an adjustment fails."""
     ip = project.image_points
     m = len(ip)
     q_prior = ip.sigma_xy**2
@@ -107,12 +101,14 @@ def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         if not succeeded(result):  # no solution to judge residuals by: all rows at full weight, untested
             if state is not None:
                 result = adjust(warm_start(project, *state), options)
-            return untested("robust", project, result, blunders, time.perf_counter() - t_start)
+            return untested(blunders.method, project, result, blunders, time.perf_counter() - t_start)
         state = (result.state, result.offset)
         cof = residual_cofactors(weighted, result, options)
         u = studentised_gross_errors(result.plate_residuals, cof.plate, weighted.image_points.sigma_xy**2, q_prior)
         u_row = np.maximum(row_abs(u), 0.0)
         target = np.maximum(robust_weight(u_row, blunders.robust_c), blunders.min_weight)
+        if blunders.method == "robust-snoop":  # no redundancy left (u nan): no evidence to change the weight
+            target = np.where(np.isnan(u_row), p, target)
         p_new = np.sqrt(p * target)
         change = float(np.max(np.abs(p_new - p), initial=0.0))
         p = p_new
@@ -124,6 +120,70 @@ def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
         if change < blunders.robust_tolerance or stable >= STABLE_ROUNDS:
             converged = True
             break
+    return p, u, u_row, state, rounds, converged
+
+
+def robust_start(project: Project, options: AdjustmentOptions, blunders: BlunderOptions,
+                 first: AdjustmentResult | None = None):
+    """The re-weighting as the start of data snooping (``--blunders robust-snoop``): -> (the rows it
+    would reject as Rejections, the last state, its rounds), or the untested BlunderResult.
+
+    The rows whose studentised gross error exceeds the critical value (the largest first, at most
+    the rejection limit) are the candidates, each a group of its own, and with it every other ray
+    of its point that would be left without a partner: a tie point keeps its rays only while two or
+    more of them remain. (A false ray of a two-ray point is a gross error of the pair: its partner,
+    down-weighted or not, is its only check, and the re-weighting leaves both untestable, u nan.)
+    Snooping then goes on from the survivors and re-tests these groups like its own
+    (snooping.snoop), re-admitting those that pass. The start needs the large errors, not the
+    converged weights: at most START_ROUNDS re-weightings (on the rendered block with 5 % false
+    matches the weights had not settled after 100). A row left without redundancy (u nan) keeps
+    its weight instead of returning to 1: without it the two rays of a point took turns being
+    down-weighted for ever."""
+    t_start = time.perf_counter()
+    ip = project.image_points
+    found = _reweighted(project, options, replace(blunders, max_rounds=min(blunders.max_rounds, START_ROUNDS)),
+                        first, t_start)
+    if isinstance(found, BlunderResult):
+        return found
+    p, u, u_row, state, rounds, converged = found
+    crit = critical_value(blunders.alpha0)
+    over = np.flatnonzero(u_row > crit)
+    cand = over[np.argsort(-u_row[over], kind="stable")][: blunders.rejection_limit(len(ip))]
+    out = np.zeros(len(ip), dtype=bool)
+    out[cand] = True
+    ground = project.points.kind[ip.point_index] != TIE  # control, check points: a ray of their own counts
+    left = np.bincount(ip.point_index[~out], minlength=len(project.points.ids))
+    rejections, group = [], 0
+    for i in cand:  # a few rows: each with the partners its point would leave alone
+        partners = [] if ground[i] or left[ip.point_index[i]] >= 2 else \
+            np.flatnonzero((ip.point_index == ip.point_index[i]) & ~out).tolist()
+        for row in [int(i), *partners]:
+            out[row] = True
+            rejections.append(Rejection(row, int(ip.photo_index[row]), int(ip.point_index[row]), len(rounds),
+                                        u[row].copy(), np.full(2, np.nan), group))
+        left = np.bincount(ip.point_index[~out], minlength=len(project.points.ids))
+        group += 1
+    return rejections, state, rounds
+
+
+def robust(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
+           blunders: BlunderOptions = BlunderOptions(), first: AdjustmentResult | None = None) -> BlunderResult:
+    """Re-weighting to convergence, rejection, final adjustment at full weight (module doc).
+
+    If the final adjustment of the survivors fails (or does not converge), all rows are adjusted
+    at full weight instead, the candidates are flagged "suspect" and ``stopped`` says why. Raises
+    NumericalFailure when the first adjustment fails; when it, or the re-weighting, does not
+    converge, nothing is tested (outcome.untested) on the adjustment of all rows at full weight.
+    first: the adjustment of all rows at full weight (the first round's) when the caller has made it.
+    """
+    t_start = time.perf_counter()
+    ip = project.image_points
+    m = len(ip)
+    crit = critical_value(blunders.alpha0)
+    found = _reweighted(project, options, blunders, first, t_start)
+    if isinstance(found, BlunderResult):
+        return found
+    p, u, u_row, state, rounds, converged = found
     over = np.flatnonzero(u_row > crit)
     cand = over[np.argsort(-u_row[over], kind="stable")][: blunders.rejection_limit(m)]
     stopped = "limit" if len(over) > len(cand) else "clean" if converged else "rounds"

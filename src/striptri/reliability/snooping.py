@@ -100,7 +100,8 @@ def select_rejections(point_index: np.ndarray, photo_index: np.ndarray, row_abs_
 
 
 def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
-          blunders: BlunderOptions = BlunderOptions(), first: AdjustmentResult | None = None) -> BlunderResult:
+          blunders: BlunderOptions = BlunderOptions(), first: AdjustmentResult | None = None,
+          start: tuple | None = None) -> BlunderResult:
     """Data snooping (module doc) until no row |w| exceeds the critical value, ``max_rejections``
     rows are rejected or ``max_rounds`` adjustments are made.
 
@@ -114,7 +115,10 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     rejected in that round are taken back (flagged "suspect") and the previous adjustment is the
     result. Raises NumericalFailure when the first adjustment, of all rows, fails; when it does not
     converge, nothing is tested (outcome.untested). first: that adjustment of all rows when the
-    caller has made it (``adjust(project, options)``), else it is made here.
+    caller has made it (``adjust(project, options)``), else it is made here. start: (rejections,
+    state, rounds) to start from instead of all rows, robust.robust_start's (``robust-snoop``):
+    those rows are left out of the first adjustment (warm-started from the state) and re-tested
+    with the groups snooping rejects itself.
     """
     t_start = time.perf_counter()
     m = len(project.image_points)
@@ -122,7 +126,13 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     rejected: list[Rejection] = []
     rounds: list[Round] = []
     separable = blunders.procedure == "separable"
-    out = _snoop_rounds(project, options, blunders, keep, rejected, rounds, None, first)
+    current, before = None, []
+    if start is not None:  # the re-weighting's rounds are reported first, but not counted against max_rounds
+        initial, state, before = start
+        rejected += initial
+        keep[[rej.row for rej in initial]] = False
+        current, first = warm_start(subset(project, keep), *state), None
+    out = _snoop_rounds(project, options, blunders, keep, rejected, rounds, current, first)
     if isinstance(out, BlunderResult):
         return out
     stopped, last = out
@@ -161,6 +171,7 @@ def snoop(project: Project, options: AdjustmentOptions = AdjustmentOptions(),
     partial = bool(np.any(factor > 1.0))
     if partial:
         last = _without_coordinates(*last, factor)
+    rounds[:0] = before
     det = blunder_result("snoop", project, FinalAdjustment(*last), rejected, rounds, stopped,
                          time.perf_counter() - t_start, weights=weights.weight(factor) if partial else None)
     if partial:
