@@ -49,6 +49,13 @@ def homography(kind: str, p: np.ndarray) -> np.ndarray:
     return H
 
 
+def plate_per_pixel(kind: str, p: np.ndarray) -> np.ndarray:
+    """(...,) plate units (mm) per scan pixel of parameters p (..., n): the root of the area factor
+    of the inverse of the transformation's linear part (at the plate origin, for the projective)."""
+    linear = homography(kind, p)[..., :2, :2]
+    return np.sqrt(np.abs(np.linalg.det(np.linalg.inv(linear))))
+
+
 def scan_from_plate(kind: str, p: np.ndarray, xy_plate: np.ndarray):
     """q_scan = F(xy_plate; p) and its derivatives.
 

@@ -43,10 +43,9 @@ def _pixel_of_photo(project: Project) -> np.ndarray:
     if film is not None and film.fit is not None:
         from striptri.film import transform
 
-        linear = transform.homography(film.fit.kind, film.fit.params)[:, :2, :2]
         row_of = {pid: k for k, pid in enumerate(ph.ids)}
         rows = [row_of[pid] for pid in film.photo_ids]
-        pixel[rows] = 1.0 / np.sqrt(np.abs(np.linalg.det(linear)))
+        pixel[rows] = transform.plate_per_pixel(film.fit.kind, film.fit.params)
     return pixel
 
 

@@ -111,7 +111,6 @@ def film_frames(marks: FiducialMeasurements) -> tuple[ImageFrames, fid.FiducialF
     known = np.array([[bool(name) for name in row] for row in marks.names]).reshape(n, -1)
     fiducials = np.where(known[..., None], marks.xy_plate, np.nan)
     extent = np.nanmax(np.abs(fiducials), axis=1)  # (n, 2)
-    linear = transform.homography(marks.kind, fit.params)[:, :2, :2]
-    mm_per_px = 1.0 / np.sqrt(np.abs(np.linalg.det(linear)))
+    mm_per_px = transform.plate_per_pixel(marks.kind, fit.params)
     return ImageFrames(half=(1.0 - IMAGE_MARGIN) * extent, mm_per_px=mm_per_px, size_px=np.full((n, 2), np.nan),
                        film=(marks.kind, fit.params, fiducials)), fit

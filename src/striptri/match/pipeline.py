@@ -143,7 +143,7 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
                              "--scan-pixel-size (the scans' pixel size in micrometres, e.g. 15)")
     say = on_progress or (lambda text: None)
     products = MatchProducts(photo_ids=list(project.photos.ids), centres=project.photos.xyz0[:, :2].copy())
-    clock = _Clock(products.seconds)
+    clock = _Clock(products.seconds, say)
     height = _terrain_height(project, options)
     paths = None
     if database is None:
@@ -152,7 +152,7 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         while not out_parent.is_dir():  # OUT's folders are made when it is written
             out_parent = out_parent.parent
         with tempfile.TemporaryDirectory(prefix=".striptri-match-", dir=out_parent) as work:
-            xy, a, b, score, epipolar, frames = _matched_images(project, paths, options, products, clock, say, height,
+            xy, a, b, score, epipolar, frames = _matched_images(project, paths, options, products, clock, height,
                                                                 scans, work)
     else:
         from .colmap_database import matches_for_project
@@ -201,7 +201,8 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         f"orientations), {products.kept_tracks} kept, {products.rays} rays")
     if options.refine and paths is not None:  # least-squares matching at full resolution (match.lsm)
         xy_px, plate = xy_px.copy(), plate.copy()
-        _refine(tracks.track[chosen], photo_of[chosen], chosen, xy_px, plate, frames, paths, options, products)
+        xy_px[chosen] = _refine(tracks.track[chosen], photo_of[chosen], xy_px[chosen], paths, options, products)
+        plate[chosen] = frames.plate(photo_of[chosen], xy_px[chosen])
         clock.lap("least-squares matching")
         say(f"least-squares matching: {products.refined} of {products.refinable} rays refined (median shift "
             f"{products.refine_shift:.3f} px); image coordinates to {products.sigma_px:.3f} px "
@@ -235,15 +236,13 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     return products
 
 
-def _refine(track, photo, chosen, xy_px, plate, frames, paths, options, products) -> None:
-    """The chosen rays refined by least-squares matching (match.lsm), in place in xy_px and plate;
-    unless --sigma-px was given, the sigma estimated again from the matching's closures
+def _refine(track, photo, colrow, paths, options, products) -> np.ndarray:
+    """The rays (track, photo, colrow) refined by least-squares matching (match.lsm) -> their new
+    colrow; unless --sigma-px was given, the sigma estimated again from the matching's closures
     (match.lsm.closure_sigma)."""
     from .lsm import closure_sigma, refine
 
-    r = refine(track, photo, xy_px[chosen], paths, options.workers, options.scheduler)
-    xy_px[chosen] = r.colrow
-    plate[chosen] = frames.plate(photo, r.colrow)
+    r = refine(track, photo, colrow, paths, options.workers, options.scheduler)
     products.refined, products.refinable = int(r.refined.sum()), int(np.isfinite(r.correlation).sum())
     products.refine_shift = float(np.median(r.shift[r.refined])) if r.refined.any() else float("nan")
     if options.sigma_px is None:
@@ -251,6 +250,7 @@ def _refine(track, photo, chosen, xy_px, plate, frames, paths, options, products
         if np.isfinite(sigma) and used >= MIN_CLOSURES:
             products.sigma_px = sigma
             products.sigma_how = f"estimated from {used} closures of the least-squares matching"
+    return r.colrow
 
 
 MIN_CLOSURES = 20  # the sigma after least-squares matching needs at least this many closures
@@ -269,7 +269,7 @@ class _Scans:
     found: list | None = None
 
 
-def _matched_images(project, paths, options, products, clock, say, height, scans=None, work=None):
+def _matched_images(project, paths, options, products, clock, height, scans=None, work=None):
     """Features and verified matches from the images (paths: one per photo): -> (xy per photo, a,
     b, score, epipolar distances of the non-planar pairs, the ImageFrames); a, b index the photos'
     features concatenated. The features of each photo, and for scans their fiducial marks unless
@@ -297,7 +297,7 @@ def _matched_images(project, paths, options, products, clock, say, height, scans
             missed = [f"{m.fiducial_id} ({m.reason})" for m in found_marks if not m.found]
             text += (f"; fiducial marks: {len(found_marks) - len(missed)} of {len(found_marks)}"
                      + (f", not found: {', '.join(missed)}" if missed else ""))
-        say(text)
+        clock.say(text)
     products.features = [len(f) for f in xy]
     clock.lap("features" if scans is None else "features and fiducial marks")
     if scans is None:
@@ -333,7 +333,7 @@ def _matched_images(project, paths, options, products, clock, say, height, scans
             a.append(offsets[p] + i), b.append(offsets[q] + j), score.append(distance)
             if not planar:
                 epipolar.append(residuals)
-    say(f"pairs: {len(pairs)} matched")
+    clock.say(f"pairs: {len(pairs)} matched")
     clock.lap("pair matching")
     cat = (lambda x: np.concatenate(x) if x else np.zeros(0, dtype=np.int64))  # noqa: E731
     return xy, cat(a), cat(b), (np.concatenate(score) if score else np.zeros(0)), epipolar, frames
@@ -353,10 +353,11 @@ def _fiducial_summary(project, marks: FiducialMeasurements, fit, found) -> list:
 
 
 class _Clock:
-    """Seconds per stage, into ``seconds``."""
+    """Seconds per stage, into ``seconds``; say(text): the progress on the terminal."""
 
-    def __init__(self, seconds: dict):
+    def __init__(self, seconds: dict, say=None):
         self.seconds, self.t = seconds, time.perf_counter()
+        self.say = say or (lambda text: None)
 
     def lap(self, stage: str) -> None:
         now = time.perf_counter()

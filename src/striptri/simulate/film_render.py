@@ -78,8 +78,7 @@ def render_scan(R: np.ndarray, xyz0: np.ndarray, scan: Scan, terrain: Terrain, t
     fx, fy = spline(film[:, 0]), spline(film[:, 1])
     grey = texture.grey(X, Y)
     # film millimetres per scan pixel: the square root of the inverse affine part's area factor
-    linear = transform.homography("affine", scan.params[None])[0, :2, :2]
-    px_mm = float(np.sqrt(abs(np.linalg.det(np.linalg.inv(linear)))))
+    px_mm = float(transform.plate_per_pixel("affine", scan.params))
     exposed = np.clip((IMAGE_HALF_MM - np.maximum(np.abs(fx), np.abs(fy))) / px_mm + 0.5, 0.0, 1.0)
     for x0, y0 in scan.fiducials:  # the 4 or 8 marks
         d = np.hypot(fx - x0, fy - y0)
