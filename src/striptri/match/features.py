@@ -47,6 +47,18 @@ def cv2_module():
     return cv2
 
 
+def read_grey(path, flag: str = "IMREAD_GRAYSCALE") -> np.ndarray:
+    """The image at path as 8-bit grey (OpenCV's imread flag by name: IMREAD_REDUCED_GRAYSCALE_2 ..
+    decode it reduced). InputError when OpenCV cannot read it."""
+    cv2 = cv2_module()
+    image = cv2.imread(str(path), getattr(cv2, flag))
+    if image is None:
+        from ..errors import InputError
+
+        raise InputError(path, None, "not an image OpenCV can read")
+    return image
+
+
 def reduced(image: np.ndarray, scale: float) -> np.ndarray:
     """The image at ``scale`` (<= 1) of its width and height, by area averaging (the pyramid level
     the features are found on); 8-bit grey."""

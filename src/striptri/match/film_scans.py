@@ -179,10 +179,12 @@ def template(options: FiducialOptions, px_per_mm: float) -> np.ndarray:
     return image.astype(np.float32)
 
 
-def find_in_scan(scan: np.ndarray, fiducials: dict, mark: np.ndarray, options: FiducialOptions) -> list[FoundMark]:
-    """The fiducial marks of one scan (fiducials: {fiducial_id: (x, y) mm} of its camera)."""
-    return find_marks_turned(scan, {f: tuple(xy) for f, xy in fiducials.items()}, mark,
-                             1000.0 / float(options.pixel_size_um))
+def find_in_scan(scan: np.ndarray, fiducials: dict, options: FiducialOptions) -> list[FoundMark]:
+    """The fiducial marks of one scan (fiducials: {fiducial_id: (x, y) mm} of its camera), with the
+    template of options at the scan's resolution."""
+    px_per_mm = 1000.0 / float(options.pixel_size_um)
+    return find_marks_turned(scan, {f: tuple(xy) for f, xy in fiducials.items()}, template(options, px_per_mm),
+                             px_per_mm)
 
 
 def measurements_csv(project: Project, found: list[list[FoundMark]]) -> str:

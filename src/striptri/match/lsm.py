@@ -149,14 +149,9 @@ def match_in_photo(task: LsmTask):
 
 
 def _read(path) -> np.ndarray:
-    from ..errors import InputError
-    from .features import cv2_module
+    from .features import read_grey
 
-    cv2 = cv2_module()
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(path, None, "not an image OpenCV can read")
-    return image.astype(np.float32)
+    return read_grey(path).astype(np.float32)
 
 
 def _pair_affines(photo, colrow, ref_of, todo) -> np.ndarray:

@@ -49,7 +49,6 @@ class PairMatches:
     candidates: int
     epipolar: np.ndarray | None = None  # (k,) the Sampson distances (px) to the verified F
     planar: bool = False  # the scene was planar (F not unique: its distances say nothing of the accuracy)
-    fundamental: np.ndarray | None = None  # (3, 3) the verified F (x2^T F x1 = 0, full-resolution pixels)
 
 
 def sampson_distances(F: np.ndarray, xy1: np.ndarray, xy2: np.ndarray) -> np.ndarray:
@@ -130,4 +129,4 @@ def match_pair(a: Features, b: Features, ratio: float = RATIO, ransac_px: float 
         _, on_plane = cv2.findHomography(a.xy[i[ok]], b.xy[j[ok]], cv2.RANSAC, ransac_px, maxIters=2000,
                                          confidence=0.999)
         planar = on_plane is not None and on_plane.mean() >= PLANAR_SHARE
-    return PairMatches(i[ok], j[ok], d[ok], len(i), epipolar, planar, None if F is None else F[:3].copy())
+    return PairMatches(i[ok], j[ok], d[ok], len(i), epipolar, planar)

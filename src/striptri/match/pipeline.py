@@ -133,7 +133,7 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
             raise InputError(source, None, "a project of scanned film takes its tie points from the scans: give "
                                            "--images (the fiducial marks are found there too)")
         project, files_read = film_scans.read_film_project(project_dir)
-        scans = _Scans(film, files_read, film_scans.calibrated_fiducials(project_dir, files_read, project),
+        scans = _Scans(film, film_scans.calibrated_fiducials(project_dir, files_read, project),
                        options.fiducials)
         if film_scans.MEASUREMENTS in files_read:
             scans.given = film_scans.given_measurements(project_dir, files_read, project, scans.fiducials, film)
@@ -258,11 +258,10 @@ MIN_CLOSURES = 20  # the sigma after least-squares matching needs at least this 
 
 @dataclass
 class _Scans:
-    """A project of scanned film (match.film_scans): its setting, input files and calibrated
-    fiducials; the marks given (fiducial_measurements.csv) or found in the scans (per photo)."""
+    """A project of scanned film (match.film_scans): its setting and calibrated fiducials; the
+    marks given (fiducial_measurements.csv) or found in the scans (per photo)."""
 
     setting: film_scans.FilmSetting
-    files: dict
     fiducials: dict
     options: film_scans.FiducialOptions
     given: FiducialMeasurements | None = None
@@ -399,9 +398,6 @@ def _image_paths(project: Project, images_dir: Path, project_dir: Path) -> list[
             raise InputError(images_dir, None, f"no image of photo '{pid}' (expected {pid}.jpg, .png or .tif, or "
                                                "photos.csv's column image)")
     return out
-
-
-REDUCED = {0.5: "IMREAD_REDUCED_GRAYSCALE_2", 0.25: "IMREAD_REDUCED_GRAYSCALE_4", 0.125: "IMREAD_REDUCED_GRAYSCALE_8"}
 
 
 def _terrain_height(project: Project, options: MatchOptions) -> float:

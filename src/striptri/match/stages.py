@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .features import Features, cv2_module, detect
-from .film_scans import FiducialOptions, find_in_scan, template
+from .features import Features, detect, read_grey
+from .film_scans import FiducialOptions, find_in_scan
 from .frames import ImageFrames
 from .pair_matching import match_pair
 
@@ -48,33 +48,26 @@ class FeatureTask:
 def find_features(task: FeatureTask) -> tuple[np.ndarray, list | None]:
     """The photo's features written to the work folder -> (xy (n, 2) full-resolution pixels, the
     fiducial marks found or None). InputError for an image OpenCV cannot read or of the wrong size."""
-    cv2 = cv2_module()
     path = Path(task.path)
     marks = None
     if task.size_px is None:  # a film scan: once at full resolution, for the marks and the features
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise InputError(path, None, "not an image OpenCV can read")
+        image = read_grey(path)
         if task.fiducials is not None:
-            options = task.fiducial_options
-            px_per_mm = 1000.0 / float(options.pixel_size_um)
-            marks = find_in_scan(image, task.fiducials, template(options, px_per_mm), options)
+            marks = find_in_scan(image, task.fiducials, task.fiducial_options)
         found = detect(image, task.scale, task.max_features)
     else:
-        found = _digital_features(cv2, path, task)
+        found = _digital_features(path, task)
     np.savez(Path(task.folder) / f"features_{task.k}.npz", xy=found.xy, size=found.size.astype(np.float32),
              descriptors=np.rint(found.descriptors).astype(np.uint8))
     return found.xy, marks
 
 
-def _digital_features(cv2, path: Path, task: FeatureTask) -> Features:
+def _digital_features(path: Path, task: FeatureTask) -> Features:
     """At 1/2, 1/4, 1/8 the image is decoded at that size (a JPEG never at full resolution);
     otherwise read whole and reduced (match.features). The features in full-resolution pixels."""
     W, H = task.size_px
     flag = REDUCED.get(task.scale)
-    image = cv2.imread(str(path), getattr(cv2, flag) if flag else cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(path, None, "not an image OpenCV can read")
+    image = read_grey(path, flag or "IMREAD_GRAYSCALE")
     factor = task.scale if flag else 1.0
     h, w = image.shape[:2]
     if abs(w - W * factor) > 1 or abs(h - H * factor) > 1:
