@@ -217,15 +217,85 @@ def distortion_free(project: Project) -> Project:
     return replace(project, image_points=replace(ip, xy=ideal.xy), cameras=replace(cams, interior=interior))
 
 
+@dataclass
+class StripModel:
+    """The strip model in the frame of its starting photograph (module doc): order, R_model,
+    xyz0_model, xyz_model as in SequentialSolution; have (n_pt,) the points in the model; row
+    (n, n_pt) the image point row of each photo and point (-1: none); the steps and scale
+    transfers."""
+
+    order: np.ndarray
+    R_model: np.ndarray
+    xyz0_model: np.ndarray
+    xyz_model: np.ndarray
+    have: np.ndarray
+    row: np.ndarray
+    steps: list[PhotoStep]
+    relative_steps: list[PhotoStep]
+    scale_factors: np.ndarray
+    scale_residuals: list[np.ndarray]
+
+
 def triangulate_strip(project: Project, options: SequentialOptions | None = None) -> SequentialSolution:
     """Build the strip model photo by photo, then orient it absolutely (module doc)."""
     options = options or SequentialOptions()
     _single_strip(project)
     project = distortion_free(project)
-    ph, ip, pts = project.photos, project.image_points, project.points
-    n, n_pt = len(ph), len(pts)
     offset = reduction_offset(project)
-    Ra, Oa = ph.R_ground_from_cam, ph.xyz0 - offset
+    m = build_strip_model(project, options, project.photos.xyz0 - offset)
+    ph, ip, pts = project.photos, project.image_points, project.points
+    n = len(ph)
+    Oa = ph.xyz0 - offset
+    order, Rm, Om, Xm, have, row = m.order, m.R_model, m.xyz0_model, m.xyz_model, m.have, m.row
+    interior = project.cameras.interior[ph.camera_index, :3]
+    kw = {"tolerance": options.tolerance, "max_iterations": options.max_iterations}
+    # absolute orientation
+    given = pts.given_axes & np.isfinite(pts.xyz_given) & have[:, None] & (pts.kind != CHECK)[:, None]
+    xyz_given = pts.xyz_given - offset
+    full = np.flatnonzero(given.all(1))
+    start_m, start_g = Xm[full], xyz_given[full]
+    spread = np.linalg.svd(start_m - start_m.mean(0), compute_uv=False)[1] if len(full) >= 3 else 0.0
+    if len(full) < 3 or spread < ON_A_LINE * np.ptp(start_m, 0).max():
+        start_m = np.concatenate([start_m, Om])  # the approximate centres help to start
+        start_g = np.concatenate([start_g, Oa])
+    fit = fit_similarity(np.where(have[:, None], Xm, 0.0), np.where(given, xyz_given, 0.0), given,
+                         umeyama(start_m, start_g))
+    sim = fit.similarity
+    X_g = np.where(have[:, None], sim.apply(np.where(have[:, None], Xm, 0.0)), np.nan)
+    O_g = sim.apply(Om)
+    R_g = sim.R_ground_from_model @ Rm
+    poly, resections = None, []
+    if options.polynomial_degree is not None:
+        poly = fit_strip_polynomial(fit.residuals, np.where(have[:, None], X_g, 0.0), O_g[order],
+                                    options.polynomial_degree)
+        X_g = np.where(have[:, None], X_g + poly.correction(np.where(have[:, None], X_g, 0.0)), np.nan)
+        O_g = O_g + poly.correction(O_g)
+        for j in range(n):
+            seen = np.flatnonzero(have & (row[j] >= 0))
+            pose = Pose(R_g[j], O_g[j], interior[j])
+            measured = StepMeasurements(np.zeros((0, 4)), np.zeros((0, 4)), ip.xy[row[j, seen]],
+                                        ip.sigma_xy[row[j, seen]], X_g[seen])
+            rs = orient_photo("full", pose, pose, measured,
+                              label=f"photo {ph.ids[j]} (resection after the strip correction)", **kw)
+            R_g[j], O_g[j] = rs.R_j, rs.O_j
+            resections.append(rs)
+    return SequentialSolution(
+        options=options, offset=offset, order=order, R_model=Rm, xyz0_model=Om, xyz_model=Xm, steps=m.steps,
+        relative_steps=m.relative_steps, scale_factors=m.scale_factors, scale_residuals=m.scale_residuals,
+        similarity=sim, control_residuals=fit.residuals, similarity_iterations=fit.iterations, polynomial=poly,
+        similarity_converged=fit.converged,
+        R_ground=R_g, xyz0_ground=O_g, xyz_ground=X_g, resections=resections,
+    )
+
+
+def build_strip_model(project: Project, options: SequentialOptions, centres: np.ndarray) -> StripModel:
+    """The strip model of ``project`` (one strip, free of distortion) photo by photo in the frame of
+    its starting photograph (module doc, procedures 1 and 2). centres: (n, 3) the approximate
+    centres (reduced frame): with the approximate rotations they give each relative orientation
+    its start and the length of its held base component."""
+    ph, ip = project.photos, project.image_points
+    n, n_pt = len(ph), len(project.points)
+    Ra, Oa = ph.R_ground_from_cam, centres
     interior = project.cameras.interior[ph.camera_index, :3]
     order = np.arange(n) if options.direction == "forward" else np.arange(n)[::-1]
     row = -np.ones((n, n_pt), dtype=int)
@@ -292,41 +362,5 @@ def triangulate_strip(project: Project, options: SequentialOptions | None = None
         Xm[new] = X_new
         have[new] = True
         steps.append(step)
-
-    # absolute orientation
-    given = pts.given_axes & np.isfinite(pts.xyz_given) & have[:, None] & (pts.kind != CHECK)[:, None]
-    xyz_given = pts.xyz_given - offset
-    full = np.flatnonzero(given.all(1))
-    start_m, start_g = Xm[full], xyz_given[full]
-    spread = np.linalg.svd(start_m - start_m.mean(0), compute_uv=False)[1] if len(full) >= 3 else 0.0
-    if len(full) < 3 or spread < ON_A_LINE * np.ptp(start_m, 0).max():
-        start_m = np.concatenate([start_m, Om])  # the approximate centres help to start
-        start_g = np.concatenate([start_g, Oa])
-    fit = fit_similarity(np.where(have[:, None], Xm, 0.0), np.where(given, xyz_given, 0.0), given,
-                         umeyama(start_m, start_g))
-    sim = fit.similarity
-    X_g = np.where(have[:, None], sim.apply(np.where(have[:, None], Xm, 0.0)), np.nan)
-    O_g = sim.apply(Om)
-    R_g = sim.R_ground_from_model @ Rm
-    poly, resections = None, []
-    if options.polynomial_degree is not None:
-        poly = fit_strip_polynomial(fit.residuals, np.where(have[:, None], X_g, 0.0), O_g[order],
-                                    options.polynomial_degree)
-        X_g = np.where(have[:, None], X_g + poly.correction(np.where(have[:, None], X_g, 0.0)), np.nan)
-        O_g = O_g + poly.correction(O_g)
-        for j in range(n):
-            seen = np.flatnonzero(have & (row[j] >= 0))
-            pose = Pose(R_g[j], O_g[j], interior[j])
-            measured = StepMeasurements(np.zeros((0, 4)), np.zeros((0, 4)), ip.xy[row[j, seen]],
-                                        ip.sigma_xy[row[j, seen]], X_g[seen])
-            rs = orient_photo("full", pose, pose, measured,
-                              label=f"photo {ph.ids[j]} (resection after the strip correction)", **kw)
-            R_g[j], O_g[j] = rs.R_j, rs.O_j
-            resections.append(rs)
-    return SequentialSolution(
-        options=options, offset=offset, order=order, R_model=Rm, xyz0_model=Om, xyz_model=Xm, steps=steps,
-        relative_steps=relative_steps, scale_factors=np.array(scales), scale_residuals=scale_res,
-        similarity=sim, control_residuals=fit.residuals, similarity_iterations=fit.iterations, polynomial=poly,
-        similarity_converged=fit.converged,
-        R_ground=R_g, xyz0_ground=O_g, xyz_ground=X_g, resections=resections,
-    )
+    return StripModel(order=order, R_model=Rm, xyz0_model=Om, xyz_model=Xm, have=have, row=row, steps=steps,
+                      relative_steps=relative_steps, scale_factors=np.array(scales), scale_residuals=scale_res)
