@@ -157,10 +157,14 @@ def test_overlap_pairs_find_every_overlapping_pair_of_a_block():
 
 def test_strip_pairs_without_orientations():
     strips = ["a"] * 4 + ["b"] * 4
-    got = {tuple(p) for p in strip_pairs(strips, along=1, across=0).tolist()}
+    got = {tuple(p) for p in strip_pairs(strips, along=1, across=0, both_directions=False).tolist()}
     assert got == {(0, 1), (1, 2), (2, 3), (4, 5), (5, 6), (6, 7), (0, 4), (1, 5), (2, 6), (3, 7)}
-    got = {tuple(p) for p in strip_pairs(strips, along=2, across=1).tolist()}
+    got = {tuple(p) for p in strip_pairs(strips, along=2, across=1, both_directions=False).tolist()}
     assert (0, 2) in got and (0, 5) in got and (0, 6) not in got and (0, 3) not in got
+    # strip b flown back: photo 0 lies beside b's last photo (7), as well as beside its first
+    got = {tuple(p) for p in strip_pairs(strips, along=1, across=0).tolist()}
+    assert got == {(0, 1), (1, 2), (2, 3), (4, 5), (5, 6), (6, 7), (0, 4), (1, 5), (2, 6), (3, 7),
+                   (0, 7), (1, 6), (2, 5), (3, 4)}
 
 
 # ------------------------------------------------------------------------------------------ thinning
@@ -226,14 +230,14 @@ def test_sampson_distances_measure_the_image_noise():
 
 
 def test_tracks_whose_rays_do_not_meet_near_the_ground_are_dropped():
-    """The consistency check of striptri match (pipeline._consistent) on a simulated strip with its
+    """The consistency check of striptri match (match.ground_check.ground_consistent) on a simulated strip with its
     exact orientations: the true tie points pass; a false match whose rays meet 500 m above the
     ground (as one along the epipolar line of a flat scene does: 0.33 of the 1,500 m flying
     height, beyond HEIGHT_RANGE) and one whose second ray passes 250 m from the first are dropped."""
     from dataclasses import replace
 
     from striptri.geometry.camera import project as plate_of
-    from striptri.match.pipeline import _consistent
+    from striptri.match.ground_check import ground_consistent
 
     design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=4, n_strips=1), control=sim.ControlDesign(layout="ends"))
     truth = sim.make_truth(design, np.random.default_rng(4))
@@ -254,7 +258,7 @@ def test_tracks_whose_rays_do_not_meet_near_the_ground_are_dropped():
     photo = np.r_[photo, 0, 1, 0, 1]
     plate = np.vstack([plate, plate[(track[:-4] == k) & (photo[:-4] == 0)], far[None],
                        plate[(track[:-4] == k) & (photo[:-4] == 0)], shifted[None]])
-    ok = _consistent(project, track, photo, plate, h, 0.10, n + 2)
+    ok = ground_consistent(project, track, photo, plate, h, 0.10, n + 2)
     assert ok[:n].all()
     assert not ok[n] and not ok[n + 1]
 

@@ -80,13 +80,16 @@ def film_setting(project_dir: Path) -> FilmSetting | None:
                        float(sigma) if isinstance(sigma, (int, float)) else DEFAULT_SIGMA_PX)
 
 
-def read_film_project(project_dir: Path) -> tuple[Project, dict[str, bytes]]:
+def read_film_project(project_dir: Path, photos: str | None = None) -> tuple[Project, dict[str, bytes]]:
     """The project of scans as the matcher needs it: everything but its image points (which the
     full read carries through the fiducial transformation), and the input files read (name ->
     bytes). The whole project, with the fiducials, is read again from OUT's files before they are
-    written (pipeline.run_match)."""
+    written (pipeline.run_match). photos: photos.csv to read instead of the user's (photos without
+    orientations, match.unoriented)."""
     files = {name: read_input_bytes(project_dir / name) for name in FILE_NAMES if (project_dir / name).is_file()}
     bare = {k: v for k, v in files.items() if k not in ("image_points.csv", MEASUREMENTS)}
+    if photos is not None:
+        bare["photos.csv"] = photos
     if FIDUCIALS not in files:
         raise InputError(project_dir / FIDUCIALS, None, "not found: the scans' fiducial marks need the calibrated "
                                                         "fiducial coordinates (camera_id, fiducial_id, x, y)")

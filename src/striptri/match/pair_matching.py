@@ -53,10 +53,12 @@ class PairMatches:
 
 def sampson_distances(F: np.ndarray, xy1: np.ndarray, xy2: np.ndarray) -> np.ndarray:
     """Signed Sampson distances (px) of matches xy1 <-> xy2 (k, 2) to the fundamental matrix F
-    (x2^T F x1 = 0): the epipolar residual over the norm of its gradient in the four coordinates."""
+    (x2^T F x1 = 0): the epipolar residual over the norm of its gradient in the four coordinates.
+    F (3, 3), or (k, 3, 3) one per match."""
     h1 = np.column_stack([xy1, np.ones(len(xy1))])
     h2 = np.column_stack([xy2, np.ones(len(xy2))])
-    Fx1, Ftx2 = h1 @ F.T, h2 @ F
+    F = np.broadcast_to(F, (len(h1), 3, 3))
+    Fx1, Ftx2 = np.einsum("nij,nj->ni", F, h1), np.einsum("nji,nj->ni", F, h2)
     e = np.einsum("ij,ij->i", h2, Fx1)
     return e / np.sqrt(Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2)
 

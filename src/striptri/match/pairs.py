@@ -8,7 +8,8 @@ both ways; a convex quadrilateral each). Only photos whose footprint centres lie
 of their footprint radii are compared (a k-d tree): the work grows with the block, not its square.
 
 Without orientations, :func:`strip_pairs`: each photo with the next ``along`` photos of its strip,
-and with the photos of the neighbouring strips at about the same place along the strip.
+and with the photos of the neighbouring strips at about the same place along the strip (flown the
+same way or back).
 """
 
 from __future__ import annotations
@@ -73,11 +74,13 @@ def overlap_pairs(corners: np.ndarray, min_overlap: float = 0.1) -> np.ndarray:
     return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 
-def strip_pairs(strip_ids, along: int = 2, across: int = 1) -> np.ndarray:
+def strip_pairs(strip_ids, along: int = 2, across: int = 1, both_directions: bool = True) -> np.ndarray:
     """(k, 2) pairs i < j without orientations: each photo with the next ``along`` photos of its
     strip (the order of photos.csv), and with the photos of the next strip (strips in their order
     of first appearance) whose relative place along the strip is within ``across`` photos of its
-    own. strip_ids: (n,) strings."""
+    own, counted from the same end and, with both_directions (strips flown back and forth, which
+    photos.csv cannot tell without orientations), from the other end too: the pairs that do not
+    overlap fail the verification. strip_ids: (n,) strings."""
     strip_ids = np.asarray(strip_ids)
     names, first = np.unique(strip_ids, return_index=True)
     names = names[np.argsort(first)]
@@ -94,6 +97,8 @@ def strip_pairs(strip_ids, along: int = 2, across: int = 1) -> np.ndarray:
         pos_u = np.linspace(0.0, 1.0, len(upper)) if len(upper) > 1 else np.zeros(1)
         step = 1.0 / max(len(upper) - 1, 1)
         near = np.abs(pos_l[:, None] - pos_u[None, :]) <= (across + 0.5) * step
+        if both_directions:
+            near |= np.abs(pos_l[:, None] - (1.0 - pos_u[None, :])) <= (across + 0.5) * step
         a, b = np.nonzero(near)
         out.append(np.stack([lower[a], upper[b]], 1))
     pairs = np.sort(np.concatenate(out) if out else np.zeros((0, 2), dtype=np.int64), axis=1).astype(np.int64)

@@ -21,28 +21,29 @@ import csv
 import io
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..io.csvtable import input_present, read_input_bytes
 from ..io.output import OutputReservation, check_output_location
 from ..io.project_reader import FILE_NAMES, parse_project, read_project
 from ..model import FULL, HEIGHT, Project
-from . import film_scans
+from . import film_scans, unoriented
 from ..parallel import map_unordered
 from .frames import FiducialMeasurements, digital_frames, film_frames
 from .stages import FeatureTask, find_features, match_pairs, pair_tasks
-from .pair_matching import sigma_from_epipolar
+from .pair_matching import RANSAC_PX, sigma_from_epipolar
 from .pairs import footprints, overlap_pairs, strip_pairs
+from .ground_check import ground_consistent
 from .thinning import thin_tracks
 from .image_names import image_column
-from .tracks import build_tracks, same_place
+from .tracks import build_tracks, same_place, two_view_consistent
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 REPORT_NAME = "match_report.html"  # the matching report, in OUT beside the project files
-HEIGHT_RANGE = 0.3  # a tie point further from the terrain height than this share of the flying height is false
 FALLBACK_SIGMA_PX = 0.3  # an automatic tie point's sigma where the matches cannot tell (planar scenes only)
 
 
@@ -56,7 +57,7 @@ class MatchOptions:
     is of a planar scene); ground_tolerance: a track one of whose rays, with the approximate
     orientations, passes further from the track's intersection than this share of the height
     above the terrain is a false one (0.10: approximations within about 2 degrees, 3 standard
-    deviations; _consistent); fiducials: finding the marks of film scans (match.film_scans);
+    deviations; match.ground_check); fiducials: finding the marks of film scans (match.film_scans);
     workers, scheduler: where the features and the pairs are worked on (striptri.parallel: local
     processes, one per core by default, or a Dask cluster)."""
 
@@ -108,6 +109,7 @@ class MatchProducts:
     refine_shift: float = float("nan")  # their median shift (px)
     fiducials: list | None = None  # film: per photo (id, marks, of, largest residual px, sigma0, not found)
     fiducials_found: bool = False  # film: the marks were found in the scans (not given)
+    strips: list | None = None  # photos without orientations: how each strip was placed (sequential.block)
 
 
 def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOptions(), on_progress=None,
@@ -121,8 +123,10 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     check_output_location(out_dir, inputs)
     film = film_scans.film_setting(project_dir)
     scans = None
+    stand_in = _placeholder_photos(project_dir)  # photos without orientations (match.unoriented)
     if film is None:
-        project = read_project(project_dir, plate_measurements_optional=True)
+        project = read_project(project_dir, plate_measurements_optional=True) if stand_in is None else \
+            unoriented.read_with(project_dir, stand_in)
         cams = project.cameras
         if cams.size_px is None or not np.isfinite(cams.size_px[project.photos.camera_index]).all():
             raise InputError(project_dir / "cameras.csv", None, "automatic tie points need digital frame cameras "
@@ -132,7 +136,7 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         if database is not None:
             raise InputError(source, None, "a project of scanned film takes its tie points from the scans: give "
                                            "--images (the fiducial marks are found there too)")
-        project, files_read = film_scans.read_film_project(project_dir)
+        project, files_read = film_scans.read_film_project(project_dir, stand_in)
         scans = _Scans(film, film_scans.calibrated_fiducials(project_dir, files_read, project),
                        options.fiducials)
         if film_scans.MEASUREMENTS in files_read:
@@ -141,6 +145,8 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
             raise InputError(project_dir / film_scans.MEASUREMENTS, None,
                              "not found, so the fiducial marks are to be found in the scans: give "
                              "--scan-pixel-size (the scans' pixel size in micrometres, e.g. 15)")
+    if stand_in is not None:
+        unoriented.check_control(project, project_dir)
     say = on_progress or (lambda text: None)
     products = MatchProducts(photo_ids=list(project.photos.ids), centres=project.photos.xyz0[:, :2].copy())
     clock = _Clock(products.seconds, say)
@@ -152,8 +158,8 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         while not out_parent.is_dir():  # OUT's folders are made when it is written
             out_parent = out_parent.parent
         with tempfile.TemporaryDirectory(prefix=".striptri-match-", dir=out_parent) as work:
-            xy, a, b, score, epipolar, frames = _matched_images(project, paths, options, products, clock, height,
-                                                                scans, work)
+            xy, a, b, score, epipolar, frames = _matched_images(project, paths, options, products, clock,
+                                                                height if stand_in is None else None, scans, work)
     else:
         from .colmap_database import matches_for_project
 
@@ -185,8 +191,11 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     products.track_lengths = np.bincount(tracks.track[rows], minlength=tracks.n_tracks)
     plate = frames.plate(photo_of, xy_px) if len(xy_px) else np.zeros((0, 2))
     products.half_format = frames.half
-    consistent = _consistent(project, tracks.track[rows], photo_of[rows], plate[rows], height,
-                             options.ground_tolerance, tracks.n_tracks)
+    if stand_in is None:  # the tracks checked with the approximate orientations
+        consistent = ground_consistent(project, tracks.track[rows], photo_of[rows], plate[rows], height,
+                                 options.ground_tolerance, tracks.n_tracks)
+    else:  # without them, with each matched pair's two-view geometry
+        consistent = two_view_consistent(tracks.track, photo_of, xy_px, twin[a], twin[b], tracks.n_tracks, RANSAC_PX)
     products.inconsistent = int((~consistent).sum())
     rows = rows[consistent[tracks.track[rows]]]
     keep = thin_tracks(tracks.track[rows], photo_of[rows], plate[rows], frames.half, options.cells, options.per_cell,
@@ -207,15 +216,38 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         say(f"least-squares matching: {products.refined} of {products.refinable} rays refined (median shift "
             f"{products.refine_shift:.3f} px); image coordinates to {products.sigma_px:.3f} px "
             f"({products.sigma_how})")
-    products.ray_photo, products.ray_plate = photo_of[chosen], plate[chosen]
-    if frames.units == "plate":  # digital: plate coordinates and sigmas in plate units
-        measured, sigma = plate[chosen], products.sigma_px * frames.mm_per_px[photo_of[chosen]]
-    else:  # film: scan pixels (col, row), sigmas in pixels
-        measured, sigma = xy_px[chosen], np.full(len(chosen), products.sigma_px)
-    files = _output_files(project_dir, project, tracks.track[chosen], photo_of[chosen], measured, sigma)
-    if scans is not None and scans.found is not None:
-        files[film_scans.MEASUREMENTS] = film_scans.measurements_csv(project, scans.found)
+    def tables(chosen):
+        if frames.units == "plate":  # digital: plate coordinates and sigmas in plate units
+            measured, sigma = plate[chosen], products.sigma_px * frames.mm_per_px[photo_of[chosen]]
+        else:  # film: scan pixels (col, row), sigmas in pixels
+            measured, sigma = xy_px[chosen], np.full(len(chosen), products.sigma_px)
+        files = _output_files(project_dir, project, tracks.track[chosen], photo_of[chosen], measured, sigma)
+        if scans is not None and scans.found is not None:
+            files[film_scans.MEASUREMENTS] = film_scans.measurements_csv(project, scans.found)
+        return files
+
+    files = tables(chosen)
     clock.lap("output tables")
+    if stand_in is not None:  # approximate orientations from the strips (match.unoriented)
+        tolerance = RANSAC_PX * float(np.median(frames.mm_per_px))
+        oriented = unoriented.orient(project_dir, files, stand_in, tolerance, options.ground_tolerance,
+                                     _terrain_height(project, options))
+        false = np.array([t for t, pid in _auto_ids(project, tracks.track[chosen]).items()
+                          if pid in oriented.false_points], dtype=np.int64)
+        keep[false] = False
+        chosen = chosen[keep[tracks.track[chosen]]]
+        products.inconsistent += len(false)
+        products.kept_tracks, products.rays = int(keep.sum()), len(chosen)
+        products.kept_lengths = products.track_lengths[keep]
+        files = {**tables(chosen), unoriented.PHOTOS: oriented.photos_csv}
+        project = replace(project, photos=replace(project.photos, xyz0=oriented.block.xyz0,
+                                                  R_ground_from_cam=oriented.block.R_ground_from_cam))
+        products.strips, products.centres = oriented.block.strips, oriented.block.xyz0[:, :2].copy()
+        clock.lap("orientations from the strips")
+        say(f"orientations: {len(products.strips)} strips built and placed on the control (largest RMS "
+            f"{max(p.rms_m for p in products.strips):.2f} m); {len(oriented.false_points)} tie points off them "
+            "left out")
+    products.ray_photo, products.ray_plate = photo_of[chosen], plate[chosen]
     if paths is not None:  # the control points' chips (match.chips)
         from .chips import chip_files
 
@@ -234,6 +266,12 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     with OutputReservation(out_dir, inputs) as reservation:
         products.out = reservation.commit(files)
     return products
+
+
+def _placeholder_photos(project_dir: Path) -> str | None:
+    """photos.csv with zero orientations when the user's has none (match.unoriented), else None."""
+    path = project_dir / unoriented.PHOTOS
+    return unoriented.placeholder(project_dir, read_input_bytes(path)) if input_present(path) else None
 
 
 def _refine(track, photo, colrow, paths, options, products) -> np.ndarray:
@@ -274,7 +312,9 @@ def _matched_images(project, paths, options, products, clock, height, scans=None
     features concatenated. The features of each photo, and for scans their fiducial marks unless
     given, are found by the tasks of match.stages (local processes, or the cluster of
     options.scheduler) and written to the work folder ``work``; the pairs are matched from there.
-    Scans: only the features inside the image area (not the frame, film base or marks) are matched."""
+    Scans: only the features inside the image area (not the frame, film base or marks) are matched.
+    height: the terrain height of the footprints (None: the photos have no orientations, the pairs
+    come from the strips)."""
     ids = project.photos.ids
     cams = project.cameras
     tasks = []
@@ -409,55 +449,32 @@ def _terrain_height(project: Project, options: MatchOptions) -> float:
     return float(np.mean(pts.xyz_given[control, 2])) if control.any() else 0.0
 
 
-def _consistent(project: Project, track, photo, plate, h: float, tolerance: float, n_tracks: int) -> np.ndarray:
-    """(n_tracks,) bool: the tracks whose rays, with the approximate orientations, meet. Each track
-    is intersected (least squares over its rays); it is false when a ray passes further from the
-    intersection than ``tolerance`` times the height above the terrain (approximations within
-    about 3 degrees), when the intersection lies behind a photo, or when it lies further from the
-    terrain height h than HEIGHT_RANGE times the height above it: a false match along the
-    epipolar line of a flat scene passes the epipolar test and its rays do meet, but hundreds of
-    metres above or below the ground (on the flat rendered block of tests/test_match_command.py,
-    7 of 3,857 tracks). A ray's miss distance, unlike its footprint on a plane, does not grow with
-    the relief: tracks on hills seen from two strips are kept."""
+def _pairs(project: Project, h: float | None, half: np.ndarray) -> np.ndarray:
+    """Candidate pairs: footprints at the terrain height h, else (h None: no orientations, or a
+    footprint that does not reach the terrain) the strips (match.pairs); half (n, 2) each photo's
+    half format (plate units)."""
     ph, cams = project.photos, project.cameras
-    cam = ph.camera_index[photo]
-    p = np.concatenate([plate - cams.interior[cam, 1:3], -cams.interior[cam, :1]], 1)
-    r = np.einsum("nij,nj->ni", ph.R_ground_from_cam[photo], p)
-    r /= np.linalg.norm(r, axis=1, keepdims=True)
-    O = ph.xyz0[photo]
-    P = np.eye(3) - r[:, :, None] * r[:, None, :]  # projector across each ray
-    A = np.zeros((n_tracks, 3, 3))
-    b = np.zeros((n_tracks, 3))
-    np.add.at(A, track, P)
-    np.add.at(b, track, np.einsum("nij,nj->ni", P, O))
-    count = np.bincount(track, minlength=n_tracks)
-    ok = count >= 2
-    X = np.full((n_tracks, 3), np.nan)
-    with np.errstate(invalid="ignore"):
-        good = ok & (np.abs(np.linalg.det(A)) > 1e-12)
-        X[good] = np.linalg.solve(A[good], b[good][..., None])[..., 0]
-    d = X[track] - O
-    miss = np.linalg.norm(d - np.einsum("ni,ni->n", d, r)[:, None] * r, axis=1)
-    far = np.zeros(n_tracks)
-    np.maximum.at(far, track, np.nan_to_num(miss, nan=np.inf))
-    behind = np.zeros(n_tracks, dtype=bool)
-    np.logical_or.at(behind, track, ~(np.einsum("ni,ni->n", d, r) > 0))
-    above = float(np.median(np.abs(ph.xyz0[:, 2] - h)))
-    with np.errstate(invalid="ignore"):
-        level = np.abs(X[:, 2] - h) <= HEIGHT_RANGE * above
-    return good & (far <= tolerance * above) & ~behind & level
-
-
-def _pairs(project: Project, h: float, half: np.ndarray) -> np.ndarray:
-    """Candidate pairs: footprints at the terrain height h, else the strips (match.pairs); half (n,
-    2) each photo's half format (plate units)."""
-    ph, cams = project.photos, project.cameras
+    if h is None:
+        return strip_pairs(ph.strip_ids)
     cam = ph.camera_index
     try:
         fp = footprints(ph.R_ground_from_cam, ph.xyz0, cams.interior[cam, :3], half, h)
     except ValueError:
         return strip_pairs(ph.strip_ids)
     return overlap_pairs(fp)
+
+
+def _auto_ids(project: Project, track: np.ndarray) -> dict[int, str]:
+    """The point id of each track written: auto_<n>, n counting up over the ids the project uses."""
+    taken = set(project.points.ids)
+    n, prefix = 0, "auto_"
+    ids = {}
+    for t in np.unique(track):
+        while f"{prefix}{n}" in taken:
+            n += 1
+        ids[int(t)] = f"{prefix}{n}"
+        n += 1
+    return ids
 
 
 def _output_files(project_dir: Path, project: Project, track, photo, plate, sigma) -> dict[str, bytes | str]:
@@ -483,14 +500,7 @@ def _output_files(project_dir: Path, project: Project, track, photo, plate, sigm
         header.append("source")
         for r in rows:
             r["source"] = "manual"
-    taken = set(project.points.ids)
-    n, prefix = 0, "auto_"
-    ids = {}
-    for t in np.unique(track):
-        while f"{prefix}{n}" in taken:
-            n += 1
-        ids[int(t)] = f"{prefix}{n}"
-        n += 1
+    ids = _auto_ids(project, track)
     for t, p, xy, s in zip(track.tolist(), photo.tolist(), plate, sigma):
         rows.append({"photo_id": project.photos.ids[p], "point_id": ids[t], "x": repr(float(xy[0])),
                      "y": repr(float(xy[1])), "sigma_x": repr(float(s)), "sigma_y": repr(float(s)),

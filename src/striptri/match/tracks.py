@@ -125,3 +125,73 @@ def same_place(photo: np.ndarray, xy: np.ndarray) -> np.ndarray:
     canonical = np.empty(n, dtype=np.int64)
     canonical[order] = first
     return canonical
+
+
+def two_view_consistent(track: np.ndarray, photo: np.ndarray, xy: np.ndarray, a: np.ndarray, b: np.ndarray,
+                        n_tracks: int, tolerance_px: float) -> np.ndarray:
+    """(n_tracks,) bool: the tracks whose rays agree with the two-view geometry of every pair of
+    their photos that has verified matches. Without approximate orientations (match.unoriented)
+    this is the check of a track: union-find joins two points into one track through a chain of
+    false matches, and such a track has rays in two photos of a matched pair that do not correspond.
+
+    Each pair's geometry is fitted again to its verified matches (a, b: feature numbers, in pairs
+    of photos): a homography where one explains all but PLANAR_SHARE of them (a flat scene, whose
+    fundamental matrix is not unique), else the fundamental matrix (8-point, least squares). A track
+    is inconsistent when two of its rays in such a pair are further apart than tolerance_px (the
+    homography's transfer distance, or the Sampson distance to F). track (n_features,) -1: none;
+    photo, xy (n_features, ...) full-resolution pixels."""
+    from .features import cv2_module
+    from .pair_matching import PLANAR_SHARE, sampson_distances
+
+    cv2 = cv2_module()
+    n_photos = int(photo.max()) + 1 if len(photo) else 0
+    pa, pb = photo[a], photo[b]
+    swap = pa > pb
+    a, b = np.where(swap, b, a), np.where(swap, a, b)
+    key = photo[a] * n_photos + photo[b]
+    keys, first, count = np.unique(key, return_index=True, return_counts=True)
+    order = np.argsort(key, kind="stable")
+    models, planar = np.zeros((len(keys), 3, 3)), np.zeros(len(keys), dtype=bool)
+    usable = np.zeros(len(keys), dtype=bool)
+    start = 0
+    for k, c in enumerate(count):  # one small fit per matched pair
+        rows = order[start:start + c]
+        start += c
+        if c < 8:
+            continue
+        p1, p2 = xy[a[rows]].astype(np.float64), xy[b[rows]].astype(np.float64)
+        H, _ = cv2.findHomography(p1, p2, 0)
+        if H is not None and np.mean(_transfer(H, p1, p2) <= tolerance_px) >= PLANAR_SHARE:
+            models[k], planar[k], usable[k] = H, True, True
+            continue
+        F, _ = cv2.findFundamentalMat(p1, p2, cv2.FM_8POINT)
+        if F is not None and F.shape == (3, 3):
+            models[k], usable[k] = F, True
+    ok = np.ones(n_tracks, dtype=bool)
+    rays = np.flatnonzero(track >= 0)
+    rays = rays[np.lexsort((photo[rays], track[rays]))]
+    t = track[rays]
+    for d in range(1, int(np.bincount(t).max()) if len(t) else 1):  # every two rays of a track
+        same = t[:-d] == t[d:]
+        r1, r2 = rays[:-d][same], rays[d:][same]
+        k = np.searchsorted(keys, photo[r1] * n_photos + photo[r2])
+        k = np.minimum(k, len(keys) - 1)
+        matched = (keys[k] == photo[r1] * n_photos + photo[r2]) & usable[k]
+        r1, r2, k = r1[matched], r2[matched], k[matched]
+        e = np.empty(len(k))
+        h = planar[k]
+        e[h] = _transfer(models[k[h]], xy[r1[h]], xy[r2[h]])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e[~h] = np.nan_to_num(np.abs(sampson_distances(models[k[~h]], xy[r1[~h]], xy[r2[~h]])), nan=np.inf)
+        ok[track[r1[e > tolerance_px]]] = False
+    return ok
+
+
+def _transfer(H: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Distances between H p1 and p2 (H (3, 3) or (n, 3, 3))."""
+    q = np.concatenate([p1, np.ones((len(p1), 1))], 1)
+    Hq = (q @ H.T) if H.ndim == 2 else np.einsum("nij,nj->ni", H, q)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.linalg.norm(Hq[:, :2] / Hq[:, 2:] - p2, axis=1)
+    return np.nan_to_num(d, nan=np.inf)
+
