@@ -11,7 +11,7 @@ import pytest
 from striptri import simulate as sim
 from striptri.match.pairs import _bilinear, _inside, footprints, overlap_pairs, strip_pairs, GRID
 from striptri.match.thinning import thin_tracks
-from striptri.match.tracks import build_tracks, same_place
+from striptri.match.tracks import build_tracks, same_place, two_view_consistent
 
 
 # ------------------------------------------------------------------------------------------ tracks
@@ -269,3 +269,36 @@ def test_thinning_answers_for_every_track_when_the_last_ones_have_no_rays_left()
     track = np.array([0, 0, 1, 1])
     keep = thin_tracks(track, np.array([0, 1, 0, 1]), np.zeros((4, 2)), np.ones((2, 2)), n_tracks=4)
     assert keep.tolist() == [True, True, False, False]
+
+
+# ------------------------------------------------------------------- two-view check of the tracks
+
+@pytest.mark.parametrize("relief", [0.0, 300.0])  # a flat scene (homography), and one with relief (F)
+def test_a_track_joined_by_a_false_match_breaks_a_pairs_geometry(relief):
+    """Three vertical photos one base apart over 40 points; the matches of every pair are true but
+    one: point 1 in photo 1 is matched to point 2 in photo 2 (point 2 has no other match), so the
+    union makes one track of point 1 (photos 0, 1) and point 2 (photo 2). It is the only track
+    whose rays break a pair's two-view geometry."""
+    rng = np.random.default_rng(4)
+    n = 40
+    X = np.column_stack([rng.uniform(0, 1000, n), rng.uniform(-300, 300, n), rng.uniform(0, relief, n)])
+    xy = []
+    for p in range(3):  # c 1000 px, flying height 2000 m, base 300 m, principal point (500, 400)
+        xy.append(np.column_stack([500 + 1000 * (X[:, 0] - 300 * p) / (2000 - X[:, 2]),
+                                   400 + 1000 * X[:, 1] / (2000 - X[:, 2])]))
+    xy = np.concatenate(xy)
+    photo = np.repeat(np.arange(3), n)
+    f = lambda p, k: p * n + k  # noqa: E731  feature of point k in photo p
+    a, b = [], []
+    for p, q in ((0, 1), (1, 2), (0, 2)):
+        for k in range(n):
+            if k == 2 or (k == 1 and q == 2):
+                continue
+            a.append(f(p, k)), b.append(f(q, k))
+    a.append(f(1, 1)), b.append(f(2, 2))  # the false match
+    a, b = np.array(a), np.array(b)
+    tracks = build_tracks(photo, a, b)
+    ok = two_view_consistent(tracks.track, photo, xy, a, b, tracks.n_tracks, 1.5)
+    joined = tracks.track[f(0, 1)]
+    assert tracks.track[f(2, 2)] == joined and tracks.split == 0
+    assert not ok[joined] and ok.sum() == tracks.n_tracks - 1

@@ -135,8 +135,9 @@ def two_view_consistent(track: np.ndarray, photo: np.ndarray, xy: np.ndarray, a:
     false matches, and such a track has rays in two photos of a matched pair that do not correspond.
 
     Each pair's geometry is fitted again to its verified matches (a, b: feature numbers, in pairs
-    of photos): a homography where one explains all but PLANAR_SHARE of them (a flat scene, whose
-    fundamental matrix is not unique), else the fundamental matrix (8-point, least squares). A track
+    of photos), by least median of squares (a false match among them does not bend it): a
+    homography where one explains PLANAR_SHARE of them (a flat scene, whose fundamental matrix is
+    not unique), else the fundamental matrix. A track
     is inconsistent when two of its rays in such a pair are further apart than tolerance_px (the
     homography's transfer distance, or the Sampson distance to F). track (n_features,) -1: none;
     photo, xy (n_features, ...) full-resolution pixels."""
@@ -144,6 +145,7 @@ def two_view_consistent(track: np.ndarray, photo: np.ndarray, xy: np.ndarray, a:
     from .pair_matching import PLANAR_SHARE, sampson_distances
 
     cv2 = cv2_module()
+    cv2.setRNGSeed(0)  # least median of squares samples at random: the same tracks on every run
     n_photos = int(photo.max()) + 1 if len(photo) else 0
     pa, pb = photo[a], photo[b]
     swap = pa > pb
@@ -160,11 +162,11 @@ def two_view_consistent(track: np.ndarray, photo: np.ndarray, xy: np.ndarray, a:
         if c < 8:
             continue
         p1, p2 = xy[a[rows]].astype(np.float64), xy[b[rows]].astype(np.float64)
-        H, _ = cv2.findHomography(p1, p2, 0)
+        H, _ = cv2.findHomography(p1, p2, cv2.LMEDS)
         if H is not None and np.mean(_transfer(H, p1, p2) <= tolerance_px) >= PLANAR_SHARE:
             models[k], planar[k], usable[k] = H, True, True
             continue
-        F, _ = cv2.findFundamentalMat(p1, p2, cv2.FM_8POINT)
+        F, _ = cv2.findFundamentalMat(p1, p2, cv2.FM_LMEDS)
         if F is not None and F.shape == (3, 3):
             models[k], usable[k] = F, True
     ok = np.ones(n_tracks, dtype=bool)
