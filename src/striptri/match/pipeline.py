@@ -206,8 +206,9 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
     products.rays = len(chosen)
     products.kept_lengths = products.track_lengths[keep]
     clock.lap("tracks and thinning")
-    say(f"tracks: {tracks.n_tracks} ({tracks.split} split, {products.inconsistent} off the approximate "
-        f"orientations), {products.kept_tracks} kept, {products.rays} rays")
+    off = "off the approximate orientations" if stand_in is None else "off their pairs' two-view geometry"
+    say(f"tracks: {tracks.n_tracks} ({tracks.split} split, {products.inconsistent} {off}), {products.kept_tracks} "
+        f"kept, {products.rays} rays")
     if options.refine and paths is not None:  # least-squares matching at full resolution (match.lsm)
         xy_px, plate = xy_px.copy(), plate.copy()
         xy_px[chosen] = _refine(tracks.track[chosen], photo_of[chosen], xy_px[chosen], paths, options, products)
@@ -245,8 +246,8 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         products.strips, products.centres = oriented.block.strips, oriented.block.xyz0[:, :2].copy()
         clock.lap("orientations from the strips")
         say(f"orientations: {len(products.strips)} strips built and placed on the control (largest RMS "
-            f"{max(p.rms_m for p in products.strips):.2f} m); {len(oriented.false_points)} tie points off them "
-            "left out")
+            f"{max(p.rms_m for p in products.strips):.2f} m); tie points off them left out: "
+            f"{len(oriented.false_points)}")
     products.ray_photo, products.ray_plate = photo_of[chosen], plate[chosen]
     if paths is not None:  # the control points' chips (match.chips)
         from .chips import chip_files

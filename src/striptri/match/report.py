@@ -46,7 +46,9 @@ def match_report(p, project_dir, images_dir) -> str:
         f"<p>The image coordinates' standard deviation, {p.sigma_px:.3f} px, was {html.escape(p.sigma_how)}; it is "
         "the sigma of the automatic rows of image_points.csv. Of the "
         f"{p.tracks:,} tracks, {p.split} were split (two features of one photo) and {p.inconsistent} dropped "
-        "because their rays, projected onto the terrain with the approximate orientations, do not meet. "
+        + ("because their rays, projected onto the terrain with the approximate orientations, do not meet. "
+           if p.strips is None else "because their rays break the two-view geometry of a matched pair, the relative "
+           "orientation of two successive photos, or, with the orientations from the strips, do not meet. ") +
         "False matches remain among those written: adjust with <code>--blunders robust-snoop</code> (or <code>snoop</code>).</p>",
         (f"<p>Least-squares matching at full resolution refined {p.refined} of the {p.refinable} rays that are not "
          f"their track's reference (median shift {p.refine_shift:.3f} px); the others kept their features' "
@@ -55,6 +57,7 @@ def match_report(p, project_dir, images_dir) -> str:
          "orientations predict (marked), are in chips/ with chips/chips.csv: measure or confirm the points there "
          "and give the measurements in image_points.csv.</p>" if p.chips else ""),
         _fiducial_section(p),
+        _strips_section(p),
         "<h2 id='stages'>Time per stage</h2>",
         html_table(["stage", "seconds"], [[html.escape(k), f"{v:.2f}"] for k, v in p.seconds.items()], left=1),
         "<h2 id='pairs'>Pairs</h2>",
@@ -130,6 +133,21 @@ def _pair_table(p, verified) -> str:
             f"(median of the verified: {int(np.median(p.pair_matches[verified])) if verified.any() else 0}).</p>"
             + html_table(["photo", "photo", "verified matches"], rows, left=2,
                          row_classes=["bad" if m == 0 else "" for m in p.pair_matches[order]]))
+
+
+def _strips_section(p) -> str:
+    """Photos without orientations: how each strip was built and placed (sequential.block)."""
+    if not p.strips:
+        return ""
+    rows = [[html.escape(s.strip), f"{s.photos}", f"{s.points}", f"{s.control}", f"{s.dropped}", f"{s.rms_m:.3f}",
+             html.escape(", ".join(f"strip {a}" for a in s.after)) or "control only"] for s in p.strips]
+    return ("<h2 id='strips'>Orientations from the strips</h2>"
+            "<p>photos.csv gives no orientations. Each strip was built photo by photo by the sequential method "
+            "(relative orientations and scale transfer) in a frame of its own, then placed by a 3D similarity on "
+            "the full control and the points of the strips placed before it, in this order. OUT's photos.csv "
+            "carries the orientations found: approximations for the adjustment, which uses every observation.</p>"
+            + html_table(["strip", "photos", "points used", "of them control", "left out (trimmed)",
+                          "RMS of the fit (m)", "placed through"], rows, left=1))
 
 
 def _layout(p) -> np.ndarray:
