@@ -6,7 +6,9 @@ px film scan must not need its full-resolution array in memory more than once").
 Writes a textured 8-bit TIFF scan of size x size px once (uncompressed, strips of 64 rows; not
 timed), then runs the feature task of
 a scan (match.stages.find_features: read once at full resolution, SIFT at --scale) in a process of
-its own, and prints its peak resident memory against the size of one full-resolution 8-bit array.
+its own, and prints its peak resident memory against the size of one full-resolution 8-bit array:
+as striptri reads a scan (tifffile, SIFT over tiles: match.features) and, for comparison, as it did
+before (OpenCV's decoder, SIFT over the whole image), in the same run.
 """
 
 from __future__ import annotations
@@ -20,7 +22,10 @@ from pathlib import Path
 
 TASK = """
 import sys, time
+import striptri.match.features as features
 from striptri.match.stages import FeatureTask, find_features
+if sys.argv[4] == "whole":  # as before: OpenCV's TIFF decoder, SIFT over the whole image
+    features.TILE, features._tiff_grey = 10 ** 9, lambda path: None
 t = time.perf_counter()
 xy, _ = find_features(FeatureTask(0, sys.argv[1], sys.argv[2], float(sys.argv[3]), 8000))
 print(len(xy), time.perf_counter() - t)
@@ -56,21 +61,21 @@ def main() -> None:
     path = work / f"scan_{a.size}_strips.tif"
     if not path.is_file():
         scan(path, a.size)
-    t = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", TASK, str(path), str(work), str(a.scale)], stdout=subprocess.PIPE,
-                            text=True)
-    out = proc.stdout.read()
-    _, status, usage = os.wait4(proc.pid, 0)
-    if os.waitstatus_to_exitcode(status) != 0:
-        sys.exit("the feature task failed")
-    features, seconds = out.split()
-    array_mb = a.size * a.size / 2 ** 20
-    peak = usage.ru_maxrss / 1024.0
-    print("| scan px | scale | features | task s | whole s | one 8-bit array MB | peak MB | peak / array |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-    print(f"| {a.size:,} x {a.size:,} | {a.scale} | {int(features):,} | {float(seconds):.1f} | "
-          f"{time.perf_counter() - t:.1f} | {array_mb:,.0f} | {peak:,.0f} | {peak / array_mb:.2f} |")
-
+    print("| scan px | scale | read, SIFT | features | task s | whole s | one 8-bit array MB | peak MB | peak / array |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for how, label in (("tiles", "tifffile, tiles"), ("whole", "OpenCV, whole image")):
+        t = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-c", TASK, str(path), str(work), str(a.scale), how],
+                                stdout=subprocess.PIPE, text=True)
+        out = proc.stdout.read()
+        _, status, usage = os.wait4(proc.pid, 0)
+        if os.waitstatus_to_exitcode(status) != 0:
+            sys.exit("the feature task failed")
+        features, seconds = out.split()
+        array_mb = a.size * a.size / 2 ** 20
+        peak = usage.ru_maxrss / 1024.0
+        print(f"| {a.size:,} x {a.size:,} | {a.scale} | {label} | {int(features):,} | {float(seconds):.1f} | "
+              f"{time.perf_counter() - t:.1f} | {array_mb:,.0f} | {peak:,.0f} | {peak / array_mb:.2f} |")
 
 if __name__ == "__main__":
     main()

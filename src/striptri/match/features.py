@@ -12,9 +12,9 @@ too far right and down, measured on rendered photographs (tests/test_match_image
 of 0.2497, 0.2499 px at full resolution, 0.499 px at half; with the precise upscaling 0.0004 px).
 
 A large image is worked on in tiles (:func:`detect`): SIFT's pyramid of a whole image, its first
-octave doubled, takes about 44 bytes per pixel of the level it runs on (11 float images of 4 times
-the pixels): 6.1 GB for a 20,000 px scan at a quarter, 16 times the scan's 8-bit array
-(scripts/bench/bench_scan_memory.py). Tiles of TILE px with TILE_MARGIN px of context on each
+octave doubled, takes about 220 bytes per pixel of the level it runs on (some 14 float images of 4
+times the pixels, over all octaves): 6.1 GB for a 20,000 px scan at a quarter, 16 times the scan's
+8-bit array (scripts/bench/bench_scan_memory.py). Tiles of TILE px with TILE_MARGIN px of context on each
 side keep it near 0.5 GB; a keypoint is taken from the tile whose core holds it, and the strongest
 ``max_features`` of all tiles are kept, as SIFT keeps the strongest of a whole image.
 
