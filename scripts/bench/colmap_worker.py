@@ -1,10 +1,10 @@
 """pycolmap's bundle adjustment of one case in its own process (bench_scale.py starts it).
 
-    python scripts/bench/colmap_worker.py DATA.npz THREADS OUT.npz [--covariance]
+    python scripts/bench/colmap_worker.py DATA.npz THREADS OUT.npz [--tolerance NAME] [--covariance]
 
 DATA.npz: colmap_ba.ColmapData saved by colmap_ba.save (the parent prepared it with striptri, so
 this process holds numpy and pycolmap only: its memory is pycolmap's). THREADS: Ceres'
-num_threads. --covariance: then pycolmap's covariance estimate (colmap_ba.covariance), timed
+num_threads. --tolerance: Ceres' stopping tolerances, a name of colmap_ba.TOLERANCES [1e-16]. --covariance: then pycolmap's covariance estimate (colmap_ba.covariance), timed
 apart; the peak memory of the bundle adjustment is read before it.
 Prints one JSON line; writes the adjusted centres (ground frame) to OUT.npz.
 """
@@ -34,14 +34,16 @@ def _status_mib(field: str) -> float:
 def main(argv: list[str]) -> None:
     data_file, threads, out = argv[0], int(argv[1]), Path(argv[2])
     with_covariance = "--covariance" in argv[3:]
+    tolerance = argv[argv.index("--tolerance") + 1] if "--tolerance" in argv else "1e-16"
     pycolmap = colmap_ba.pycolmap_module()
     data = colmap_ba.load(data_file)
     loaded_seconds = time.perf_counter() - T_START
     loaded_mib = _status_mib("VmRSS")
-    run, rec, adjuster, ids = colmap_ba.solve(pycolmap, data, threads)
+    run, rec, adjuster, ids = colmap_ba.solve(pycolmap, data, threads, tolerance=tolerance)
     report = {
         "pycolmap_version": pycolmap.__version__,
         "threads": threads,
+        "tolerance": tolerance,
         "import_and_load_seconds": loaded_seconds,
         "build_seconds": run.build_seconds,
         "seconds": run.seconds,
