@@ -19,7 +19,7 @@ def striptri_run(project, images, out, scale, features) -> dict:
     p = run_match(project, images, out, MatchOptions(scale=scale, max_features=features))
     return {"seconds": dict(p.seconds), "photos": len(p.features), "pairs": p.pairs, "verified": p.verified_pairs,
             "matches": p.matches, "tie_points": p.kept_tracks, "rays": p.rays,
-            "features": float(sorted(p.features)[len(p.features) // 2])}
+            "features": float(sorted(p.features)[len(p.features) // 2]), "peak_mb": dict(p.peak_mb)}
 
 
 def colmap_run(project, images, out, scale, features) -> dict:

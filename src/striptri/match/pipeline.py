@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import io
+import resource
 import tempfile
 import time
 from dataclasses import dataclass, field, replace
@@ -103,6 +104,7 @@ class MatchProducts:
     ray_plate: np.ndarray | None = None  # (rays, 2) its plate coordinates
     half_format: np.ndarray | None = None  # (n, 2) each photo's half width and height (plate units)
     seconds: dict = field(default_factory=dict)  # stage -> seconds
+    peak_mb: dict = field(default_factory=dict)  # stage -> this process's peak memory at its end (MB)
     chips: int = 0  # image chips of control points written (match.chips)
     refined: int = -1  # rays moved by least-squares matching (-1: not asked for)
     refinable: int = 0  # rays it tried (all but each track's reference ray)
@@ -149,7 +151,7 @@ def run_match(project_dir, images_dir, out_dir, options: MatchOptions = MatchOpt
         unoriented.check_control(project, project_dir)
     say = on_progress or (lambda text: None)
     products = MatchProducts(photo_ids=list(project.photos.ids), centres=project.photos.xyz0[:, :2].copy())
-    clock = _Clock(products.seconds, say)
+    clock = _Clock(products.seconds, say, products.peak_mb)
     height = _terrain_height(project, options)
     paths = None
     if database is None:
@@ -393,15 +395,18 @@ def _fiducial_summary(project, marks: FiducialMeasurements, fit, found) -> list:
 
 
 class _Clock:
-    """Seconds per stage, into ``seconds``; say(text): the progress on the terminal."""
+    """Seconds per stage, into ``seconds``, and the peak resident memory of this process at the end
+    of each stage (MB), into ``peak``; say(text): the progress on the terminal."""
 
-    def __init__(self, seconds: dict, say=None):
+    def __init__(self, seconds: dict, say=None, peak: dict | None = None):
         self.seconds, self.t = seconds, time.perf_counter()
+        self.peak = {} if peak is None else peak
         self.say = say or (lambda text: None)
 
     def lap(self, stage: str) -> None:
         now = time.perf_counter()
         self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self.t
+        self.peak[stage] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
         self.t = now
 
 

@@ -59,7 +59,11 @@ def match_report(p, project_dir, images_dir) -> str:
         _fiducial_section(p),
         _strips_section(p),
         "<h2 id='stages'>Time per stage</h2>",
-        html_table(["stage", "seconds"], [[html.escape(k), f"{v:.2f}"] for k, v in p.seconds.items()], left=1),
+        html_table(["stage", "seconds", "peak memory at its end (MB)"],
+                   [[html.escape(k), f"{v:.2f}", f"{p.peak_mb[k]:,.0f}" if k in p.peak_mb else "&ndash;"]
+                    for k, v in p.seconds.items()], left=1),
+        "<p class='sub'>The peak is this process's (the features and pairs are found in worker processes of "
+        "their own); it grows in the stage where it changes.</p>",
         "<h2 id='pairs'>Pairs</h2>",
         figure_html(_pair_graph(p), "pair graph",
                     "The approximate photo centres and the candidate pairs: a line per verified pair, the darker "
