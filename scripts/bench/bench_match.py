@@ -89,7 +89,10 @@ def run_case(work: Path, n: int, a) -> list[dict]:
             shutil.rmtree(out)
         text, wall, peak = measured([sys.executable, str(WORKER), tool, str(block), str(block / "images"), str(out),
                                      str(a.scale), str(a.features)], a.limit)
-        r = json.loads(text.strip().splitlines()[-1])  # a stopped run: the stages it finished
+        lines = text.strip().splitlines()
+        # a stopped run: the stages it finished (none printed: stopped in its first stages)
+        r = json.loads(lines[-1]) if lines else {"seconds": {}, "photos": n, "pairs": 0, "verified": 0, "matches": 0,
+                                                 "tie_points": 0, "rays": 0, "stopped": "features or pair matching"}
         r.update(tool=tool, n=n, wall=wall, peak=peak)
         if tool == "striptri" and "stopped" not in r:
             adjusted = work / f"adj{n}"

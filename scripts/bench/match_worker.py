@@ -66,6 +66,9 @@ def colmap_run(project, images, out, scale, features) -> dict:
     pairs = _pairs(proj, _terrain_height(proj, MatchOptions()), digital_frames(proj).half)
     pair_file = out / "pairs.txt"
     pair_file.write_text("".join(f"{names[a]} {names[b]}\n" for a, b in pairs))
+    print(json.dumps({"seconds": dict(seconds), "photos": len(names), "pairs": len(pairs), "verified": 0, "matches": 0,
+                      "tie_points": 0, "rays": 0, "registered": 0, "models": 0, "features": float("nan"),
+                      "stopped": "pair matching"}), flush=True)  # should the matching be stopped (--limit)
     pairing = pycolmap.ImportedPairingOptions()
     pairing.match_list_path = str(pair_file)
     matching = pycolmap.FeatureMatchingOptions()
