@@ -39,3 +39,112 @@ def test_striptri_threads_variable(monkeypatch):
     for bad in ("", "0", "-1", "two"):
         monkeypatch.setenv(threads.THREADS_VARIABLE, bad)
         assert threads.requested_threads() is None
+
+
+# --------------------------------------------------------------------------- the chunks on threads
+# (issue 29: parallel.map_ordered, solvers.threads.chunk_threads / use_threads, --threads)
+
+import threading  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from striptri.parallel import map_ordered  # noqa: E402
+
+
+def test_map_ordered_keeps_the_order_and_runs_on_threads():
+    seen = set()
+
+    def slow_first(i):
+        seen.add(threading.current_thread().name)
+        time.sleep(0.02 if i % 3 == 0 else 0.0)  # later items finish first
+        return i * i
+
+    assert list(map_ordered(slow_first, range(20), 3)) == [i * i for i in range(20)]
+    assert len(seen) > 1 and all(name.startswith("striptri-chunk") for name in seen)
+    seen.clear()
+    assert list(map_ordered(slow_first, range(5), 1)) == [0, 1, 4, 9, 16]
+    assert seen == {threading.current_thread().name}  # one thread: in the caller's
+
+
+def test_map_ordered_holds_few_results_and_stops_with_the_caller():
+    started = []
+
+    def task(i):
+        started.append(i)
+        return i
+
+    results = map_ordered(task, range(1000), 2)
+    assert next(results) == 0
+    time.sleep(0.05)
+    assert len(started) <= 1 + 2 * 2  # the one taken and at most 2 x threads waiting
+    results.close()
+    n = len(started)
+    time.sleep(0.05)
+    assert len(started) == n < 10  # nothing more started after the caller stopped
+
+
+def test_map_ordered_raises_the_tasks_error_and_keeps_the_callers_error_state():
+    def fails_at_3(i):
+        if i == 3:
+            raise ValueError("chunk 3")
+        return i
+
+    with pytest.raises(ValueError, match="chunk 3"):
+        list(map_ordered(fails_at_3, range(10), 2))
+
+    def overflow(_):
+        return np.float64(1e300) * np.float64(1e300)
+
+    with np.errstate(over="raise"):
+        with pytest.raises(FloatingPointError):
+            list(map_ordered(overflow, range(2), 2))
+    with np.errstate(over="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # an overflow warning from a thread would fail here
+            assert np.isinf(list(map_ordered(overflow, range(2), 2))).all()
+
+
+def test_threads_option_over_the_variable_and_never_more_than_the_cores(monkeypatch):
+    monkeypatch.setattr(threads, "available_cores", lambda: 4)
+    monkeypatch.delenv(threads.THREADS_VARIABLE, raising=False)
+    assert threads.chunk_threads() == 4  # all cores by default
+    monkeypatch.setenv(threads.THREADS_VARIABLE, "3")
+    assert threads.chunk_threads() == 3
+    with threads.use_threads(1):
+        assert threads.chunk_threads() == 1 and threads.requested_threads() == 1
+    with threads.use_threads(None):
+        assert threads.chunk_threads() == 3
+    with threads.use_threads(16):
+        assert threads.chunk_threads() == 4
+    with pytest.raises(ValueError):
+        with threads.use_threads(0):
+            pass
+
+
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
+def test_the_products_on_threads_equal_those_on_one(monkeypatch, method):
+    """Every sweep (assembly, back substitution, residual cofactors of the gross-error test, point
+    precision; the bundle's linearised points and costs) over many small chunks on four threads:
+    the same numbers, to the last digit, as on one thread (the caller sums the chunks in the same
+    order)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from striptri.core.runs import RunOptions
+    from striptri.io import read_project
+    from striptri.pipeline import adjust_products, options_for
+
+    monkeypatch.setattr(threads, "available_cores", lambda: 4)
+    project = read_project(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6")
+    options = replace(options_for(project), chunk_size=16, method=method)  # several chunks per batch
+    files = {}
+    for n in (1, 4):
+        with threads.use_threads(n):
+            products = adjust_products(project, options, RunOptions(blunders="snoop"))
+        files[n] = products.files
+        assert products.result.converged
+    for name in ("photos.csv", "points.csv", "residuals.csv", "cameras.csv"):
+        assert files[4][name] == files[1][name], name

@@ -1,5 +1,5 @@
 """Independent tasks on the local cores or a Dask cluster, for studies (striptri.study.runner) and
-the matcher (striptri.match.stages).
+the matcher (striptri.match.stages); and chunks of one adjustment on threads (:func:`map_ordered`).
 
 :func:`map_unordered` runs ``fn(task)`` for every task: in this process (one worker), in local
 processes (concurrent.futures.ProcessPoolExecutor, one per core by default) or on a Dask cluster
@@ -11,11 +11,46 @@ threads on top of them only contend.
 
 from __future__ import annotations
 
+import collections
 import os
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+
+import numpy as np
 
 from striptri.errors import InputError
+
+
+def map_ordered(fn: Callable, items: Iterable, threads: int) -> Iterator:
+    """fn(item) for every item, in the items' order, computed by ``threads`` threads ahead of the
+    caller (solvers.threads.chunk_threads): the chunks of an adjustment, whose numpy work (batched
+    products, factorisations of small matrices, elementwise arithmetic on large arrays) releases
+    the GIL. At most 2 x threads results wait at a time, so memory stays that of a few chunks.
+    One thread (or one item): fn runs here, item by item. The caller's numpy error state holds in the threads
+    too (np.errstate is per thread), and the first exception of a task is raised here."""
+    items = list(items)
+    if threads <= 1 or len(items) <= 1:  # no pool for one chunk (a small project)
+        yield from map(fn, items)
+        return
+    state = np.geterr()
+
+    def task(item):
+        with np.errstate(**state):
+            return fn(item)
+
+    items = iter(items)
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="striptri-chunk") as pool:
+        pending = collections.deque(pool.submit(task, item) for _, item in zip(range(2 * threads), items))
+        try:
+            while pending:
+                result = pending.popleft().result()
+                for item in items:  # one more in flight for the one taken
+                    pending.append(pool.submit(task, item))
+                    break
+                yield result
+        finally:  # the caller stopped early or a task failed: drop what has not started
+            for future in pending:
+                future.cancel()
 
 
 def map_unordered(fn: Callable, tasks: Sequence, workers: int | None = None,

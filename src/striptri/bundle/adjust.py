@@ -42,6 +42,8 @@ from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observat
 from ..errors import NumericalFailure
 from ..equations.groups import GroupBatch, build_batches, merge_layouts
 from ..model import Project
+from ..parallel import map_ordered
+from ..solvers.threads import chunk_threads
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
@@ -209,9 +211,9 @@ class _Problem:
     def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0):
         """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp."""
         T = self.layout.rotation_maps(state)
-        for batch in self.linearised:
-            for chunk in batch.chunks(self.options.chunk_size):
-                yield linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns, xyz, damping)
+        chunks = (chunk for batch in self.linearised for chunk in batch.chunks(self.options.chunk_size))
+        yield from map_ordered(lambda chunk: linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns,
+                                                              xyz, damping), chunks, chunk_threads())
 
     def parameter_rows(self, state: State):
         """Whitened observation equations of the observed elements: J (p, 3), cols, e (p,)."""
@@ -221,10 +223,10 @@ class _Problem:
 
     def cost(self, state: State, xyz: np.ndarray) -> float:
         """The sum of squares e^T e at (state, xyz) (normals.ee without the normals)."""
-        total = 0.0
-        for batch in self.batches:
-            for chunk in batch.chunks(self.options.chunk_size):
-                total += residual_sum_of_squares(chunk, state, self.layout, self.obs, self.unknowns, xyz)
+        chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
+        total = sum(map_ordered(lambda chunk: residual_sum_of_squares(chunk, state, self.layout, self.obs,
+                                                                      self.unknowns, xyz), chunks, chunk_threads()),
+                    0.0)
         if len(self.pobs):
             total += float(np.sum(self.parameter_rows(state)[2] ** 2))
         if self.distances is not None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from striptri.cli.base import _warn, main, reports_errors
+from striptri.cli.base import _warn, main, reports_errors, threads_option
 from striptri.core.options import DATUMS, METHODS
 from striptri.errors import InputError
 from striptri.solvers import SOLVERS
@@ -66,6 +66,7 @@ from striptri.solvers import SOLVERS
 @click.option("--quiet", is_flag=True, default=False,
               help="No progress on stderr (shown otherwise once a run takes longer than 2 s: each iteration's "
                    "vTPv, largest correction and seconds, then the phases after the adjustment).")
+@threads_option
 @reports_errors
 def adjust(project_dir, out_dir, quiet, **given):
     """Adjust the project in PROJECT_DIR and write the results to --out.

@@ -26,6 +26,14 @@ EXIT_INPUT, EXIT_NUMERICAL = 2, 1
 TERMINATION_SIGNALS = (signal.SIGTERM, signal.SIGHUP)  # raised as errors.Interrupted; SIGINT: KeyboardInterrupt
 
 
+def threads_option(command):
+    """``--threads N`` for a command that adjusts: the cores striptri uses (solvers.threads.use_threads;
+    STRIPTRI_THREADS when not given, else all of them). reports_errors applies it."""
+    return click.option("--threads", "threads", type=click.IntRange(min=1), default=None,
+                        help="Cores to use: the chunks of each sweep (linearisation, whitening, residual "
+                             "cofactors) run on this many threads [STRIPTRI_THREADS, else all cores].")(command)
+
+
 def reports_errors(command):
     """Decorate a command so that every way it can end is one message and an exit status, never a
     traceback (README "Safety"):
@@ -43,8 +51,9 @@ def reports_errors(command):
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
         previous = _raise_on_signals()
+        chosen = kwargs.pop("threads", None)  # threads_option
         try:
-            with threads.single_threaded():  # BLAS threads set here, not by the environment
+            with threads.single_threaded(), threads.use_threads(chosen):  # threads set here, not by the environment
                 return command(*args, **kwargs)
         except InputError as exc:
             _fail(exc, EXIT_INPUT)

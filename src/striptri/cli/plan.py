@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from striptri.cli.base import _warn, main, reports_errors
+from striptri.cli.base import _warn, main, reports_errors, threads_option
 from striptri.solvers import SOLVERS
 
 
@@ -41,6 +41,7 @@ from striptri.solvers import SOLVERS
               help="Rank the control points by the loss of precision when each is dropped [on; where the "
                    "rank-3 update does not apply (self-calibration, distortion, free network) only up to 40 "
                    "control points].")
+@threads_option
 @reports_errors
 def plan(project_dir, out_dir, **given):
     """Pre-analysis of the planned block in PROJECT_DIR: a-priori precision (sigma0 = 1), internal and

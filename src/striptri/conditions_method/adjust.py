@@ -34,7 +34,8 @@ from ..equations.groups import build_batches
 from ..equations.joint_groups import JointGroups, whiten_joint
 from ..equations.linearise import At, Sweep
 from ..model import Project
-from ..equations.normal_equations import BlockPattern, NormalAccumulator, PatternAccumulator, selection_matrix, sums_camera_columns, whiten
+from ..equations.normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, group_products,
+                                         selection_matrix, sums_camera_columns, whiten)
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from ..equations import weights
@@ -64,13 +65,17 @@ def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assem
     acc.kept = [] if keep else None
     acc.max_misclosure = 0.0
     cam_of_photo = sweep.state.camera_of_photo
-    for (chunk, system), scatters in zip(sweep.systems(), assembly.scatters):
+
+    def products(chunk, system):  # in the chunk's thread: whitened, and its products for N and u
+        Bw, ww, gw, _, *Gt = whiten(system, residual_map=keep)
+        kept = _WhitenedChunk(chunk, Bw, ww, system.cols, Gt[0]) if keep else None
+        return kept, group_products(assembly.pattern, Bw, ww, gw, chunk.photo_index,
+                                    cam_of_photo[chunk.photo_index])
+
+    for (chunk, system, (kept, made)), scatters in zip(sweep.systems(products), assembly.scatters):
         if keep:
-            Bw, ww, gw, _, Gt = whiten(system, residual_map=True)
-            acc.kept.append(_WhitenedChunk(chunk, Bw, ww, system.cols, Gt))
-        else:
-            Bw, ww, gw, _ = whiten(system)
-        acc.add_groups(Bw, ww, gw, chunk.photo_index, cam_of_photo[chunk.photo_index], scatters)
+            acc.kept.append(kept)
+        acc.add_products(made, scatters)
         if system.g.size:
             acc.max_misclosure = max(acc.max_misclosure, float(np.max(np.abs(system.g))))
     acc.kept_joint = [] if keep else None

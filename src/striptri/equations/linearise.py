@@ -18,6 +18,8 @@ import numpy as np
 
 from ..geometry.camera import plate_vector
 from ..errors import NumericalFailure
+from ..parallel import map_ordered
+from ..solvers.threads import chunk_threads
 from ..geometry.lens import NCP, ideal_from_observed
 from .conditions import collinearity, ray_chain, ray_conditions
 from .groups import COLLINEARITY, GroupBatch
@@ -201,11 +203,30 @@ class Sweep:
         self.seconds += time.perf_counter() - t0
         return out
 
-    def systems(self):
-        for batch in self.batches:
-            for chunk in batch.chunks(self.options.chunk_size):
+    def systems(self, then=None):
+        """(chunk, system) of every chunk in turn, or (chunk, system, then(chunk, system)): then is
+        work on each chunk done in the same thread (the whitening of the assembly, the residual
+        cofactors); it must not change shared state. The chunks are
+        linearised on solvers.threads.chunk_threads() threads ahead of the caller
+        (parallel.map_ordered); :attr:`seconds` counts the time the caller waited for them (with one
+        thread, the time of the linearisation and of then)."""
+        scale_form, transform = self.options.conditions.scale_form, self.options.conditions.condition_transform
+
+        def work(chunk):
+            system = linearise(chunk, self.at, scale_form, transform)
+            return (chunk, system) if then is None else (chunk, system, then(chunk, system))
+
+        chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
+        done = map_ordered(work, chunks, chunk_threads())
+        try:
+            while True:
                 t0 = time.perf_counter()
-                system = linearise(chunk, self.at, self.options.conditions.scale_form,
-                                   self.options.conditions.condition_transform)
-                self.seconds += time.perf_counter() - t0
-                yield chunk, system
+                try:
+                    out = next(done)
+                except StopIteration:
+                    return
+                finally:
+                    self.seconds += time.perf_counter() - t0
+                yield out
+        finally:
+            done.close()

@@ -8,6 +8,8 @@ global matrix chunk by chunk, so memory does not grow with the number of points.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -346,6 +348,72 @@ def sums_camera_columns(pattern: BlockPattern, cam: np.ndarray) -> bool:
     return bool(pattern.with_cameras and cam.shape[1] >= FULL_PRODUCT_RAYS and np.all(cam == cam[:, :1]))
 
 
+class GroupProducts(NamedTuple):
+    """What a chunk of whitened groups adds to N and u (group_products), before it is summed into
+    the block pattern (PatternAccumulator.add_products): the ray-pair blocks B~_a^T B~_b of the
+    photos (pp, (m, k, k, 6, 6)), of photos and cameras (pc) and of cameras (cc) (None when the
+    cameras are held), B~^T [w~ g~] per full column (ug, (m, k width, 2)) with those columns
+    (full_cols), the sums w~^T w~ and g~^T g~, and the chunk's photos and cameras (m, k)."""
+
+    pp: np.ndarray
+    pc: np.ndarray | None
+    cc: np.ndarray | None
+    ug: np.ndarray
+    full_cols: np.ndarray
+    wPw: float
+    gPg: float
+    photo: np.ndarray
+    cam: np.ndarray
+    one_camera: bool
+
+
+def group_products(pat: BlockPattern, Bw, ww, gw, photo, cam) -> GroupProducts:
+    """The products of a chunk of whitened groups (GroupProducts; arguments as
+    PatternAccumulator.add_groups). Changes nothing shared: the chunk threads of an assembly
+    (parallel.map_ordered) form them while the caller sums the chunks before."""
+    m, k = photo.shape
+    wPw, gPg = float(np.sum(ww * ww)), float(np.sum(gw * gw))
+    full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + w)
+    if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
+        Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
+        full_cols = full_cols[..., :6]
+    width = full_cols.shape[-1]
+    one_camera = sums_camera_columns(pat, cam)
+    pc = cc = None
+    # the ray-pair blocks B~_a^T B~_b directly in pattern order (m, k, k, r, s): batched products
+    # of the rays' column groups, no transposed copy of a (m, 6k, 6k) product
+    if one_camera:
+        # long tracks of one camera each (close range): the camera columns of a group's rays
+        # summed first (they are the same unknowns), then one (6k + w)^2 product per group;
+        # the camera-summed scatters take photo a with the camera once per ray (m, k, 6, w)
+        # and the camera with itself once per group (m, w, w)
+        nc = Bw.shape[1]
+        B4 = Bw.reshape(m, nc, k, width)
+        Bc = B4[..., 6:].sum(axis=2)  # (m, nc, w)
+        Bpc = np.concatenate([B4[..., :6].reshape(m, nc, 6 * k), Bc], axis=2)
+        full = np.matmul(np.swapaxes(Bpc, 1, 2), Bpc)
+        pp = full[:, : 6 * k, : 6 * k].reshape(m, k, 6, k, 6).transpose(0, 1, 3, 2, 4)
+        w = width - 6
+        pc = full[:, : 6 * k, 6 * k :].reshape(m, k, 1, 6, w)
+        cc = full[:, None, None, 6 * k :, 6 * k :]
+    elif k >= FULL_PRODUCT_RAYS:
+        # long tracks: one (k width)^2 product per group in BLAS, then viewed as ray-pair blocks
+        full = np.matmul(np.swapaxes(Bw, 1, 2), Bw).reshape(m, k, width, k, width).transpose(0, 1, 3, 2, 4)
+        pp = full[..., :6, :6]
+        if pat.with_cameras:
+            pc, cc = full[..., :6, 6:], full[..., 6:, 6:]
+    else:
+        B4 = Bw.reshape(m, Bw.shape[1], k, width)
+        left = B4.transpose(0, 2, 3, 1)[:, :, None]  # (m, k, 1, width, nc)
+        right = B4.transpose(0, 2, 1, 3)[:, None]  # (m, 1, k, nc, width)
+        pp = np.matmul(left[..., :6, :], right[..., :6])
+        if pat.with_cameras:
+            pc = np.matmul(left[..., :6, :], right[..., 6:])
+            cc = np.matmul(left[..., 6:, :], right[..., 6:])
+    ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
+    return GroupProducts(pp, pc, cc, ug, full_cols.reshape(m, k * width), wPw, gPg, photo, cam, one_camera)
+
+
 class PatternAccumulator:
     """Sums the whitened groups into the block pattern (module doc); the same outputs as
     NormalAccumulator (N, u, wPw, ug, gPg) once :meth:`finish` has been called."""
@@ -365,55 +433,27 @@ class PatternAccumulator:
         """Bw: (m, nc, wk) whitened B with w columns per ray (6 photo, then NCP camera when the
         cameras are estimated); photo, cam: (m, k); scatters: the chunk's BlockPattern.scatters
         when worked out before (computed here otherwise)."""
-        m, k = photo.shape
+        self.add_products(group_products(self.pattern, Bw, ww, gw, photo, cam), scatters)
+
+    def add_products(self, products: "GroupProducts", scatters=None) -> None:
+        """A chunk's group_products summed into N's blocks and u (the chunk's scatters as in add_groups)."""
         pat = self.pattern
-        self.wPw += float(np.sum(ww * ww))
-        self.gPg += float(np.sum(gw * gw))
-        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + w)
-        if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
-            Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
-            full_cols = full_cols[..., :6]
-        width = full_cols.shape[-1]
-        one_camera = sums_camera_columns(pat, cam)
-        scatter_pp, scatter_pc, scatter_cc = scatters if scatters is not None else pat.scatters(photo, cam, one_camera)
-        # the ray-pair blocks B~_a^T B~_b directly in pattern order (m, k, k, r, s): batched products
-        # of the rays' column groups, no transposed copy of a (m, 6k, 6k) product
-        if one_camera:
-            # long tracks of one camera each (close range): the camera columns of a group's rays
-            # summed first (they are the same unknowns), then one (6k + w)^2 product per group;
-            # the camera-summed scatters take photo a with the camera once per ray (m, k, 6, w)
-            # and the camera with itself once per group (m, w, w)
-            if scatter_pc.P.shape[1] != m * k:
-                raise ValueError("a chunk of long one-camera tracks needs BlockPattern.scatters with camera_summed")
-            nc = Bw.shape[1]
-            B4 = Bw.reshape(m, nc, k, width)
-            Bc = B4[..., 6:].sum(axis=2)  # (m, nc, w)
-            Bpc = np.concatenate([B4[..., :6].reshape(m, nc, 6 * k), Bc], axis=2)
-            full = np.matmul(np.swapaxes(Bpc, 1, 2), Bpc)
-            pp = full[:, : 6 * k, : 6 * k].reshape(m, k, 6, k, 6).transpose(0, 1, 3, 2, 4)
-            scatter_pp.add(self.pp, pp)
-            w = width - 6
-            scatter_pc.add(self.pc, full[:, : 6 * k, 6 * k :].reshape(m, k, 1, 6, w))
-            scatter_cc.add(self.cc, full[:, None, None, 6 * k :, 6 * k :])
-        elif k >= FULL_PRODUCT_RAYS:
-            # long tracks: one (k width)^2 product per group in BLAS, then viewed as ray-pair blocks
-            full = np.matmul(np.swapaxes(Bw, 1, 2), Bw).reshape(m, k, width, k, width).transpose(0, 1, 3, 2, 4)
-            scatter_pp.add(self.pp, full[..., :6, :6])
-            if pat.with_cameras:
-                scatter_pc.add(self.pc, full[..., :6, 6:])
-                scatter_cc.add(self.cc, full[..., 6:, 6:])
-        else:
-            B4 = Bw.reshape(m, Bw.shape[1], k, width)
-            left = B4.transpose(0, 2, 3, 1)[:, :, None]  # (m, k, 1, width, nc)
-            right = B4.transpose(0, 2, 1, 3)[:, None]  # (m, 1, k, nc, width)
-            scatter_pp.add(self.pp, np.matmul(left[..., :6, :], right[..., :6]))
-            if pat.with_cameras:
-                scatter_pc.add(self.pc, np.matmul(left[..., :6, :], right[..., 6:]))
-                scatter_cc.add(self.cc, np.matmul(left[..., 6:, :], right[..., 6:]))
-        full_cols = full_cols.reshape(m, k * width)
-        ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
-        self.u_full += np.bincount(full_cols.ravel(), weights=ug[..., 0].ravel(), minlength=pat.n_full)
-        self.ug_full += np.bincount(full_cols.ravel(), weights=ug[..., 1].ravel(), minlength=pat.n_full)
+        self.wPw += products.wPw
+        self.gPg += products.gPg
+        photo, cam = products.photo, products.cam
+        if scatters is None:
+            scatters = pat.scatters(photo, cam, sums_camera_columns(pat, cam))
+        scatter_pp, scatter_pc, scatter_cc = scatters
+        m, k = photo.shape
+        if products.one_camera and scatter_pc.P.shape[1] != m * k:
+            raise ValueError("a chunk of long one-camera tracks needs BlockPattern.scatters with camera_summed")
+        scatter_pp.add(self.pp, products.pp)
+        if products.pc is not None:
+            scatter_pc.add(self.pc, products.pc)
+            scatter_cc.add(self.cc, products.cc)
+        cols = products.full_cols.ravel()
+        self.u_full += np.bincount(cols, weights=products.ug[..., 0].ravel(), minlength=pat.n_full)
+        self.ug_full += np.bincount(cols, weights=products.ug[..., 1].ravel(), minlength=pat.n_full)
 
     def add_rows(self, grad, cols, misclosure, sigma) -> None:
         """Parameter observations (in the reduced columns), as NormalAccumulator.add_rows."""

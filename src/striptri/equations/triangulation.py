@@ -23,6 +23,8 @@ from ..geometry.collinearity import collinearity_jacobians
 from ..selected_inverse.covariance import group_forms
 from .conditions import coplanarity, ray_chain, RayConditions
 from ..model import CHECK, Project
+from ..parallel import map_ordered
+from ..solvers.threads import chunk_threads
 from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
 from .parameters import State, UnknownLayout
 from . import weights
@@ -235,59 +237,67 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
     if with_orientation:
         forms = Qxx.group_forms if hasattr(Qxx, "group_forms") else _dense_forms(Qxx)
         rotation_maps = layout.rotation_maps(state)
+    tasks = []
     for k in np.unique(counts[counts > 0]):
         sel_k = np.flatnonzero(counts == k)
         # determined when the rays and the given coordinates (held or weighted) are at least three
         n_obs = 2 * k + weighted[sel_k].sum(axis=1)
         sel_k = sel_k[(2 * k + given_mask[sel_k].sum(axis=1) >= 3) & ((~fixed[sel_k]).sum(axis=1) <= n_obs)]
-        for first in range(0, len(sel_k), POINT_CHUNK):  # chunks of points: memory bounded
-            sel = sel_k[first: first + POINT_CHUNK]
-            ok = np.ones(len(sel), dtype=bool)
-            rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
-            ph = photo_index[rows]
-            R_ground_from_cam, xyz_centre = state.R_ground_from_cam[ph], state.xyz0[ph]
-            interior, conv = interior_photo[ph], convention_photo[ph]
-            xy_obs = rays.xy_plate[rows]
-            meas = None if rays.xy_measured is None else rays.xy_measured[rows]
-            free = ~fixed[sel]  # (m, 3)
-            xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
-            xyz_point = _initial_points(R_ground_from_cam, xyz_centre, interior[..., :3], xy_ray, xyz_given[sel],
-                                        given_mask[sel])
-            Pw = weights.variance_weight(q_given[sel], weighted[sel])
-            wxy = weights.weight(rays.sigma_xy[rows])  # (m, k, 2)
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                for _ in range(iterations):
-                    res, dX, *_ = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs, meas,
-                                            with_lens)
-                    Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
-                    gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - xyz_point)
-                    Nx, gx = _hold(Nx, gx, free)
-                    step = safe_solve(Nx, gx)
-                    xyz_point = xyz_point + step
-                    if _converged(step, xyz_point):
-                        break
-                _, dX, dO, drot, dint = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs,
-                                                  meas, with_lens)
+        tasks += [(int(k), sel_k[first: first + POINT_CHUNK]) for first in range(0, len(sel_k), POINT_CHUNK)]
+
+    def chunk(task):  # chunks of points (memory bounded), on the chunk threads (parallel.map_ordered)
+        k, sel = task
+        rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+        ph = photo_index[rows]
+        R_ground_from_cam, xyz_centre = state.R_ground_from_cam[ph], state.xyz0[ph]
+        interior, conv = interior_photo[ph], convention_photo[ph]
+        xy_obs = rays.xy_plate[rows]
+        meas = None if rays.xy_measured is None else rays.xy_measured[rows]
+        free = ~fixed[sel]  # (m, 3)
+        xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
+        xyz_point = _initial_points(R_ground_from_cam, xyz_centre, interior[..., :3], xy_ray, xyz_given[sel],
+                                    given_mask[sel])
+        Pw = weights.variance_weight(q_given[sel], weighted[sel])
+        wxy = weights.weight(rays.sigma_xy[rows])  # (m, k, 2)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            for _ in range(iterations):
+                res, dX, *_ = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs, meas,
+                                        with_lens)
                 Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
-                weak[sel] = conditioning(Nx, free) < WEAK_RCOND
-                Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
-                # a point whose rays are parallel (or numbers not finite) is not determined: left out
-                Qm, ok = safe_inverse(Nx)
-                ok &= np.isfinite(xyz_point).all(axis=1)
-                Qm = Qm * (free[:, :, None] & free[:, None, :])
-            xyz[sel[ok]] = xyz_point[ok]
-            cov_m[sel[ok]] = Qm[ok]
-            determined[sel[ok]] = True
-            if with_orientation:
-                m = len(sel)
-                JX = dX.reshape(m, 2 * k, 3)
-                G_rows = -Qm @ np.swapaxes(JX * wxy.reshape(m, 2 * k, 1), 1, 2)  # (m, 3, 2k): dX/d(plate)
-                # rows 2j, 2j+1 of the plate coordinates depend on the unknowns of ray j only
-                drot_u = np.einsum("mkai,mkij->mkaj", drot, rotation_maps[ph])
-                J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
-                G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
-                Qo = orientation_part(G, ph, camera_of_photo[ph], photo_cols, camera_cols[:, estimated], forms)
-                cov_o[sel[ok]] = Qo[ok]
+                gx = np.einsum("mkai,mka,mka->mi", dX, wxy, res) + Pw * (xyz_given[sel] - xyz_point)
+                Nx, gx = _hold(Nx, gx, free)
+                step = safe_solve(Nx, gx)
+                xyz_point = xyz_point + step
+                if _converged(step, xyz_point):
+                    break
+            _, dX, dO, drot, dint = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs,
+                                              meas, with_lens)
+            Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
+            weak_sel = conditioning(Nx, free) < WEAK_RCOND
+            Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
+            # a point whose rays are parallel (or numbers not finite) is not determined: left out
+            Qm, ok = safe_inverse(Nx)
+            ok &= np.isfinite(xyz_point).all(axis=1)
+            Qm = Qm * (free[:, :, None] & free[:, None, :])
+        Qo = None
+        if with_orientation:
+            m = len(sel)
+            JX = dX.reshape(m, 2 * k, 3)
+            G_rows = -Qm @ np.swapaxes(JX * wxy.reshape(m, 2 * k, 1), 1, 2)  # (m, 3, 2k): dX/d(plate)
+            # rows 2j, 2j+1 of the plate coordinates depend on the unknowns of ray j only
+            drot_u = np.einsum("mkai,mkij->mkaj", drot, rotation_maps[ph])
+            J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
+            G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
+            Qo = orientation_part(G, ph, camera_of_photo[ph], photo_cols, camera_cols[:, estimated], forms)
+        return sel, ok, xyz_point, Qm, weak_sel, Qo
+
+    for sel, ok, xyz_point, Qm, weak_sel, Qo in map_ordered(chunk, tasks, chunk_threads()):
+        weak[sel] = weak_sel
+        xyz[sel[ok]] = xyz_point[ok]
+        cov_m[sel[ok]] = Qm[ok]
+        determined[sel[ok]] = True
+        if Qo is not None:
+            cov_o[sel[ok]] = Qo[ok]
     weak |= far_weaker_than_the_rest(cov_m, determined & (counts > 0))
     return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined,
                         weak=weak & determined)

@@ -139,7 +139,8 @@ def _conditions_cofactors(project: Project, result: AdjustmentResult, options: A
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
     blocks = [] if plate_blocks else None
-    for chunk, s in sweep.systems():
+
+    def cofactors(chunk, s):  # a chunk's qvv (m, no), degenerate groups (m,) and plate blocks, in a chunk thread
         AQ = s.A * s.Q[:, None, :]  # (m, nc, no): A Q
         M = AQ @ np.swapaxes(s.A, 1, 2)
         Minv, bad = group_inverse(M, chunk)
@@ -147,12 +148,17 @@ def _conditions_cofactors(project: Project, result: AdjustmentResult, options: A
         KAQ = K @ AQ
         qvv = np.einsum("mco,mco->mo", KAQ, AQ)
         qvv[bad] = np.nan
+        block = None
+        if plate_blocks and not bad.all():
+            good, n = ~bad, 2 * chunk.image_rows.shape[1]
+            block = (chunk.image_rows[good], np.swapaxes(AQ[good, :, :n], 1, 2) @ KAQ[good, :, :n])
+        return qvv, bad, block
+
+    for chunk, s, (qvv, bad, block) in sweep.systems(cofactors):
         undetermined[chunk.point_index[bad]] = True
         m, k = chunk.image_rows.shape
-        if blocks is not None and not bad.all():
-            good = ~bad
-            blocks.append((chunk.image_rows[good],
-                           np.swapaxes(AQ[good, :, : 2 * k], 1, 2) @ KAQ[good, :, : 2 * k]))
+        if block is not None:
+            blocks.append(block)
         q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
         if chunk.has_control:
             q_control[chunk.point_index] = np.where(s.Q[:, 2 * k:] > 0, qvv[:, 2 * k:], 0.0)

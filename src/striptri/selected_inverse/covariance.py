@@ -16,6 +16,7 @@ The point datum (striptri.equations.point_datum) adds ``(HK)[r] V (HK)[c]^T`` (F
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -232,6 +233,7 @@ class BlockStore:
 
     def __init__(self):
         self._tables: dict = {}
+        self._lock = threading.Lock()  # the chunks of a sweep read it from several threads
 
     @staticmethod
     def _tag(columns: np.ndarray):
@@ -251,6 +253,10 @@ class BlockStore:
             swap = swap if swap.any() else None
         key = i.astype(np.int64) * nb + j
         tag = (self._tag(Pa.columns), self._tag(Pb.columns), same)
+        with self._lock:
+            return self._blocks(entries, Pa, Pb, key, tag, nb) + (swap,)
+
+    def _blocks(self, entries, Pa: Slots, Pb: Slots, key: np.ndarray, tag, nb):
         wa, wb = Pa.columns.shape[1], Pb.columns.shape[1]
         keys, table = self._tables.get(tag, (np.zeros(0, np.int64), np.zeros((0, wa, wb))))
         wanted = np.unique(key)
@@ -264,7 +270,7 @@ class BlockStore:
             order = np.argsort(keys, kind="stable")
             keys, table = keys[order], np.concatenate([table, new])[order]
             self._tables[tag] = (keys, table)
-        return table, np.searchsorted(keys, key), swap
+        return table, np.searchsorted(keys, key)
 
     @property
     def nbytes(self) -> int:

@@ -9,6 +9,11 @@ products of a few hundred rows): there the threads only synchronise, and on a 2-
 blocks, may take more (:func:`factorisation_threads`) where measurement shows it pays: the number
 is ``STRIPTRI_THREADS`` when set, else FACTORISATION_THREADS.
 
+The cores themselves are used by threads over the chunks of a sweep (the linearisation and
+whitening of the condition groups, parallel.map_ordered): :func:`chunk_threads`, every core unless
+``--threads`` (:func:`use_threads`) or ``STRIPTRI_THREADS`` says fewer. Each thread runs its
+numpy kernels with one BLAS thread, so the cores are never oversubscribed.
+
 threadpoolctl finds every BLAS and OpenMP runtime loaded in the process (numpy's OpenBLAS,
 Debian's OpenBLAS under CHOLMOD, cvxopt's) and sets their thread counts for the block.
 """
@@ -29,8 +34,29 @@ def available_cores() -> int:
         return max(os.cpu_count() or 1, 1)
 
 
+_CHOSEN: list[int] = []  # the threads a command was given (--threads, use_threads), innermost last
+
+
+@contextlib.contextmanager
+def use_threads(n: int | None):
+    """The number of threads for the block (the command's ``--threads``; None: the environment's)."""
+    if n is not None and n < 1:
+        raise ValueError(f"the number of threads must be at least 1, not {n}")
+    if n is None:
+        yield
+        return
+    _CHOSEN.append(int(n))
+    try:
+        yield
+    finally:
+        _CHOSEN.pop()
+
+
 def requested_threads() -> int | None:
-    """STRIPTRI_THREADS as a number of threads (None when unset or not a positive integer)."""
+    """The threads asked for: ``--threads`` (use_threads), else STRIPTRI_THREADS as a number (None
+    when neither is given or the variable is not a positive integer)."""
+    if _CHOSEN:
+        return _CHOSEN[-1]
     text = os.environ.get(THREADS_VARIABLE, "").strip()
     if not text:
         return None
@@ -73,6 +99,11 @@ def limit_new_libraries() -> None:
     except ImportError:  # pragma: no cover - a dependency
         return
     _ACTIVE[-1].append(threadpool_limits(limits=1, user_api="blas"))
+
+
+def chunk_threads() -> int:
+    """Threads over the chunks of a sweep: the threads asked for, else every core (at most the cores)."""
+    return min(requested_threads() or available_cores(), available_cores())
 
 
 @contextlib.contextmanager
