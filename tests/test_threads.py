@@ -77,7 +77,7 @@ def test_map_ordered_holds_few_results_and_stops_with_the_caller():
     results = map_ordered(task, range(1000), 2)
     assert next(results) == 0
     time.sleep(0.05)
-    assert len(started) <= 1 + 2 * 2  # the one taken and at most 2 x threads waiting
+    assert len(started) <= 1 + 2  # the one taken and one in the works per thread
     results.close()
     n = len(started)
     time.sleep(0.05)
@@ -148,3 +148,27 @@ def test_the_products_on_threads_equal_those_on_one(monkeypatch, method):
         assert products.result.converged
     for name in ("photos.csv", "points.csv", "residuals.csv", "cameras.csv"):
         assert files[4][name] == files[1][name], name
+
+
+def test_threads_option_of_the_commands(tmp_path, monkeypatch):
+    """``--threads N`` reaches the chunk threads of the run (and only of the run); 0 is refused as
+    bad usage (exit status 2) before anything is computed."""
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    from striptri.cli import main
+
+    seen = []
+    real = threads.chunk_threads
+    monkeypatch.setattr("striptri.equations.linearise.chunk_threads", lambda: seen.append(real()) or real())
+    pair = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "pair"
+    runner = CliRunner()
+    done = runner.invoke(main, ["adjust", str(pair), "--out", str(tmp_path / "o"), "--threads", "1", "--quiet"])
+    assert done.exit_code == 0, done.output
+    assert seen and set(seen) == {1}
+    assert not threads._CHOSEN  # the choice ended with the command
+    refused = runner.invoke(main, ["adjust", str(pair), "--out", str(tmp_path / "o2"), "--threads", "0"])
+    assert refused.exit_code == 2 and not (tmp_path / "o2").exists()
+    assert "--threads" in refused.output
+    assert "--threads" in runner.invoke(main, ["plan", "--help"]).output

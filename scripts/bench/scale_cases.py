@@ -66,6 +66,7 @@ CASES = {
     "b1k": ScaleCase("b1k", "block", 50, 20),
     "b5k": ScaleCase("b5k", "block", 100, 50),
     "b20k": ScaleCase("b20k", "block", 200, 100),
+    "b100k": ScaleCase("b100k", "block", 500, 200),  # issue 29: 200 strips of 500
     "close-range": ScaleCase("close-range", "close", 115, 150),
     # issue 12: long strips, full control every 20 models
     "s10k": ScaleCase("s10k", "strip", 10000, 20),
@@ -76,7 +77,7 @@ CASES = {
 }
 DEFAULT_CASES = ("b1k", "b5k", "b20k", "close-range")
 QUICK_CASES = ("b100", "close-small")
-BLOCK_SCALE = ("b1k", "b5k", "b20k")  # the growth fit
+BLOCK_SCALE = ("b1k", "b5k", "b20k", "b100k")  # the growth fit (those measured)
 
 # What the built cases hold (measured by summarise; bench_scale.py prints it at every run and the
 # smoke test checks the cheap ones): photos, points with rays, full control points, measurements.

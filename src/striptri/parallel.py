@@ -25,9 +25,10 @@ def map_ordered(fn: Callable, items: Iterable, threads: int) -> Iterator:
     """fn(item) for every item, in the items' order, computed by ``threads`` threads ahead of the
     caller (solvers.threads.chunk_threads): the chunks of an adjustment, whose numpy work (batched
     products, factorisations of small matrices, elementwise arithmetic on large arrays) releases
-    the GIL. At most 2 x threads results wait at a time, so memory stays that of a few chunks.
-    One thread (or one item): fn runs here, item by item. The caller's numpy error state holds in the threads
-    too (np.errstate is per thread), and the first exception of a task is raised here."""
+    the GIL. One chunk per thread is in the works while the caller takes the one before, so
+    memory holds threads + 1 chunks' results (a 4,096-group chunk's products are tens of MB).
+    One thread (or one item): fn runs here, item by item. The caller's numpy error state holds in
+    the threads too (np.errstate is per thread), and the first exception of a task is raised here."""
     items = list(items)
     if threads <= 1 or len(items) <= 1:  # no pool for one chunk (a small project)
         yield from map(fn, items)
@@ -38,9 +39,9 @@ def map_ordered(fn: Callable, items: Iterable, threads: int) -> Iterator:
         with np.errstate(**state):
             return fn(item)
 
-    items = iter(items)
     with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="striptri-chunk") as pool:
-        pending = collections.deque(pool.submit(task, item) for _, item in zip(range(2 * threads), items))
+        pending = collections.deque(pool.submit(task, item) for item in items[:threads])
+        items = iter(items[threads:])
         try:
             while pending:
                 result = pending.popleft().result()
