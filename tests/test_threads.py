@@ -122,6 +122,9 @@ def test_threads_option_over_the_variable_and_never_more_than_the_cores(monkeypa
     with pytest.raises(ValueError):
         with threads.use_threads(0):
             pass
+    # a small sweep stays in the caller's thread
+    assert threads.chunk_threads(threads.PARALLEL_MIN_GROUPS - 1) == 1
+    assert threads.chunk_threads(threads.PARALLEL_MIN_GROUPS) == 3
 
 
 @pytest.mark.parametrize("method", ["conditions", "bundle"])
@@ -138,6 +141,7 @@ def test_the_products_on_threads_equal_those_on_one(monkeypatch, method):
     from striptri.pipeline import adjust_products, options_for
 
     monkeypatch.setattr(threads, "available_cores", lambda: 4)
+    monkeypatch.setattr(threads, "PARALLEL_MIN_GROUPS", 0)  # threads for this small block too
     project = read_project(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6")
     options = replace(options_for(project), chunk_size=16, method=method)  # several chunks per batch
     files = {}
@@ -161,12 +165,19 @@ def test_threads_option_of_the_commands(tmp_path, monkeypatch):
 
     seen = []
     real = threads.chunk_threads
-    monkeypatch.setattr("striptri.equations.linearise.chunk_threads", lambda: seen.append(real()) or real())
+    monkeypatch.setattr(threads, "available_cores", lambda: 4)
+    monkeypatch.setattr(threads, "PARALLEL_MIN_GROUPS", 0)
+    monkeypatch.delenv(threads.THREADS_VARIABLE, raising=False)
+    monkeypatch.setattr("striptri.equations.linearise.chunk_threads", lambda n=None: seen.append(real(n)) or seen[-1])
     pair = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "pair"
     runner = CliRunner()
     done = runner.invoke(main, ["adjust", str(pair), "--out", str(tmp_path / "o"), "--threads", "1", "--quiet"])
     assert done.exit_code == 0, done.output
     assert seen and set(seen) == {1}
+    seen.clear()
+    done = runner.invoke(main, ["adjust", str(pair), "--out", str(tmp_path / "o3"), "--quiet"])
+    assert done.exit_code == 0, done.output
+    assert seen and set(seen) == {4}  # every core by default
     assert not threads._CHOSEN  # the choice ended with the command
     refused = runner.invoke(main, ["adjust", str(pair), "--out", str(tmp_path / "o2"), "--threads", "0"])
     assert refused.exit_code == 2 and not (tmp_path / "o2").exists()

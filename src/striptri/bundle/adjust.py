@@ -213,7 +213,8 @@ class _Problem:
         T = self.layout.rotation_maps(state)
         chunks = (chunk for batch in self.linearised for chunk in batch.chunks(self.options.chunk_size))
         yield from map_ordered(lambda chunk: linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns,
-                                                              xyz, damping), chunks, chunk_threads())
+                                                              xyz, damping), chunks,
+                               chunk_threads(sum(len(b) for b in self.linearised)))
 
     def parameter_rows(self, state: State):
         """Whitened observation equations of the observed elements: J (p, 3), cols, e (p,)."""
@@ -225,7 +226,8 @@ class _Problem:
         """The sum of squares e^T e at (state, xyz) (normals.ee without the normals)."""
         chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
         total = sum(map_ordered(lambda chunk: residual_sum_of_squares(chunk, state, self.layout, self.obs,
-                                                                      self.unknowns, xyz), chunks, chunk_threads()),
+                                                                      self.unknowns, xyz), chunks,
+                                chunk_threads(sum(len(b) for b in self.batches))),
                     0.0)
         if len(self.pobs):
             total += float(np.sum(self.parameter_rows(state)[2] ** 2))

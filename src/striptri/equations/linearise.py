@@ -207,7 +207,7 @@ class Sweep:
         """(chunk, system) of every chunk in turn, or (chunk, system, then(chunk, system)): then is
         work on each chunk done in the same thread (the whitening of the assembly, the residual
         cofactors); it must not change shared state. The chunks are
-        linearised on solvers.threads.chunk_threads() threads ahead of the caller
+        linearised on solvers.threads.chunk_threads threads ahead of the caller
         (parallel.map_ordered); :attr:`seconds` counts the time the caller waited for them (with one
         thread, the time of the linearisation and of then)."""
         scale_form, transform = self.options.conditions.scale_form, self.options.conditions.condition_transform
@@ -217,7 +217,7 @@ class Sweep:
             return (chunk, system) if then is None else (chunk, system, then(chunk, system))
 
         chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
-        done = map_ordered(work, chunks, chunk_threads())
+        done = map_ordered(work, chunks, chunk_threads(sum(len(b) for b in self.batches)))
         try:
             while True:
                 t0 = time.perf_counter()

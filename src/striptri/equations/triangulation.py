@@ -291,7 +291,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
             Qo = orientation_part(G, ph, camera_of_photo[ph], photo_cols, camera_cols[:, estimated], forms)
         return sel, ok, xyz_point, Qm, weak_sel, Qo
 
-    for sel, ok, xyz_point, Qm, weak_sel, Qo in map_ordered(chunk, tasks, chunk_threads()):
+    for sel, ok, xyz_point, Qm, weak_sel, Qo in map_ordered(chunk, tasks, chunk_threads(n_points)):
         weak[sel] = weak_sel
         xyz[sel[ok]] = xyz_point[ok]
         cov_m[sel[ok]] = Qm[ok]

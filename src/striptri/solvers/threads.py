@@ -101,8 +101,16 @@ def limit_new_libraries() -> None:
     _ACTIVE[-1].append(threadpool_limits(limits=1, user_api="blas"))
 
 
-def chunk_threads() -> int:
-    """Threads over the chunks of a sweep: the threads asked for, else every core (at most the cores)."""
+PARALLEL_MIN_GROUPS = 4096  # a sweep over fewer point groups runs its chunks in the caller's thread
+
+
+def chunk_threads(n_groups: int | None = None) -> int:
+    """Threads over the chunks of a sweep of n_groups point groups: the threads asked for, else
+    every core (at most the cores); one below PARALLEL_MIN_GROUPS, where a chunk's numpy work is
+    too small to release the GIL for long and the threads would only take turns (every test
+    project, the 150 long tracks of the close-range benchmark)."""
+    if n_groups is not None and n_groups < PARALLEL_MIN_GROUPS:
+        return 1
     return min(requested_threads() or available_cores(), available_cores())
 
 
