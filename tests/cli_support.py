@@ -1,6 +1,15 @@
-"""Helpers for tests that run the real ``striptri`` command in a subprocess: the command itself,
-the shape of a clean failure (one message, the right exit status, no traceback) and snapshots of
-folders that must not change."""
+"""Helpers for tests that run the real ``striptri`` command: the command itself, the shape of a
+clean failure (one message, the right exit status, no traceback) and snapshots of folders that
+must not change.
+
+:func:`run` runs the command's own entry point (``striptri.cli.main``, with its error and signal
+handling) in this process, through click's test runner: a fresh interpreter with numpy, scipy and
+matplotlib costs 2-3 s of CPU per run, which over the suite's runs was a quarter of CI's time.
+What a separate process would show is kept: the exit status, stdout and stderr apart, and an
+exception that escaped the command turned into its traceback on stderr with exit status 1 (so
+``assert_clean_failure`` still catches it). ``STRIPTRI_TEST_SUBPROCESS=1`` (or
+``subprocess=True``) runs the real console script in a subprocess instead; the tests of signals,
+interruptions and worker processes always do (they call :func:`command` themselves)."""
 
 from __future__ import annotations
 
@@ -27,12 +36,45 @@ def command() -> list[str]:
     return [sys.executable, "-c", "import sys; sys.argv[0] = 'striptri'; from striptri.cli import main; main()"]
 
 
+IN_SUBPROCESS = bool(os.environ.get("STRIPTRI_TEST_SUBPROCESS"))
+SUBPROCESS_COMMANDS = ("match",)  # commands that start worker processes of their own
+
+
 def run(*args, timeout: float = 300, cwd: Path | None = None, env: dict | None = None,
-        stdin=subprocess.DEVNULL) -> subprocess.CompletedProcess:
-    """Run ``striptri ARGS`` to completion; text output captured."""
-    return subprocess.run([*command(), *map(str, args)], capture_output=True, text=True, timeout=timeout,
-                          cwd=cwd or REPO, env={**os.environ, "PYTHONWARNINGS": "ignore", **(env or {})},
-                          stdin=stdin)
+        stdin=subprocess.DEVNULL, subprocess: bool = False) -> subprocess.CompletedProcess:
+    """Run ``striptri ARGS`` to completion; text output captured (module doc: in this process
+    unless ``subprocess`` or STRIPTRI_TEST_SUBPROCESS)."""
+    import subprocess as sp
+
+    args = [str(a) for a in args]
+    if subprocess or IN_SUBPROCESS or stdin is not sp.DEVNULL or args[:1] and args[0] in SUBPROCESS_COMMANDS:
+        return sp.run([*command(), *args], capture_output=True, text=True, timeout=timeout,
+                      cwd=cwd or REPO, env={**os.environ, "PYTHONWARNINGS": "ignore", **(env or {})}, stdin=stdin)
+    return _in_this_process(args, cwd or REPO, env)
+
+
+def _in_this_process(args: list[str], cwd: Path, env: dict | None) -> subprocess.CompletedProcess:
+    import traceback
+    import warnings
+
+    from click.testing import CliRunner
+
+    from striptri.cli import main
+
+    before = os.getcwd()
+    os.chdir(cwd)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # as PYTHONWARNINGS=ignore for the subprocess
+            result = CliRunner().invoke(main, args, env=env, prog_name="striptri", catch_exceptions=True)
+    finally:
+        os.chdir(before)
+    code, stderr = result.exit_code, result.stderr
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        # what the interpreter would print and return for an exception no handler caught
+        stderr += "Traceback (most recent call last):\n" + "".join(traceback.format_exception(result.exception))
+        code = 1
+    return subprocess.CompletedProcess(["striptri", *args], code, result.stdout, stderr)
 
 
 def assert_clean_failure(proc: subprocess.CompletedProcess, status: int) -> str:

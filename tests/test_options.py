@@ -49,14 +49,15 @@ def test_the_sequential_steps_limit_is_the_larger_of_the_two():
 
 def test_run_options_hold_every_option_of_the_adjust_command():
     """The command line builds one RunOptions (runs.py): each option of ``striptri adjust`` is a
-    field of it, except the covariance flags (one CovarianceRequest) and --quiet (the terminal)."""
+    field of it, except the covariance flags (one CovarianceRequest), --quiet (the terminal) and
+    --threads (the machine: how many cores compute, never what is computed)."""
     from dataclasses import fields
 
     from striptri.cli import main
     from striptri.core.runs import ADJUSTMENT_FIELDS, RunOptions
 
     names = {f.name for f in fields(RunOptions)}
-    given = {p.name for p in main.commands["adjust"].params} - {"project_dir", "out_dir", "quiet"}
+    given = {p.name for p in main.commands["adjust"].params} - {"project_dir", "out_dir", "quiet", "threads"}
     covariance = {n for n in given if n.startswith("covariance")}
     assert given - covariance <= names
     run = RunOptions(method="bundle", datum_points=["P1", 2])
