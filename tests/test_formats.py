@@ -437,12 +437,15 @@ def test_colmap_opencv_camera_equals_striptri_image_convention():
 
 
 @needs(LADYBUG)
-def test_ladybug_adjusts_to_the_reference_cost():
+def test_ladybug_damping_takes_over_from_the_start():
     """BAL problem-49-7776 (f, k1, k2 free per camera, image convention) by the bundle method from
-    BAL's start: the first Gauss-Newton step raises the cost 380-fold, Levenberg-Marquardt damping
-    takes over, and the adjustment reaches the cost Ceres reaches (pycolmap 4.2.1, SPARSE_SCHUR,
-    scripts/bench/bench_bal.py: 13308.4127) on the same problem (the 31 observations behind their
-    camera at the start left out, as COLMAP does)."""
+    BAL's start: the first Gauss-Newton step would raise the cost 380-fold, so Levenberg-Marquardt
+    damping takes over in the first iteration, and two iterations bring the cost from 8.5e5 to
+    within 2 % of the cost Ceres reaches (pycolmap 4.2.1, SPARSE_SCHUR, scripts/bench/bench_bal.py:
+    13308.4127; the 31 observations behind their camera at the start left out, as COLMAP does).
+    That the adjustment converges to that cost within 0.01 is shown through the command on the
+    same problem (test_undetermined.test_ladybug_through_the_command_reaches_ceres_cost): one
+    adjustment of this problem to convergence is enough for the suite's time."""
     from striptri.adjustment import AdjustmentOptions, adjust
     from striptri.formats.bal import behind_camera, without_observations
 
@@ -451,10 +454,9 @@ def test_ladybug_adjusts_to_the_reference_cost():
     assert behind.sum() == 31
     bal = without_observations(bal, behind)
     result = adjust(bal_to_project(bal).project,
-                    AdjustmentOptions.of(method="bundle", max_iterations=100, cost_tolerance=1e-10))
-    assert result.converged
-    assert any(h.solver_info.damping is not None for h in result.history)
-    assert result.vtpv / 2 == pytest.approx(13308.4127, abs=0.01)
+                    AdjustmentOptions.of(method="bundle", max_iterations=2, keep_unconverged=True))
+    assert result.history[0].solver_info.damping is not None
+    assert 13308.4127 < result.vtpv / 2 < 1.02 * 13308.4127
 
 
 def test_bal_round_trip_through_a_project(tmp_path):
