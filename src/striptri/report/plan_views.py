@@ -12,6 +12,7 @@ from .figures import FIELD_COLOURS, KIND_STYLE, ScaleBar, _figure, png_of
 
 WORST_COLOUR = "#c0392b"
 MAP_FLIGHT_LINES = 30  # the precision map draws the flight lines of at most this many strips (more hide the raster)
+LEGEND_INCHES = 2.4  # room right of the error ellipses' axes for their legend
 NADIR_DEGREES = 30.0  # photos whose axes are this close to the vertical (median) fly strips: flight lines are drawn
 
 
@@ -112,7 +113,12 @@ def error_ellipses(plan: BlockPlan, cov_xy, scale: ScaleBar, labels=None) -> byt
     magnification, bar_length, bar_label = scale
     kind_names = np.asarray(kind_names)
     many = len(xy_points) > 2000
-    fig = _figure(figsize=(8.6, 0.9 + 6.3 * _block_axes_size(xy_centres, xy_points)))
+    # the axes of an 8.6 in wide figure (matplotlib's default margins), with LEGEND_INCHES more on the
+    # right for the legend beside them: everything inside the figure, so that it is drawn once
+    # (figures.png_of trims it; a legend past the edge would need savefig's second drawing)
+    width = 8.6 + LEGEND_INCHES
+    fig = _figure(figsize=(width, 0.9 + 6.3 * _block_axes_size(xy_centres, xy_points)))
+    fig.subplots_adjust(left=0.125 * 8.6 / width, right=0.9 * 8.6 / width)
     ax = fig.subplots()
     if flight_lines:
         _flight_lines(ax, xy_centres, strip_of_photo)
