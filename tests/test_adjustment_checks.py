@@ -70,3 +70,29 @@ def test_xz_scale_form_equals_3d_on_a_strip_along_x():
     b = adjust(project, AdjustmentOptions.of(scale_form="xz"))
     np.testing.assert_allclose(b.state.xyz0, a.state.xyz0, atol=1e-9 * 1500)
     assert b.vtpv == pytest.approx(a.vtpv, rel=1e-9)
+
+
+@pytest.mark.parametrize("name", ["cholmod", "cvxopt"])
+def test_final_checks_solve_with_the_converged_iterations_factor(monkeypatch, name):
+    """The final checks of a converged adjustment solve with the factor its last iteration made
+    (solvers hold it): one factorisation per iteration and none more, and (59) holds as tightly as
+    with N factorised again at the solution. An adjustment stopped at its iteration limit
+    factorises N at the solution for the next correction."""
+    from striptri import solvers
+
+    solver_class = solvers.selection._SOLVER_CLASSES[name]
+    try:
+        solver_class(solvers.SolverOptions(name), solvers.Structure(0))
+    except solvers.SolverUnavailable:
+        pytest.skip(f"{name} is not installed")
+    calls = []
+    original = solver_class.solve
+    monkeypatch.setattr(solver_class, "solve", lambda self, N, b: calls.append(1) or original(self, N, b))
+    project = read_project(DATA / "strip8")
+    r = adjust(project, AdjustmentOptions(solver=name))
+    assert r.converged and len(calls) == len(r.history)
+    assert r.checks.vtpv_reduction_relative_difference < 1e-8 and r.checks.max_BTk_sigma < 1e-7
+    calls.clear()
+    stopped = adjust(project, AdjustmentOptions(solver=name, max_iterations=2, keep_unconverged=True))
+    assert not stopped.converged and len(calls) == 3
+    assert "correction" in stopped.termination_message

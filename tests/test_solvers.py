@@ -39,6 +39,7 @@ from striptri.solvers.synthetic import block_normal_matrix, strip_normal_matrix
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
 FLYING_HEIGHT = 1500.0  # m, data/synthetic_strips/README.md
 DIRECT_RTOL = 1e-10
+HOLDS_FACTOR = ("cholmod", "cvxopt")  # the solvers whose factor serves solve_again
 
 
 def scaled_error(N, dx, ref) -> float:
@@ -158,6 +159,35 @@ class SolverSuite:
         cols = np.r_[0:6, 30:36]
         extra[np.ix_(cols, cols)] = v.T @ v
         self.assert_agrees(sp.csr_matrix(N + extra), st, seed=8, solver=solver)
+
+    def test_solve_again_with_the_held_factor(self):
+        """A solver told to hold its factor (the adjustment's final checks) solves another right-hand
+        side for the N of its last solve; the CHOLMOD solvers hold one, the others say None. Not
+        held unless told, and not after release or a failed solve."""
+        N, st = strip_case(12, 1, seed=31)
+        rng = np.random.default_rng(31)
+        b, b2 = rng.normal(size=N.shape[0]), rng.normal(size=N.shape[0])
+        solver = self.make(st)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SlowConvergenceWarning)
+            solver.solve(N, b)
+            assert solver.solve_again(b2) is None  # dropped after the solve unless held
+            solver.holds_factor = True
+            N2, _ = strip_case(12, 1, seed=32)  # same pattern, other numbers: the last solve's N counts
+            solver.solve(N, b)
+            solver.solve(N2, b)
+        again = solver.solve_again(b2)
+        if self.name not in HOLDS_FACTOR:
+            assert again is None
+            return
+        assert scaled_error(N2, again, dense_reference(N2, b2)) < DIRECT_RTOL
+        solver.release()
+        assert solver.solve_again(b2) is None
+        solver.solve(N2, b)
+        bad, _ = indefinite_case()
+        with pytest.raises(SingularNormalMatrix):
+            solver.solve(bad, np.ones(12))
+        assert solver.solve_again(b2) is None
 
     # -- singular and indefinite N ---------------------------------------------------------------
 

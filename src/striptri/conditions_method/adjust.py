@@ -305,21 +305,29 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     no_unknowns = problem.layout.n_unknowns == 0
-    for _ in range(options.max_iterations):
-        now, floor = _iteration(problem, solver, now, history, timings)
-        stop_if_diverging(history, METHOD, problem.redundancy, causes)
-        if has_converged(history, options.tolerance, floor):
-            converged = True
-            break
+    solver.holds_factor = True  # the converged iteration's factor serves the final checks
+    try:
+        for _ in range(options.max_iterations):
+            now, floor = _iteration(problem, solver, now, history, timings)
+            stop_if_diverging(history, METHOD, problem.redundancy, causes)
+            if has_converged(history, options.tolerance, floor):
+                converged = True
+                break
+            solver.release()  # not held while the next iteration assembles
+        if not converged:
+            solver.release()
 
-    t0 = time.perf_counter()
-    final = problem.sweep(now.state, now.plate_hat, now.control_hat, now.distance_hat)
-    acc = problem.assemble(final, len(history) + 1)
-    free_network = problem.free_network
-    if free_network is not None:
-        free_network = problem.datum_at(now.state, acc.N, now.plate_hat, at_solution=True)
-    checks, next_correction = _final_checks(final, acc, now.vtpv, problem.pobs, now.v_par, free_network, solver)
-    timings.final_checks = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        final = problem.sweep(now.state, now.plate_hat, now.control_hat, now.distance_hat)
+        acc = problem.assemble(final, len(history) + 1)
+        free_network = problem.free_network
+        if free_network is not None:
+            free_network = problem.datum_at(now.state, acc.N, now.plate_hat, at_solution=True)
+        checks, next_correction = _final_checks(final, acc, now.vtpv, problem.pobs, now.v_par, free_network, solver)
+        timings.final_checks = time.perf_counter() - t0
+    finally:
+        solver.release()
+        solver.holds_factor = False
     timings.total = time.perf_counter() - t_start
     status, message = "converged", ""
     if not converged:
@@ -445,9 +453,13 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
 
     Also returns the largest correction (in standard deviations, as in the history) the next
     iteration would make, a by-product of (59) (None when N is singular): whether an iteration that
-    stopped at max_iterations was still converging. The solve uses the adjustment's own solver
-    when it is a direct one (its analysis of the pattern is reused), else ``auto``: a direct one,
-    or ``strip-pcg`` where a direct factor would not fit in memory (docs/solvers.md).
+    stopped at max_iterations was still converging. After a converged iteration whose factor the
+    solver holds (``solver.solve_again``), that factor solves: N at the solution differs from the
+    converged iteration's by terms of the size of its last correction, and u is of that size
+    itself, so u'dx and the next correction change in their second order only (docs/decisions.md
+    "The final checks on the last factor"). Otherwise the adjustment's own solver solves when it
+    is a direct one (its analysis of the pattern is reused), else ``auto``: a direct one, or
+    ``strip-pcg`` where a direct factor would not fit in memory (docs/solvers.md).
     """
     max_g = acc.max_misclosure  # formed with N in the same sweep (assemble_normals)
     if len(pobs):
@@ -461,7 +473,10 @@ def _final_checks(sweep: Sweep, acc: NormalAccumulator, vtpv: float, pobs, v_par
         if solver is None or solver.iterative:  # auto: a direct factor unless it would not fit in memory
             direct = solvers.make_solver(solvers.SolverOptions(name="auto"), solver.structure if solver else
                                          solvers.Structure(len(d), sweep.layout.block_starts()))
-        if free_network is None:
+        again = None if solver is None or free_network is not None else solver.solve_again(acc.u)
+        if again is not None:
+            dx = again
+        elif free_network is None:
             dx = direct.solve(acc.N, acc.u).dx
         else:
             dx = -_solve_free_network(acc, direct, replace(free_network, target=None)).dx

@@ -102,9 +102,21 @@ class NormalSolver:
 
     def __init__(self, options: SolverOptions, structure: Structure):
         self.options, self.structure = options, structure
+        # True: a direct solver keeps the factor of its last solve for solve_again until release()
+        # (the adjustments hold it from a solve to their convergence test, and past a converged
+        # one for the final checks); False: dropped after each solve, as memory asks
+        self.holds_factor = False
 
     def solve(self, N: sp.csr_matrix, b: np.ndarray) -> SolveResult:  # pragma: no cover - interface
         raise NotImplementedError
+
+    def solve_again(self, b: np.ndarray) -> np.ndarray | None:
+        """N^-1 b for the N of the last solve, with its factor when the solver holds one
+        (``holds_factor``; the CHOLMOD solvers); None when it does not (then solve N again)."""
+        return None
+
+    def release(self) -> None:
+        """Drop the factor held for solve_again (nothing when none is held)."""
 
 
 def jacobi_scaled(N: sp.spmatrix):

@@ -78,6 +78,7 @@ class CvxoptSolver(NormalSolver):
         self._pattern: tuple[np.ndarray, np.ndarray] | None = None
         self._perm: np.ndarray | None = None
         self.analyses = 0
+        self._held_scale: np.ndarray | None = None  # the last solve's Jacobi scale, when holds_factor
 
     def _permutation(self, n: int) -> np.ndarray:
         """CHOLMOD's fill-reducing permutation of the analysis: row i of P A P' is row perm[i] of A.
@@ -106,6 +107,7 @@ class CvxoptSolver(NormalSolver):
         return self._perm
 
     def solve(self, N, b):
+        self._held_scale = None
         n = N.shape[0]
         if n == 0:
             return SolveResult(np.zeros(0), self.name)
@@ -133,7 +135,20 @@ class CvxoptSolver(NormalSolver):
         check_pivots(np.asarray(self._cholmod.diag(self._factor)).reshape(-1), self._permutation(n))
         y = self._cvxopt.matrix(b * s)
         self._cholmod.solve(self._factor, y)
+        if self.holds_factor:  # the numeric factor stays in self._factor until the next solve
+            self._held_scale = s
         return SolveResult(np.asarray(y).reshape(-1) * s, self.name, SolverInfo(analyses=self.analyses))
+
+    def solve_again(self, b):
+        if self._held_scale is None:
+            return None
+        s = self._held_scale
+        y = self._cvxopt.matrix(b * s)
+        self._cholmod.solve(self._factor, y)
+        return np.asarray(y).reshape(-1) * s
+
+    def release(self):
+        self._held_scale = None
 
 
 class _cholmod_options:

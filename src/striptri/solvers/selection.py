@@ -96,7 +96,15 @@ class AutoSolver(NormalSolver):
             concrete = resolve_solver("auto", N.shape[0], N, self.structure)
             self._chosen = _SOLVER_CLASSES[concrete](self.options, self.structure)
             self.name = concrete
+        self._chosen.holds_factor = self.holds_factor
         return self._chosen.solve(N, b)
+
+    def solve_again(self, b):
+        return None if self._chosen is None else self._chosen.solve_again(b)
+
+    def release(self):
+        if self._chosen is not None:
+            self._chosen.release()
 
 
 def make_solver(options: SolverOptions, structure: Structure) -> NormalSolver:

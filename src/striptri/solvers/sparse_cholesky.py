@@ -3,7 +3,9 @@
 The symbolic factorisation (ordering and the pattern of L, ``cholmod.analyze``) is made once per
 solver object, i.e. once per adjustment, at the first solve; every outer iteration then only
 refactorises numerically (``Factor.cholesky``: a new numeric factor from the kept analysis, dropped
-after the solve, so that the factor does not occupy memory while the next iteration assembles). If N's pattern ever grows beyond the one
+after the solve, so that the factor does not occupy memory while the next iteration assembles;
+with ``holds_factor`` it is kept for ``solve_again`` until ``release``: the adjustment's final
+checks solve with the factor of its converged iteration). If N's pattern ever grows beyond the one
 analysed (an entry that was not there before), the solver analyses again and counts it in
 ``info.analyses``; a pattern that only loses entries (exact zeros) is fine as it is.
 
@@ -104,6 +106,7 @@ class CholmodSolver(NormalSolver):
         self._factor = None
         self._pattern: tuple | None = None  # (indptr, indices, shape) of the analysed matrix
         self.analyses = 0
+        self._held = None  # (numeric factor, Jacobi scale) of the last solve, when holds_factor
 
     def _pattern_fits(self, A: sp.csc_matrix) -> bool:
         if self._pattern is None:
@@ -118,6 +121,7 @@ class CholmodSolver(NormalSolver):
         return (P + ones).nnz == P.nnz
 
     def solve(self, N, b):
+        self._held = None
         n = N.shape[0]
         if n == 0:
             return SolveResult(np.zeros(0), self.name)
@@ -140,5 +144,16 @@ class CholmodSolver(NormalSolver):
         # D(): the squared diagonal of L (supernodal, L L') or D itself (simplicial, L D L')
         check_pivots(np.sqrt(np.maximum(factor.D(), 0.0)), perm)
         y = factor.solve_A(b * s)
+        if self.holds_factor:
+            self._held = (factor, s)
         return SolveResult(np.asarray(y).reshape(-1) * s, self.name,
                            SolverInfo(analyses=self.analyses, mode=self.mode, ordering=self.ordering))
+
+    def solve_again(self, b):
+        if self._held is None:
+            return None
+        factor, s = self._held
+        return np.asarray(factor.solve_A(b * s)).reshape(-1) * s
+
+    def release(self):
+        self._held = None
