@@ -97,3 +97,39 @@ def test_every_figure_of_a_strip_report_is_drawn_once(monkeypatch):
     products = pipeline.adjust_products(project, pipeline.options_for(project), RunOptions())
     pngs = products.files["report.html"].count("data:image/png;base64,")
     assert pngs == 5 and len(draws) == pngs
+
+
+def test_preload_imports_the_figure_modules_in_a_thread_of_its_own():
+    """pipeline starts figures.preload before the adjustment: in a fresh interpreter the figure
+    modules are not loaded, the call returns at once, and its thread loads them."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from striptri.report import figures as f\n"
+        "assert not any(m in sys.modules for m in f.FIGURE_MODULES)\n"
+        "f.preload(); f.preload()\n"
+        "assert len(f._preloading) == 1 and f._preloading[0] is not __import__('threading').current_thread()\n"
+        "f._preloading[0].join()\n"
+        "print(all(m in sys.modules for m in f.FIGURE_MODULES))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "True"
+
+
+def test_warnings_raised_by_the_figure_packages_are_told_apart():
+    """A warning raised by the preloading import while the adjustment records its warnings is not
+    a warning of the run (pipeline); the run's own are."""
+    import os
+    import warnings
+
+    def message(path):
+        return warnings.WarningMessage("text", DeprecationWarning, path, 1)
+
+    site = os.path.join(os.sep, "usr", "lib", "python3", "site-packages")
+    assert figures.from_figure_packages(message(os.path.join(site, "matplotlib", "axes", "_base.py")))
+    assert figures.from_figure_packages(message(os.path.join(site, "PIL", "Image.py")))
+    assert not figures.from_figure_packages(message(os.path.join("src", "striptri", "pipeline.py")))
+    assert not figures.from_figure_packages(message(os.path.join(site, "numpy", "linalg", "matplotlib.py")))

@@ -71,6 +71,7 @@ CASES = {
     # issue 12: long strips, full control every 20 models
     "s10k": ScaleCase("s10k", "strip", 10000, 20),
     "s100k": ScaleCase("s100k", "strip", 100000, 20),
+    "s100k-50": ScaleCase("s100k-50", "strip", 100000, 50),  # issue 29's strip: full control every 50 models
     # quick mode (smoke run)
     "b100": ScaleCase("b100", "block", 20, 5),
     "close-small": ScaleCase("close-small", "close", 24, 40),

@@ -27,6 +27,7 @@ from .bundle.distances import summary_entry as distances_summary
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
+from .report import figures as figure_imports
 from .report.figures import normal_matrix_structure
 from .report.tables import (camera_table, check_point_statistics, finite_or_none, gnss_tables, photo_table,  # noqa: F401
                             point_covariances, point_table, residual_table)
@@ -276,6 +277,7 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         warn(str(note))
     # the pipeline's phases beyond the adjustment (summary.json timings_s, docs/file-formats.md)
     phases: dict[str, float] = {} if seconds_reading is None else {"read": seconds_reading}
+    figure_imports.preload()  # matplotlib imported on the other core while the adjustment computes
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -306,7 +308,8 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
                 warn(weak)
         finally:
             for w in caught:
-                warn(str(w.message))
+                if not figure_imports.from_figure_packages(w):
+                    warn(str(w.message))
     t0 = time.perf_counter()
     photo_cols, point_cols = photo_table(adjusted, result), point_table(adjusted, result, points)
     if frame is not None:
