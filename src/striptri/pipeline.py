@@ -35,6 +35,7 @@ from .report import film as film_report
 from .io import sources
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
+from .solvers.memory import give_back_free_memory
 from .solvers.threads import single_threaded
 from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, read_project
@@ -283,6 +284,7 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         try:
             t0 = time.perf_counter()
             first = adjust(project, options)  # step 1: the adjustment of all rows
+            give_back_free_memory()  # before the selected inverse of the gross-error test
             if options.method == "sequential":  # step 2: the blunder procedure on it
                 det = without_tests(project, first, "not tested (sequential method)")
             else:
@@ -297,6 +299,7 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
                 warn(result.termination_message)
             _warn_if_implausible(adjusted, result, warn)
             t0 = time.perf_counter()
+            give_back_free_memory()
             points = triangulate_result(adjusted, result)
             if point_precision == "joint92":
                 joint = joint_point_covariance(adjusted, result, points, options)
@@ -354,6 +357,7 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         automatic_tie_points=sources.summary_entry(project, det.flag, det.v))
 
     t0 = time.perf_counter()
+    give_back_free_memory()
     structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos),
                                         labels=structure_labels(adjusted, result.layout))
     html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,

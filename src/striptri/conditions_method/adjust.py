@@ -39,6 +39,7 @@ from ..equations.normal_equations import (BlockPattern, NormalAccumulator, Patte
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from ..equations import weights
+from ..solvers.memory import give_back_free_memory
 
 METHOD = "conditions"
 
@@ -244,7 +245,10 @@ class _Problem:
                      self.joint, distance_hat)
 
     def assemble(self, sweep: Sweep, iteration: int, keep: bool = False):
-        return _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep)
+        give_back_free_memory()  # the last iteration's factor and kept chunks, freed
+        acc = _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep)
+        give_back_free_memory()  # the chunk threads' products, before the factorisation
+        return acc
 
     def datum_at(self, state: State, N, plate_hat: np.ndarray, at_solution: bool = False):
         """The free network's constraints at ``state`` (N there; plate_hat: the adjusted plate

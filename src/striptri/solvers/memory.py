@@ -29,6 +29,9 @@ with a suffix K, M, G: ``"2G"``), else :data:`MEMORY_BUDGET` when set (tests), e
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import functools
 import math
 import os
 
@@ -99,3 +102,29 @@ def fits(estimate_bytes: float, budget: int | None = None) -> bool:
     """True when a factor of ``estimate_bytes`` fits FACTOR_SHARE of the budget."""
     budget = memory_budget() if budget is None else budget
     return budget is None or estimate_bytes <= FACTOR_SHARE * budget
+
+
+@functools.cache
+def _malloc_trim():
+    """glibc's malloc_trim, or None (another C library, or none found)."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        trim = libc.malloc_trim
+    except (OSError, AttributeError):
+        return None
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return trim
+
+
+def give_back_free_memory() -> None:
+    """Hand the free pages of the C heap back to the system (glibc's ``malloc_trim(0)``; nothing
+    elsewhere), between phases whose temporaries are gone.
+
+    numpy's arrays below glibc's mmap threshold (which grows to 32 MB as large arrays are freed) come
+    from the heap, and each chunk thread allocates from an arena of its own. What a phase frees stays
+    resident there: the next phase, allocating from another arena or in other sizes, cannot reuse
+    it, and the process's peak resident set counts it. Trimming all arenas between the phases
+    (a few milliseconds) keeps that out of the peak (docs/decisions.md "Free memory handed back")."""
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
