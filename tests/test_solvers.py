@@ -664,3 +664,54 @@ def test_one_off_solve_and_inverse_agree_with_the_reference():
         assert scaled_error(N, solvers.solve(N, b, name, st).dx, dense_reference(N, b)) < 1e-9
     Q = solvers.inverse(N)
     np.testing.assert_allclose(Q @ N.toarray(), np.eye(N.shape[0]), atol=1e-8)
+
+
+def _block_starts_by_loop(layout):
+    """The definition of block_starts, set by set: a set's new columns are those beyond every
+    column of the sets before it."""
+    starts, photo_of_block, seen = [], [], -1
+    for i, cols in enumerate(layout._column_sets()):
+        new = cols[cols > seen]
+        if len(new):
+            starts.append(int(new.min()))
+            photo_of_block.append(i)
+            seen = int(new.max())
+    return np.array(starts, dtype=int), np.array(photo_of_block, dtype=int)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_block_starts_of_layouts_with_held_and_shared_columns(seed):
+    """block_starts and block_groups (vectorised) against the set-by-set definition, on layouts
+    with held photos, held angles, centre components shared along an enforced base (a column
+    repeated in the next photo) and cameras with some elements free."""
+    from striptri.equations.parameters import UnknownLayout
+
+    rng = np.random.default_rng(seed)
+    n, n_cam, col, rows = 40, 3, 0, []
+    for i in range(n):
+        row = -np.ones(6, dtype=int)
+        if rng.random() < 0.15:  # held photo
+            rows.append(row)
+            continue
+        for k in range(6):
+            if k < 3 and rows and rows[-1][k] >= 0 and rng.random() < 0.2:  # a base component enforced
+                row[k] = rows[-1][k]
+            elif rng.random() < 0.85:
+                row[k], col = col, col + 1
+        rows.append(row)
+    cameras = -np.ones((n_cam, 10), dtype=int)
+    for j in range(n_cam):
+        for e in np.flatnonzero(rng.random(10) < 0.4):
+            cameras[j, e], col = col, col + 1
+    layout = UnknownLayout(np.array(rows), cameras, col, "omega-phi-kappa", np.zeros((n, 3), bool), np.zeros((n, 3)))
+    starts, photo_of_block = _block_starts_by_loop(layout)
+    np.testing.assert_array_equal(layout.block_starts(), starts)
+    strips = [f"s{i // 10}" if i % 7 else "" for i in range(n)]
+    groups = layout.block_groups(strips)
+    assert len(groups) == len(starts)
+    is_photo = photo_of_block < n
+    assert np.all(groups[~is_photo] == -1)
+    names = np.array(strips)[photo_of_block[is_photo]]
+    assert np.all((groups[is_photo] == -1) == (names == ""))
+    for a in np.unique(names[names != ""]):  # one group per strip, numbered in order of first appearance
+        assert len(set(groups[is_photo][names == a])) == 1

@@ -121,17 +121,30 @@ class UnknownLayout:
         R[part] = R_from_angles(angles, self.convention)
         return R
 
+    def _new_column_sets(self) -> tuple[np.ndarray, np.ndarray]:
+        """(the element sets of _column_sets that bring new columns, the first new column of each):
+        a set's new columns are those beyond every column of the sets before it (a column shared by
+        an enforced base component belongs to the photo that brought it). Vectorised over the sets
+        (one row each, padded with -1)."""
+        sets = self._column_sets()
+        if not sets:
+            return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+        width = max(len(c) for c in sets)
+        cols = np.full((len(sets), width), -1, dtype=np.int64)
+        photo = np.asarray(self.photo_cols, dtype=np.int64).reshape(len(self.photo_cols), -1)
+        cols[:len(photo), :photo.shape[1]] = photo
+        for i, c in enumerate(sets[len(photo):], start=len(photo)):  # cameras and GNSS: a few sets
+            cols[i, :len(c)] = c
+        before = np.maximum.accumulate(np.concatenate([[-1], cols.max(axis=1)[:-1]]))  # the largest column so far
+        new = cols > before[:, None]
+        has = new.any(axis=1)
+        first = np.where(new, cols, np.iinfo(np.int64).max).min(axis=1)
+        return np.flatnonzero(has), first[has].astype(int)
+
     def block_starts(self) -> np.ndarray:
         """First column of each photo's block of new columns, then of each camera's (columns are
         numbered photo by photo, cameras last, so every block is a contiguous range)."""
-        starts = []
-        seen = -1
-        for cols in self._column_sets():
-            new = cols[cols > seen]
-            if len(new):
-                starts.append(int(new.min()))
-                seen = int(new.max())
-        return np.array(starts, dtype=int)
+        return self._new_column_sets()[1]
 
     def block_groups(self, strip_ids) -> np.ndarray:
         """For each block of :meth:`block_starts`, the index of its photo's strip (the strips
@@ -139,14 +152,7 @@ class UnknownLayout:
         strings; photos with an empty strip id form no strip (-1 as well): the solvers then group
         them by themselves (solvers.strips)."""
         ids = np.asarray(list(strip_ids), dtype=object)
-        photo_of_block = []
-        seen = -1
-        for i, cols in enumerate(self._column_sets()):
-            new = cols[cols > seen]
-            if len(new):
-                photo_of_block.append(i)
-                seen = int(new.max())
-        photo_of_block = np.array(photo_of_block, dtype=int)
+        photo_of_block = self._new_column_sets()[0]
         n = len(self.photo_cols)
         groups = np.full(len(photo_of_block), -1, dtype=int)
         is_photo = photo_of_block < n
