@@ -8,7 +8,7 @@ matplotlib costs 2-3 s of CPU per run, which over the suite's runs was a quarter
 What a separate process would show is kept: the exit status, stdout and stderr apart, and an
 exception that escaped the command turned into its traceback on stderr with exit status 1 (so
 ``assert_clean_failure`` still catches it). ``STRIPTRI_TEST_SUBPROCESS=1`` (or
-``subprocess=True``) runs the real console script in a subprocess instead; the tests of signals,
+``in_subprocess=True``) runs the real console script in a subprocess instead; the tests of signals,
 interruptions and worker processes always do (they call :func:`command` themselves)."""
 
 from __future__ import annotations
@@ -41,15 +41,14 @@ SUBPROCESS_COMMANDS = ("match",)  # commands that start worker processes of thei
 
 
 def run(*args, timeout: float = 300, cwd: Path | None = None, env: dict | None = None,
-        stdin=subprocess.DEVNULL, subprocess: bool = False) -> subprocess.CompletedProcess:
+        stdin=subprocess.DEVNULL, in_subprocess: bool = False) -> subprocess.CompletedProcess:
     """Run ``striptri ARGS`` to completion; text output captured (module doc: in this process
-    unless ``subprocess`` or STRIPTRI_TEST_SUBPROCESS)."""
-    import subprocess as sp
-
+    unless ``in_subprocess`` or STRIPTRI_TEST_SUBPROCESS)."""
     args = [str(a) for a in args]
-    if subprocess or IN_SUBPROCESS or stdin is not sp.DEVNULL or args[:1] and args[0] in SUBPROCESS_COMMANDS:
-        return sp.run([*command(), *args], capture_output=True, text=True, timeout=timeout,
-                      cwd=cwd or REPO, env={**os.environ, "PYTHONWARNINGS": "ignore", **(env or {})}, stdin=stdin)
+    if (in_subprocess or IN_SUBPROCESS or stdin is not subprocess.DEVNULL
+            or args[:1] and args[0] in SUBPROCESS_COMMANDS):
+        return subprocess.run([*command(), *args], capture_output=True, text=True, timeout=timeout, cwd=cwd or REPO,
+                              env={**os.environ, "PYTHONWARNINGS": "ignore", **(env or {})}, stdin=stdin)
     return _in_this_process(args, cwd or REPO, env)
 
 
