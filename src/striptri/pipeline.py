@@ -284,7 +284,6 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         try:
             t0 = time.perf_counter()
             first = adjust(project, options)  # step 1: the adjustment of all rows
-            give_back_free_memory()  # before the selected inverse of the gross-error test
             if options.method == "sequential":  # step 2: the blunder procedure on it
                 det = without_tests(project, first, "not tested (sequential method)")
             else:

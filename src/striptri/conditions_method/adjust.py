@@ -317,9 +317,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
             if has_converged(history, options.tolerance, floor):
                 converged = True
                 break
-            solver.release()  # not held while the next iteration assembles
-        if not converged:
-            solver.release()
+            solver.release()  # not held while the next iteration assembles (nor past the last one)
 
         t0 = time.perf_counter()
         final = problem.sweep(now.state, now.plate_hat, now.control_hat, now.distance_hat)

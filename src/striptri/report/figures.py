@@ -11,6 +11,7 @@ is still there for the study's figures.
 from __future__ import annotations
 
 import io
+import os
 import sys
 import threading
 import warnings
@@ -57,8 +58,6 @@ def preload() -> None:
 def from_figure_packages(message: warnings.WarningMessage) -> bool:
     """Whether a recorded warning was raised in a file of FIGURE_PACKAGES (the pipeline leaves such
     warnings of its adjustment phase out of the run's warnings: only the preload can raise them)."""
-    import os
-
     parts = os.path.normpath(str(message.filename)).split(os.sep)
     return any(p in FIGURE_PACKAGES for p in parts[:-1])
 
