@@ -22,7 +22,7 @@ from striptri.equations import conditions
 from striptri import model
 from striptri.adjustment import observations_of
 from striptri.equations.groups import build_batches
-from striptri.equations.linearise import At, evaluate, linearise
+from striptri.equations.linearise import At, evaluate, linearise, unknown_blocks
 from striptri.equations.parameter_observations import build_parameter_observations
 from striptri.equations.parameters import build_layout, initial_state, reduction_offset
 from striptri.geometry.rotations import angles_from_R, angles_jacobian
@@ -469,3 +469,62 @@ def test_parameter_observation_gradients(convention):
         # differences wrapped into (-pi, pi] (angles near +-pi); the others are far below pi
         G_num[:, j] = np.angle(np.exp(1j * (fp - fm))) / (2 * h[j])
     assert_jacobian(G, G_num, 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# the compact form of the conditions (each condition's own rays) against the k-ray form
+
+
+@pytest.mark.parametrize("convention", ["image", "plate"])
+def test_compact_derivatives_equal_the_k_ray_form(tmp_path, convention):
+    """Long close-range tracks (7 to 20 rays) through a distorting lens, as chains and as stars, as
+    tie, height and plan points and as full control: the compact derivatives (conditions module doc)
+    that the linearisation uses, spread over the k rays, equal the k-ray form to the last bit. The
+    k-ray form broadcasts each ray's rotation, plate vector and lens derivatives over the
+    conditions; the compact form gathers them by each condition's rays; the ray indices themselves
+    are checked against central differences by test_ray_conditions (the k-ray form is the compact
+    one spread) and the whole linearisation by test_linearise_B_and_A."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    from striptri.geometry import lens
+    from striptri.io import read_project
+
+    net = close_range.make_close_range(24, 40, seed=5)
+    project = read_project(close_range.write_close_range(tmp_path / "p", net))
+    interior = project.cameras.interior.copy()
+    interior[:, [lens.K1, lens.K2, lens.P1, lens.B1]] = (2e-4, -3e-7, 1e-5, 1e-4) if convention == "plate" else (
+        -0.05, 0.02, 1e-4, 1e-3)
+    cameras = replace(project.cameras, interior=interior, convention=np.full(1, lens.CONVENTIONS[convention]))
+    project = replace(project, cameras=cameras)
+    offset = reduction_offset(project)
+    state, layout, obs = initial_state(project, offset), build_layout(project), observations_of(project, offset)
+    assert layout.lens_in_play(state)
+    rng = np.random.default_rng(4)
+    plate_hat = obs.plate + rng.normal(0, 1e-4, obs.plate.shape)
+    control_hat = rng.normal(0, 10.0, (len(project.points), 3))
+    T = layout.rotation_maps(state)
+    shapes = set()
+    for batch in build_batches(project):
+        variants = [batch]
+        if batch.family == "rays":
+            variants += [replace(batch, star=True), replace(batch, given_axes=(False, False, True)),
+                         replace(batch, given_axes=(True, True, False), star=True)]
+        for b in variants:
+            shapes.add((b.family, b.star, b.given_axes))
+            compact = evaluate(b, state, plate_hat, control_hat, with_lens=True, plate_measured=obs.plate, compact=True)
+            k_ray = evaluate(b, state, plate_hat, control_hat, with_lens=True, plate_measured=obs.plate)
+            assert compact.rays is not None and compact.rays.shape[1] <= 3 and k_ray.rays is None
+            for name in ("d_plate", "d_rot", "d_centre", "d_interior"):
+                got = conditions.expanded(getattr(compact, name), compact.rays, b.k)
+                assert np.array_equal(got, getattr(k_ray, name)), (name, b.k, b.star, b.given_axes)
+            assert np.array_equal(compact.g, k_ray.g) and np.array_equal(compact.d_control, k_ray.d_control)
+            B_compact, cols = unknown_blocks(compact, b, state, layout, T)
+            B_k_ray, cols_k = unknown_blocks(k_ray, b, state, layout, T)
+            assert np.array_equal(B_compact, B_k_ray) and np.array_equal(cols, cols_k)
+    assert {("collinearity", False, (True, True, True)), ("rays", True, (False, False, False)),
+            ("rays", False, (False, False, True)), ("rays", True, (True, True, False))} <= shapes
+

@@ -125,8 +125,11 @@ def test_threads_option_over_the_variable_and_never_more_than_the_cores(monkeypa
         with threads.use_threads(0):
             pass
     # a small sweep stays in the caller's thread
-    assert threads.chunk_threads(threads.PARALLEL_MIN_GROUPS - 1) == 1
-    assert threads.chunk_threads(threads.PARALLEL_MIN_GROUPS) == 3
+    assert threads.chunk_threads(threads.PARALLEL_MIN_RAY_PAIRS - 1) == 1
+    assert threads.chunk_threads(threads.PARALLEL_MIN_RAY_PAIRS) == 3
+    # the size is the ray pairs: 4,095 three-ray points stay, 150 points of 66 rays go on threads
+    assert threads.ray_pairs(np.full(4095, 3)) < threads.PARALLEL_MIN_RAY_PAIRS
+    assert threads.ray_pairs(np.full(150, 66)) >= threads.PARALLEL_MIN_RAY_PAIRS
 
 
 @pytest.mark.parametrize("method", ["conditions", "bundle"])
@@ -143,7 +146,7 @@ def test_the_products_on_threads_equal_those_on_one(monkeypatch, method):
     from striptri.pipeline import adjust_products, options_for
 
     monkeypatch.setattr(threads, "available_cores", lambda: 4)
-    monkeypatch.setattr(threads, "PARALLEL_MIN_GROUPS", 0)  # threads for this small block too
+    monkeypatch.setattr(threads, "PARALLEL_MIN_RAY_PAIRS", 0)  # threads for this small block too
     project = read_project(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6")
     options = replace(options_for(project), chunk_size=16, method=method)  # several chunks per batch
     files = {}
@@ -168,7 +171,7 @@ def test_threads_option_of_the_commands(tmp_path, monkeypatch):
     seen = []
     real = threads.chunk_threads
     monkeypatch.setattr(threads, "available_cores", lambda: 4)
-    monkeypatch.setattr(threads, "PARALLEL_MIN_GROUPS", 0)
+    monkeypatch.setattr(threads, "PARALLEL_MIN_RAY_PAIRS", 0)
     monkeypatch.delenv(threads.THREADS_VARIABLE, raising=False)
     monkeypatch.setattr("striptri.equations.linearise.chunk_threads", lambda n=None: seen.append(real(n)) or seen[-1])
     pair = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "pair"

@@ -40,7 +40,7 @@ from ..equations.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
 from ..errors import NumericalFailure
-from ..equations.groups import GroupBatch, build_batches, merge_layouts
+from ..equations.groups import GroupBatch, build_batches, merge_layouts, sweep_size
 from ..model import Project
 from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads
@@ -214,7 +214,7 @@ class _Problem:
         chunks = (chunk for batch in self.linearised for chunk in batch.chunks(self.options.chunk_size))
         yield from map_ordered(lambda chunk: linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns,
                                                               xyz, damping), chunks,
-                               chunk_threads(sum(len(b) for b in self.linearised)))
+                               chunk_threads(sweep_size(self.linearised)))
 
     def parameter_rows(self, state: State):
         """Whitened observation equations of the observed elements: J (p, 3), cols, e (p,)."""
@@ -227,7 +227,7 @@ class _Problem:
         chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
         total = sum(map_ordered(lambda chunk: residual_sum_of_squares(chunk, state, self.layout, self.obs,
                                                                       self.unknowns, xyz), chunks,
-                                chunk_threads(sum(len(b) for b in self.batches))),
+                                chunk_threads(sweep_size(self.batches))),
                     0.0)
         if len(self.pobs):
             total += float(np.sum(self.parameter_rows(state)[2] ** 2))

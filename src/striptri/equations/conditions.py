@@ -17,6 +17,14 @@ Two families:
 The primitives, for a group of k rays and nc conditions, are returned as a :class:`Linearised`:
 ``d_plate (m, nc, k, 2)``, ``d_rot (m, nc, k, 3)`` (rotation vector, ``R <- R Exp(d)``),
 ``d_centre (m, nc, k, 3)``, ``d_interior (m, nc, k, 3)`` (c, xp, yp), ``d_control (m, nc, 3)``.
+
+Compact form (``compact=True``): a condition involves at most three of its point's rays (a pair's
+coplanarity two, a scale transfer three, a collinearity one), so for long tracks the k-ray
+derivatives are almost all zero (a 66-ray close-range target: 129 conditions of 66 rays each, 2 %
+nonzero). In the compact form ``rays`` (nc, t) names the t rays of each condition (repeated where a
+condition has fewer, with zero derivatives there) and every per-ray derivative is (m, nc, t, ...)
+for those rays; :func:`expanded` gives the k-ray form. The linearisation works compact and
+scatters once into the whitened system's blocks (linearise.unknown_blocks).
 """
 
 from __future__ import annotations
@@ -30,7 +38,8 @@ from ..geometry.collinearity import collinearity_jacobians
 
 @dataclass
 class Linearised:
-    """Misclosures g (m, nc) and their derivatives with respect to the primitives (see module doc)."""
+    """Misclosures g (m, nc) and their derivatives with respect to the primitives (see module doc);
+    rays: (nc, t) the rays of each condition in the compact form, None in the k-ray form."""
 
     g: np.ndarray
     d_plate: np.ndarray
@@ -38,6 +47,26 @@ class Linearised:
     d_centre: np.ndarray
     d_interior: np.ndarray
     d_control: np.ndarray
+    rays: np.ndarray | None = None
+
+
+def expanded(per_ray: np.ndarray, rays: np.ndarray | None, k: int) -> np.ndarray:
+    """A compact derivative (m, nc, t, ...) spread over all k rays (m, nc, k, ...) (module doc);
+    unchanged when rays is None (already k-ray)."""
+    if rays is None:
+        return per_ray
+    m, nc = per_ray.shape[:2]
+    out = np.zeros((m, nc, k) + per_ray.shape[3:])
+    row = np.arange(nc)
+    for slot in range(rays.shape[1]):  # within a slot each (condition, ray) is met once: += is safe
+        out[:, row, rays[:, slot]] += per_ray[:, :, slot]
+    return out
+
+
+def of_rays(per_ray: np.ndarray, rays: np.ndarray | None) -> np.ndarray:
+    """Per-ray quantities (m, k, ...) as the derivatives see them: (m, nc, t, ...) for the rays of
+    each condition in the compact form, (m, 1, k, ...) (broadcast over the conditions) otherwise."""
+    return per_ray[:, None] if rays is None else per_ray[:, rays]
 
 
 def _dot(a, b):
@@ -124,19 +153,21 @@ def projected_scales(b, r1, r2):
 
 @dataclass
 class RayConditions:
-    """g (m, nc) with derivatives d_r (m, nc, k, 3), d_O (m, nc, k, 3), d_X (m, nc, 3)."""
+    """g (m, nc) with derivatives d_r (m, nc, k, 3), d_O (m, nc, k, 3), d_X (m, nc, 3); in the
+    compact form (module doc) d_r, d_O (m, nc, t, 3) for the rays ``rays`` (nc, t)."""
 
     g: np.ndarray
     d_r: np.ndarray
     d_O: np.ndarray
     d_X: np.ndarray
+    rays: np.ndarray | None = None
 
 
 SCALE_FORMS = ("3d", "xz")
 
 
 def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d",
-                   star: bool = False) -> RayConditions:
+                   star: bool = False, compact: bool = False) -> RayConditions:
     """Conditions of one point seen by k >= 1 photos along its chain, with d given coordinates.
 
     r, xyz_centre: (m, k, 3) ground-frame rays (Schmid 11) and projection centres O in chain order;
@@ -156,11 +187,13 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
     the pairs (1, j), j = 2..k, and scale transfers "scale of r_1 from the pair (1, 2) equals its
     scale from the pair (1, j)", j = 3..k; the same number of independent conditions, so the same
     adjustment (docs/decisions.md).
+
+    compact: the derivatives for the three rays of each condition (module doc), else for all k.
     """
     m, k, _ = r.shape
     if scale_form not in SCALE_FORMS:
         raise ValueError(f"unknown scale form {scale_form!r}")
-    rows_g, rows_r, rows_O, rows_X = [], [], [], []
+    parts = []  # (g (m, n), d_r, d_O (m, n, 3, 3), d_X (m, n, 3), rays (n, 3)) of each kind of condition
     # the pair conditions, all pairs of a point at once (no loop over the rays of a long track):
     # chain (i, i + 1), i = 0..k-2, or star (0, j), j = 1..k-1
     n_pairs = k - 1
@@ -170,32 +203,31 @@ def ray_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d
     if n_pairs > 0:
         b = xyz_centre[:, second] - xyz_centre[:, first]  # (m, k - 1, 3)
         r1, r2 = r[:, first], r[:, second]
-        g, dr, dO = pair_coplanarities(b, r1, r2, first, second, k)
-        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(np.zeros((m, n_pairs, 3)))
+        g, dr, dO, rays = pair_coplanarities(b, r1, r2, first, second)
+        parts.append((g, dr, dO, np.zeros((m, n_pairs, 3)), rays))
     if k >= 3:
-        g, dr, dO = scale_transfer(b, r1, r2, k, scale_form, star)
-        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(np.zeros((m, k - 2, 3)))
-    for g, dr, dO, dX in control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form):
-        rows_g.append(g), rows_r.append(dr), rows_O.append(dO), rows_X.append(dX)
-    if not rows_g:
+        g, dr, dO, rays = scale_transfer(b, r1, r2, k, scale_form, star)
+        parts.append((g, dr, dO, np.zeros((m, k - 2, 3)), rays))
+    parts += control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form)
+    if not parts:
         return RayConditions(np.zeros((m, 0)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, k, 3)), np.zeros((m, 0, 3)))
-    return RayConditions(
-        np.concatenate(rows_g, 1), np.concatenate(rows_r, 1), np.concatenate(rows_O, 1), np.concatenate(rows_X, 1)
-    )
+    g, d_r, d_O, d_X, rays = (np.concatenate(column, axis=1 if i < 4 else 0) for i, column in enumerate(zip(*parts)))
+    if compact:
+        return RayConditions(g, d_r, d_O, d_X, rays)
+    return RayConditions(g, expanded(d_r, rays, k), expanded(d_O, rays, k), d_X)
 
 
-def pair_coplanarities(b, r1, r2, first, second, k: int):
-    """Schmid (20) for the pairs (first[j], second[j]) of a point's k rays: ``g = b . (r1 x r2)``.
+def pair_coplanarities(b, r1, r2, first, second):
+    """Schmid (20) for the pairs (first[j], second[j]) of a point's rays: ``g = b . (r1 x r2)``.
 
     b, r1, r2: (m, p, 3) the pairs' bases O_second - O_first (m) and rays (ground frame).
-    Returns g (m, p) and its derivatives (m, p, k, 3) with respect to each ray and each centre."""
-    m, n_pairs = b.shape[:2]
-    pair = np.arange(n_pairs)
+    Returns g (m, p), its derivatives (m, p, 3, 3) with respect to the rays and centres
+    rays (p, 3) = (first, second, second) (compact form, module doc; the third has none)."""
     g, dg_b, dg_r1, dg_r2 = coplanarity(b, r1, r2)
-    dr, dO = np.zeros((m, n_pairs, k, 3)), np.zeros((m, n_pairs, k, 3))
-    dr[:, pair, first], dr[:, pair, second] = dg_r1, dg_r2
-    dO[:, pair, first], dO[:, pair, second] = -dg_b, dg_b
-    return g, dr, dO
+    zero = np.zeros_like(dg_b)
+    dr = np.stack([dg_r1, dg_r2, zero], axis=2)
+    dO = np.stack([-dg_b, dg_b, zero], axis=2)
+    return g, dr, dO, np.stack([first, second, second], axis=1)
 
 
 def scale_transfer(b, r1, r2, k: int, scale_form: str = "3d", star: bool = False):
@@ -206,34 +238,26 @@ def scale_transfer(b, r1, r2, k: int, scale_form: str = "3d", star: bool = False
     Star: the scale of ray 0 from the pair (0, 1) minus its scale from (0, j), j = 2..k-1.
     ``scale_form`` "3d": the closest-approach scales (closest_scales, direction-free); "xz":
     Schmid's projected form (94) ``[2]_2 II_1 + [5]_1 II_2 = 0`` (projected_scales), written as the
-    difference of the two scales. Returns g (m, k - 2) and its derivatives (m, k - 2, k, 3) with
-    respect to each ray and each centre (the scales are dimensionless)."""
-    m = b.shape[0]
+    difference of the two scales. Returns g (m, k - 2), its derivatives (m, k - 2, 3, 3) with
+    respect to the three rays and centres of each condition, and those rays (k - 2, 3) (compact
+    form, module doc; the scales are dimensionless)."""
     pair_scales = closest_scales if scale_form == "3d" else projected_scales
     sc, tc, ds, dt = pair_scales(b, r1, r2)  # the scales of every pair: (m, k - 1), derivatives (m, k - 1, 3)
     q = np.arange(k - 2)
-    dr, dO = np.zeros((m, k - 2, k, 3)), np.zeros((m, k - 2, k, 3))
     if star:
         # scale of r_0 from the pair (0, 1) minus its scale from the pair (0, j), j = 2..k-1
-        j = q + 2
         g = sc[:, :1] - sc[:, 1:]
-        dr[:, q, 0] = ds[1][:, :1] - ds[1][:, 1:]
-        dr[:, q, 1] = ds[2][:, :1]
-        dr[:, q, j] = -ds[2][:, 1:]
-        dO[:, q, 0] = -ds[0][:, :1] + ds[0][:, 1:]
-        dO[:, q, 1] = ds[0][:, :1]
-        dO[:, q, j] = -ds[0][:, 1:]
+        dr = [ds[1][:, :1] - ds[1][:, 1:], np.broadcast_to(ds[2][:, :1], ds[2][:, 1:].shape), -ds[2][:, 1:]]
+        dO = [-ds[0][:, :1] + ds[0][:, 1:], np.broadcast_to(ds[0][:, :1], ds[0][:, 1:].shape), -ds[0][:, 1:]]
+        rays = np.stack([np.zeros_like(q), np.ones_like(q), q + 2], axis=1)
     else:
         # scale of r_i from the pair (i-1, i) (second ray) minus its scale from (i, i+1) (first
         # ray), i = 1..k-2: pair q = i - 1 gives t, pair q + 1 gives s
         g = tc[:, :-1] - sc[:, 1:]
-        dr[:, q, q] = dt[1][:, :-1]
-        dr[:, q, q + 1] = dt[2][:, :-1] - ds[1][:, 1:]
-        dr[:, q, q + 2] = -ds[2][:, 1:]
-        dO[:, q, q] = -dt[0][:, :-1]
-        dO[:, q, q + 1] = dt[0][:, :-1] + ds[0][:, 1:]
-        dO[:, q, q + 2] = -ds[0][:, 1:]
-    return g, dr, dO
+        dr = [dt[1][:, :-1], dt[2][:, :-1] - ds[1][:, 1:], -ds[2][:, 1:]]
+        dO = [-dt[0][:, :-1], dt[0][:, :-1] + ds[0][:, 1:], -ds[0][:, 1:]]
+        rays = np.stack([q, q + 1, q + 2], axis=1)
+    return g, np.stack(dr, axis=2), np.stack(dO, axis=2), rays
 
 
 def control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str = "3d") -> list:
@@ -245,13 +269,15 @@ def control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str =
     point (d = 3) or a tie point has none here.
 
     r, xyz_centre: (m, k, 3); xyz_control: (m, 3) (m); given_axes: three bools (X, Y, Z). Returns a
-    list of (g (m, 1) m, d_r (m, 1, k, 3), d_O (m, 1, k, 3), d_X (m, 1, 3)), one per condition."""
+    list of (g (m, 1) m, d_r (m, 1, 3, 3), d_O (m, 1, 3, 3), d_X (m, 1, 3), rays (1, 3)), one per
+    condition, in the compact form (module doc): the first two rays, or the one ray of k = 1."""
     m, k, _ = r.shape
     d = int(given_axes[0]) + int(given_axes[1]) + int(given_axes[2])
     out = []
+    rays = np.array([[0, min(1, k - 1), min(1, k - 1)]])
 
     def new_row():
-        return np.zeros((m, k, 3)), np.zeros((m, k, 3)), np.zeros((m, 3))
+        return np.zeros((m, 3, 3)), np.zeros((m, 3, 3)), np.zeros((m, 3))
 
     if d in (1, 2) and k >= 2:
         pair_scales = closest_scales if scale_form == "3d" else projected_scales
@@ -270,7 +296,8 @@ def control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str =
             dO[:, 0, axis] += 1.0
             dO[:, 1] = r[:, 0, axis, None] * ds[0]
             dX[:, axis] = -1.0
-            out.append((xyz_meet[:, axis, None] - xyz_control[:, axis, None], dr[:, None], dO[:, None], dX[:, None]))
+            out.append((xyz_meet[:, axis, None] - xyz_control[:, axis, None], dr[:, None], dO[:, None], dX[:, None],
+                        rays))
     elif d == 2 and k == 1:
         # the ray and the vertical through (X, Y): coplanarity with b = (X, Y, 0) - O, r2 = e_z
         foot = np.concatenate([xyz_control[:, :2], np.zeros((m, 1))], axis=1)
@@ -280,7 +307,7 @@ def control_conditions(r, xyz_centre, xyz_control, given_axes, scale_form: str =
         dr[:, 0] = dg_r1
         dO[:, 0] = -dg_b
         dX[:, :2] = dg_b[:, :2]
-        out.append((g[:, None], dr[:, None], dO[:, None], dX[:, None]))
+        out.append((g[:, None], dr[:, None], dO[:, None], dX[:, None], rays))
     return out
 
 
@@ -310,42 +337,43 @@ def ray_chain(rc: RayConditions, R_ground_from_cam, p) -> Linearised:
     ``r = R p`` with ``p = (x - xp, y - yp, -c)``: dr/dx = R e1, dr/dy = R e2, dr/dc = -R e3,
     dr/dxp = -R e1, dr/dyp = -R e2, and with ``R <- R Exp(d)``: dr/dd = -R [p]x, so that
     ``(dg/dr) dr/dd = p x (R^T dg/dr)``. R_ground_from_cam (R): (m, k, 3, 3), p: (m, k, 3) in the
-    camera frame.
+    camera frame. Keeps rc's form (compact or k-ray, module doc).
     """
-    Rt_g = np.matmul(rc.d_r[..., None, :], R_ground_from_cam[:, None])[..., 0, :]  # R^T dg/dr: (m, nc, k, 3)
+    R = of_rays(R_ground_from_cam, rc.rays)
+    Rt_g = np.matmul(rc.d_r[..., None, :], R)[..., 0, :]  # R^T dg/dr: (m, nc, k or t, 3)
     d_plate = Rt_g[..., :2]
-    d_rot = np.cross(p[:, None], Rt_g)
+    d_rot = np.cross(of_rays(p, rc.rays), Rt_g)
     d_interior = np.stack([-Rt_g[..., 2], -Rt_g[..., 0], -Rt_g[..., 1]], -1)
-    return Linearised(rc.g, d_plate, d_rot, rc.d_O, d_interior, rc.d_X)
+    return Linearised(rc.g, d_plate, d_rot, rc.d_O, d_interior, rc.d_X, rc.rays)
 
 
 # ---------------------------------------------------------------------------------------------
 # Collinearity (full control)
 
 
-def collinearity(xy_plate, R_ground_from_cam, xyz_centre, interior, xyz_ground) -> Linearised:
+def collinearity(xy_plate, R_ground_from_cam, xyz_centre, interior, xyz_ground, compact: bool = False) -> Linearised:
     """Collinearity of a full control point with each of its k photos (Schmid 14).
 
     ``g = xy_plate - (xp - c m_x/m_z, yp - c m_y/m_z)``, ``m = R^T (X - O)``, two conditions per
     photo in the order (x_1, y_1, x_2, y_2, ...). xy_plate: (m, k, 2); R_ground_from_cam:
     (m, k, 3, 3); xyz_centre, interior (c, xp, yp): (m, k, 3); xyz_ground (the control point):
-    (m, 3). The projection and its derivatives are striptri.geometry.collinearity's.
+    (m, 3). The projection and its derivatives are striptri.geometry.collinearity's. compact: each
+    condition's derivatives for its one ray (module doc), else for all k.
     """
     n_groups, k, _ = xy_plate.shape
     jac = collinearity_jacobians(R_ground_from_cam, xyz_centre, interior, xyz_ground[:, None, :])
     g = (xy_plate - jac.xy_plate).reshape(n_groups, 2 * k)
     # condition 2j + a depends on ray j only: its row of each (m, k, 2, 3) derivative of the projection
     nc = 2 * k
-    row, ray = np.arange(nc), np.repeat(np.arange(k), 2)
+    ray = np.repeat(np.arange(k), 2)
 
     def on_its_ray(d_projection, width=3):
-        out = np.zeros((n_groups, nc, k, width))
-        out[:, row, ray] = d_projection.reshape(n_groups, nc, width)
-        return out
+        per_ray = d_projection.reshape(n_groups, nc, 1, width)
+        return per_ray if compact else expanded(per_ray, ray[:, None], k)
 
     d_plate = on_its_ray(np.broadcast_to(np.eye(2), (n_groups, k, 2, 2)), 2)
     d_rot = on_its_ray(-jac.d_rotation)
     d_centre = on_its_ray(-jac.d_centre)
     d_interior = on_its_ray(-jac.d_interior)
     d_control = -jac.d_ground.reshape(n_groups, nc, 3)
-    return Linearised(g, d_plate, d_rot, d_centre, d_interior, d_control)
+    return Linearised(g, d_plate, d_rot, d_centre, d_interior, d_control, ray[:, None] if compact else None)

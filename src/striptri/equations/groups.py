@@ -258,5 +258,10 @@ def merge_layouts(batches: list[GroupBatch]) -> list[GroupBatch]:
     return out
 
 
+def sweep_size(batches: list[GroupBatch]) -> int:
+    """The ray pairs of the batches' groups (solvers.threads.ray_pairs), for chunk_threads."""
+    return sum(len(b) * b.k * b.k for b in batches)
+
+
 def rays_per_point(project: Project) -> np.ndarray:
     return np.bincount(project.image_points.point_index, minlength=len(project.points))

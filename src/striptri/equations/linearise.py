@@ -21,8 +21,8 @@ from ..errors import NumericalFailure
 from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads
 from ..geometry.lens import NCP, ideal_from_observed
-from .conditions import collinearity, ray_chain, ray_conditions
-from .groups import COLLINEARITY, GroupBatch
+from .conditions import collinearity, expanded, of_rays, ray_chain, ray_conditions
+from .groups import COLLINEARITY, GroupBatch, sweep_size
 from .observations import Observations
 from .parameters import State, UnknownLayout
 from . import weights
@@ -57,7 +57,7 @@ def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_
 
 
 def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d",
-             with_lens: bool = True, plate_measured=None, ray_function=None):
+             with_lens: bool = True, plate_measured=None, ray_function=None, compact: bool = False):
     """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised, with
     ``d_interior`` (m, nc, k, NCP) with respect to all camera elements (striptri.geometry.lens).
 
@@ -68,7 +68,9 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     measurements (all image rows) when plate_hat are adjusted observations (lens doc: the plate
     convention corrects the measurement and adds the residual). ray_function: callable(r, O) ->
     conditions.RayConditions evaluated instead of the group's ray conditions (e.g.
-    conditions.first_pair_intersection: the point as its group defines it).
+    conditions.first_pair_intersection: the point as its group defines it). compact: the
+    derivatives in the compact form of striptri.equations.conditions (each condition's own rays;
+    ray_function gives the k-ray form whatever this says).
     """
     xy = plate_hat[batch.image_rows]
     R_ground_from_cam = state.R_ground_from_cam[batch.photo_index]
@@ -87,22 +89,22 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
                 "values of k1, k2, k3")
         xy = ideal.xy
     if batch.family == COLLINEARITY:
-        lin = collinearity(xy, R_ground_from_cam, xyz_centre, params[..., :3], xyz_control)
+        lin = collinearity(xy, R_ground_from_cam, xyz_centre, params[..., :3], xyz_control, compact)
     else:
         p = plate_vector(xy, params[..., :3])
         r = np.einsum("mkij,mkj->mki", R_ground_from_cam, p)
-        rc = (ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star)
+        rc = (ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star, compact)
               if ray_function is None else ray_function(r, xyz_centre))
         lin = ray_chain(rc, R_ground_from_cam, p)
     d_camera = np.zeros(lin.d_interior.shape[:-1] + (NCP,))
     d_camera[..., :3] = lin.d_interior
     if ideal is None:
         return replace(lin, d_interior=d_camera)
-    # chain rule through the lens model, per condition and ray: row vectors (m, nc, k, 1, 2) times
-    # the ray's (2, NCP) and (2, 2) derivatives (batched matmul: einsum has no BLAS path here)
+    # chain rule through the lens model, per condition and ray: row vectors (m, nc, k or t, 1, 2)
+    # times the ray's (2, NCP) and (2, 2) derivatives (batched matmul: einsum has no BLAS path here)
     rows = lin.d_plate[..., None, :]
-    d_camera += np.matmul(rows, ideal.d_camera[:, None])[..., 0, :]
-    d_plate = np.matmul(rows, ideal.d_obs[:, None])[..., 0, :]
+    d_camera += np.matmul(rows, of_rays(ideal.d_camera, lin.rays))[..., 0, :]
+    d_plate = np.matmul(rows, of_rays(ideal.d_obs, lin.rays))[..., 0, :]
     return replace(lin, d_plate=d_plate, d_interior=d_camera)
 
 
@@ -137,11 +139,12 @@ def linearise(batch: GroupBatch, at: At, scale_form: str = "3d", transform=None)
     group's conditions (used by the tests to show the result does not depend on it).
     """
     state, layout, rotation_maps, obs, plate_hat, control_hat = at
-    lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate)
+    lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate,
+                   compact=True)
     m, nc = lin.g.shape
     k = batch.k
     l, l_hat, Q = group_observations(batch, obs, plate_hat, control_hat)
-    A_parts = [lin.d_plate.reshape(m, nc, 2 * k)]
+    A_parts = [expanded(lin.d_plate, lin.rays, k).reshape(m, nc, 2 * k)]
     if batch.has_control:
         A_parts.append(lin.d_control)
     A = np.concatenate(A_parts, 2)
@@ -161,11 +164,11 @@ def linearise(batch: GroupBatch, at: At, scale_form: str = "3d", transform=None)
 def unknown_blocks(lin, batch: GroupBatch, state: State, layout: UnknownLayout, rotation_maps: np.ndarray):
     """B (m, nc, k (6 + camera_width)) and its global columns (m, k (6 + camera_width)), -1 fixed:
     per ray its photo's centre and rotation unknowns, then its camera's estimated elements, from
-    the primitive derivatives lin (conditions.Linearised, nc rows) of a chunk."""
+    the primitive derivatives lin (conditions.Linearised, nc rows, either form) of a chunk."""
     m, nc = lin.g.shape
     k = batch.k
-    T = rotation_maps[batch.photo_index]  # (m, k, 3, 3)
-    d_rot = np.matmul(lin.d_rot[..., None, :], T[:, None])[..., 0, :]  # row vectors times T (m, nc, k, 3)
+    T = of_rays(rotation_maps[batch.photo_index], lin.rays)  # (m, nc, t, 3, 3) or (m, 1, k, 3, 3)
+    d_rot = np.matmul(lin.d_rot[..., None, :], T)[..., 0, :]  # row vectors times T (m, nc, k or t, 3)
     width = 6 + layout.camera_width
     cam = state.camera_of_photo[batch.photo_index]
     B_parts, col_parts = [lin.d_centre, d_rot], [layout.photo_cols[batch.photo_index]]
@@ -173,7 +176,7 @@ def unknown_blocks(lin, batch: GroupBatch, state: State, layout: UnknownLayout, 
         elements = layout.camera_elements
         B_parts.append(lin.d_interior[..., elements])
         col_parts.append(layout.camera_cols[cam][..., elements])
-    B = np.concatenate(B_parts, 3).reshape(m, nc, width * k)
+    B = expanded(np.concatenate(B_parts, 3), lin.rays, k).reshape(m, nc, width * k)
     cols = np.concatenate(col_parts, 2).reshape(m, width * k)
     return B, cols
 
@@ -217,7 +220,7 @@ class Sweep:
             return (chunk, system) if then is None else (chunk, system, then(chunk, system))
 
         chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
-        done = map_ordered(work, chunks, chunk_threads(sum(len(b) for b in self.batches)))
+        done = map_ordered(work, chunks, chunk_threads(sweep_size(self.batches)))
         try:
             while True:
                 t0 = time.perf_counter()

@@ -23,6 +23,8 @@ from __future__ import annotations
 import contextlib
 import os
 
+import numpy as np
+
 THREADS_VARIABLE = "STRIPTRI_THREADS"
 FACTORISATION_THREADS = 1  # measured: docs/benchmarks.md "BLAS threads" (2 threads did not pay on 2 cores)
 
@@ -101,15 +103,24 @@ def limit_new_libraries() -> None:
     _ACTIVE[-1].append(threadpool_limits(limits=1, user_api="blas"))
 
 
-PARALLEL_MIN_GROUPS = 4096  # a sweep over fewer point groups runs its chunks in the caller's thread
+# A sweep whose groups hold fewer ray pairs than this runs its chunks in the caller's thread: 4,096
+# groups of three rays. The work of a group (its whitening, its blocks of N) grows like k^2.
+PARALLEL_MIN_RAY_PAIRS = 4096 * 9
 
 
-def chunk_threads(n_groups: int | None = None) -> int:
-    """Threads over the chunks of a sweep of n_groups point groups: the threads asked for, else
-    every core (at most the cores); one below PARALLEL_MIN_GROUPS, where a chunk's numpy work is
-    too small to release the GIL for long and the threads would only take turns (every test
-    project, the 150 long tracks of the close-range benchmark)."""
-    if n_groups is not None and n_groups < PARALLEL_MIN_GROUPS:
+def ray_pairs(rays_per_group) -> int:
+    """The size of a sweep for chunk_threads: the sum of k^2 over its groups of k rays."""
+    k = np.asarray(rays_per_group, dtype=np.int64)
+    return int(np.sum(k * k))
+
+
+def chunk_threads(pairs: int | None = None) -> int:
+    """Threads over the chunks of a sweep whose groups hold ``pairs`` ray pairs (:func:`ray_pairs`):
+    the threads asked for, else every core (at most the cores); one below PARALLEL_MIN_RAY_PAIRS,
+    where a chunk's numpy work is too small to release the GIL for long and the threads would only
+    take turns (every test project). The 150 targets of 30 to 93 rays of the close-range benchmark
+    are above it (652,000 pairs): their whitening and products are large BLAS calls."""
+    if pairs is not None and pairs < PARALLEL_MIN_RAY_PAIRS:
         return 1
     return min(requested_threads() or available_cores(), available_cores())
 
