@@ -183,3 +183,22 @@ def test_image_convention_affinity_and_shear_is_the_calibration_matrix():
     np.testing.assert_allclose(back.xy, ideal, rtol=0, atol=1e-9)
     t = projection_terms(ideal, by_hand, prm, IMAGE)
     np.testing.assert_allclose(t.pred, by_hand, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("convention", [PLATE, IMAGE])
+@pytest.mark.parametrize("distorted", [False, True])
+def test_ideal_xy_is_the_ideal_point_of_ideal_from_observed(convention, distorted):
+    """ideal_xy (the rays' callers: no derivatives, and no polynomial for cameras without
+    distortion, affinity or shear) gives ideal_from_observed's points to the last bit, for
+    measurements and for adjusted observations beside their measurements."""
+    rng = np.random.default_rng(17 + convention)
+    xy, prm = camera(convention, rng, 500)
+    if not distorted:
+        prm[:, lens.DISTORTION_ELEMENTS] = 0.0
+    measured = xy + rng.normal(0, 1e-3, xy.shape)
+    for at, meas in ((xy, None), (xy, measured)):
+        want = ideal_from_observed(at, prm, np.full(len(xy), convention), meas).xy
+        got = lens.ideal_xy(at, prm, np.full(len(xy), convention), meas)
+        assert np.array_equal(got, want)
+    if not distorted:  # the points themselves, to round-off
+        assert np.allclose(lens.ideal_xy(xy, prm, convention), xy, rtol=0, atol=1e-12)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.camera import ray_ground
-from ..geometry.lens import ideal_from_observed
+from ..geometry.lens import ideal_xy
 from ..equations.groups import GroupBatch
 from ..equations.linearise import Observations
 from ..model import Project
@@ -109,7 +109,7 @@ def _rays(chunk: GroupBatch, state: State, obs: Observations):
     """Projection centres and ground rays (Schmid 11) of a chunk's measurements: (m, k, 3) each."""
     ph = chunk.photo_index
     params, conv = state.camera_terms(ph)
-    xy = ideal_from_observed(obs.plate[chunk.image_rows], params, conv).xy
+    xy = ideal_xy(obs.plate[chunk.image_rows], params, conv)
     return state.xyz0[ph], ray_ground(state.R_ground_from_cam[ph], xy, params[..., :3])
 
 

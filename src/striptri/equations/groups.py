@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.camera import ray_ground
-from ..geometry.lens import ideal_from_observed
+from ..geometry.lens import ideal_xy
 from ..model import CHECK, FULL, HEIGHT, PLAN, TIE, Project, given_axes
 
 COLLINEARITY, RAYS = "collinearity", "rays"
@@ -135,8 +135,8 @@ def approximate_rays(project: Project) -> np.ndarray | None:
     if not (np.isfinite(ph.xyz0).all() and np.isfinite(ph.R_ground_from_cam).all()) or len(ip) == 0:
         return None
     cam = ph.camera_index[ip.photo_index]
-    ideal = ideal_from_observed(ip.xy, cams.interior[cam], cams.convention[cam])
-    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], ideal.xy, cams.interior[cam, :3])
+    ideal = ideal_xy(ip.xy, cams.interior[cam], cams.convention[cam])
+    r = ray_ground(ph.R_ground_from_cam[ip.photo_index], ideal, cams.interior[cam, :3])
     return r / np.linalg.norm(r, axis=1)[:, None]
 
 

@@ -58,7 +58,7 @@ from ..geometry.camera import ray_ground
 from .datum import FreeDirections, FreeNetwork, similarity_matrix
 from ..errors import NumericalFailure
 from .joint_groups import distance_components, has_distances
-from ..geometry.lens import ideal_from_observed
+from ..geometry.lens import ideal_xy
 from ..model import Project
 from .parameters import State, UnknownLayout
 from .triangulation import ray_terms
@@ -235,7 +235,7 @@ class PointDatum:
         held coordinates at their given values."""
         ph = self.photo
         params, conv = state.camera_terms(ph)
-        xy = ideal_from_observed(plate[self.rows], params, conv, obs.plate[self.rows]).xy
+        xy = ideal_xy(plate[self.rows], params, conv, obs.plate[self.rows])
         r = ray_ground(state.R_ground_from_cam[ph], xy, params[..., :3])
         rh = r / np.linalg.norm(r, axis=-1, keepdims=True)
         P = np.eye(3) - rh[:, :, None] * rh[:, None, :]

@@ -21,7 +21,7 @@ import numpy as np
 from ..geometry.camera import ray_ground
 from ..geometry.collinearity import camera_from_ground, collinearity_jacobians, plate_from_ground
 from ..errors import NumericalFailure
-from ..geometry.lens import ideal_from_observed
+from ..geometry.lens import ideal_xy
 from ..model import FULL
 from ..geometry.rotations import angles_from_R, exp_so3
 from .triangulation import intersect_rays
@@ -128,7 +128,7 @@ def resect_missing(project, max_rounds: int = 50):
         return project, []
     cam = ph.camera_index[ip.photo_index]
     params = cams.interior[cam]
-    xy = ideal_from_observed(ip.xy, params, cams.convention[cam]).xy - params[:, 1:3]
+    xy = ideal_xy(ip.xy, params, cams.convention[cam]) - params[:, 1:3]
     known = np.where(((pts.kind == FULL) & np.isfinite(pts.xyz_given).all(axis=1))[:, None], pts.xyz_given, np.nan)
     xyz0, R = ph.xyz0.copy(), ph.R_ground_from_cam.copy()
     oriented = ~todo

@@ -25,7 +25,7 @@ from .conditions import coplanarity, ray_chain, RayConditions
 from ..model import CHECK, Project
 from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads, ray_pairs
-from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_from_observed, projection_terms
+from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_xy, projection_terms
 from .parameters import State, UnknownLayout
 from . import weights
 from .point_precision import orientation_part
@@ -254,7 +254,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
         xy_obs = rays.xy_plate[rows]
         meas = None if rays.xy_measured is None else rays.xy_measured[rows]
         free = ~fixed[sel]  # (m, 3)
-        xy_ray = ideal_from_observed(xy_obs, interior, conv, meas).xy if with_lens else xy_obs
+        xy_ray = ideal_xy(xy_obs, interior, conv, meas) if with_lens else xy_obs
         xyz_point = _initial_points(R_ground_from_cam, xyz_centre, interior[..., :3], xy_ray, xyz_given[sel],
                                     given_mask[sel])
         Pw = weights.variance_weight(q_given[sel], weighted[sel])
@@ -439,7 +439,7 @@ def planned_points(project: Project) -> np.ndarray:
     # rays of image_points.csv through the planned orientations, relative to origin
     cam = ph.camera_index[ip.photo_index]
     params, conv = project.cameras.interior[cam], project.cameras.convention[cam]
-    xy = ideal_from_observed(ip.xy, params, conv).xy
+    xy = ideal_xy(ip.xy, params, conv)
     r = ray_ground(ph.R_ground_from_cam[ip.photo_index], xy, params[:, :3])
     r = r / np.linalg.norm(r, axis=1, keepdims=True)
     o = ph.xyz0[ip.photo_index] - origin

@@ -372,7 +372,7 @@ def approximate_points(project: model.Project) -> np.ndarray:
     ip, ph, pts, cams = project.image_points, project.photos, project.points, project.cameras
     n = len(pts)
     cam = ph.camera_index[ip.photo_index]
-    ideal = lens.ideal_from_observed(ip.xy, cams.interior[cam], cams.convention[cam]).xy
+    ideal = lens.ideal_xy(ip.xy, cams.interior[cam], cams.convention[cam])
     r = ray_ground(ph.R_ground_from_cam[ip.photo_index], ideal, cams.interior[cam, :3])
     rh = r / np.linalg.norm(r, axis=1, keepdims=True)
     P = np.eye(3) - rh[:, :, None] * rh[:, None, :]
