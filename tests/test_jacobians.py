@@ -403,7 +403,8 @@ def test_linearise_B_and_A(convention):
         lin0 = evaluate(batch, state, plate_hat, control_hat)
         # the conditions are scaled per row (linearise docstring); recover the scale from A
         A0 = np.concatenate(
-            [lin0.d_plate.reshape(m, nc, -1)] + ([lin0.d_control] if batch.has_control else []), 2
+            [conditions.expanded(lin0.d_plate, lin0.rays, batch.k).reshape(m, nc, -1)]
+            + ([lin0.d_control] if batch.has_control else []), 2
         )
         pick = np.argmax(np.abs(A0), axis=2)
         at_pick = lambda a: np.take_along_axis(a, pick[..., None], 2)[..., 0]  # noqa: E731
@@ -478,12 +479,14 @@ def test_parameter_observation_gradients(convention):
 @pytest.mark.parametrize("convention", ["image", "plate"])
 def test_compact_derivatives_equal_the_k_ray_form(tmp_path, convention):
     """Long close-range tracks (7 to 20 rays) through a distorting lens, as chains and as stars, as
-    tie, height and plan points and as full control: the compact derivatives (conditions module doc)
-    that the linearisation uses, spread over the k rays, equal the k-ray form to the last bit. The
-    k-ray form broadcasts each ray's rotation, plate vector and lens derivatives over the
-    conditions; the compact form gathers them by each condition's rays; the ray indices themselves
-    are checked against central differences by test_ray_conditions (the k-ray form is the compact
-    one spread) and the whole linearisation by test_linearise_B_and_A."""
+    tie, height and plan points: the compact derivatives (conditions module doc) that evaluate
+    gives for a group's own conditions, spread over the k rays, equal those of the same conditions
+    given to evaluate in the k-ray form (as a ray_function) to the last bit, and so do the blocks
+    of the unknowns. The k-ray form broadcasts each ray's rotation, plate vector and lens
+    derivatives over the conditions; the compact form gathers them by each condition's rays. The
+    ray indices themselves are checked against central differences by test_ray_conditions (the
+    k-ray form is the compact one spread), and the whole linearisation, full control included, by
+    test_linearise_B_and_A."""
     import sys
     from pathlib import Path
 
@@ -509,15 +512,16 @@ def test_compact_derivatives_equal_the_k_ray_form(tmp_path, convention):
     T = layout.rotation_maps(state)
     shapes = set()
     for batch in build_batches(project):
-        variants = [batch]
-        if batch.family == "rays":
-            variants += [replace(batch, star=True), replace(batch, given_axes=(False, False, True)),
-                         replace(batch, given_axes=(True, True, False), star=True)]
-        for b in variants:
-            shapes.add((b.family, b.star, b.given_axes))
-            compact = evaluate(b, state, plate_hat, control_hat, with_lens=True, plate_measured=obs.plate, compact=True)
-            k_ray = evaluate(b, state, plate_hat, control_hat, with_lens=True, plate_measured=obs.plate)
-            assert compact.rays is not None and compact.rays.shape[1] <= 3 and k_ray.rays is None
+        if batch.family != "rays":
+            continue
+        for b in (batch, replace(batch, star=True), replace(batch, given_axes=(False, False, True)),
+                  replace(batch, given_axes=(True, True, False), star=True)):
+            shapes.add((b.star, b.given_axes))
+            k_ray_conditions = lambda r, O, b=b: conditions.ray_conditions(  # noqa: E731
+                r, O, control_hat[b.point_index], b.given_axes, "3d", b.star)
+            compact = evaluate(b, state, plate_hat, control_hat, plate_measured=obs.plate)
+            k_ray = evaluate(b, state, plate_hat, control_hat, plate_measured=obs.plate, ray_function=k_ray_conditions)
+            assert compact.rays is not None and compact.rays.shape[1] == 3 and k_ray.rays is None
             for name in ("d_plate", "d_rot", "d_centre", "d_interior"):
                 got = conditions.expanded(getattr(compact, name), compact.rays, b.k)
                 assert np.array_equal(got, getattr(k_ray, name)), (name, b.k, b.star, b.given_axes)
@@ -525,6 +529,5 @@ def test_compact_derivatives_equal_the_k_ray_form(tmp_path, convention):
             B_compact, cols = unknown_blocks(compact, b, state, layout, T)
             B_k_ray, cols_k = unknown_blocks(k_ray, b, state, layout, T)
             assert np.array_equal(B_compact, B_k_ray) and np.array_equal(cols, cols_k)
-    assert {("collinearity", False, (True, True, True)), ("rays", True, (False, False, False)),
-            ("rays", False, (False, False, True)), ("rays", True, (True, True, False))} <= shapes
-
+    assert {(False, (False, False, False)), (True, (False, False, False)), (False, (False, False, True)),
+            (True, (True, True, False))} <= shapes

@@ -57,7 +57,7 @@ def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_
 
 
 def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d",
-             with_lens: bool = True, plate_measured=None, ray_function=None, compact: bool = False):
+             with_lens: bool = True, plate_measured=None, ray_function=None):
     """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised, with
     ``d_interior`` (m, nc, k, NCP) with respect to all camera elements (striptri.geometry.lens).
 
@@ -68,9 +68,11 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     measurements (all image rows) when plate_hat are adjusted observations (lens doc: the plate
     convention corrects the measurement and adds the residual). ray_function: callable(r, O) ->
     conditions.RayConditions evaluated instead of the group's ray conditions (e.g.
-    conditions.first_pair_intersection: the point as its group defines it). compact: the
-    derivatives in the compact form of striptri.equations.conditions (each condition's own rays;
-    ray_function gives the k-ray form whatever this says).
+    conditions.first_pair_intersection: the point as its group defines it).
+
+    The group's own conditions come in the compact form of striptri.equations.conditions (each
+    condition's derivatives for its own rays, ``rays``; conditions.expanded spreads them over all
+    k); a ray_function's in the form it gives (first_pair_intersection: all k rays).
     """
     xy = plate_hat[batch.image_rows]
     R_ground_from_cam = state.R_ground_from_cam[batch.photo_index]
@@ -89,11 +91,11 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
                 "values of k1, k2, k3")
         xy = ideal.xy
     if batch.family == COLLINEARITY:
-        lin = collinearity(xy, R_ground_from_cam, xyz_centre, params[..., :3], xyz_control, compact)
+        lin = collinearity(xy, R_ground_from_cam, xyz_centre, params[..., :3], xyz_control, compact=True)
     else:
         p = plate_vector(xy, params[..., :3])
         r = np.einsum("mkij,mkj->mki", R_ground_from_cam, p)
-        rc = (ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star, compact)
+        rc = (ray_conditions(r, xyz_centre, xyz_control, batch.given_axes, scale_form, batch.star, compact=True)
               if ray_function is None else ray_function(r, xyz_centre))
         lin = ray_chain(rc, R_ground_from_cam, p)
     d_camera = np.zeros(lin.d_interior.shape[:-1] + (NCP,))
@@ -139,8 +141,7 @@ def linearise(batch: GroupBatch, at: At, scale_form: str = "3d", transform=None)
     group's conditions (used by the tests to show the result does not depend on it).
     """
     state, layout, rotation_maps, obs, plate_hat, control_hat = at
-    lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate,
-                   compact=True)
+    lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate)
     m, nc = lin.g.shape
     k = batch.k
     l, l_hat, Q = group_observations(batch, obs, plate_hat, control_hat)
