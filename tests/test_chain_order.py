@@ -76,3 +76,27 @@ def test_without_reordering_the_same_data_converges_badly(monkeypatch):
     monkeypatch.setattr(G, "MIN_RAY_ANGLE", 0.0)
     r = adjust(q, AdjustmentOptions(max_iterations=10, keep_unconverged=True))
     assert not r.converged
+
+
+def test_the_batches_of_a_project_are_built_once_and_cannot_be_changed():
+    """build_batches gives the same batches again for the same project object (the adjustment, the
+    residual cofactors and the point precision all ask), read-only so that no caller changes
+    another's; another project (even an equal one) gets its own, and the kept batches do not keep
+    their project alive."""
+    import gc
+    import weakref
+
+    q, _ = duplicated_strip()
+    first = G.build_batches(q)
+    again = G.build_batches(q)
+    assert again is not first and all(a is b for a, b in zip(first, again))
+    with pytest.raises(ValueError):
+        first[0].image_rows[0, 0] = 0
+    other = replace(q)
+    rebuilt = G.build_batches(other)
+    assert all(a is not b for a, b in zip(first, rebuilt))
+    assert [np.array_equal(a.image_rows, b.image_rows) for a, b in zip(first, rebuilt)] == [True] * len(first)
+    gone = weakref.ref(other)
+    del other, rebuilt
+    gc.collect()
+    assert gone() is None
