@@ -22,6 +22,9 @@ EXAMPLE = ROOT / "data" / "close_range"
 sys.path.insert(0, str(ROOT / "scripts"))
 import make_close_range  # noqa: E402
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("close_range_example")
+
 K = 4.0  # bound in standard deviations for single recovered quantities (two-sided 6e-5)
 
 

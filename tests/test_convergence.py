@@ -26,6 +26,9 @@ from striptri.io import read_project
 
 from cli_support import DATA
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("convergence")
+
 
 def _strip(n_photos: int, seed: int = 3):
     """A strip held by full control at its ends only (simulate's default for strips): the weakest

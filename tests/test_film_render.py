@@ -16,6 +16,9 @@ from striptri.simulate.film_render import IMAGE_HALF_MM, Cross, Scan, fiducial_t
 from striptri.simulate.render import texture_for  # noqa: E402
 from striptri.simulate.truth import make_truth  # noqa: E402
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("film_render")
+
 PIXEL_MM = 0.25  # a coarse scan (4 px/mm) keeps the test quick; the finder works in pixels
 SIZE = (1000, 1000)
 

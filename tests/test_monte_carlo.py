@@ -30,6 +30,9 @@ from striptri import model
 from striptri.adjustment import adjust
 from striptri.geometry.rotations import angles_from_R
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("monte_carlo")
+
 TRIALS = 200
 OPK = "omega-phi-kappa"
 

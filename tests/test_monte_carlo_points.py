@@ -16,6 +16,9 @@ from striptri import simulate as sim
 from striptri.adjustment import adjust
 from striptri.pipeline import triangulate_result
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("monte_carlo_points")
+
 TRIALS = 150
 
 

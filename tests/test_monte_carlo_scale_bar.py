@@ -25,6 +25,9 @@ from striptri.bundle.distances import Distances
 from striptri.core.options import AdjustmentOptions
 from striptri.reliability.distances import distance_table
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("monte_carlo_scale_bar")
+
 TRIALS = 120
 SIGMA_BAR = 0.01  # m
 

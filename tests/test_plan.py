@@ -38,6 +38,9 @@ from striptri.simulate.noise import NoiseOptions, perturb
 from striptri.simulate.pipeline import SimulateOptions, simulate_project
 from striptri.simulate.truth import make_truth
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("plan")
+
 REL = 1e-9
 
 

@@ -48,6 +48,9 @@ from striptri.reliability import (
 )
 from striptri.simulate.truth import make_truth
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("reliability")
+
 SIGMA = 0.005  # plate noise and stated sigma (mm)
 BLOCK = sim.SyntheticDesign(
     flight=sim.FlightDesign(n_photos=6, n_strips=3, overlap=2 / 3, sidelap=0.6),

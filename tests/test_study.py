@@ -24,6 +24,9 @@ from striptri.study import (
 )
 from striptri.study.growth import label_of
 
+# its module-scoped fixtures are made once, on one worker (pytest-xdist --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("study")
+
 SMALL = StudyOptions(methods=METHOD_LABELS, photos=(4, 5), layouts=("cantilever", "ends"), trials=1, seed=7)
 
 
