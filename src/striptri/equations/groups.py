@@ -280,7 +280,8 @@ def merge_layouts(batches: list[GroupBatch]) -> list[GroupBatch]:
 
 
 def sweep_size(batches: list[GroupBatch]) -> int:
-    """The ray pairs of the batches' groups (solvers.threads.ray_pairs), for chunk_threads."""
+    """The size of a sweep for solvers.threads.chunk_threads: the ray pairs of the batches' groups,
+    the sum of k^2 over the groups of k rays (a group's whitening and its blocks of N grow like it)."""
     return sum(len(b) * b.k * b.k for b in batches)
 
 

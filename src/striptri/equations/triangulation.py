@@ -24,7 +24,7 @@ from ..selected_inverse.covariance import group_forms
 from .conditions import coplanarity, ray_chain, RayConditions
 from ..model import CHECK, Project
 from ..parallel import map_ordered
-from ..solvers.threads import chunk_threads, ray_pairs
+from ..solvers.threads import chunk_threads
 from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_xy, projection_terms
 from .parameters import State, UnknownLayout
 from . import weights
@@ -291,7 +291,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
             Qo = orientation_part(G, ph, camera_of_photo[ph], photo_cols, camera_cols[:, estimated], forms)
         return sel, ok, xyz_point, Qm, weak_sel, Qo
 
-    for sel, ok, xyz_point, Qm, weak_sel, Qo in map_ordered(chunk, tasks, chunk_threads(ray_pairs(counts))):
+    for sel, ok, xyz_point, Qm, weak_sel, Qo in map_ordered(chunk, tasks, chunk_threads(sum(len(sel) * k * k for k, sel in tasks))):
         weak[sel] = weak_sel
         xyz[sel[ok]] = xyz_point[ok]
         cov_m[sel[ok]] = Qm[ok]

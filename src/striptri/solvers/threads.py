@@ -23,8 +23,6 @@ from __future__ import annotations
 import contextlib
 import os
 
-import numpy as np
-
 THREADS_VARIABLE = "STRIPTRI_THREADS"
 FACTORISATION_THREADS = 1  # measured: docs/benchmarks.md "BLAS threads" (2 threads did not pay on 2 cores)
 
@@ -108,15 +106,10 @@ def limit_new_libraries() -> None:
 PARALLEL_MIN_RAY_PAIRS = 4096 * 9
 
 
-def ray_pairs(rays_per_group) -> int:
-    """The size of a sweep for chunk_threads: the sum of k^2 over its groups of k rays."""
-    k = np.asarray(rays_per_group, dtype=np.int64)
-    return int(np.sum(k * k))
-
-
 def chunk_threads(pairs: int | None = None) -> int:
-    """Threads over the chunks of a sweep whose groups hold ``pairs`` ray pairs (:func:`ray_pairs`):
-    the threads asked for, else every core (at most the cores); one below PARALLEL_MIN_RAY_PAIRS,
+    """Threads over the chunks of a sweep whose groups hold ``pairs`` ray pairs (the sum of k^2 over
+    its groups of k rays, equations.groups.sweep_size): the threads asked for, else every core (at
+    most the cores); one below PARALLEL_MIN_RAY_PAIRS,
     where a chunk's numpy work is too small to release the GIL for long and the threads would only
     take turns (every test project). The 150 targets of 30 to 93 rays of the close-range benchmark
     are above it (652,000 pairs): their whitening and products are large BLAS calls."""
