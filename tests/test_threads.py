@@ -43,6 +43,27 @@ def test_striptri_threads_variable(monkeypatch):
         assert threads.requested_threads() is None
 
 
+def test_the_threads_asked_for_cap_the_factorisation_but_do_not_raise_it(monkeypatch):
+    """--threads / STRIPTRI_THREADS are a ceiling: the factorisation keeps its measured one BLAS
+    thread (a second made it 2.2-2.4x slower on 2 cores); STRIPTRI_FACTORISATION_THREADS raises it,
+    up to the threads asked for and the cores."""
+    cores = threads.available_cores()
+    monkeypatch.delenv(threads.FACTORISATION_VARIABLE, raising=False)
+    monkeypatch.setenv(threads.THREADS_VARIABLE, "2")
+    assert threads.factorisation_thread_count() == threads.FACTORISATION_THREADS == 1
+    with threads.use_threads(4):
+        assert threads.factorisation_thread_count() == 1
+    monkeypatch.setenv(threads.FACTORISATION_VARIABLE, "3")
+    monkeypatch.delenv(threads.THREADS_VARIABLE)
+    assert threads.factorisation_thread_count() == min(3, cores)
+    with threads.use_threads(2):
+        assert threads.factorisation_thread_count() == min(2, cores)
+    with threads.use_threads(1):
+        assert threads.factorisation_thread_count() == 1
+    monkeypatch.setenv(threads.FACTORISATION_VARIABLE, "many")
+    assert threads.factorisation_thread_count() == 1
+
+
 # --------------------------------------------------------------------------- the chunks on threads
 # (issue 29: parallel.map_ordered, solvers.threads.chunk_threads / use_threads, --threads)
 

@@ -31,7 +31,7 @@ def threads_option(command):
     STRIPTRI_THREADS when not given, else all of them). reports_errors applies it."""
     return click.option("--threads", "threads", type=click.IntRange(min=1), default=None,
                         help="Cores to use: the chunks of each sweep (linearisation, whitening, residual "
-                             "cofactors) run on this many threads [STRIPTRI_THREADS, else all cores].")(command)
+                             "cofactors) run on this many threads, at most [STRIPTRI_THREADS, else all cores].")(command)
 
 
 def reports_errors(command):

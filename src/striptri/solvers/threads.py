@@ -7,7 +7,9 @@ products of a few hundred rows): there the threads only synchronise, and on a 2-
 (docs/benchmarks.md "BLAS threads"). So every command runs with one BLAS thread
 (:func:`single_threaded`), and only the sparse factorisation, whose supernodes are large dense
 blocks, may take more (:func:`factorisation_threads`) where measurement shows it pays: the number
-is ``STRIPTRI_THREADS`` when set, else FACTORISATION_THREADS.
+is ``STRIPTRI_FACTORISATION_THREADS`` when set, else FACTORISATION_THREADS (one: on 2 cores a
+second thread made the factorisations of a 5,000-photo block 2.2x and of a 20,000-photo block 2.4x
+slower), and never more than ``--threads`` or ``STRIPTRI_THREADS`` allow.
 
 The cores themselves are used by threads over the chunks of a sweep (the linearisation and
 whitening of the condition groups, parallel.map_ordered): :func:`chunk_threads`, every core unless
@@ -24,7 +26,8 @@ import contextlib
 import os
 
 THREADS_VARIABLE = "STRIPTRI_THREADS"
-FACTORISATION_THREADS = 1  # measured: docs/benchmarks.md "BLAS threads" (2 threads did not pay on 2 cores)
+FACTORISATION_VARIABLE = "STRIPTRI_FACTORISATION_THREADS"
+FACTORISATION_THREADS = 1  # measured: docs/decisions.md "BLAS threads" (2 threads cost 2.2-2.4x on 2 cores)
 
 
 def available_cores() -> int:
@@ -57,9 +60,12 @@ def requested_threads() -> int | None:
     when neither is given or the variable is not a positive integer)."""
     if _CHOSEN:
         return _CHOSEN[-1]
-    text = os.environ.get(THREADS_VARIABLE, "").strip()
-    if not text:
-        return None
+    return _variable(THREADS_VARIABLE)
+
+
+def _variable(name: str) -> int | None:
+    """The environment variable ``name`` as a positive integer, else None."""
+    text = os.environ.get(name, "").strip()
     try:
         n = int(text)
     except ValueError:
@@ -120,10 +126,17 @@ def chunk_threads(pairs: int | None = None) -> int:
 
 @contextlib.contextmanager
 def factorisation_threads():
-    """The BLAS threads of a sparse factorisation: STRIPTRI_THREADS, else FACTORISATION_THREADS."""
-    n = requested_threads() or FACTORISATION_THREADS
-    with _limits(min(n, available_cores())):
+    """The BLAS threads of a sparse factorisation (:func:`factorisation_thread_count`)."""
+    with _limits(factorisation_thread_count()):
         yield
+
+
+def factorisation_thread_count() -> int:
+    """STRIPTRI_FACTORISATION_THREADS, else FACTORISATION_THREADS; at most the threads asked for
+    (``--threads``, STRIPTRI_THREADS) and the cores. ``--threads 2`` asks for at most two threads,
+    not for a second BLAS thread where it was measured to lose."""
+    n = _variable(FACTORISATION_VARIABLE) or FACTORISATION_THREADS
+    return max(min(n, requested_threads() or n, available_cores()), 1)
 
 
 @contextlib.contextmanager
