@@ -16,7 +16,7 @@ from striptri.adjustment import adjust
 from striptri.bundle import adjust as bundle_adjust
 from striptri.bundle import padding
 from striptri.core.options import AdjustmentOptions
-from striptri.equations.groups import build_batches, merge_layouts
+from striptri.equations.groups import build_batches
 from striptri.io import read_project
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
@@ -31,7 +31,7 @@ def project(tmp_path_factory):
 
 
 def test_joined_batches_hold_every_point_once_with_its_rays(project):
-    batches = merge_layouts(build_batches(project))
+    batches = build_batches(project, chains=False)
     joined = padding.pad_batches(batches)
     assert len(joined) < len(batches)  # small batches of neighbouring k were joined
     assert any(isinstance(b, padding.PaddedBatch) for b in joined)
@@ -56,13 +56,13 @@ def test_joined_batches_hold_every_point_once_with_its_rays(project):
 
 
 def test_large_batches_are_kept_as_they_are(project, monkeypatch):
-    batches = merge_layouts(build_batches(project))
+    batches = build_batches(project, chains=False)
     monkeypatch.setattr(padding, "SMALL_BATCH", 1)  # no batch is small
     assert padding.pad_batches(batches) == batches
 
 
 def test_chunks_of_a_padded_batch_keep_their_mask(project):
-    joined = [b for b in padding.pad_batches(merge_layouts(build_batches(project)))
+    joined = [b for b in padding.pad_batches(build_batches(project, chains=False))
               if isinstance(b, padding.PaddedBatch) and len(b) > 2]
     assert joined
     b = joined[0]

@@ -40,7 +40,7 @@ from ..equations.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
 from ..errors import NumericalFailure
-from ..equations.groups import GroupBatch, build_batches, merge_layouts, sweep_size
+from ..equations.groups import GroupBatch, build_batches, sweep_size
 from ..model import Project
 from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads
@@ -91,7 +91,7 @@ class _Problem:
         self.project, self.options = project, options
         self.offset = reduction_offset(project)
         self.layout: UnknownLayout = build_layout(project)
-        self.batches: list[GroupBatch] = merge_layouts(build_batches(project))
+        self.batches: list[GroupBatch] = build_batches(project, chains=False)  # one batch per shape, rays in photo order
         self.obs: Observations = observations_of(project, self.offset)
         self.pobs: ParameterObservations = build_parameter_observations(project, self.offset)
         self.unknowns: PointUnknowns = point_unknowns(project, self.batches, self.obs)
