@@ -14,7 +14,7 @@ from __future__ import annotations
 import collections
 import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import numpy as np
 
@@ -70,6 +70,8 @@ def map_unordered(fn: Callable, tasks: Sequence, workers: int | None = None,
         for i, task in enumerate(tasks):
             yield i, fn(task)
         return
+    from concurrent.futures import ProcessPoolExecutor  # 40 ms of imports (multiprocessing): not for every command
+
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=_one_blas_thread) as pool:
         futures = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
         try:
