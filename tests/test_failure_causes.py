@@ -70,3 +70,24 @@ def test_a_gross_plate_error_is_named_by_its_residuals(tmp_path):
 def test_a_wrong_control_coordinate_points_at_its_point(tmp_path):
     message = _failure(_changed(tmp_path, "control.csv", "X", "400"))
     assert "gross error" in message and "1001L" in message and "control.csv" in message
+
+
+@pytest.mark.parametrize("value", ["380", "400", "420", "5400"])
+def test_a_wrong_control_coordinate_is_found_whatever_the_iteration_does(tmp_path, value):
+    """The undamped iteration of the method of conditions wanders with a control point kilometres
+    off (whether it happens to settle, so that its largest residuals can be named, depends on the
+    value): the check at the approximations names the point for every value, and only it."""
+    from striptri.core.diagnosis import control_off_its_rays
+    from striptri.io import read_project
+
+    causes = control_off_its_rays(read_project(_changed(tmp_path, "control.csv", "X", value)))
+    assert len(causes) == 1 and "control point 1001L (" in causes[0] and "control.csv" in causes[0]
+
+
+def test_the_control_check_names_nothing_in_a_sound_project_or_for_a_plate_error(tmp_path):
+    from striptri.core.diagnosis import control_off_its_rays
+    from striptri.io import read_project
+
+    assert control_off_its_rays(read_project(STRIP8)) == []
+    # one plate measurement of a control point off: a wrong measurement, not a wrong coordinate
+    assert control_off_its_rays(read_project(_changed(tmp_path, "image_points.csv", "y", "40"))) == []

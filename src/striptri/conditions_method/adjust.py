@@ -3,6 +3,10 @@
 General case of least squares (Helmert), linearised at the adjusted observations (Pope 1972):
 ``A v + B dx + w = 0`` per group, ``N = sum B^T M^-1 B``, ``u = sum B^T M^-1 w``, ``N dx = -u``,
 ``k = -M^-1 (w + B dx)``, ``v = Q A^T k``; then ``x^ <- x^ (+) dx``, ``l^ <- l + v``, repeated.
+The first linearisation is at observations where the conditions hold (:func:`consistent_start`:
+the measurements moved onto the rays of the points intersected at the approximations), not at the
+measurements themselves: from rough approximations that first step is the bundle method's
+Gauss-Newton step (docs/decisions.md "A consistent first linearisation").
 
 Convergence: core.convergence (``sqrt(dx^T N dx) < tolerance``, the largest correction of any
 function of the unknowns in units of its standard deviation).
@@ -34,6 +38,7 @@ from ..equations.groups import build_batches
 from ..equations.joint_groups import JointGroups, whiten_joint
 from ..equations.linearise import At, Sweep
 from ..model import Project
+from ..equations.triangulation import GivenCoordinates, RayObservations, ray_terms, triangulate
 from ..equations.normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, group_products,
                                          selection_matrix, sums_camera_columns, whiten)
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
@@ -42,6 +47,7 @@ from ..equations import weights
 from ..solvers.memory import give_back_free_memory
 
 METHOD = "conditions"
+START_ITERATIONS = 6
 
 
 @dataclass
@@ -302,7 +308,10 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     solver = solver_for(options, problem.layout, project)
     timings = Timings(conditions=0.0, assembly=0.0, solve=0.0, back_substitution=0.0)
     obs = problem.obs
-    now = _Estimate(problem.initial_state, obs.plate.copy(), obs.control.copy(), np.zeros(len(problem.pobs)))
+    t0 = time.perf_counter()
+    now = _Estimate(problem.initial_state, *consistent_start(project, problem.initial_state, problem.layout, obs),
+                    np.zeros(len(problem.pobs)))
+    timings.add("conditions", time.perf_counter() - t0)  # where the first linearisation is taken
     history: list[Iteration] = []
     converged = False
     # only after a failure; large residuals of a settled iteration are named when nothing in the input is
@@ -344,6 +353,35 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
         n_parameter_observations=len(problem.pobs), parameter_residuals=now.v_par, N=acc.N, checks=checks,
         timings=timings, free_network=free_network, termination=status, termination_message=message,
     )
+
+
+def consistent_start(project: Project, state: State, layout: UnknownLayout, obs: Observations):
+    """The adjusted observations l^ of the first linearisation: the plate coordinates and the
+    weighted control coordinates moved onto the rays of each point intersected at the approximate
+    orientation (triangulation.triangulate, orientation held), so that the conditions hold there
+    exactly and the first misclosure is ``A (l - l^)``. Points that the approximations do not
+    determine (or only weakly) keep l^ = l. -> (plate_hat (m_ip, 2), control_hat (n_pt, 3))."""
+    plate_hat, control_hat = obs.plate.copy(), obs.control.copy()
+    ip = project.image_points
+    if len(ip) == 0 or not (np.isfinite(state.xyz0).all() and np.isfinite(state.R_ground_from_cam).all()):
+        return plate_hat, control_hat
+    given = project.points.given_axes
+    with np.errstate(all="ignore"):
+        tri = triangulate(RayObservations(ip.photo_index, ip.point_index, obs.plate, ip.sigma_xy),
+                          GivenCoordinates(obs.control, given, obs.q_control), state=state, layout=layout,
+                          iterations=START_ITERATIONS)
+        good = tri.determined & ~tri.undetermined & np.isfinite(tri.xyz).all(axis=1)
+        rows = np.flatnonzero(good[ip.point_index])
+        ph = ip.photo_index[rows][:, None]
+        params, conv = state.camera_terms(ph)
+        res, *_ = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
+                            tri.xyz[ip.point_index[rows]], obs.plate[rows][:, None], None)
+    res = res[:, 0]
+    ok = np.isfinite(res).all(axis=1)
+    plate_hat[rows[ok]] -= res[ok]
+    weighted = given & (obs.q_control > 0) & good[:, None]
+    control_hat[weighted] = tri.xyz[weighted]
+    return plate_hat, control_hat
 
 
 def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteration], timings: Timings):

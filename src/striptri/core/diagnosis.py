@@ -17,7 +17,9 @@ Each returns sentences naming what it found (empty when nothing):
   neighbouring photos' (also the whole block turned at once), and photos (or the whole block) whose
   approximate orientation does not fit for another reason;
 * :func:`photo_groups` - photos in groups that share no points (a strip cut in two), and which
-  group has no datum of its own.
+  group has no datum of its own;
+* :func:`control_off_its_rays` - control points whose rays miss their given coordinates at the
+  approximate orientations far more than the other control points' do (a wrong coordinate).
 
 :func:`likely_causes` runs the ones that fit a kind of failure, in that order of precedence.
 """
@@ -29,7 +31,7 @@ import numpy as np
 
 from ..model import OBSERVED, Project
 from .listing import FAR, LIST_MAX, centre_spread, group_quantile, more
-from .orientations import wrong_orientations
+from .orientations import find_turns, wrong_orientations
 from .photo_groups import photo_groups
 
 # -- weights ----------------------------------------------------------------------------------------
@@ -57,7 +59,7 @@ def likely_causes(project: Project, failure: str) -> list[str]:
     """The likely causes of a failure of kind ``failure``, most specific first:
 
     * ``"iteration"`` (not converged, diverged): implausible values, extreme weights, the unit of c,
-      grossly wrong approximate orientations;
+      grossly wrong approximate orientations, control points their rays miss;
     * ``"singular"`` (a singular normal matrix, a datum defect): extreme weights, photo groups
       without a datum, implausible values, the unit of c;
     * ``"overflow"`` (numbers that are not finite): implausible values, the unit of c, extreme
@@ -66,7 +68,7 @@ def likely_causes(project: Project, failure: str) -> list[str]:
     with np.errstate(all="ignore"):
         if failure == "iteration":
             checks = (distance_scale, implausible_values, extreme_weights, absolute_extremes, camera_units,
-                      principal_points, wrong_orientations)
+                      principal_points, wrong_orientations, control_off_its_rays)
         elif failure == "singular":
             checks = (distance_scale, extreme_weights, absolute_extremes, lambda p: photo_groups(p).explain(),
                       implausible_values, camera_units, principal_points)
@@ -79,6 +81,68 @@ def likely_causes(project: Project, failure: str) -> list[str]:
         for check in checks:
             causes += check(project)
         return causes
+
+
+# ---------------------------------------------------------------------------------------- control
+
+CONTROL_RATIO = 10.0  # a control point whose rays miss it this many times farther than the median one's
+MIN_CONTROL = 4  # the comparison needs at least this many control points with rays
+
+
+def control_off_its_rays(project: Project) -> list[str]:
+    """Control points whose rays, at the approximate orientations, miss the given coordinates by
+    more than CONTROL_RATIO times as much as the median control point's: a wrong coordinate in
+    control.csv (a typo, another datum or unit). The miss of a point is the smallest residual of its
+    rays on the plates when its given coordinates are held and the rest intersected
+    (triangulation.triangulate): a wrong coordinate moves the point off every ray, a wrong plate
+    measurement off one (gross_residuals names those); the approximations' own errors make every control point miss
+    somewhat, so a point is judged against the other control points, not against its sigma.
+
+    A gross control error makes the iteration of the method of conditions (which is not damped)
+    wander instead of settling, so gross_residuals, which needs a settled iteration, cannot name
+    it; this check does not depend on the iteration at all. Nothing is judged when a photo's
+    approximate kappa is found turned (wrong_orientations): the control points on it miss as well."""
+    from ..equations.observations import observations_of  # the equations import core: not at module level
+    from ..equations.parameters import build_layout, initial_state, reduction_offset
+    from ..equations.triangulation import GivenCoordinates, RayObservations, ray_terms, triangulate
+
+    pts, ip = project.points, project.image_points
+    given = pts.given_axes
+    control = given.any(axis=1) & (np.bincount(ip.point_index, minlength=len(pts)) > 0)
+    if control.sum() < MIN_CONTROL or find_turns(project):  # a photo turned: its control points miss too
+        return []
+    offset = reduction_offset(project)
+    state = initial_state(project, offset)
+    if not (np.isfinite(state.xyz0).all() and np.isfinite(state.R_ground_from_cam).all()):
+        return []
+    obs = observations_of(project, offset)
+    tri = triangulate(RayObservations(ip.photo_index, ip.point_index, obs.plate, ip.sigma_xy),
+                      GivenCoordinates(obs.control, given, np.zeros_like(obs.q_control)),  # given: held
+                      state=state, layout=build_layout(project), iterations=1)
+    rows = np.flatnonzero((control & tri.determined)[ip.point_index])
+    ph = ip.photo_index[rows][:, None]
+    params, conv = state.camera_terms(ph)
+    res, *_ = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
+                        tri.xyz[ip.point_index[rows]], obs.plate[rows][:, None], None)
+    miss = np.full(len(pts), np.inf)  # the smallest miss of a point's rays: one bad plate measurement is not it
+    np.minimum.at(miss, ip.point_index[rows], np.nan_to_num(np.linalg.norm(res[:, 0], axis=1), nan=np.inf))
+    judged = control & tri.determined
+    if judged.sum() < MIN_CONTROL:
+        return []
+    median = float(np.median(miss[judged]))
+    far = np.flatnonzero(judged & (miss > CONTROL_RATIO * median))
+    if len(far) == 0 or median <= 0:
+        return []
+    far = far[np.argsort(-miss[far])]
+    unit = project.settings.plate_unit
+    items = [f"{pts.ids[i]} ({miss[i]:.4g} {unit})" for i in far[:LIST_MAX]]
+    one = len(far) == 1
+    return [f"a gross error in control.csv: at the approximate orientations the rays of control "
+            f"point{'' if one else 's'} {', '.join(items)}{more(len(far))} miss {'its' if one else 'their'} given "
+            f"coordinates on the plates by more than {CONTROL_RATIO:.0f} times as much as the median control "
+            f"point's ({median:.3g} {unit}). Check {'its' if one else 'their'} coordinates in control.csv (a typo, "
+            f"another datum, unit or axis order), or make {'it a check point' if one else 'them check points'} "
+            "to leave it out of the adjustment." if one else "to leave them out of the adjustment."]
 
 
 # ------------------------------------------------------------------------------------------ distances
