@@ -1432,7 +1432,7 @@ def test_case2_a_turned_photo_is_found_for_every_photo_and_quarter_turn(name):
 
 def test_case1_and_2_block_with_one_photo_turned_diverges_naming_it(block):
     """block_3x6 with the kappa of photo 3003 typed 180 deg off: the adjustment by conditions diverges
-    (corrections growing to 2e10 sd), a NumericalFailure with the figures and the photo, and no
+    (corrections growing beyond 1e8 sd), a NumericalFailure with the figures and the photo, and no
     control point blamed for the misses the turned photo causes. (Until issue 29 the case was photo
     2003 turned 90 deg; the method of conditions now recovers from that one as the bundle method
     does: test_termination.test_a_quarter_turn_is_recovered.)"""
@@ -1442,7 +1442,9 @@ def test_case1_and_2_block_with_one_photo_turned_diverges_naming_it(block):
         adjust(project, AdjustmentOptions(method="conditions"))
     msg = str(info.value)
     assert msg.startswith("the adjustment by conditions diverged at iteration")
-    assert "largest correction" in msg and "e+10 sd" in msg
+    assert "largest correction" in msg
+    # the figures show the blow-up (its exact size is chaotic: round-off changes the 10th iteration)
+    assert max(int(e) for e in re.findall(r"e\+(\d\d) sd", msg)) >= 8, msg
     assert "photo 3003: its approximate kappa is probably 180 deg off" in msg
     assert msg.count("photo 3") == 1
     assert "control.csv" not in msg

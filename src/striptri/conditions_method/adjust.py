@@ -39,6 +39,7 @@ from ..equations.joint_groups import JointGroups, whiten_joint
 from ..equations.linearise import At, Sweep
 from ..model import Project
 from ..equations.triangulation import GivenCoordinates, RayObservations, ray_terms, triangulate
+from ..geometry.lens import has_distortion
 from ..equations.normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, group_products,
                                          selection_matrix, sums_camera_columns, whiten)
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
@@ -47,7 +48,7 @@ from ..equations import weights
 from ..solvers.memory import give_back_free_memory
 
 METHOD = "conditions"
-START_ITERATIONS = 6
+START_ITERATIONS = 1
 
 
 @dataclass
@@ -374,8 +375,9 @@ def consistent_start(project: Project, state: State, layout: UnknownLayout, obs:
         rows = np.flatnonzero(good[ip.point_index])
         ph = ip.photo_index[rows][:, None]
         params, conv = state.camera_terms(ph)
+        with_lens = has_distortion(state.interior[state.camera_of_photo])  # else the ideal points are the plate's
         res, *_ = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
-                            tri.xyz[ip.point_index[rows]], obs.plate[rows][:, None], None)
+                            tri.xyz[ip.point_index[rows]], obs.plate[rows][:, None], None, with_lens)
     res = res[:, 0]
     ok = np.isfinite(res).all(axis=1)
     plate_hat[rows[ok]] -= res[ok]
