@@ -48,6 +48,9 @@ from ..equations import weights
 from ..solvers.memory import give_back_free_memory
 
 METHOD = "conditions"
+# Gauss-Newton steps of the intersection behind consistent_start after the linear one: any point
+# makes the conditions hold, but one step brings back 37 of 54 turned-photo starts of block_3x6
+# against 31 without (docs/decisions.md "A consistent first linearisation")
 START_ITERATIONS = 1
 
 
@@ -371,7 +374,7 @@ def consistent_start(project: Project, state: State, layout: UnknownLayout, obs:
         tri = triangulate(RayObservations(ip.photo_index, ip.point_index, obs.plate, ip.sigma_xy),
                           GivenCoordinates(obs.control, given, obs.q_control), state=state, layout=layout,
                           iterations=START_ITERATIONS)
-        good = tri.determined & ~tri.undetermined & np.isfinite(tri.xyz).all(axis=1)
+        good = ~tri.undetermined & np.isfinite(tri.xyz).all(axis=1)  # determined, and not weakly
         rows = np.flatnonzero(good[ip.point_index])
         ph = ip.photo_index[rows][:, None]
         params, conv = state.camera_terms(ph)
