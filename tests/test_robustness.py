@@ -1320,15 +1320,25 @@ def test_case1_unconverged_is_a_failure_unless_kept(strip8, method):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_case1_and_2_kappa_180_off_names_the_photo(strip8, method):
-    """kappa of photo 1006 of strip8 typed 180 deg off: sigma0 in the thousands, 30 iterations not
-    converged; the message gives the figures and names photo 1006 and the corrected kappa."""
+    """kappa of photo 1006 of strip8 typed 180 deg off: sigma0 in the thousands, not converged in 30
+    iterations (or, for the method of conditions, diverged); the message gives the figures and
+    names photo 1006 and the corrected kappa."""
     j = photo_index(strip8, "1006")
     project = turned(strip8, j, 180.0)
-    result = adjust(project, AdjustmentOptions(method=method, keep_unconverged=True))
-    assert result.termination == "iteration_limit"
-    assert result.sigma0 > 1000  # what the user saw
-    msg = result.termination_message
-    assert_figures_of_last_iterations(msg, result.history, result.redundancy)
+    try:
+        result = adjust(project, AdjustmentOptions(method=method, keep_unconverged=True))
+    except NumericalFailure as exc:
+        # the undamped iteration of the method of conditions wanders (sigma0 near 9000): whether it
+        # reaches its iteration limit or a singular normal matrix first depends on round-off; the
+        # latter is reported as the divergence it is, not as a datum defect
+        assert method == "conditions" and exc.reason == "diverged", str(exc)
+        msg = str(exc)
+        assert "its normal matrix became singular there" in msg and "largest correction" in msg
+    else:
+        assert result.termination == "iteration_limit"
+        assert result.sigma0 > 1000  # what the user saw
+        msg = result.termination_message
+        assert_figures_of_last_iterations(msg, result.history, result.redundancy)
     assert "photo 1006: its approximate kappa is probably 180 deg off" in msg
     given = np.degrees(strip8.photos.angles[j, 2])
     assert f"kappa = {given:.4f} deg" in msg  # the value to type back

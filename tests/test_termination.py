@@ -165,3 +165,33 @@ def test_command_line_names_the_reason_of_a_failure(tmp_path):
     assert proc.stderr.count("striptri: error:") == 1
     assert "(termination: datum_defect; nothing was written)" in proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_a_normal_matrix_singular_after_regular_ones_is_a_divergence(monkeypatch):
+    """A singular normal matrix at a later iteration, with the same control as the regular first
+    ones, is not a datum defect of the input: it is reported as the iteration's divergence, with
+    its figures and the likely causes. At the first iteration it stays the datum defect it is."""
+    import striptri.conditions_method.adjust as conditions_adjust
+    from striptri.errors import NumericalFailure
+
+    real = conditions_adjust._iteration
+    calls = []
+
+    def singular_at_third(problem, solver, now, history, timings):
+        calls.append(len(history))
+        if len(history) == 2:
+            raise NumericalFailure("the control leaves the datum undetermined", reason="datum_defect")
+        return real(problem, solver, now, history, timings)
+
+    monkeypatch.setattr(conditions_adjust, "_iteration", singular_at_third)
+    exc = failure(read_project(DATA / "strip8"), AdjustmentOptions())
+    assert exc.reason == "diverged" and calls == [0, 1, 2]
+    msg = str(exc)
+    assert msg.startswith("the adjustment by conditions diverged at iteration 3: its normal matrix became singular")
+    assert "regular in the 2 iterations before" in msg and "largest correction" in msg
+
+    def singular_at_first(problem, solver, now, history, timings):
+        raise NumericalFailure("the control leaves the datum undetermined", reason="datum_defect")
+
+    monkeypatch.setattr(conditions_adjust, "_iteration", singular_at_first)
+    assert failure(read_project(DATA / "strip8"), AdjustmentOptions()).reason == "datum_defect"

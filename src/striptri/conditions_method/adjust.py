@@ -325,7 +325,13 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     solver.holds_factor = True  # the converged iteration's factor serves the final checks
     try:
         for _ in range(options.max_iterations):
-            now, floor = _iteration(problem, solver, now, history, timings)
+            try:
+                now, floor = _iteration(problem, solver, now, history, timings)
+            except NumericalFailure as exc:  # N singular after regular ones: the iteration, not the datum
+                if not history or exc.reason not in ("datum_defect", "singular"):
+                    raise
+                raise NumericalFailure(termination.became_singular(METHOD, history, problem.redundancy, causes),
+                                       reason="diverged") from exc
             stop_if_diverging(history, METHOD, problem.redundancy, causes)
             if has_converged(history, options.tolerance, floor):
                 converged = True

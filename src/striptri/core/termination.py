@@ -160,6 +160,18 @@ def diverged(method: str, history: Sequence, redundancy: int, causes: Callable[[
     return "\n".join([head, table(history, redundancy, element=True), meaning, causes_text(causes())])
 
 
+def became_singular(method: str, history: Sequence, redundancy: int, causes: Callable[[], list[str]]) -> str:
+    """The message of an iteration whose normal matrix turned singular after regular ones (raised as
+    NumericalFailure "diverged"): the control is the same as in the first iterations, so the datum is
+    not what is missing; the iteration has wandered where the orientation is not determined."""
+    head = (f"{what_of(method)} diverged at iteration {len(history) + 1}: its normal matrix became singular "
+            f"there, though it was regular in the {len(history)} iteration{'s' if len(history) != 1 else ''} "
+            "before with the same control and measurements, so the datum is not what is missing: the "
+            "iteration has wandered to orientations that the measurements do not determine.")
+    meaning = "The iteration is moving away from any solution; no result can be given."
+    return "\n".join([head, table(history, redundancy, element=True), meaning, causes_text(causes())])
+
+
 def cost_flat(method: str, history: Sequence, redundancy: int, cost_tolerance: float, tolerance: float) -> str:
     """The message of a bundle adjustment stopped by its cost tolerance (a result)."""
     n = len(history)
