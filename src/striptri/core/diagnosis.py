@@ -29,6 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..equations.observations import observations_of
+from ..equations.parameters import build_layout, initial_state, reduction_offset
+from ..equations.triangulation import GivenCoordinates, RayObservations, ray_terms, triangulate
 from ..model import OBSERVED, Project
 from .listing import FAR, LIST_MAX, centre_spread, group_quantile, more
 from .orientations import find_turns, wrong_orientations
@@ -102,10 +105,6 @@ def control_off_its_rays(project: Project) -> list[str]:
     wander instead of settling, so gross_residuals, which needs a settled iteration, cannot name
     it; this check does not depend on the iteration at all. Nothing is judged when a photo's
     approximate kappa is found turned (wrong_orientations): the control points on it miss as well."""
-    from ..equations.observations import observations_of  # the equations import core: not at module level
-    from ..equations.parameters import build_layout, initial_state, reduction_offset
-    from ..equations.triangulation import GivenCoordinates, RayObservations, ray_terms, triangulate
-
     pts, ip = project.points, project.image_points
     given = pts.given_axes
     control = given.any(axis=1) & (np.bincount(ip.point_index, minlength=len(pts)) > 0)
