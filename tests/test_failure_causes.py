@@ -91,3 +91,19 @@ def test_the_control_check_names_nothing_in_a_sound_project_or_for_a_plate_error
     assert control_off_its_rays(read_project(STRIP8)) == []
     # one plate measurement of a control point off: a wrong measurement, not a wrong coordinate
     assert control_off_its_rays(read_project(_changed(tmp_path, "image_points.csv", "y", "40"))) == []
+
+
+def test_two_wrong_control_points_are_both_named(tmp_path):
+    from striptri.core.diagnosis import control_off_its_rays
+    from striptri.io import read_project
+
+    folder = _changed(tmp_path, "control.csv", "X", "400")
+    rows = list(csv.reader((folder / "control.csv").open()))
+    rows[2][rows[0].index("X")] = "600"
+    with (folder / "control.csv").open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    causes = control_off_its_rays(read_project(folder))
+    assert len(causes) == 1, causes
+    assert causes[0].startswith("a gross error in control.csv: at the approximate orientations the rays of control "
+                                f"points {rows[1][0]} (")
+    assert f", {rows[2][0]} (" in causes[0] and causes[0].endswith("to leave them out of the adjustment.")

@@ -38,8 +38,7 @@ from ..equations.groups import build_batches
 from ..equations.joint_groups import JointGroups, whiten_joint
 from ..equations.linearise import At, Sweep
 from ..model import Project
-from ..equations.triangulation import GivenCoordinates, RayObservations, ray_terms, triangulate
-from ..geometry.lens import has_distortion
+from ..equations.triangulation import GivenCoordinates, RayObservations, triangulate
 from ..equations.normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, group_products,
                                          selection_matrix, sums_camera_columns, whiten)
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
@@ -379,17 +378,10 @@ def consistent_start(project: Project, state: State, layout: UnknownLayout, obs:
     with np.errstate(all="ignore"):
         tri = triangulate(RayObservations(ip.photo_index, ip.point_index, obs.plate, ip.sigma_xy),
                           GivenCoordinates(obs.control, given, obs.q_control), state=state, layout=layout,
-                          iterations=START_ITERATIONS)
-        good = ~tri.undetermined & np.isfinite(tri.xyz).all(axis=1)  # determined, and not weakly
-        rows = np.flatnonzero(good[ip.point_index])
-        ph = ip.photo_index[rows][:, None]
-        params, conv = state.camera_terms(ph)
-        with_lens = has_distortion(state.interior[state.camera_of_photo])  # else the ideal points are the plate's
-        res, *_ = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
-                            tri.xyz[ip.point_index[rows]], obs.plate[rows][:, None], None, with_lens)
-    res = res[:, 0]
-    ok = np.isfinite(res).all(axis=1)
-    plate_hat[rows[ok]] -= res[ok]
+                          iterations=START_ITERATIONS, with_residuals=True)
+    good = ~tri.undetermined & np.isfinite(tri.xyz).all(axis=1)  # determined, and not weakly
+    moved = good[ip.point_index] & np.isfinite(tri.residuals).all(axis=1)
+    plate_hat[moved] -= tri.residuals[moved]
     weighted = given & (obs.q_control > 0) & good[:, None]
     control_hat[weighted] = tri.xyz[weighted]
     return plate_hat, control_hat

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..equations.observations import observations_of
 from ..equations.parameters import build_layout, initial_state, reduction_offset
-from ..equations.triangulation import GivenCoordinates, RayObservations, ray_terms, triangulate
+from ..equations.triangulation import GivenCoordinates, RayObservations, triangulate
 from ..model import OBSERVED, Project
 from .listing import FAR, LIST_MAX, centre_spread, group_quantile, more
 from .orientations import find_turns, wrong_orientations
@@ -117,14 +117,10 @@ def control_off_its_rays(project: Project) -> list[str]:
     obs = observations_of(project, offset)
     tri = triangulate(RayObservations(ip.photo_index, ip.point_index, obs.plate, ip.sigma_xy),
                       GivenCoordinates(obs.control, given, np.zeros_like(obs.q_control)),  # given: held
-                      state=state, layout=build_layout(project), iterations=1)
+                      state=state, layout=build_layout(project), iterations=1, with_residuals=True)
     rows = np.flatnonzero((control & tri.determined)[ip.point_index])
-    ph = ip.photo_index[rows][:, None]
-    params, conv = state.camera_terms(ph)
-    res, *_ = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
-                        tri.xyz[ip.point_index[rows]], obs.plate[rows][:, None], None)
     miss = np.full(len(pts), np.inf)  # the smallest miss of a point's rays: one bad plate measurement is not it
-    np.minimum.at(miss, ip.point_index[rows], np.nan_to_num(np.linalg.norm(res[:, 0], axis=1), nan=np.inf))
+    np.minimum.at(miss, ip.point_index[rows], np.nan_to_num(np.linalg.norm(tri.residuals[rows], axis=1), nan=np.inf))
     judged = control & tri.determined
     if judged.sum() < MIN_CONTROL:
         return []
@@ -141,7 +137,7 @@ def control_off_its_rays(project: Project) -> list[str]:
             f"coordinates on the plates by more than {CONTROL_RATIO:.0f} times as much as the median control "
             f"point's ({median:.3g} {unit}). Check {'its' if one else 'their'} coordinates in control.csv (a typo, "
             f"another datum, unit or axis order), or make {'it a check point' if one else 'them check points'} "
-            "to leave it out of the adjustment." if one else "to leave them out of the adjustment."]
+            f"to leave {'it' if one else 'them'} out of the adjustment."]
 
 
 # ------------------------------------------------------------------------------------------ distances

@@ -131,6 +131,7 @@ class Triangulated:
     cov_orientation: np.ndarray
     determined: np.ndarray
     weak: np.ndarray | None = None
+    residuals: np.ndarray | None = None  # (m_ip, 2) l - f(X) of every ray at its point (``with_residuals``)
 
     @property
     def undetermined(self) -> np.ndarray:
@@ -192,7 +193,7 @@ class GivenCoordinates:
 
 
 def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: State, layout: UnknownLayout,
-                Qxx=None, iterations: int = 6) -> Triangulated:
+                Qxx=None, iterations: int = 6, with_residuals: bool = False) -> Triangulated:
     """Least-squares coordinates of every point of ``control`` (n points) from its ``rays``, with
     given coordinates held or weighted; the orientation (``state``: R_ground_from_cam, centres and
     camera elements per photo) is held.
@@ -211,7 +212,9 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
     step is below CONVERGED times its point's size (from adjusted observations the rays meet, and
     one step reaches the point to rounding). A point is determined when its rays and given
     coordinates are at least three observations for its unknowns and its 3x3 normal matrix is
-    regular; the others are nan in ``xyz`` and False in ``determined``.
+    regular; the others are nan in ``xyz`` and False in ``determined``. ``with_residuals``: also
+    each ray's residual ``obs - pred`` (m_ip, 2) at its point, in the camera model's residual space
+    (nan for the rays of points not determined), as the last Gauss-Newton evaluation gives it.
     """
     n_points = len(control)
     camera_of_photo = state.camera_of_photo
@@ -270,8 +273,8 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
                 xyz_point = xyz_point + step
                 if _converged(step, xyz_point):
                     break
-            _, dX, dO, drot, dint = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs,
-                                              meas, with_lens)
+            res, dX, dO, drot, dint = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs,
+                                                meas, with_lens)
             Nx = np.einsum("mkai,mka,mkaj->mij", dX, wxy, dX) + Pw[:, :, None] * np.eye(3)
             weak_sel = conditioning(Nx, free) < WEAK_RCOND
             Nx, _ = _hold(Nx, np.zeros((len(sel), 3)), free)
@@ -289,14 +292,18 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
             J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
             G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
             Qo = orientation_part(G, ph, camera_of_photo[ph], photo_cols, camera_cols[:, estimated], forms)
-        return sel, ok, xyz_point, Qm, weak_sel, Qo
+        return sel, ok, xyz_point, Qm, weak_sel, Qo, (rows, res) if with_residuals else None
 
     # the work of a point grows like k^2 with the orientation part (k x k photo pairs of Qxx), like k
     # without: sized so, the 150 long tracks of the close-range block stay in the caller's thread when
     # only intersected (0.10 s against 0.13 s on two threads), and go to the threads with the
     # orientation part (0.25 s against 0.30 s)
     size = sum(len(sel) * k * (k if with_orientation else 1) for k, sel in tasks)
-    for sel, ok, xyz_point, Qm, weak_sel, Qo in map_ordered(chunk, tasks, chunk_threads(size)):
+    residuals = np.full((len(photo_index), 2), np.nan) if with_residuals else None
+    for sel, ok, xyz_point, Qm, weak_sel, Qo, rays_res in map_ordered(chunk, tasks, chunk_threads(size)):
+        if rays_res is not None:
+            rows, res = rays_res
+            residuals[rows[ok]] = res[ok]
         weak[sel] = weak_sel
         xyz[sel[ok]] = xyz_point[ok]
         cov_m[sel[ok]] = Qm[ok]
@@ -305,7 +312,7 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
             cov_o[sel[ok]] = Qo[ok]
     weak |= far_weaker_than_the_rest(cov_m, determined & (counts > 0))
     return Triangulated(xyz=xyz, cov_measurement=cov_m, cov_orientation=cov_o, determined=determined,
-                        weak=weak & determined)
+                        weak=weak & determined, residuals=residuals)
 
 
 WEAK_FACTOR = 20.0  # a point whose rays give it a mean error this many times the block's median is weak
