@@ -127,9 +127,10 @@ class SupernodalInverse(Engine):
                 # the update's lower triangle (the diagonal blocks of later supernodes are read
                 # only there by potrf): syrk, half the work of L21 L21'
                 U = blas.dsyrk(1.0, L21, lower=1)
-                for q, s, e, pos, local in sym.targets[p]:
+                for q, s, _, pos, runs in sym.targets[p]:
                     G = self._view(L, q)
-                    G[np.ix_(pos, local)] -= U[s:, s:e]
+                    for a, b, c in runs:  # the lower triangle of the run's columns and the rows below
+                        G[pos[a:], c: c + b - a] -= U[s + a:, s + a: s + b]
         return L
 
     def _cholmod_factor(self, As: sp.csr_matrix) -> np.ndarray:
@@ -168,8 +169,10 @@ class SupernodalInverse(Engine):
             if b:
                 L21 = F[w:]
                 Zbb = np.empty((b, b))
-                for q, s, e, pos, local in sym.targets[p]:
-                    Zbb[s:, s:e] = self._view(Z, q)[np.ix_(pos, local)]
+                for q, s, _, pos, runs in sym.targets[p]:
+                    Zq = self._view(Z, q)
+                    for a, e, c in runs:  # the lower triangle, which is all dsymm reads
+                        Zbb[s + a:, s + a: s + e] = Zq[pos[a:], c: c + e - a]
                 Y = blas.dsymm(1.0, Zbb, L21, side=0, lower=1)  # Z_BB L21, Z_BB symmetric (lower)
                 S = L21.T @ Y
                 S[np.diag_indices(w)] += 1.0

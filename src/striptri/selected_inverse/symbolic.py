@@ -28,8 +28,12 @@ class Supernodes:
     order: position -> column of N~ (blocks kept together). Supernode p owns the positions
     [start[p], start[p+1]); rows[p]: the sorted positions of its rows in L (its own columns first,
     then ``below``, the rows under it). targets[p]: for each later supernode q that owns some of
-    ``below``: (q, s, e, pos, local) - below[s:e] are q's columns (``local`` = their offsets in q)
-    and ``pos`` the places of below[s:] in rows[q] (all there: ``below`` is a clique).
+    ``below``: (q, s, e, pos, runs) - below[s:e] are q's columns and ``pos`` the places of below[s:]
+    in rows[q] (all there: ``below`` is a clique); ``runs``: those columns as runs of consecutive
+    columns of q, (a, b, c) for below[s + a: s + b] = q's columns c .. c + b - a - 1. A run moves
+    with one slice of q's columns and one list of its rows (``pos[a:]``, the lower triangle and
+    below): three times as fast as a gather by row and column lists (np.ix_) on the blocks of
+    bench_scale.
     """
 
     order: np.ndarray
@@ -170,6 +174,16 @@ def _supernode_partition(struct: list[np.ndarray], parent: np.ndarray, sizes: np
     return np.array(first + [nb], dtype=int)
 
 
+def _runs(local: np.ndarray) -> tuple:
+    """Runs of consecutive entries of the sorted column offsets ``local``: (a, b, local[a]) for each
+    stretch local[a:b] that counts up by one."""
+    if local[-1] - local[0] + 1 == len(local):  # most often one run (and the test is cheap)
+        return ((0, len(local), int(local[0])),)
+    cut = np.flatnonzero(np.diff(local) != 1) + 1
+    firsts, ends = np.r_[0, cut], np.r_[cut, len(local)]
+    return tuple((int(a), int(b), int(local[a])) for a, b in zip(firsts, ends))
+
+
 def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_columns: int,
              relaxed_zeros: float) -> Supernodes:
     """Order, block-level symbolic factorisation and supernodes of the scaled N (see
@@ -214,7 +228,7 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
                 pos = np.searchsorted(rows[q], below[s:])
                 if np.any(rows[q][np.minimum(pos, len(rows[q]) - 1)] != below[s:]):  # pragma: no cover
                     raise RuntimeError("rows below a supernode are not a clique of the filled graph")
-                tp.append((q, s, e, pos, below[s:e] - start[q]))
+                tp.append((q, s, e, pos, _runs(below[s:e] - start[q])))
         targets.append(tp)
     stored = np.array([len(rw) * (start[p + 1] - start[p]) for p, rw in enumerate(rows)], dtype=np.int64)
     offset = np.concatenate([[0], np.cumsum(stored)])
