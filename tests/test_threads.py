@@ -245,3 +245,30 @@ def test_free_memory_of_a_chunk_thread_is_handed_back():
     base, held, after = (int(x) for x in out.stdout.split())
     assert held - base > 150  # MB: freed, still resident
     assert after - base < 30  # handed back
+
+
+@pytest.mark.parametrize("point_precision", ["schmid90", "joint92"])
+def test_the_precision_passes_give_the_same_numbers_in_smaller_chunks(monkeypatch, point_precision):
+    """The precision passes take fewer groups at once than the assembly (linearise.PRECISION_CHUNK:
+    residual cofactors, separability, Schmid's (92)) and the point precision fewer points with the
+    orientation part (triangulation.ORIENTATION_CHUNK): memory, not results. A snooping run with
+    chunks of a few groups writes the same files, byte for byte, as one with every batch whole."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from striptri.core.runs import RunOptions
+    from striptri.equations import linearise, triangulation
+    from striptri.io import read_project
+    from striptri.pipeline import adjust_products, options_for
+
+    project = read_project(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6")
+    options = replace(options_for(project), chunk_size=1_000_000)  # the assembly in whole batches
+    files = {}
+    for precision, orientation in ((1_000_000, 1_000_000), (7, 5)):
+        monkeypatch.setattr(linearise, "PRECISION_CHUNK", precision)
+        monkeypatch.setattr(triangulation, "ORIENTATION_CHUNK", orientation)
+        products = adjust_products(project, options, RunOptions(blunders="snoop", point_precision=point_precision))
+        assert products.result.converged
+        files[precision] = products.files
+    for name in ("photos.csv", "points.csv", "residuals.csv"):
+        assert files[7][name] == files[1_000_000][name], name

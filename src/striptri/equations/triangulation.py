@@ -246,7 +246,8 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
         # determined when the rays and the given coordinates (held or weighted) are at least three
         n_obs = 2 * k + weighted[sel_k].sum(axis=1)
         sel_k = sel_k[(2 * k + given_mask[sel_k].sum(axis=1) >= 3) & ((~fixed[sel_k]).sum(axis=1) <= n_obs)]
-        tasks += [(int(k), sel_k[first: first + POINT_CHUNK]) for first in range(0, len(sel_k), POINT_CHUNK)]
+        step = ORIENTATION_CHUNK if with_orientation else POINT_CHUNK
+        tasks += [(int(k), sel_k[first: first + step]) for first in range(0, len(sel_k), step)]
 
     def chunk(task):  # chunks of points (memory bounded), on the chunk threads (parallel.map_ordered)
         k, sel = task
@@ -340,6 +341,10 @@ def far_weaker_than_the_rest(cov_measurement: np.ndarray, determined: np.ndarray
 
 
 POINT_CHUNK = 4096  # points triangulated at once (as AdjustmentOptions.chunk_size groups)
+# ... with the orientation part, whose G Qxx G^T gathers blocks of Qxx for every point: on the
+# 5,000-photo block of bench_scale the traced peak of the point precision fell from 125-156 to 64 MiB
+# with 1,024 points at once instead of 4,096, for 3 % more time
+ORIENTATION_CHUNK = 1024
 SINGULAR_RCOND = 1e-14  # a point's 3x3 normal matrix whose eigenvalues span more than 1e14 is singular
 CONVERGED = 1e-12  # the iteration of a batch of points ends when every step is below this times the point's size
 

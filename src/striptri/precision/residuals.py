@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..equations.linearise import At, Sweep
+from ..equations.linearise import At, Sweep, precision_options
 from . import collinearity_form
 from ..equations.observations import observations_of
 from ..core.options import AdjustmentOptions
@@ -134,7 +134,7 @@ def _conditions_cofactors(project: Project, result: AdjustmentResult, options: A
                                                     point_index=ip.point_index[rows], xy=ip.xy[rows],
                                                     sigma_xy=ip.sigma_xy[rows]))
         batches = [replace(b, image_rows=rows[b.image_rows]) for b in build_batches(own)]
-    sweep = Sweep(batches, At.of_result(result, obs), options, joint)
+    sweep = Sweep(batches, At.of_result(result, obs), precision_options(options), joint)
     cov = result.covariance
     q_plate = np.zeros_like(obs.plate)
     q_control = np.zeros_like(obs.control)
@@ -280,7 +280,7 @@ def joint_point_covariance(project: Project, result: AdjustmentResult, tri, opti
     form no group). Returns (n_points, 3, 3) cofactors (times sigma0^2 for covariances).
     """
     obs = observations_of(project, result.offset)
-    sweep = Sweep(build_batches(project), At.of_result(result, obs), options)
+    sweep = Sweep(build_batches(project), At.of_result(result, obs), precision_options(options))
     cov = result.covariance
     out = tri.cov_measurement + tri.cov_orientation
     state = result.state

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..equations.linearise import At, Sweep
+from ..equations.linearise import At, Sweep, precision_options
 from ..equations.observations import observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult
@@ -45,7 +45,7 @@ def plate_cofactor_blocks(project: Project, result: AdjustmentResult,
     group's residual cofactor matrix, coordinates ordered (x, y) per ray in chain order (plate
     units squared). The diagonal equals ``residual_cofactors(...).plate`` (tested)."""
     obs = observations_of(project, result.offset)
-    sweep = Sweep(build_batches(project), At.of_result(result, obs), options)
+    sweep = Sweep(build_batches(project), At.of_result(result, obs), precision_options(options))
     out = []
     for chunk, s in sweep.systems():
         m, k = chunk.image_rows.shape
