@@ -174,13 +174,22 @@ def _supernode_partition(struct: list[np.ndarray], parent: np.ndarray, sizes: np
     return np.array(first + [nb], dtype=int)
 
 
+def _ranges(starts: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """The ranges [starts[i], starts[i] + sizes[i]) one after the other, as one array."""
+    sizes = np.asarray(sizes, dtype=np.int64)
+    if not len(sizes):
+        return np.zeros(0, dtype=np.int64)
+    first = np.cumsum(sizes) - sizes  # where each range begins in the output
+    return np.repeat(np.asarray(starts, dtype=np.int64) - first, sizes) + np.arange(int(sizes.sum()))
+
+
 def _runs(local: np.ndarray) -> tuple:
     """Runs of consecutive entries of the sorted column offsets ``local``: (a, b, local[a]) for each
     stretch local[a:b] that counts up by one."""
     if local[-1] - local[0] + 1 == len(local):  # most often one run (and the test is cheap)
         return ((0, len(local), int(local[0])),)
     cut = np.flatnonzero(np.diff(local) != 1) + 1
-    firsts, ends = np.r_[0, cut], np.r_[cut, len(local)]
+    firsts, ends = np.concatenate(([0], cut)), np.concatenate((cut, [len(local)]))
     return tuple((int(a), int(b), int(local[a])) for a, b in zip(firsts, ends))
 
 
@@ -203,7 +212,7 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
     seq = seq[post]
     sizes = blocks.sizes[seq]
     bstart = np.concatenate([[0], np.cumsum(sizes)])
-    order = np.concatenate([np.arange(blocks.starts[b], blocks.starts[b] + blocks.sizes[b]) for b in seq])
+    order = _ranges(blocks.starts[seq], blocks.sizes[seq])
     sn_first = _supernode_partition(struct, parent, sizes, relaxed_columns, relaxed_zeros)
     sn_of_block = np.repeat(np.arange(len(sn_first) - 1), np.diff(sn_first))
     start = bstart[sn_first]
@@ -211,7 +220,7 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
     rows = []
     for p in range(count):
         bb = struct[sn_first[p + 1] - 1]  # rows below a supernode: those below its last block
-        below = np.concatenate([np.arange(bstart[b], bstart[b + 1]) for b in bb]) if len(bb) else np.zeros(0, int)
+        below = _ranges(bstart[bb], sizes[bb])
         rows.append(np.concatenate([np.arange(start[p], start[p + 1]), below]))
     targets = []
     for p in range(count):
@@ -220,7 +229,7 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
         tp = []
         if len(bb):
             sn = sn_of_block[bb]
-            cut = np.flatnonzero(np.r_[True, sn[1:] != sn[:-1], True])
+            cut = np.flatnonzero(np.concatenate(([True], sn[1:] != sn[:-1], [True])))
             scalar_cut = np.concatenate([[0], np.cumsum(sizes[bb])])
             for a, b in zip(cut[:-1], cut[1:]):
                 q = int(sn[a])
