@@ -22,7 +22,6 @@ from striptri.adjustment import (
     has_converged,
     largest_correction,
 )
-from striptri.core.convergence import energy_floor
 from striptri.io import read_project
 
 from cli_support import DATA
@@ -134,29 +133,6 @@ def test_prediction_takes_the_slower_of_two_rates():
     # stalled at the floor: converged only below it
     assert has_converged(h(1e-3, 4.5e-7, 4.3e-7), 1e-8, floor=2e-5)
     assert not has_converged(h(1e-3, 4.5e-7, 4.3e-7), 1e-8, floor=1e-7)
-
-
-def test_a_step_below_the_rounding_of_the_fit_has_converged():
-    """In the energy measure (correction_in_sigma, the simultaneous adjustments) c^2 is the decrease
-    of v^T P v a step brings: once it is below the rounding of v^T P v (eps v^T P v) the iteration can
-    no longer show that it improves the fit. The history of the 100,000-photo block of bench_scale
-    (v^T P v 2,970,201.57, so eps v^T P v = (2.6e-5)^2): converged at 3.56e-6 sd, where the predicted
-    next correction (2.6e-8) is above the tolerance and the floor rule waits for a stall (two more
-    iterations: 2.0e-7, 2.0e-7)."""
-    vtpv = 2970201.5746
-    h = lambda *c, v=vtpv: [Iteration(vtpv=v, max_correction=x, seconds=0.0) for x in c]  # noqa: E731
-    floor = energy_floor(600_000)
-    history = h(0.4355, 4.826e-4, 3.560e-6)
-    assert has_converged(history, 1e-8, floor, energy=True)
-    assert not has_converged(history, 1e-8, floor)  # the measure of one element: no such rule
-    assert not has_converged(h(15.9, 0.4355, 4.826e-4), 1e-8, floor, energy=True)  # (4.8e-4)^2 > eps v'Pv
-    # at the bound: c^2 on either side of eps v'Pv
-    bound = float(np.sqrt(np.finfo(float).eps * vtpv))
-    assert has_converged(h(1.0, 0.9 * bound), 1e-12, 0.0, energy=True)
-    assert not has_converged(h(1.0, 1.1 * bound), 1e-12, 0.0, energy=True)
-    # a fit of nothing (v'Pv 0, exact data) or not finite: the rule never applies
-    assert not has_converged(h(1.0, 1e-20, v=0.0), 1e-30, 0.0, energy=True)
-    assert not has_converged(h(1.0, 1e-20, v=float("nan")), 1e-30, 0.0, energy=True)
 
 
 def test_the_bundle_converges_on_the_long_strip_too(strips):

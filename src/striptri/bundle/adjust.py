@@ -402,10 +402,10 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     # a damped step is shortened: its small corrections alone do not show convergence, the undamped
     # Gauss-Newton correction from where it ended must be small too
     floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, round_off_floor(new.state, layout), d)
-    if has_converged(history, options.tolerance, floor, energy=True) and (lam_step == 0.0 or has_converged(
+    if has_converged(history, options.tolerance, floor) and (lam_step == 0.0 or has_converged(
             history[:-1] + [replace(history[-1], max_correction=_undamped_correction(problem, solver, new.state,
                                                                                      new.xyz))],
-            options.tolerance, floor, energy=True)):
+            options.tolerance, floor)):
         return (new, "converged"), normals
     if options.bundle.cost_tolerance > 0 and 0 <= actual <= options.bundle.cost_tolerance * ee:
         return (new, "cost_flat"), normals

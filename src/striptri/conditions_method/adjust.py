@@ -332,7 +332,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
                 raise NumericalFailure(termination.became_singular(METHOD, history, problem.redundancy, causes),
                                        reason="diverged") from exc
             stop_if_diverging(history, METHOD, problem.redundancy, causes)
-            if has_converged(history, options.tolerance, floor, energy=True):
+            if has_converged(history, options.tolerance, floor):
                 converged = True
                 break
             solver.release()  # not held while the next iteration assembles (nor past the last one)

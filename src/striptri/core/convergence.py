@@ -92,13 +92,11 @@ def energy_floor(n_unknowns: int, element_floor: np.ndarray | None = None, n_dia
     return floor
 
 
-OBJECTIVE_ROUNDING = float(np.finfo(float).eps)  # a relative decrease of v^T P v below this is round-off
 CONTRACTION_MAX = 0.5  # the rate below which the next correction is predicted from the last two
 STALLED = 0.5  # a correction below the round-off floor that shrinks by less than this factor has stalled
 
 
-def has_converged(history: list[Iteration], tolerance: float, floor: float = ROUNDING_FLOOR,
-                  energy: bool = False) -> bool:
+def has_converged(history: list[Iteration], tolerance: float, floor: float = ROUNDING_FLOOR) -> bool:
     """The stated criterion: the last correction is below ``tolerance`` (in the history's measure:
     standard deviations); or the correction the next iteration would make, predicted as the last
     one times the slower of the last two rates of contraction (``c_k max(c_k / c_(k-1),
@@ -111,18 +109,9 @@ def has_converged(history: list[Iteration], tolerance: float, floor: float = ROU
     The slower of two rates, not the last one alone: Gauss-Newton contracts quadratically at first
     and linearly near a solution with residuals (measured: a strip with GNSS centres and no
     control went 2.2 -> 2.8e-5 -> 1.2e-7 -> 1.4e-9 sd, where the last rate alone predicted 4e-10
-    after 2.8e-5).
-
-    energy: the history's measure is :func:`correction_in_sigma` (the simultaneous adjustments), whose
-    square is the decrease of v^T P v the step brings. Then a step that lowers v^T P v by less than
-    its rounding, ``c^2 < eps v^T P v``, has converged too: the iteration can no longer show that it
-    improves the fit (docs/decisions.md "Converged when the fit cannot improve"). On the
-    100,000-photo block the corrections went 4.8e-4, 3.6e-6, 2.0e-7, 2.0e-7 sd against an
-    ``eps v^T P v`` of (2.6e-5)^2: the last two iterations were round-off."""
+    after 2.8e-5)."""
     c = history[-1].max_correction
     if c < tolerance:
-        return True
-    if energy and c * c < OBJECTIVE_ROUNDING * history[-1].vtpv:
         return True
     if len(history) < 2:
         return False
