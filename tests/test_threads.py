@@ -272,3 +272,55 @@ def test_the_precision_passes_give_the_same_numbers_in_smaller_chunks(monkeypatc
         files[precision] = products.files
     for name in ("photos.csv", "points.csv", "residuals.csv"):
         assert files[7][name] == files[1_000_000][name], name
+
+
+ARENA_SCRIPT = """
+import ctypes, sys, threading
+if sys.argv[1] == "one":
+    from striptri._entry import one_malloc_arena
+    assert one_malloc_arena()
+import numpy as np
+keep = []
+def work():
+    for _ in range(200):
+        keep.append(np.ones(5000))  # 40 kB: below glibc's mmap threshold, from the thread's arena
+threads = [threading.Thread(target=work) for _ in range(3)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+ctypes.CDLL("libc.so.6").malloc_stats()  # one "Arena i:" block per arena, on stderr
+"""
+
+
+def test_the_command_keeps_its_threads_in_one_malloc_arena(tmp_path):
+    """_entry.one_malloc_arena (called by the console script before anything starts a thread): three
+    threads that allocate arrays below the mmap threshold share the main arena, where by default
+    each takes one of its own (4 arenas); a MALLOC_ARENA_MAX of the user is left alone."""
+    import subprocess
+    import sys
+
+    if not _glibc():
+        pytest.skip("glibc's mallopt and malloc_stats are needed")
+    script = tmp_path / "arenas.py"
+    script.write_text(ARENA_SCRIPT)
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_ARENA_MAX"}
+
+    def arenas(mode: str, extra: dict | None = None) -> int:
+        proc = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=120,
+                              env={**env, **(extra or {})})
+        assert proc.returncode == 0, proc.stderr
+        return sum(line.startswith("Arena ") for line in proc.stderr.splitlines())
+
+    assert arenas("default") == 4  # the main arena and one per thread: the test tells them apart
+    assert arenas("one") == 1
+    user = subprocess.run([sys.executable, "-c", "from striptri._entry import one_malloc_arena; "
+                           "print(one_malloc_arena())"], capture_output=True, text=True, timeout=60,
+                          env={**env, "MALLOC_ARENA_MAX": "4"})
+    assert user.stdout.strip() == "False"
+
+
+def _glibc() -> bool:
+    import platform
+
+    return platform.libc_ver()[0] == "glibc"

@@ -20,6 +20,7 @@ def main() -> None:
     # command's own handling into "Aborted!" and exit status 1
     for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
         signal.signal(sig, _raise_interrupted)
+    one_malloc_arena()  # before any thread (OpenBLAS's start with numpy)
     try:
         from striptri.cli import main as command
     except KeyboardInterrupt:
@@ -32,6 +33,28 @@ def main() -> None:
         _stop(signal.SIGINT, starting=False)
     except Interrupted as exc:
         _stop(exc.signum, starting=False)
+
+
+M_ARENA_MAX = -8  # glibc's mallopt parameter (malloc.h)
+
+
+def one_malloc_arena() -> bool:
+    """The C heap of this process in one arena (glibc's ``mallopt(M_ARENA_MAX, 1)``): the threads of
+    a sweep then allocate from the main arena instead of each from its own, where what a chunk
+    frees stays resident for the peak until the next trim (docs/decisions.md "One malloc arena for
+    the command"). For the command's own process, before its first thread; a MALLOC_ARENA_MAX in
+    the environment is the user's choice and is left alone. True when set (glibc), else False."""
+    import os
+
+    if os.environ.get("MALLOC_ARENA_MAX"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(ctypes.c_int(M_ARENA_MAX), ctypes.c_int(1)))
+    except (OSError, AttributeError):  # not glibc
+        return False
 
 
 def _stop(signum: int, starting: bool = True) -> None:
