@@ -191,8 +191,6 @@ def precision_options(options):
     more than the assembly does (M^-1, K, the blocks of Qxx gathered for G Qxx G^T). On the
     5,000-photo block of bench_scale half the assembly's 2,048 groups took the residual cofactors'
     traced peak from 115 to 69 MiB in the same time (0.50 s); a quarter, to 40 MiB in 3 % more."""
-    from dataclasses import replace
-
     return replace(options, chunk_size=min(options.chunk_size, PRECISION_CHUNK))
 
 

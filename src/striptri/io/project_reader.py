@@ -192,9 +192,9 @@ def _read(files, plate_measurements_optional: bool = False) -> model.Project:
 # pages of the parse resident for the whole run (240 MB of a 20,000-photo block's 600,000 plate
 # measurements, 50 MB of a 5,000-photo block's). So they are copied out as one text per list, the
 # project's strings freed with the parse's, and made again from those texts, on pages of their own
-# (docs/decisions.md "The ids made again after reading").
+# (docs/decisions.md "Memory the parse and the formatting left behind").
 _ID_LISTS = (("cameras", "ids"), ("photos", "ids"), ("photos", "strip_ids"), ("points", "ids"))
-_ID_SEPARATOR = "\0"  # no id holds it: the CSV parser refuses NUL characters
+_ID_SEPARATOR = "\0"  # a list whose ids hold it (a NUL in the CSV file) is kept as it is
 
 
 def _without_ids(project: model.Project) -> tuple[model.Project, list]:
