@@ -234,11 +234,20 @@ class BlockStore:
     def __init__(self):
         self._tables: dict = {}
         self._lock = threading.Lock()  # the chunks of a sweep read it from several threads
+        self._tags: dict = {}  # id(columns) -> (columns, tag): the arrays seen, each hashed once
 
-    @staticmethod
-    def _tag(columns: np.ndarray):
+    def _tag(self, columns: np.ndarray):
+        """The contents of a ``columns`` array as a key, hashed once per array object: every chunk of
+        a sweep passes the layout's same (n_photos, 6) photo columns, whose hash over all photos in
+        every chunk grew the sweeps like n^2 (4.8 MB per call at 100,000 photos, 780 chunks of the
+        point precision)."""
+        seen = self._tags.get(id(columns))
+        if seen is not None and seen[0] is columns:
+            return seen[1]
         c = np.ascontiguousarray(columns)
-        return c.shape, hash(c.tobytes())
+        tag = c.shape, hash(c.tobytes())
+        self._tags[id(columns)] = (columns, tag)
+        return tag
 
     def blocks(self, entries, Pa: Slots, Pb: Slots, same: bool):
         """(table (u, wa, wb), index (m, sa, sb) into it, swap (m, sa, sb) or None) for the set pairs
