@@ -281,9 +281,11 @@ if sys.argv[1] == "one":
     assert one_malloc_arena()
 import numpy as np
 keep = []
+together = threading.Barrier(3)  # all three alive at once: an ended thread's arena is reused
 def work():
     for _ in range(200):
         keep.append(np.ones(5000))  # 40 kB: below glibc's mmap threshold, from the thread's arena
+    together.wait()
 threads = [threading.Thread(target=work) for _ in range(3)]
 for t in threads:
     t.start()
@@ -296,7 +298,8 @@ ctypes.CDLL("libc.so.6").malloc_stats()  # one "Arena i:" block per arena, on st
 def test_the_command_keeps_its_threads_in_one_malloc_arena(tmp_path):
     """_entry.one_malloc_arena (called by the console script before anything starts a thread): three
     threads that allocate arrays below the mmap threshold share the main arena, where by default
-    each takes one of its own (4 arenas); a MALLOC_ARENA_MAX of the user is left alone."""
+    each takes one of its own (4 arenas while all three live); a MALLOC_ARENA_MAX of the user is left
+    alone."""
     import subprocess
     import sys
 
@@ -312,7 +315,7 @@ def test_the_command_keeps_its_threads_in_one_malloc_arena(tmp_path):
         assert proc.returncode == 0, proc.stderr
         return sum(line.startswith("Arena ") for line in proc.stderr.splitlines())
 
-    assert arenas("default") == 4  # the main arena and one per thread: the test tells them apart
+    assert arenas("default") > 1  # the main arena and one per thread (4 here): the test tells them apart
     assert arenas("one") == 1
     user = subprocess.run([sys.executable, "-c", "from striptri._entry import one_malloc_arena; "
                            "print(one_malloc_arena())"], capture_output=True, text=True, timeout=60,
