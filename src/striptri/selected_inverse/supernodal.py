@@ -16,6 +16,7 @@ from scipy.linalg import blas, lapack
 
 from ..solvers import SingularNormalMatrix, Structure
 from ..solvers.base import check_pivots
+from ..solvers.blocks import ranges
 from ..solvers.sparse_cholesky import cholmod_module
 from .engine import Engine
 from .symbolic import symbolic
@@ -93,7 +94,7 @@ class SupernodalInverse(Engine):
             a, b = sym.start[p], sym.start[p + 1]
             cols = columns[a:b]
             first, count = M.indptr[cols], M.indptr[cols + 1] - M.indptr[cols]
-            idx = np.repeat(first - np.concatenate([[0], np.cumsum(count)[:-1]]), count) + np.arange(count.sum())
+            idx = ranges(first, count)
             r = M.indices[idx] if row_position is None else row_position[M.indices[idx]]
             c = np.repeat(np.arange(b - a), count)
             keep = r >= a

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..solvers import Structure
-from ..solvers.blocks import Blocks, partition
+from ..solvers.blocks import Blocks, partition, ranges
 from ..solvers.direct import block_order
 from ..solvers.sparse_cholesky import cholmod_available, cholmod_module
 
@@ -174,15 +174,6 @@ def _supernode_partition(struct: list[np.ndarray], parent: np.ndarray, sizes: np
     return np.array(first + [nb], dtype=int)
 
 
-def _ranges(starts: np.ndarray, sizes: np.ndarray) -> np.ndarray:
-    """The ranges [starts[i], starts[i] + sizes[i]) one after the other, as one array."""
-    sizes = np.asarray(sizes, dtype=np.int64)
-    if not len(sizes):
-        return np.zeros(0, dtype=np.int64)
-    first = np.cumsum(sizes) - sizes  # where each range begins in the output
-    return np.repeat(np.asarray(starts, dtype=np.int64) - first, sizes) + np.arange(int(sizes.sum()))
-
-
 def _runs(local: np.ndarray) -> tuple:
     """Runs of consecutive entries of the sorted column offsets ``local``: (a, b, local[a]) for each
     stretch local[a:b] that counts up by one."""
@@ -212,7 +203,7 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
     seq = seq[post]
     sizes = blocks.sizes[seq]
     bstart = np.concatenate([[0], np.cumsum(sizes)])
-    order = _ranges(blocks.starts[seq], blocks.sizes[seq])
+    order = ranges(blocks.starts[seq], blocks.sizes[seq])
     sn_first = _supernode_partition(struct, parent, sizes, relaxed_columns, relaxed_zeros)
     sn_of_block = np.repeat(np.arange(len(sn_first) - 1), np.diff(sn_first))
     start = bstart[sn_first]
@@ -220,7 +211,7 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
     rows = []
     for p in range(count):
         bb = struct[sn_first[p + 1] - 1]  # rows below a supernode: those below its last block
-        below = _ranges(bstart[bb], sizes[bb])
+        below = ranges(bstart[bb], sizes[bb])
         rows.append(np.concatenate([np.arange(start[p], start[p + 1]), below]))
     targets = []
     for p in range(count):

@@ -30,6 +30,16 @@ class Blocks:
         return int(self.sizes.max()) if len(self.sizes) else 0
 
 
+def ranges(starts: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """The ranges [starts[i], starts[i] + sizes[i]) one after the other, as one int64 array (the
+    columns of blocks taken in some order, the entries of some rows of a CSR matrix)."""
+    sizes = np.asarray(sizes, dtype=np.int64)
+    if not len(sizes):
+        return np.zeros(0, dtype=np.int64)
+    first = np.cumsum(sizes) - sizes  # where each range begins in the output
+    return np.repeat(np.asarray(starts, dtype=np.int64) - first, sizes) + np.arange(int(sizes.sum()))
+
+
 def partition(structure: Structure, n: int) -> Blocks:
     """Blocks from ``structure.block_starts`` (photos, then cameras); consecutive blocks of 6
     columns when the structure gives none or does not fit a matrix of size n."""

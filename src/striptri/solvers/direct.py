@@ -9,7 +9,7 @@ import scipy.sparse.linalg as spla
 from scipy.linalg import lapack
 
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, check_pivots, jacobi_scaled
-from .blocks import Blocks, partition
+from .blocks import Blocks, partition, ranges
 from .info import SolverInfo
 
 
@@ -109,9 +109,7 @@ def block_order(graph: sp.csr_matrix, blocks: Blocks) -> np.ndarray:
     surrogate = (surrogate + sp.diags(degree + 1.0)).tocsc()
     lu = spla.splu(surrogate, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     block_sequence = np.argsort(lu.perm_c)
-    sizes = blocks.sizes[block_sequence]
-    offsets = np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
-    return np.repeat(blocks.starts[block_sequence], sizes) + offsets
+    return ranges(blocks.starts[block_sequence], blocks.sizes[block_sequence])
 
 
 def inverse(N) -> np.ndarray:
