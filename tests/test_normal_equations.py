@@ -287,16 +287,19 @@ def test_bundle_reductions_on_the_bundle_cases(monkeypatch, name, path):
     _assert_same_normals(fast, general)
 
 
-def _conditions_normals(monkeypatch, project, full_product_rays, chunk_size=5):
+def _conditions_normals(monkeypatch, project, full_product_rays, chunk_size=5, compact_rays=10**9):
     """The method of conditions' N, u, wPw, ug, gPg at the approximations, with groups of
-    full_product_rays rays or more taking the whole products (normal_equations.add_groups); returns
-    the accumulator and, per chunk, whether it summed its camera columns (and so has camera-summed
-    scatters: one photo-camera block per ray)."""
+    full_product_rays rays or more taking the whole products (normal_equations.add_groups) and
+    groups of compact_rays rays or more their products ray by ray (ray_columns; by default none);
+    returns the accumulator and, per chunk, whether it summed its camera columns (and so has
+    camera-summed scatters: one photo-camera block per ray)."""
     from striptri.equations import normal_equations as ne
+    from striptri.equations import ray_columns
     from striptri.conditions_method.adjust import _Problem
     from striptri.core.options import AdjustmentOptions
 
     monkeypatch.setattr(ne, "FULL_PRODUCT_RAYS", full_product_rays)
+    monkeypatch.setattr(ray_columns, "COMPACT_RAYS", compact_rays)
     problem = _Problem(project, AdjustmentOptions(method="conditions", chunk_size=chunk_size))
     cam = problem.initial_state.camera_of_photo
     chunks = [c.photo_index for b in problem.batches for c in b.chunks(chunk_size)]
@@ -307,12 +310,15 @@ def _conditions_normals(monkeypatch, project, full_product_rays, chunk_size=5):
     return problem.assemble(sweep, 1), summed
 
 
+@pytest.mark.parametrize("by_ray", [False, True])
 @pytest.mark.parametrize("cameras", ["one", "two"])
-def test_conditions_long_one_camera_tracks_equal_the_ray_pair_products(monkeypatch, tmp_path, cameras):
+def test_conditions_long_one_camera_tracks_equal_the_ray_pair_products(monkeypatch, tmp_path, cameras, by_ray):
     """The method of conditions on a close-range project (long tracks, self-calibration): groups
     whose rays all see one camera, their camera columns summed and scattered once per ray and once
     per group (BlockPattern.scatters with camera_summed), and groups of two cameras (the whole
-    product, ray-pair scatters), give N, u, wPw, ug and gPg of the ray-pair products to round-off."""
+    product, ray-pair scatters), give N, u, wPw, ug and gPg of the ray-pair products to round-off.
+    by_ray: the whitening and the one-camera products formed ray by ray from the compact B
+    (ray_columns, as ``B^T M^-1 B``), against the dense ``B~^T B~`` of the reference."""
     import sys
     from pathlib import Path
 
@@ -327,7 +333,14 @@ def test_conditions_long_one_camera_tracks_equal_the_ray_pair_products(monkeypat
     general, general_summed = _conditions_normals(monkeypatch, project, 10**9)
     assert general.pattern.with_cameras and len(general.pattern.cc) > 0  # the cameras are estimated
     assert not any(general_summed)
-    long, summed = _conditions_normals(monkeypatch, project, 2)  # every group takes the whole product
+    from striptri.equations import normal_equations as ne
+
+    taken = []  # the chunks whose products were formed ray by ray
+    by_ray_products = ne._blocks_by_ray
+    monkeypatch.setattr(ne, "_blocks_by_ray", lambda *a: taken.append(1) or by_ray_products(*a))
+    # every group takes the whole product (and, by_ray, its products ray by ray)
+    long, summed = _conditions_normals(monkeypatch, project, 2, compact_rays=2 if by_ray else 10**9)
+    assert bool(taken) == (by_ray and cameras == "one")  # two cameras per track: the dense products
     assert all(summed) if cameras == "one" else not any(summed)
     scale = abs(general.N).max()
     np.testing.assert_allclose(long.N.toarray(), general.N.toarray(), rtol=0, atol=1e-12 * scale)

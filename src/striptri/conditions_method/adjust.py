@@ -76,13 +76,14 @@ def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assem
     acc.max_misclosure = 0.0
     cam_of_photo = sweep.state.camera_of_photo
 
-    def products(chunk, system):  # in the chunk's thread: whitened, and its products for N and u
-        Bw, ww, gw, _, *Gt = whiten(system, residual_map=keep)
-        kept = _WhitenedChunk(chunk, Bw, ww, system.cols, Gt[0]) if keep else None
-        return kept, group_products(assembly.pattern, Bw, ww, gw, chunk.photo_index,
-                                    cam_of_photo[chunk.photo_index])
+    def products(chunk, system, scatters):  # in the chunk's thread: whitened, its products for N and u
+        white = whiten(system, residual_map=keep)
+        kept = _WhitenedChunk(chunk, white.Bw, white.ww, system.cols, white.Gt) if keep else None
+        return kept, group_products(assembly.pattern, white.Bw, white.ww, white.gw, chunk.photo_index,
+                                    cam_of_photo[chunk.photo_index], white, scatters)
 
-    for (chunk, system, (kept, made)), scatters in zip(sweep.systems(products), assembly.scatters):
+    for (chunk, system, (kept, made)), scatters in zip(sweep.systems(products, assembly.scatters),
+                                                       assembly.scatters):
         if keep:
             acc.kept.append(kept)
         acc.add_products(made, scatters)

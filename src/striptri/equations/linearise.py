@@ -31,16 +31,31 @@ from . import weights
 @dataclass
 class GroupSystem:
     """Linearised groups of one chunk. A: (m, nc, no), B: (m, nc, nu), cols: (m, nu) global columns
-    (-1 = fixed), w: (m, nc), Q: (m, no), l, l_hat: (m, no) original and current observations."""
+    (-1 = fixed), w: (m, nc), Q: (m, no), l, l_hat: (m, no) original and current observations.
+
+    B is held in the compact form of the conditions where they have one (``per_ray`` (m, nc, t,
+    nu / k): each condition's derivatives for its t rays ``rays`` (nc, t); conditions module doc)
+    and spread over all k rays when first read; ``per_ray`` and ``rays`` are None otherwise.
+    Products by ray (ray_columns) read the compact form."""
 
     A: np.ndarray
-    B: np.ndarray
+    dense_B: np.ndarray | None
     cols: np.ndarray
     w: np.ndarray
     Q: np.ndarray
     l: np.ndarray
     l_hat: np.ndarray
     g: np.ndarray
+    per_ray: np.ndarray | None = None
+    rays: np.ndarray | None = None
+
+    @property
+    def B(self) -> np.ndarray:
+        if self.dense_B is None:
+            m, nc = self.g.shape
+            self.dense_B = expanded(self.per_ray, self.rays, self.cols.shape[1] // self.per_ray.shape[3]).reshape(
+                m, nc, self.cols.shape[1])
+        return self.dense_B
 
 
 def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_hat):
@@ -150,22 +165,29 @@ def linearise(batch: GroupBatch, at: At, scale_form: str = "3d", transform=None)
         A_parts.append(lin.d_control)
     A = np.concatenate(A_parts, 2)
 
-    B, cols = unknown_blocks(lin, batch, state, layout, rotation_maps)
+    per_ray, cols = unknown_blocks(lin, batch, state, layout, rotation_maps, compact=True)
 
     g = lin.g
     scale = weights.inverse_sigma(np.matmul(A * A, Q[..., None])[..., 0])  # 1 / sigma of each condition
-    A, B, g = A * scale[..., None], B * scale[..., None], g * scale
-    if transform is not None:
+    A, per_ray, g = A * scale[..., None], per_ray * scale[..., None, None], g * scale
+    rays = lin.rays
+    if transform is not None:  # recombined conditions are no longer compact
+        B = expanded(per_ray, rays, k).reshape(m, nc, cols.shape[1])
         Tg = transform(batch)
-        A, B, g = Tg @ A, Tg @ B, np.einsum("mab,mb->ma", Tg, g)
+        A, per_ray, rays, g = Tg @ A, (Tg @ B).reshape(m, nc, k, -1), None, np.einsum("mab,mb->ma", Tg, g)
     w = g + np.einsum("mco,mo->mc", A, l - l_hat)
-    return GroupSystem(A=A, B=B, cols=cols, w=w, Q=Q, l=l, l_hat=l_hat, g=g)
+    if rays is None:
+        return GroupSystem(A=A, dense_B=per_ray.reshape(m, nc, cols.shape[1]), cols=cols, w=w, Q=Q, l=l,
+                           l_hat=l_hat, g=g)
+    return GroupSystem(A=A, dense_B=None, cols=cols, w=w, Q=Q, l=l, l_hat=l_hat, g=g, per_ray=per_ray, rays=rays)
 
 
-def unknown_blocks(lin, batch: GroupBatch, state: State, layout: UnknownLayout, rotation_maps: np.ndarray):
+def unknown_blocks(lin, batch: GroupBatch, state: State, layout: UnknownLayout, rotation_maps: np.ndarray,
+                   compact: bool = False):
     """B (m, nc, k (6 + camera_width)) and its global columns (m, k (6 + camera_width)), -1 fixed:
     per ray its photo's centre and rotation unknowns, then its camera's estimated elements, from
-    the primitive derivatives lin (conditions.Linearised, nc rows, either form) of a chunk."""
+    the primitive derivatives lin (conditions.Linearised, nc rows, either form) of a chunk.
+    compact: B as (m, nc, t or k, 6 + camera_width), in lin's form (for lin.rays, or all k rays)."""
     m, nc = lin.g.shape
     k = batch.k
     T = of_rays(rotation_maps[batch.photo_index], lin.rays)  # (m, nc, t, 3, 3) or (m, 1, k, 3, 3)
@@ -177,9 +199,11 @@ def unknown_blocks(lin, batch: GroupBatch, state: State, layout: UnknownLayout, 
         elements = layout.camera_elements
         B_parts.append(lin.d_interior[..., elements])
         col_parts.append(layout.camera_cols[cam][..., elements])
-    B = expanded(np.concatenate(B_parts, 3), lin.rays, k).reshape(m, nc, width * k)
+    per_ray = np.concatenate(B_parts, 3)
     cols = np.concatenate(col_parts, 2).reshape(m, width * k)
-    return B, cols
+    if compact:
+        return per_ray, cols
+    return expanded(per_ray, lin.rays, k).reshape(m, nc, width * k), cols
 
 
 PRECISION_CHUNK = 1024  # groups at once in the precision passes (precision_options)
@@ -219,20 +243,25 @@ class Sweep:
         self.seconds += time.perf_counter() - t0
         return out
 
-    def systems(self, then=None):
+    def systems(self, then=None, alongside=None):
         """(chunk, system) of every chunk in turn, or (chunk, system, then(chunk, system)): then is
         work on each chunk done in the same thread (the whitening of the assembly, the residual
-        cofactors); it must not change shared state. The chunks are
+        cofactors); it must not change shared state. alongside: one value per chunk, in the
+        chunks' order, given to then as a third argument (the assembly's scatters). The chunks are
         linearised on solvers.threads.chunk_threads threads ahead of the caller
         (parallel.map_ordered); :attr:`seconds` counts the time the caller waited for them (with one
         thread, the time of the linearisation and of then)."""
         scale_form, transform = self.options.conditions.scale_form, self.options.conditions.condition_transform
 
-        def work(chunk):
+        def work(item):
+            chunk, extra = item
             system = linearise(chunk, self.at, scale_form, transform)
-            return (chunk, system) if then is None else (chunk, system, then(chunk, system))
+            if then is None:
+                return chunk, system
+            return chunk, system, (then(chunk, system) if alongside is None else then(chunk, system, extra))
 
         chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
+        chunks = zip(chunks, alongside) if alongside is not None else ((chunk, None) for chunk in chunks)
         done = map_ordered(work, chunks, chunk_threads(sweep_size(self.batches)))
         try:
             while True:

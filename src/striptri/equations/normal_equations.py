@@ -15,27 +15,45 @@ import scipy.sparse as sp
 
 from ..geometry.lens import NCP
 from .linearise import GroupSystem
+from .ray_columns import RayColumns, of_system as by_ray_of
 from . import weights
 
 
-def whiten(system: GroupSystem, residual_map: bool = False):
-    """L^-1 B, L^-1 w, L^-1 g and L for each group (M = A Q A^T = L L^T), and with residual_map
+class Whitened(NamedTuple):
+    """A chunk of whitened groups (whiten): Bw = L^-1 B (m, nc, nu), ww = L^-1 w and gw = L^-1 g
+    (m, nc), L^-1 (m, nc, nc) (M = A Q A^T = L L^T), Gt = L^-1 A Q (m, nc, no) or None, and B by
+    ray (ray_columns.RayColumns) for the chunks of long tracks, else None."""
+
+    Bw: np.ndarray
+    ww: np.ndarray
+    gw: np.ndarray
+    Linv: np.ndarray
+    Gt: np.ndarray | None
+    by_ray: RayColumns | None
+
+
+def whiten(system: GroupSystem, residual_map: bool = False) -> Whitened:
+    """L^-1 B, L^-1 w, L^-1 g and L^-1 for each group (M = A Q A^T = L L^T), and with residual_map
     also ``L^-1 A Q`` (m, nc, no): the map from the whitened ``t = L^-1 (w + B dx)`` to the
     residuals, ``v = Q A^T k = -(L^-1 A Q)^T t``, so that the back substitution needs no second
-    linearisation. Batched: one triangular factorisation and one solve with all right-hand sides."""
+    linearisation. Batched: one triangular factorisation and one solve with all right-hand sides.
+    For long tracks L^-1 B is formed ray by ray from B's compact form (ray_columns)."""
     AQ = system.A * system.Q[:, None, :]
     M = np.matmul(AQ, np.swapaxes(system.A, 1, 2))
     L = np.linalg.cholesky(M)
-    nu, no = system.B.shape[-1], AQ.shape[-1]
-    rhs = [system.B, system.w[..., None], system.g[..., None]] + ([AQ] if residual_map else [])
+    m, nc = system.g.shape
+    nu, no = system.cols.shape[-1], AQ.shape[-1]
+    by_ray = by_ray_of(system)
+    rhs = [system.w[..., None], system.g[..., None]] + ([AQ] if residual_map else [])
     # L^-1 times all right-hand sides: the inverse of the small triangular L and one batched
     # product is three times faster than a batched LU solve (the conditions are scaled to unit
     # variance, so L is well conditioned)
-    solved = np.matmul(lower_inverse(L), np.concatenate(rhs, axis=-1))
-    Bw, ww, gw = solved[..., :nu], solved[..., nu], solved[..., nu + 1]
-    if residual_map:
-        return Bw, ww, gw, L, solved[..., nu + 2 : nu + 2 + no]
-    return Bw, ww, gw, L
+    Linv = lower_inverse(L)
+    solved = np.matmul(Linv, np.concatenate(rhs, axis=-1))
+    ww, gw = solved[..., 0], solved[..., 1]
+    Gt = solved[..., 2 : 2 + no] if residual_map else None
+    Bw = np.matmul(Linv, system.B) if by_ray is None else by_ray.left(Linv).reshape(m, nc, nu)
+    return Whitened(Bw, ww, gw, Linv, Gt, by_ray)
 
 
 TRIANGULAR_BLOCK = 16  # lower_inverse: np.linalg.inv up to this size
@@ -131,9 +149,17 @@ class ChunkScatter:
     def add(self, target: np.ndarray, blocks: np.ndarray) -> None:
         """target (n_positions * r * s,) += the blocks (m, k, k, r, s) (block (a, b) of group m is
         blocks[m, a, b]) summed at their positions."""
+        self.add_sums(target, self.sums(blocks))
+
+    def sums(self, blocks: np.ndarray) -> np.ndarray:
+        """The blocks (m, k, k, r, s) summed by position (n_positions, r s): the part of add that
+        changes nothing shared (done in the chunk threads, group_products)."""
         size = blocks.shape[-2] * blocks.shape[-1]
-        sums = self.P @ np.ascontiguousarray(blocks).reshape(-1, size)
-        target.reshape(-1, size)[self.positions] += sums
+        return self.P @ np.ascontiguousarray(blocks).reshape(-1, size)
+
+    def add_sums(self, target: np.ndarray, sums: np.ndarray) -> None:
+        """target += sums (ChunkScatter.sums) at their positions."""
+        target.reshape(-1, sums.shape[1])[self.positions] += sums
 
     def add_pairs_by_ray(self, target: np.ndarray, blocks: np.ndarray) -> None:
         """The same for blocks laid out ray by ray, (m, k, r, k, s) (block (a, b) is
@@ -376,7 +402,9 @@ class GroupProducts(NamedTuple):
     the block pattern (PatternAccumulator.add_products): the ray-pair blocks B~_a^T B~_b of the
     photos (pp, (m, k, k, 6, 6)), of photos and cameras (pc) and of cameras (cc) (None when the
     cameras are held), B~^T [w~ g~] per full column (ug, (m, k width, 2)) with those columns
-    (full_cols), the sums w~^T w~ and g~^T g~, and the chunk's photos and cameras (m, k)."""
+    (full_cols), the sums w~^T w~ and g~^T g~, and the chunk's photos and cameras (m, k).
+    summed: pp, pc and cc are already summed by pattern position (ChunkScatter.sums of the
+    chunk's scatters, given to group_products)."""
 
     pp: np.ndarray
     pc: np.ndarray | None
@@ -388,20 +416,48 @@ class GroupProducts(NamedTuple):
     photo: np.ndarray
     cam: np.ndarray
     one_camera: bool
+    summed: bool = False
 
 
-def group_products(pat: BlockPattern, Bw, ww, gw, photo, cam) -> GroupProducts:
+def group_products(pat: BlockPattern, Bw, ww, gw, photo, cam, white: Whitened | None = None,
+                   scatters=None) -> GroupProducts:
     """The products of a chunk of whitened groups (GroupProducts; arguments as
     PatternAccumulator.add_groups). Changes nothing shared: the chunk threads of an assembly
-    (parallel.map_ordered) form them while the caller sums the chunks before."""
+    (parallel.map_ordered) form them while the caller sums the chunks before. white: the chunk's
+    Whitened (whiten), whose B by ray, where it has one, gives the blocks of long one-camera
+    tracks as ``B^T (M^-1 B)`` ray by ray (ray_columns) instead of the dense ``B~^T B~``.
+    scatters: the chunk's BlockPattern.scatters; the blocks are then summed by position here
+    (ChunkScatter.sums), in the chunk's thread, leaving the caller only their addition."""
+    made = _group_products(pat, Bw, ww, gw, photo, cam, white)
+    if scatters is None:
+        return made
+    _check_scatters(made, scatters)
+    sums = [None if b is None else sc.sums(b) for b, sc in zip((made.pp, made.pc, made.cc), scatters)]
+    return made._replace(pp=sums[0], pc=sums[1], cc=sums[2], summed=True)
+
+
+def _check_scatters(products: GroupProducts, scatters) -> None:
+    m, k = products.photo.shape
+    if products.one_camera and scatters[1].P.shape[1] != m * k:
+        raise ValueError("a chunk of long one-camera tracks needs BlockPattern.scatters with camera_summed")
+
+
+def _group_products(pat: BlockPattern, Bw, ww, gw, photo, cam, white: Whitened | None) -> GroupProducts:
     m, k = photo.shape
     wPw, gPg = float(np.sum(ww * ww)), float(np.sum(gw * gw))
     full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + w)
+    one_camera = sums_camera_columns(pat, cam)
+    if white is not None and white.by_ray is not None and (one_camera or not pat.with_cameras):
+        pp, pc, cc = _blocks_by_ray(white, pat.with_cameras)
+        if not pat.with_cameras:
+            Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
+            full_cols = full_cols[..., :6]
+        ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
+        return GroupProducts(pp, pc, cc, ug, full_cols.reshape(m, -1), wPw, gPg, photo, cam, one_camera)
     if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
         Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
         full_cols = full_cols[..., :6]
     width = full_cols.shape[-1]
-    one_camera = sums_camera_columns(pat, cam)
     pc = cc = None
     # the ray-pair blocks B~_a^T B~_b directly in pattern order (m, k, k, r, s): batched products
     # of the rays' column groups, no transposed copy of a (m, 6k, 6k) product
@@ -437,6 +493,23 @@ def group_products(pat: BlockPattern, Bw, ww, gw, photo, cam) -> GroupProducts:
     return GroupProducts(pp, pc, cc, ug, full_cols.reshape(m, k * width), wPw, gPg, photo, cam, one_camera)
 
 
+def _blocks_by_ray(white: Whitened, with_cameras: bool):
+    """The blocks pp (m, k, k, 6, 6), pc (m, k, 1, 6, w) and cc (m, 1, 1, w, w) (None without
+    cameras) of ``B^T M^-1 B`` of a chunk of long one-camera tracks (group_products' one-camera
+    layout: the camera columns summed over each group's rays), from B by ray (RayColumns.quadratic_blocks,
+    RayColumns.transposed); M^-1 = L^-T L^-1."""
+    rc = white.by_ray
+    Minv = np.matmul(np.swapaxes(white.Linv, 1, 2), white.Linv)
+    pp = rc.quadratic_blocks(Minv, 6)
+    if not with_cameras:
+        return pp, None, None
+    Bcam = rc.summed[..., 6:]  # (m, nc, w): the camera columns summed over the rays
+    Yc = np.matmul(Minv, Bcam)
+    pc = rc.transposed(Yc, 6)[:, :, None]  # (m, k, 1, 6, w)
+    cc = np.matmul(np.swapaxes(Bcam, 1, 2), Yc)[:, None, None]
+    return pp, pc, cc
+
+
 class PatternAccumulator:
     """Sums the whitened groups into the block pattern (module doc); the same outputs as
     NormalAccumulator (N, u, wPw, ug, gPg) once :meth:`finish` has been called."""
@@ -467,13 +540,13 @@ class PatternAccumulator:
         if scatters is None:
             scatters = pat.scatters(photo, cam, sums_camera_columns(pat, cam))
         scatter_pp, scatter_pc, scatter_cc = scatters
-        m, k = photo.shape
-        if products.one_camera and scatter_pc.P.shape[1] != m * k:
-            raise ValueError("a chunk of long one-camera tracks needs BlockPattern.scatters with camera_summed")
-        scatter_pp.add(self.pp, products.pp)
+        add = "add_sums" if products.summed else "add"
+        if not products.summed:
+            _check_scatters(products, scatters)
+        getattr(scatter_pp, add)(self.pp, products.pp)
         if products.pc is not None:
-            scatter_pc.add(self.pc, products.pc)
-            scatter_cc.add(self.cc, products.cc)
+            getattr(scatter_pc, add)(self.pc, products.pc)
+            getattr(scatter_cc, add)(self.cc, products.cc)
         cols = products.full_cols.ravel()
         self.u_full += np.bincount(cols, weights=products.ug[..., 0].ravel(), minlength=pat.n_full)
         self.ug_full += np.bincount(cols, weights=products.ug[..., 1].ravel(), minlength=pat.n_full)

@@ -32,7 +32,7 @@ from ..equations.joint_groups import JointGroups, has_distances, joint_intersect
 from ..model import Project
 from ..equations.parameter_observations import build_parameter_observations
 from ..equations.triangulation import ray_terms, safe_inverse
-from ..equations import weights
+from ..equations import ray_columns, weights
 from ..equations.point_precision import joint_form
 
 W_CRITICAL = 3.29  # two-sided, alpha0 = 0.001 (Baarda)
@@ -144,7 +144,7 @@ def _conditions_cofactors(project: Project, result: AdjustmentResult, options: A
         AQ = s.A * s.Q[:, None, :]  # (m, nc, no): A Q
         M = AQ @ np.swapaxes(s.A, 1, 2)
         Minv, bad = group_inverse(M, chunk)
-        K = Minv @ (M - cov.group_forms(group_slots(s.B, chunk, result))) @ Minv
+        K = Minv @ (M - cov.group_forms(group_slots(s.B, chunk, result, ray_columns.of_system(s)))) @ Minv
         KAQ = K @ AQ
         qvv = np.einsum("mco,mco->mo", KAQ, AQ)
         qvv[bad] = np.nan
@@ -234,14 +234,15 @@ class _JointChunk:
     point_index: np.ndarray
 
 
-def group_slots(G: np.ndarray, chunk, result: AdjustmentResult) -> list:
+def group_slots(G: np.ndarray, chunk, result: AdjustmentResult, by_ray=None) -> list:
     """covariance.Slots of derivatives G (m, r, k * width) with respect to the columns ``cols`` of a
-    chunk's GroupSystem (per ray: its photo's 6 columns, then its camera's estimated elements)."""
+    chunk's GroupSystem (per ray: its photo's 6 columns, then its camera's estimated elements);
+    by_ray: G grouped by ray (ray_columns.of_system of the chunk's system), where it has that form."""
     lay = result.layout
     m, k = chunk.photo_index.shape
     G = G.reshape(m, G.shape[1], k, 6 + lay.camera_width)
     camera = result.state.camera_of_photo[chunk.photo_index]
-    return ray_slots(G, chunk.photo_index, lay.photo_cols, camera, lay.camera_cols[:, lay.camera_elements])
+    return ray_slots(G, chunk.photo_index, lay.photo_cols, camera, lay.camera_cols[:, lay.camera_elements], by_ray)
 
 
 def group_inverse(M: np.ndarray, chunk) -> tuple[np.ndarray, np.ndarray]:

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..equations.linearise import At, Sweep, precision_options
+from ..equations import ray_columns
 from ..equations.observations import observations_of
 from ..core.options import AdjustmentOptions
 from ..core.result import AdjustmentResult
@@ -53,7 +54,7 @@ def plate_cofactor_blocks(project: Project, result: AdjustmentResult,
         AQfull = s.A * s.Q[:, None, :]
         M = AQfull @ np.swapaxes(s.A, 1, 2)
         Minv, bad = group_inverse(M, chunk)  # degenerate groups: untested, no block
-        K = Minv @ (M - result.covariance.group_forms(group_slots(s.B, chunk, result))) @ Minv
+        K = Minv @ (M - result.covariance.group_forms(group_slots(s.B, chunk, result, ray_columns.of_system(s)))) @ Minv
         good = ~bad
         if good.any():
             out.append((chunk.image_rows[good], np.swapaxes(AQ[good], 1, 2) @ K[good] @ AQ[good]))

@@ -116,22 +116,29 @@ class Slots:
 
     G: (m, r, s, w) the derivatives of r quantities of each group with respect to the w unknowns of
     each of its s sets; sets: (m, s) the row of ``columns`` that each set is; columns: (n_sets, w)
-    the columns of Qxx of every set (-1: a fixed element, which reads zero).
+    the columns of Qxx of every set (-1: a fixed element, which reads zero). by_ray: None, or G's
+    first w columns of each set grouped by set, as equations.ray_columns.RayColumns (an object with
+    ``groups(part)`` and ``quadratic(Q, w)``), which group_forms uses for ``G Q G^T`` of the slot
+    with itself.
     """
 
     G: np.ndarray
     sets: np.ndarray
     columns: np.ndarray
+    by_ray: object = None
 
 
 def ray_slots(G: np.ndarray, photo: np.ndarray, photo_cols: np.ndarray, camera: np.ndarray | None = None,
-              camera_cols: np.ndarray | None = None) -> list[Slots]:
+              camera_cols: np.ndarray | None = None, by_ray=None) -> list[Slots]:
     """Slots of groups of k rays: G (m, r, k, 6 + e) with respect to each ray's photo elements
     (``photo_cols[photo]``, (n_photos, 6)) and then the e estimated elements of its camera
     (``camera_cols[camera]``, (n_cameras, e)). When every group's rays share one camera (the usual
     case) the camera derivatives of its rays are added into one camera set; a camera part whose
-    elements are all fixed is left out."""
-    out = [Slots(G[..., :6], photo, photo_cols)]
+    elements are all fixed is left out.
+
+    by_ray: the same G grouped by ray (equations.ray_columns.RayColumns, its first 6 columns the
+    photo's), for long tracks: ``G Q G^T`` of the photo slots is then formed ray by ray."""
+    out = [Slots(G[..., :6], photo, photo_cols, by_ray)]
     if camera is None or camera_cols is None or not camera_cols.shape[1] or not (camera_cols >= 0).any():
         return out
     Gc = G[..., 6:]
@@ -179,6 +186,9 @@ def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: 
         for c0 in range(0, m, step):
             c1 = min(c0 + step, m)
             Q = _set_pair_block(table, index, swap, slice(c0, c1))
+            if a == b and Pa.by_ray is not None:  # few sets per row of G: ray by ray
+                out[c0:c1] += Pa.by_ray.groups(slice(c0, c1)).quadratic(Q, wa)
+                continue
             Ga = Pa.G[c0:c1].reshape(c1 - c0, r, sa * wa)
             Gb = Pb.G[c0:c1].reshape(c1 - c0, r, sb * wb)
             T = (Ga @ Q) @ np.swapaxes(Gb, 1, 2)
