@@ -100,3 +100,24 @@ def test_the_batches_of_a_project_are_built_once_and_cannot_be_changed():
     del other, rebuilt
     gc.collect()
     assert gone() is None
+
+
+@pytest.mark.parametrize("with_rays", [True, False])
+def test_the_separation_of_nearby_places_is_that_of_the_whole_matrix(with_rays):
+    """untangle_chains tests every chain on its pairs one or two places apart only, and forms the
+    whole (k, k) separation for the chains it rebuilds: the pairs' numbers are those entries of the
+    whole matrix, for rays and centres and for centres alone."""
+    rng = np.random.default_rng(3)
+    n_rows, n_photos, m, k = 200, 40, 30, 7
+    photo_index = rng.integers(0, n_photos, n_rows)
+    xyz0 = rng.normal(0, 100, (n_photos, 3))
+    rays = rng.normal(size=(n_rows, 3)) if with_rays else None
+    if rays is not None:
+        rays /= np.linalg.norm(rays, axis=1)[:, None]
+    rows = np.stack([rng.choice(n_rows, k, replace=False) for _ in range(m)])
+    whole = G._separation(rows, photo_index, xyz0, 25.0, rays)
+    first, second = G._nearby_places(k)
+    assert sorted(zip(first.tolist(), second.tolist())) == [(a, b) for a in range(k) for b in range(a + 1, min(a + 3, k))]
+    pairs = G._separation(rows, photo_index, xyz0, 25.0, rays, (first, second))
+    np.testing.assert_allclose(pairs, whole[:, first, second], rtol=1e-14, atol=0)
+    np.testing.assert_array_equal(G._near(whole, 1.0), (pairs < 1.0).any(axis=1))

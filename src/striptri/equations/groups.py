@@ -177,31 +177,40 @@ def _typical_base(project: Project) -> float:
     return float(np.median(np.linalg.norm(np.diff(xyz0, axis=0), axis=1)))
 
 
-def _separation(rows, photo_index, xyz0, reference_base, rays) -> np.ndarray | None:
+def _separation(rows, photo_index, xyz0, reference_base, rays, places=None) -> np.ndarray | None:
     """(m, k, k) separation of the chains' photos in units of "too close" (below 1 is degenerate):
     the smaller of the rays' angle over MIN_RAY_ANGLE and the centres' distance over SHORT_BASE
-    times the typical base, of those available (module doc); None when neither is."""
+    times the typical base, of those available (module doc); None when neither is. places: two
+    arrays (p,) of places in the chain; then only those pairs, (m, p)."""
+    a, b = (slice(None), None), (None, slice(None))  # every pair, by broadcasting
+    if places is not None:
+        a, b = (places[0],), (places[1],)
     parts = []
     if rays is not None:
         r = rays[rows]
-        parts.append(np.arccos(np.clip(np.einsum("mai,mbi->mab", r, r), -1.0, 1.0)) / MIN_RAY_ANGLE)
+        cosine = np.sum(r[(slice(None),) + a] * r[(slice(None),) + b], axis=-1)
+        parts.append(np.arccos(np.clip(cosine, -1.0, 1.0)) / MIN_RAY_ANGLE)
     if reference_base > 0 and np.isfinite(xyz0).all():
         c = xyz0[photo_index[rows]]
-        parts.append(np.linalg.norm(c[:, :, None] - c[:, None, :], axis=3) / (SHORT_BASE * reference_base))
+        parts.append(np.linalg.norm(c[(slice(None),) + a] - c[(slice(None),) + b], axis=-1)
+                     / (SHORT_BASE * reference_base))
     if not parts:
         return None
     return np.minimum.reduce(parts)
 
 
+def _nearby_places(k: int, span: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs of places at most ``span`` apart in a chain of k: (first, second) (p,)."""
+    first = [np.arange(k - lag) for lag in range(1, min(span, k - 1) + 1)]
+    second = [f + lag for lag, f in enumerate(first, start=1)]
+    return np.concatenate(first), np.concatenate(second)
+
+
 def _near(sep: np.ndarray, limit: float, span: int = 2) -> np.ndarray:
     """(m,) True where two photos at most ``span`` places apart in the chain are separated by less
     than limit. sep: (m, k, k) in chain order."""
-    bad = np.zeros(len(sep), dtype=bool)
-    k = sep.shape[1]
-    for lag in range(1, min(span, k - 1) + 1):
-        idx = np.arange(k - lag)
-        bad |= (sep[:, idx, idx + lag] < limit).any(axis=1)
-    return bad
+    first, second = _nearby_places(sep.shape[1], span)
+    return (sep[:, first, second] < limit).any(axis=1)
 
 
 def untangle_chains(rows: np.ndarray, photo_index: np.ndarray, xyz0: np.ndarray, reference_base: float,
@@ -221,15 +230,17 @@ def untangle_chains(rows: np.ndarray, photo_index: np.ndarray, xyz0: np.ndarray,
     star = np.zeros(len(rows), dtype=bool)
     if rows.shape[1] < 2:
         return rows, star
-    sep_all = _separation(rows, photo_index, xyz0, reference_base, rays)
-    if sep_all is None:
+    # first the pairs one or two places apart of every chain (the test), then every pair of the
+    # chains to be rebuilt (a few)
+    nearby = _separation(rows, photo_index, xyz0, reference_base, rays, _nearby_places(rows.shape[1]))
+    if nearby is None:
         return rows, star
     limit = 1.0
-    bad = np.flatnonzero(_near(sep_all, limit))
+    bad = np.flatnonzero((nearby < limit).any(axis=1))
     if len(bad) == 0:
         return rows, star
     rows = rows.copy()
-    dist = sep_all[bad]  # (m, k, k)
+    dist = _separation(rows[bad], photo_index, xyz0, reference_base, rays)  # (m, k, k)
     m, k = dist.shape[:2]
     ar = np.arange(m)
     best = np.tile(np.arange(k), (m, 1))
