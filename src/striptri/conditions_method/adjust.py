@@ -83,7 +83,7 @@ def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assem
                                     cam_of_photo[chunk.photo_index], white, scatters)
 
     for (chunk, system, (kept, made)), scatters in zip(sweep.systems(products, assembly.scatters),
-                                                       assembly.scatters):
+                                                       assembly.scatters, strict=True):
         if keep:
             acc.kept.append(kept)
         acc.add_products(made, scatters)

@@ -261,7 +261,7 @@ class Sweep:
             return chunk, system, (then(chunk, system) if alongside is None else then(chunk, system, extra))
 
         chunks = (chunk for batch in self.batches for chunk in batch.chunks(self.options.chunk_size))
-        chunks = zip(chunks, alongside) if alongside is not None else ((chunk, None) for chunk in chunks)
+        chunks = zip(chunks, alongside, strict=True) if alongside is not None else ((chunk, None) for chunk in chunks)
         done = map_ordered(work, chunks, chunk_threads(sweep_size(self.batches)))
         try:
             while True:
