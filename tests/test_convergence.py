@@ -143,3 +143,31 @@ def test_the_bundle_converges_on_the_long_strip_too(strips):
     assert bundle.converged
     flying_height = 1500.0
     assert np.max(np.abs(bundle.state.xyz0 - reference.state.xyz0)) < 1e-6 * flying_height
+
+
+@pytest.mark.parametrize("solver", ["cholmod", "cvxopt"])
+def test_the_last_iterations_on_one_factor_give_the_same_adjustment(monkeypatch, solver):
+    """The method of conditions solves the iterations after a correction below REUSE_FACTOR_BELOW on
+    the factor it holds, refined (solvers.solve_on_held_factor): the block of 3 x 6 photos takes 5
+    iterations, the last two on the third's factor, and ends where factorising every N ends: the
+    same iterations, v^T P v to 1e-12, the orientations to 1e-9 of their standard deviations' scale
+    (metres, radians), the final checks alike."""
+    from striptri.conditions_method import adjust as conditions
+    from striptri.solvers import cholmod_available, cvxopt_available
+
+    if not {"cholmod": cholmod_available, "cvxopt": cvxopt_available}[solver]():
+        pytest.skip(f"{solver} is not installed")
+    project = read_project(DATA / "block_3x6")
+    options = AdjustmentOptions(solver=solver)
+    reused = adjust(project, options)
+    monkeypatch.setattr(conditions, "REUSE_FACTOR_BELOW", 0.0)
+    own = adjust(project, options)
+    refined = [h.solver_info.refinements for h in reused.history]
+    assert refined[:3] == [None] * 3 and all(r is not None and r >= 1 for r in refined[3:]) and len(refined) == 5
+    assert all(h.solver_info.refinements is None for h in own.history)
+    assert reused.iterations == own.iterations
+    assert reused.vtpv == pytest.approx(own.vtpv, rel=1e-12)
+    np.testing.assert_allclose(reused.state.xyz0, own.state.xyz0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(reused.state.R_ground_from_cam, own.state.R_ground_from_cam, rtol=0, atol=1e-12)
+    assert reused.checks.max_BTk_sigma < 1e-6 and own.checks.max_BTk_sigma < 1e-6
+    assert abs(reused.checks.vtpv_reduction_relative_difference) < 1e-9

@@ -193,6 +193,24 @@ def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterOb
     return plate_hat, control_hat, v_par, vtpv, distance_hat
 
 
+REUSE_FACTOR_BELOW = 100.0  # a correction (sd) below which the next iteration tries its factor (_solve_on_held_factor)
+
+
+def _solve_on_held_factor(acc, solver: solvers.NormalSolver) -> solvers.SolveResult | None:
+    """N dx = -u by the factor of an earlier iteration, which the solver holds when that iteration's
+    correction was below REUSE_FACTOR_BELOW standard deviations, refined until it is the solve with
+    N's own factor to REFINED_TO (solvers.solve_on_held_factor). None when no factor is held or the
+    refinement does not get there (then N is factorised). Near the solution N moves by terms of the
+    size of the last correction, so the last iterations of a run share one factorisation
+    (docs/decisions.md "The last iterations on one factor")."""
+    done = solvers.solve_on_held_factor(solver, acc.N, -acc.u)
+    if done is None:
+        solver.release()  # N has moved too far: its own factor replaces the held one
+        return None
+    dx, steps = done
+    return solvers.SolveResult(dx, solver.name, solvers.SolverInfo(refinements=steps))
+
+
 def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork) -> solvers.SolveResult:
     """Minimum constraints, then the S-transformation onto the inner constraints (datum.FreeNetwork,
     with its right-hand side)."""
@@ -336,7 +354,10 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
             if has_converged(history, options.tolerance, floor):
                 converged = True
                 break
-            solver.release()  # not held while the next iteration assembles (nor past the last one)
+            if not history[-1].max_correction < REUSE_FACTOR_BELOW:
+                solver.release()  # not held while the next iteration assembles (nor past the last one)
+        if not converged:  # the next correction of a stopped iteration comes from N at the solution
+            solver.release()
 
         t0 = time.perf_counter()
         final = problem.sweep(now.state, now.plate_hat, now.control_hat, now.distance_hat)
@@ -399,7 +420,9 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     t1 = time.perf_counter()
     if problem.free_network is not None:
         problem.free_network = problem.datum_at(state, acc.N, now.plate_hat)
-    solved = _solve_or_explain(acc, solver, state, problem, diagnose=not history)
+    solved = _solve_on_held_factor(acc, solver) if problem.free_network is None else None
+    if solved is None:
+        solved = _solve_or_explain(acc, solver, state, problem, diagnose=not history)
     dx = solved.dx
     t2 = time.perf_counter()
     with np.errstate(over="ignore", invalid="ignore"):

@@ -125,7 +125,7 @@ class AdjustmentOptions:
     solver: str = "auto"
     max_iterations: int = 30
     tolerance: float = 1e-8
-    chunk_size: int = 2048
+    chunk_size: int = 1024
     datum: str = "control"
     datum_points: tuple = ()
     init: str = "given"
