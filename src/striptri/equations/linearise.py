@@ -214,7 +214,8 @@ def precision_options(options):
     result (residual cofactors, separability, the joint point precision), which hold per group
     more than the assembly does (M^-1, K, the blocks of Qxx gathered for G Qxx G^T). On the
     5,000-photo block of bench_scale half the assembly's 2,048 groups took the residual cofactors'
-    traced peak from 115 to 69 MiB in the same time (0.50 s); a quarter, to 40 MiB in 3 % more."""
+    traced peak from 115 to 69 MiB in the same time (0.50 s); a quarter, to 40 MiB in 3 % more.
+    (The assembly's default chunk is 1,024 groups too since then: core.options.)"""
     return replace(options, chunk_size=min(options.chunk_size, PRECISION_CHUNK))
 
 
