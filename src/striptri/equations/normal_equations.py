@@ -447,17 +447,14 @@ def _group_products(pat: BlockPattern, Bw, ww, gw, photo, cam, white: Whitened |
     wPw, gPg = float(np.sum(ww * ww)), float(np.sum(gw * gw))
     full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + w)
     one_camera = sums_camera_columns(pat, cam)
-    if white is not None and white.by_ray is not None and (one_camera or not pat.with_cameras):
-        pp, pc, cc = _blocks_by_ray(white, pat.with_cameras)
-        if not pat.with_cameras:
-            Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
-            full_cols = full_cols[..., :6]
-        ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
-        return GroupProducts(pp, pc, cc, ug, full_cols.reshape(m, -1), wPw, gPg, photo, cam, one_camera)
     if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
         Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
         full_cols = full_cols[..., :6]
     width = full_cols.shape[-1]
+    ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
+    if white is not None and white.by_ray is not None and (one_camera or not pat.with_cameras):
+        pp, pc, cc = _blocks_by_ray(white, pat.with_cameras)
+        return GroupProducts(pp, pc, cc, ug, full_cols.reshape(m, k * width), wPw, gPg, photo, cam, one_camera)
     pc = cc = None
     # the ray-pair blocks B~_a^T B~_b directly in pattern order (m, k, k, r, s): batched products
     # of the rays' column groups, no transposed copy of a (m, 6k, 6k) product
@@ -489,7 +486,6 @@ def _group_products(pat: BlockPattern, Bw, ww, gw, photo, cam, white: Whitened |
         if pat.with_cameras:
             pc = np.matmul(left[..., :6, :], right[..., 6:])
             cc = np.matmul(left[..., 6:, :], right[..., 6:])
-    ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
     return GroupProducts(pp, pc, cc, ug, full_cols.reshape(m, k * width), wPw, gPg, photo, cam, one_camera)
 
 
@@ -539,14 +535,19 @@ class PatternAccumulator:
         photo, cam = products.photo, products.cam
         if scatters is None:
             scatters = pat.scatters(photo, cam, sums_camera_columns(pat, cam))
-        scatter_pp, scatter_pc, scatter_cc = scatters
-        add = "add_sums" if products.summed else "add"
         if not products.summed:
             _check_scatters(products, scatters)
-        getattr(scatter_pp, add)(self.pp, products.pp)
+
+        def add(scatter: ChunkScatter, target: np.ndarray, numbers: np.ndarray) -> None:
+            if products.summed:  # summed by position in the chunk's thread (group_products)
+                scatter.add_sums(target, numbers)
+            else:
+                scatter.add(target, numbers)
+
+        add(scatters[0], self.pp, products.pp)
         if products.pc is not None:
-            getattr(scatter_pc, add)(self.pc, products.pc)
-            getattr(scatter_cc, add)(self.cc, products.cc)
+            add(scatters[1], self.pc, products.pc)
+            add(scatters[2], self.cc, products.cc)
         cols = products.full_cols.ravel()
         self.u_full += np.bincount(cols, weights=products.ug[..., 0].ravel(), minlength=pat.n_full)
         self.ug_full += np.bincount(cols, weights=products.ug[..., 1].ravel(), minlength=pat.n_full)
