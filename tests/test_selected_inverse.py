@@ -300,6 +300,65 @@ def test_supernodes_fundamental_relaxed_or_whole_chains(monkeypatch, relaxed, ze
     check_blocks(N, inv, [(0, 10), (5, 6)])
 
 
+def test_split_into_independent_subtrees():
+    """Supernodes.split: the top and the subtrees partition the supernodes; no subtree holds an
+    ancestor of another's supernode, the top holds every ancestor of the subtrees' roots, and
+    none of the subtrees holds more than its share of their work unless it cannot be split."""
+    from striptri.selected_inverse import supernodal
+
+    N, starts = block(12, 20, 0, seed=3)
+    inv = selected_inverse(N, starts, method="sparse")
+    sym = inv._engine.sym
+    assert isinstance(inv._engine, supernodal.SupernodalInverse)
+    assert sym.count > 20
+    for parts in (2, 3, 8):
+        top, subtrees = sym.split(parts)
+        assert len(subtrees) >= 2
+        everything = np.sort(np.concatenate([top, *subtrees]))
+        np.testing.assert_array_equal(everything, np.arange(sym.count))
+        owner = np.full(sym.count, -1)
+        for i, nodes in enumerate(subtrees):
+            owner[nodes] = i
+        for i, nodes in enumerate(subtrees):
+            for p in nodes:  # every ancestor: in the same subtree or in the top
+                q = sym.parent[p]
+                while q >= 0:
+                    assert owner[q] in (i, -1)
+                    q = sym.parent[q]
+            root = nodes[-1]
+            assert sym.parent[root] == -1 or owner[sym.parent[root]] == -1
+        work = [sym.work[nodes].sum() for nodes in subtrees]
+        assert max(work) <= sum(work) / parts or len(subtrees[int(np.argmax(work))]) == 1
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+@pytest.mark.parametrize("numeric", ["sparse", "cholmod"])
+def test_subtrees_on_threads_equal_dense_inverse(monkeypatch, threads, numeric):
+    """The factorisation and the recurrence over independent subtrees on threads (a small N made
+    to take that path) give the dense inverse, and a singular pivot is raised from a thread."""
+    if numeric == "cholmod" and not cholmod_available():
+        pytest.skip("scikit-sparse not installed")
+    from striptri.selected_inverse import supernodal
+
+    monkeypatch.setattr(supernodal, "PARALLEL_MIN_WORK", 0.0)
+    monkeypatch.setattr(supernodal, "chunk_threads", lambda: threads)  # whatever the cores
+    used = []
+    real = supernodal._each_first_failure
+    monkeypatch.setattr(supernodal, "_each_first_failure",
+                        lambda fn, parts, n: used.append((len(parts), n)) or real(fn, parts, n))
+    N, starts = block(6, 15, 1, seed=5)
+    pairs = [(0, 15), (40, 41), (7, 89)]
+    inv = selected_inverse(N, starts, pairs, method=numeric)
+    check_blocks(N, inv, pairs)
+    assert used and all(parts >= 2 and n == threads for parts, n in used)
+    N, starts = block(6, 15, 0, seed=6)
+    N = N.tolil()
+    for col in (20, 300):  # two negative pivots, in different subtrees
+        N[col, col] = -N[col, col]
+    with pytest.raises(SingularNormalMatrix):
+        selected_inverse(N.tocsr(), starts, method=numeric)
+
+
 @pytest.mark.parametrize("min_block", [1, 7, 32, 500])
 def test_banded_block_size(monkeypatch, min_block):
     """Column blocks of the banded recurrence exactly w wide, wider, or the whole matrix."""

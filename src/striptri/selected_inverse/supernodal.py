@@ -7,19 +7,27 @@ The pattern comes from :mod:`.symbolic`; the numeric factorisation is a supernod
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
-from scipy.linalg import blas, lapack
 
-from ..solvers import SingularNormalMatrix, Structure
+from ..solvers import SingularNormalMatrix, Structure, kernels
 from ..solvers.base import check_pivots
+from ..solvers.threads import chunk_threads
 from ..solvers.blocks import ranges
 from ..solvers.sparse_cholesky import cholmod_module
 from .engine import Engine
 from .symbolic import symbolic
+
+
+# the work (Supernodes.work, multiply-adds) below which the supernodes are done on one thread: the
+# synthetic blocks of the tests, a strip's few supernodes
+PARALLEL_MIN_WORK = 2e8
 
 
 class SupernodalInverse(Engine):
@@ -114,25 +122,45 @@ class SupernodalInverse(Engine):
     def _numpy_factor(self, As: sp.csr_matrix) -> np.ndarray:
         sym = self.sym
         L = self._scatter(As, sym.order, self._position())  # As symmetric: its rows are its columns
-        for p in range(sym.count):
+        top, subtrees = sym.split(self._threads())
+        # a subtree's supernodes update their own subtree and the top's supernodes, which every
+        # subtree may update: one lock for each of those
+        locks = {int(q): threading.Lock() for q in top} if subtrees else {}
+        _each_first_failure(lambda nodes: self._factor_supernodes(L, nodes, locks), subtrees, self._threads())
+        self._factor_supernodes(L, top, {})
+        return L
+
+    def _factor_supernodes(self, L: np.ndarray, nodes, locks: dict) -> None:
+        """Right-looking: each supernode p of ``nodes`` (ascending) factorised, ``L11 = chol(F11)``
+        (with the solvers' pivot test), ``L21 = F21 L11^-T``, and ``L21 L21'`` subtracted from the
+        supernodes that own its rows (under their lock in ``locks``, if they have one)."""
+        sym = self.sym
+        for p in nodes:
             F = self._view(L, p)
             w = sym.width(p)
-            c, info = lapack.dpotrf(F[:w], lower=1, clean=1, overwrite_a=0)
+            F11 = F[:w]
+            info = kernels.cholesky_lower(F11)
             if info > 0:
                 raise SingularNormalMatrix(int(sym.order[sym.start[p] + info - 1]))
-            check_pivots(np.diag(c), sym.order[sym.start[p]: sym.start[p + 1]])
-            F[:w] = c
+            F11[_strict_upper(w)] = 0.0
+            check_pivots(np.diag(F11), sym.order[sym.start[p]: sym.start[p + 1]])
             if len(F) > w:
-                L21 = blas.dtrsm(1.0, c, F[w:], side=1, lower=1, trans_a=1)  # F21 L11^-T
-                F[w:] = L21
+                L21 = F[w:]
+                kernels.solve_lower(F11, L21, right=True, transposed=True)  # F21 L11^-T
                 # the update's lower triangle (the diagonal blocks of later supernodes are read
                 # only there by potrf): syrk, half the work of L21 L21'
-                U = blas.dsyrk(1.0, L21, lower=1)
+                U = np.zeros((len(L21), len(L21)))
+                kernels.lower_product(L21, U)
                 for q, s, _, pos, runs in sym.targets[p]:
                     G = self._view(L, q)
-                    for a, b, c in runs:  # the lower triangle of the run's columns and the rows below
-                        G[pos[a:], c: c + b - a] -= U[s + a:, s + a: s + b]
-        return L
+                    with locks.get(q, contextlib.nullcontext()):
+                        for a, b, c in runs:  # the lower triangle of the run's columns and the rows below
+                            G[pos[a:], c: c + b - a] -= U[s + a:, s + a: s + b]
+
+    def _threads(self) -> int:
+        """Threads over the independent subtrees: every core the command may use (chunk_threads),
+        one for a small N (the Python around the kernels would only take turns)."""
+        return 1 if float(self.sym.work.sum()) < PARALLEL_MIN_WORK else chunk_threads()
 
     def _cholmod_factor(self, As: sp.csr_matrix) -> np.ndarray:
         cholmod = cholmod_module()
@@ -156,12 +184,20 @@ class SupernodalInverse(Engine):
 
     def _takahashi(self, L: np.ndarray, Z: np.ndarray) -> np.ndarray:
         """Z on the stored pattern, supernode by supernode backwards (class doc), into ``Z`` (which
-        may be ``L`` itself: a supernode's columns of L are needed only for its own columns of Z).
-        ``Y = Z_BB L21`` (symm: reads Z_BB's lower triangle), ``Z_BP = -Y L11^-1`` and
-        ``Z_PP = L11^-T (I + L21' Y) L11^-1`` (triangular solves; the last supernode, the root of
-        the tree, by LAPACK potri)."""
+        may be ``L`` itself: a supernode's columns of L are needed only for its own columns of Z):
+        the top of the tree first, then its independent subtrees on the threads (each reads Z only
+        of its own supernodes and of their ancestors)."""
+        top, subtrees = self.sym.split(self._threads())
+        self._invert_supernodes(L, Z, top[::-1])
+        _each_first_failure(lambda nodes: self._invert_supernodes(L, Z, nodes[::-1]), subtrees, self._threads())
+        return Z
+
+    def _invert_supernodes(self, L: np.ndarray, Z: np.ndarray, nodes) -> None:
+        """Each supernode p of ``nodes`` (descending), its ancestors done: ``Y = Z_BB L21`` (symm:
+        reads Z_BB's lower triangle), ``Z_BP = -Y L11^-1`` and ``Z_PP = L11^-T (I + L21' Y) L11^-1``
+        (triangular solves; a root of the tree by LAPACK potri)."""
         sym = self.sym
-        for p in range(sym.count - 1, -1, -1):
+        for p in nodes:
             F = self._view(L, p)
             w = sym.width(p)
             L11 = F[:w].copy()
@@ -172,18 +208,19 @@ class SupernodalInverse(Engine):
                 Zbb = np.empty((b, b))
                 for q, s, _, pos, runs in sym.targets[p]:
                     Zq = self._view(Z, q)
-                    for a, e, c in runs:  # the lower triangle, which is all dsymm reads
+                    for a, e, c in runs:  # the lower triangle, which is all symm reads
                         Zbb[s + a:, s + a: s + e] = Zq[pos[a:], c: c + e - a]
-                Y = blas.dsymm(1.0, Zbb, L21, side=0, lower=1)  # Z_BB L21, Z_BB symmetric (lower)
+                Y = kernels.symmetric_times(Zbb, L21)  # Z_BB L21
                 S = L21.T @ Y
                 S[np.diag_indices(w)] += 1.0
-                Zp[w:] = blas.dtrsm(-1.0, L11, Y, side=1, lower=1)  # -Y L11^-1
-                Zpp = blas.dtrsm(1.0, L11, blas.dtrsm(1.0, L11, S, side=1, lower=1), side=0, lower=1, trans_a=1)
-                Zp[:w] = 0.5 * (Zpp + Zpp.T)
+                Zp[w:] = Y
+                kernels.solve_lower(L11, Zp[w:], right=True, transposed=False, alpha=-1.0)  # -Y L11^-1
+                kernels.solve_lower(L11, S, right=True, transposed=False)
+                kernels.solve_lower(L11, S, right=False, transposed=True)
+                Zp[:w] = 0.5 * (S + S.T)
             else:
-                Zpp, _ = lapack.dpotri(L11, lower=1)
-                Zp[:w] = np.tril(Zpp) + np.tril(Zpp, -1).T
-        return Z
+                kernels.inverse_from_cholesky(L11)
+                Zp[:w] = np.tril(L11) + np.tril(L11, -1).T
 
     @functools.cached_property
     def _position_of(self) -> np.ndarray:
@@ -248,3 +285,24 @@ class SupernodalInverse(Engine):
         X = np.empty_like(y)
         X[sym.order] = y
         return X
+
+
+@functools.cache
+def _strict_upper(w: int) -> np.ndarray:
+    return np.triu(np.ones((w, w), dtype=bool), 1)
+
+
+def _each_first_failure(fn, parts: list, threads: int) -> None:
+    """fn(part) for every part, on ``threads`` threads (all submitted at once, so a thread that
+    finishes takes the next part). A singular pivot in several parts: the one of the part that
+    comes first in supernode order is raised, as working through the supernodes in order would."""
+    if threads <= 1 or len(parts) <= 1:
+        for part in parts:
+            fn(part)
+        return
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="striptri-supernodes") as pool:
+        futures = [pool.submit(fn, part) for part in parts]
+    failed = [(part[0], f.exception()) for part, f in zip(parts, futures) if f.exception() is not None]
+    if failed:
+        raise min(failed, key=lambda item: item[0])[1]
+

@@ -10,6 +10,7 @@ chains of blocks merged into supernodes. -> :class:`Supernodes`, used by
 from __future__ import annotations
 
 import functools
+import heapq
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,6 +20,10 @@ from ..solvers import Structure
 from ..solvers.blocks import Blocks, partition, ranges
 from ..solvers.direct import block_order
 from ..solvers.sparse_cholesky import cholmod_available, cholmod_module
+
+# the Python around one supernode's kernels, in multiply-adds (Supernodes.work): about 30
+# microseconds at a few GFlop/s, what a supernode of a few photos' columns costs in all
+SUPERNODE_OVERHEAD = 1e5
 
 
 @dataclass
@@ -64,6 +69,60 @@ class Supernodes:
         widths = np.diff(self.start)
         flat = self.offset[sn] + local * widths[sn] + (pj - self.start[sn])
         return flat, found
+
+    @functools.cached_property
+    def parent(self) -> np.ndarray:
+        """(count,) the supernode tree: each supernode's parent, the first later supernode among its
+        rows (-1 for a root). Supernodes are numbered in postorder, so the subtree of p is the run
+        of supernodes ``first_descendant[p] .. p``."""
+        return np.array([tp[0][0] if tp else -1 for tp in self.targets], dtype=int)
+
+    @functools.cached_property
+    def first_descendant(self) -> np.ndarray:
+        first = np.arange(self.count)
+        for p, q in enumerate(self.parent):  # children come before their parent
+            if q >= 0:
+                first[q] = min(first[q], first[p])
+        return first
+
+    @functools.cached_property
+    def work(self) -> np.ndarray:
+        """(count,) each supernode's share of the factorisation and of the inversion, as the
+        multiply-adds of its dense kernels (w^3 + b w^2 + b^2 w for w columns and b rows below) and
+        SUPERNODE_OVERHEAD for the Python around them."""
+        w = np.diff(self.start).astype(float)
+        b = np.array([len(r) for r in self.rows], dtype=float) - w
+        return w**3 + b * w**2 + b**2 * w + SUPERNODE_OVERHEAD
+
+    def split(self, parts: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The supernodes cut into ``top`` (ancestors, done alone) and independent subtrees (each the
+        sorted supernodes of a run ``first_descendant[r] .. r``; no supernode of one is an ancestor
+        of another's) for ``parts`` threads: the largest subtree is replaced by its root (to ``top``)
+        and its children while it holds more than its share (1/parts) of the subtrees' work.
+        Subtrees are given largest first. One part (or none): everything in ``top``."""
+        everything = np.arange(self.count)
+        if parts <= 1 or self.count <= 1:
+            return everything, []
+        cumulative = np.concatenate([[0.0], np.cumsum(self.work)])
+        first = self.first_descendant
+
+        def subtree_work(r):
+            return cumulative[r + 1] - cumulative[first[r]]
+
+        children = [[] for _ in range(self.count)]
+        for p, q in enumerate(self.parent):
+            if q >= 0:
+                children[q].append(p)
+        heap = [(-subtree_work(r), r) for r in np.flatnonzero(self.parent < 0)]
+        heapq.heapify(heap)
+        top = []
+        while heap and -heap[0][0] > sum(-h[0] for h in heap) / parts:
+            _, r = heapq.heappop(heap)
+            top.append(r)
+            for c in children[r]:
+                heapq.heappush(heap, (-subtree_work(c), c))
+        subtrees = [np.arange(first[r], r + 1) for _, r in sorted(heap)]
+        return np.sort(np.array(top, dtype=int)), subtrees
 
     @functools.cached_property
     def _row_keys(self):
