@@ -135,3 +135,24 @@ def test_conditioning_equals_lapack_ratio():
     np.testing.assert_array_equal(got[small], want[small])
     np.testing.assert_allclose(got[~small], want[~small], rtol=0, atol=1e-8)
     assert (got[-5:] < WEAK_RCOND).tolist() == [True, True, False, False, False]
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 9])
+@pytest.mark.parametrize("with_singular", [False, True])
+def test_safe_inverse_of_other_sizes_equals_lapack(n, with_singular):
+    """A group's A Q A^T: the whole batch through one Cholesky test, or, with a singular or not
+    finite matrix in it, every matrix through LAPACK's eigenvalues; the same decisions either way."""
+    rng = np.random.default_rng(n)
+    A = rng.normal(size=(300, n, n + 2)) * 10.0 ** rng.uniform(-2, 2, (300, n, 1))
+    M = A @ A.transpose(0, 2, 1)
+    if with_singular:
+        M[5] = 0.0
+        M[6, 0, 0] = np.nan
+        M[7] = -M[7]
+    finite = np.isfinite(M).all(axis=(1, 2))
+    want, want_ok = _lapack_safe_inverse(M, finite, SINGULAR_RCOND)
+    got, ok = safe_inverse(M)
+    np.testing.assert_array_equal(ok, want_ok)
+    assert ok.sum() == 300 - 3 * with_singular
+    np.testing.assert_allclose(got[ok], want[ok], rtol=1e-10, atol=0)
+    assert np.isnan(got[~ok]).all()

@@ -363,19 +363,28 @@ def safe_inverse(M: np.ndarray, rcond: float = SINGULAR_RCOND) -> tuple[np.ndarr
     a matrix with numbers that are not finite, or whose smallest eigenvalue is below ``rcond``
     times its largest, is singular; its inverse is nan. Never raises LinAlgError.
 
-    3 x 3 matrices (a point's normal matrix) are inverted in closed form (symmetric_inverse_3)
-    and kept where that inverse shows them clearly regular: positive leading minors (positive
-    definite) and ``1 / (|M|_F |M^-1|_F) > CLEARLY_REGULAR``, a lower bound of the smallest over the
-    largest eigenvalue. Only the others (near-singular, indefinite, or not finite) go through
-    LAPACK's eigenvalues and inverse, one matrix at a time: numpy's batched eigvalsh and inv on
-    3 x 3 matrices took 0.3 s of the 5,000-photo block's triangulations."""
+    3 x 3 matrices (a point's normal matrix) are inverted in closed form (symmetric_inverse_3),
+    larger ones (a group's A Q A^T) by LAPACK once a Cholesky factorisation of the whole batch has
+    shown them positive definite; an inverse is kept where it shows its matrix clearly regular:
+    positive definite and ``1 / (|M|_F |M^-1|_F) > CLEARLY_REGULAR``, a lower bound of the smallest
+    over the largest eigenvalue. Only the others (near-singular, indefinite, or not finite) go
+    through LAPACK's eigenvalues first: numpy's batched eigvalsh and inv on 3 x 3 matrices took
+    0.3 s of the 5,000-photo block's triangulations."""
     M = np.asarray(M, dtype=float)
     finite = np.isfinite(M).all(axis=(-2, -1))
-    if M.shape[-1] != 3 or M.ndim != 3:
+    if M.ndim != 3 or len(M) == 0:
         return _lapack_safe_inverse(M, finite, rcond)
-    safe = np.where(finite[:, None, None], M, np.eye(3))
+    n = M.shape[-1]
+    safe = np.where(finite[:, None, None], M, np.eye(n))
     with np.errstate(all="ignore"):
-        inv, positive = symmetric_inverse_3(safe)
+        if n == 3:
+            inv, positive = symmetric_inverse_3(safe)
+        else:  # a batch that Cholesky takes whole is positive definite; else every matrix by LAPACK
+            try:
+                np.linalg.cholesky(safe)
+            except np.linalg.LinAlgError:
+                return _lapack_safe_inverse(M, finite, rcond)
+            inv, positive = np.linalg.inv(safe), np.ones(len(M), dtype=bool)
         bound = 1.0 / (np.sqrt(np.einsum("mij,mij->m", safe, safe)) * np.sqrt(np.einsum("mij,mij->m", inv, inv)))
         clear = finite & positive & (bound > CLEARLY_REGULAR)
     if np.all(clear):

@@ -251,14 +251,8 @@ def group_inverse(M: np.ndarray, chunk) -> tuple[np.ndarray, np.ndarray]:
     the base, standard deviations of zero or beyond double precision) gets nan; its point is not
     determined by its rays, and the caller leaves it untested (docs/decisions.md "Undetermined
     points")."""
-    with np.errstate(all="ignore"):
-        finite = np.isfinite(M).all(axis=(1, 2))
-        safe = np.where(finite[:, None, None], M, np.eye(M.shape[1]))
-        ev = np.linalg.eigvalsh(safe)
-        bad = ~finite | ~(ev[:, 0] > 1e-14 * ev[:, -1])
-        Minv = np.linalg.inv(np.where(bad[:, None, None], np.eye(M.shape[1]), safe))
-    Minv[bad] = np.nan
-    return Minv, bad
+    Minv, regular = safe_inverse(M)
+    return Minv, ~regular
 
 
 def normalised_residuals(v: np.ndarray, qvv: np.ndarray) -> np.ndarray:
