@@ -168,9 +168,10 @@ def jacobi_scaled(N: sp.spmatrix):
         raise SingularNormalMatrix(int(np.flatnonzero(~(d > 0))[0]) if np.any(~(d > 0)) else None,
                                    "non-positive or non-finite diagonal element")
     s = 1.0 / np.sqrt(d)
-    rows = np.repeat(np.arange(N.shape[0]), np.diff(N.indptr))
+    data = N.data * np.repeat(s, np.diff(N.indptr))  # the row's factor
+    data *= s[N.indices]
     # the index arrays are shared with N: callers never change a scaled matrix's pattern in place
-    Ns = sp.csr_matrix((N.data * s[rows] * s[N.indices], N.indices, N.indptr), shape=N.shape, copy=False)
+    Ns = sp.csr_matrix((data, N.indices, N.indptr), shape=N.shape, copy=False)
     Ns.has_sorted_indices = True
     return Ns, s
 
