@@ -57,10 +57,20 @@ def expanded(per_ray: np.ndarray, rays: np.ndarray | None, k: int) -> np.ndarray
         return per_ray
     m, nc = per_ray.shape[:2]
     out = np.zeros((m, nc, k) + per_ray.shape[3:])
-    row = np.arange(nc)
-    for slot in range(rays.shape[1]):  # within a slot each (condition, ray) is met once: += is safe
-        out[:, row, rays[:, slot]] += per_ray[:, :, slot]
+    (cond, slot), (dup_cond, dup_slot) = _distinct_slots(rays)
+    out[:, cond, rays[cond, slot]] = per_ray[:, cond, slot]  # one scatter of every distinct (condition, ray)
+    if len(dup_cond):  # a ray repeated within a condition (zero derivatives there): added to it
+        out[:, dup_cond, rays[dup_cond, dup_slot]] += per_ray[:, dup_cond, dup_slot]
     return out
+
+
+def _distinct_slots(rays: np.ndarray):
+    """((condition, slot) of the first occurrence of each ray in each condition's row of ``rays``
+    (nc, t), (condition, slot) of the repeats): each list meets a (condition, ray) at most once."""
+    repeat = np.zeros(rays.shape, dtype=bool)
+    for j in range(1, rays.shape[1]):
+        repeat[:, j] = (rays[:, :j] == rays[:, j: j + 1]).any(axis=1)
+    return np.nonzero(~repeat), np.nonzero(repeat)
 
 
 def of_rays(per_ray: np.ndarray, rays: np.ndarray | None) -> np.ndarray:
