@@ -531,3 +531,13 @@ def test_compact_derivatives_equal_the_k_ray_form(tmp_path, convention):
             assert np.array_equal(B_compact, B_k_ray) and np.array_equal(cols, cols_k)
     assert {(False, (False, False, False)), (True, (False, False, False)), (False, (False, False, True)),
             (True, (True, True, False))} <= shapes
+
+
+def test_cross_product_equals_numpy():
+    """conditions._cross: np.cross's numbers, with broadcasting over leading axes."""
+    from striptri.equations.conditions import _cross
+
+    rng = np.random.default_rng(2)
+    a, b = rng.normal(size=(7, 1, 4, 3)), rng.normal(size=(7, 5, 4, 3))
+    np.testing.assert_array_equal(_cross(a, b), np.cross(a, b))
+    np.testing.assert_array_equal(_cross(b[0, 0], a[0, 0]), np.cross(b[0, 0], a[0, 0]))

@@ -83,6 +83,13 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
+def _cross(a, b):
+    """np.cross of (..., 3) vectors, the same numbers in half the time (np.cross moves axes first)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 # ---------------------------------------------------------------------------------------------
 # Pair geometry
 
@@ -92,9 +99,9 @@ def coplanarity(b, r1, r2):
 
     b = O2 - O1, r1, r2: (m, 3) -> g (m,), dg/db, dg/dr1, dg/dr2 (each (m, 3)).
     """
-    n = np.cross(r1, r2)
+    n = _cross(r1, r2)
     g = _dot(b, n)
-    return g, n, np.cross(r2, b), np.cross(b, r1)
+    return g, n, _cross(r2, b), _cross(b, r1)
 
 
 def closest_scales(b, r1, r2):
@@ -352,7 +359,7 @@ def ray_chain(rc: RayConditions, R_ground_from_cam, p) -> Linearised:
     R = of_rays(R_ground_from_cam, rc.rays)
     Rt_g = np.matmul(rc.d_r[..., None, :], R)[..., 0, :]  # R^T dg/dr: (m, nc, k or t, 3)
     d_plate = Rt_g[..., :2]
-    d_rot = np.cross(of_rays(p, rc.rays), Rt_g)
+    d_rot = _cross(of_rays(p, rc.rays), Rt_g)
     d_interior = np.stack([-Rt_g[..., 2], -Rt_g[..., 0], -Rt_g[..., 1]], -1)
     return Linearised(rc.g, d_plate, d_rot, rc.d_O, d_interior, rc.d_X, rc.rays)
 
