@@ -50,6 +50,9 @@ class SupernodalInverse(Engine):
     Selected inverse: the Takahashi equations (package docstring) per supernode, backwards:
     ``Z_BP = -Z_BB L21 L11^-1``, ``Z_PP = L11^-T (L11^-1 - L21' Z_BP)``, where ``Z_BB`` (B the rows
     below P, a clique of the filled graph) is gathered from the later supernodes that own them.
+    Both passes take the independent subtrees of the supernode tree (``Supernodes.split``) on the
+    chunk threads, with the BLAS and LAPACK kernels of :mod:`striptri.solvers.kernels`, which
+    release the GIL (docs/decisions.md "The selected inversion on both cores").
     Work and memory are those of the factorisation (``info["stored"]`` entries). Every block of
     N^-1 between two photos that share a point (or a camera) lies in the pattern; other entries are
     solved for with the factor.
@@ -139,10 +142,9 @@ class SupernodalInverse(Engine):
             F = self._view(L, p)
             w = sym.width(p)
             F11 = F[:w]
-            info = kernels.cholesky_lower(F11)
+            info = kernels.cholesky_lower(F11)  # its strict upper triangle keeps N~'s numbers, never read
             if info > 0:
                 raise SingularNormalMatrix(int(sym.order[sym.start[p] + info - 1]))
-            F11[_strict_upper(w)] = 0.0
             check_pivots(np.diag(F11), sym.order[sym.start[p]: sym.start[p + 1]])
             if len(F) > w:
                 L21 = F[w:]
@@ -287,21 +289,23 @@ class SupernodalInverse(Engine):
         return X
 
 
-@functools.cache
-def _strict_upper(w: int) -> np.ndarray:
-    return np.triu(np.ones((w, w), dtype=bool), 1)
-
-
 def _each_first_failure(fn, parts: list, threads: int) -> None:
     """fn(part) for every part, on ``threads`` threads (all submitted at once, so a thread that
     finishes takes the next part). A singular pivot in several parts: the one of the part that
-    comes first in supernode order is raised, as working through the supernodes in order would."""
+    comes first in supernode order is raised, as working through the supernodes in order would.
+    The caller's numpy error state holds in the threads (as in parallel.map_ordered)."""
     if threads <= 1 or len(parts) <= 1:
         for part in parts:
             fn(part)
         return
+    state = np.geterr()
+
+    def task(part):
+        with np.errstate(**state):
+            fn(part)
+
     with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="striptri-supernodes") as pool:
-        futures = [pool.submit(fn, part) for part in parts]
+        futures = [pool.submit(task, part) for part in parts]
     failed = [(part[0], f.exception()) for part, f in zip(parts, futures) if f.exception() is not None]
     if failed:
         raise min(failed, key=lambda item: item[0])[1]
