@@ -156,6 +156,23 @@ def test_active_column_reads_words_and_round_trips(tmp_path):
     assert "image_points.csv" in str(err.value) and "line 6" in str(err.value) and "'maybe'" in str(err.value)
 
 
+def test_source_column_words_and_the_first_bad_line(tmp_path):
+    """image_points.csv's source: manual, auto or empty, any case and spaces; anything else names
+    the first line that holds it."""
+    folder = write_project(tmp_path / "proj", _block(5))
+    text = (folder / "image_points.csv").read_text().splitlines()
+    words = [" Manual", "auto", "", "AUTO "]
+    lines = [text[0] + ",source"] + [line + "," + words[i % len(words)] for i, line in enumerate(text[1:])]
+    (folder / "image_points.csv").write_text("\n".join(lines) + "\n")
+    assert len(read_project(folder).image_points) == len(lines) - 1
+    lines[7] = lines[7].rsplit(",", 1)[0] + ",autox"  # line 8 of the file
+    lines[9] = lines[9].rsplit(",", 1)[0] + ",robot"
+    (folder / "image_points.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as err:
+        read_project(folder)
+    assert "image_points.csv" in str(err.value) and "line 8" in str(err.value) and "'autox'" in str(err.value)
+
+
 def test_project_without_inactive_rows_writes_no_active_column(tmp_path):
     p = _block(6)
     folder = write_project(tmp_path / "proj", p)

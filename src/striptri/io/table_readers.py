@@ -227,9 +227,12 @@ def _read_image_points(
     photo and point beside it (a rejected measurement kept with its re-measurement) are allowed.
     """
     table.require("photo_id", "point_id", "x", "y")
-    for i, word in enumerate(table.optional_strings("source", "manual")):  # striptri match (docs/matching.md)
-        if word.strip().lower() not in SOURCES:
-            raise table.error(i, f"column 'source': '{word}' is not one of {', '.join(SOURCES)} (how the row was measured)")
+    sources = table.optional_strings("source", "manual")  # striptri match (docs/matching.md)
+    if not all(word.strip().lower() in SOURCES for word in set(sources)):  # each distinct word once
+        for i, word in enumerate(sources):
+            if word.strip().lower() not in SOURCES:
+                raise table.error(i, f"column 'source': '{word}' is not one of {', '.join(SOURCES)} "
+                                     "(how the row was measured)")
     photo_of = {pid: k for k, pid in enumerate(photos.ids)}
     photo_ids = table.strings("photo_id")
     measured_ids = table.strings("point_id")
@@ -271,11 +274,13 @@ ACTIVE_WORDS = {"1": True, "true": True, "0": False, "false": False}  # image_po
 def _active_column(table: CsvTable) -> np.ndarray:
     """image_points.csv's optional ``active`` column -> (m,) bool: 1/true (or empty) = adjusted,
     0/false = kept and reported but not adjusted (striptri.report.inactive). Anything else: InputError."""
-    words = [w.lower() or "1" for w in table.optional_strings("active", "1")]
-    for i, w in enumerate(words):
-        if w not in ACTIVE_WORDS:
-            raise table.error(i, f"column 'active': '{table.text(i, 'active')}' is not 1, 0, true or false")
-    return np.array([ACTIVE_WORDS[w] for w in words], dtype=bool).reshape(len(words))
+    words = table.optional_strings("active", "1")
+    meaning = {w: ACTIVE_WORDS.get(w.lower() or "1") for w in set(words)}  # each distinct word once
+    if None in meaning.values():
+        for i, w in enumerate(words):
+            if meaning[w] is None:
+                raise table.error(i, f"column 'active': '{table.text(i, 'active')}' is not 1, 0, true or false")
+    return np.fromiter(map(meaning.__getitem__, words), dtype=bool, count=len(words))
 
 
 def _rows(ip: model.ImagePoints, keep: np.ndarray) -> model.ImagePoints:
