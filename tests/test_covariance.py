@@ -56,3 +56,24 @@ def test_quadratic_form_of_a_function(case):
     cov = Covariance(r.N, r.layout, r.free_network)
     f = np.random.default_rng(0).normal(size=r.n_unknowns)
     assert cov.quadratic_form(f) == pytest.approx(f @ Q @ f, rel=1e-8)
+
+
+def test_release_keeps_photo_blocks_and_diagonal_and_rebuilds_the_rest(case):
+    """Covariance.release: the photo blocks and the diagonal stay, read without the inverse; other
+    entries and the quadratic form make the inverse again and equal the dense reference. A free
+    network is never released (its photo blocks are entries)."""
+    r, Q = case
+    cov = Covariance(r.N, r.layout, r.free_network)
+    before = cov.photo_blocks(), cov.diag()
+    released = cov.release()
+    assert released == (r.free_network is None)
+    scale = np.abs(Q).max()
+    np.testing.assert_array_equal(cov.photo_blocks(), before[0])
+    np.testing.assert_array_equal(cov.diag(), before[1])
+    if released:
+        assert not cov._inv._engine.rebuilt  # the blocks and the diagonal needed no inverse
+    np.testing.assert_allclose(cov.dense(), Q, atol=1e-9 * scale)
+    f = np.random.default_rng(1).normal(size=r.n_unknowns)
+    assert cov.quadratic_form(f) == pytest.approx(f @ Q @ f, rel=1e-8)
+    if released:
+        assert cov._inv._engine.rebuilt

@@ -134,3 +134,41 @@ def test_cli_writes_covariance_npz_matching_points_csv(tmp_path):
     assert_clean_failure(run("adjust", folder, "--out", tmp_path / "o3", "--covariance-datum", "A,B,C"), 2)
     assert_clean_failure(run("adjust", folder, "--out", tmp_path / "o4", "--covariance", "photos,lenses"), 2)
     assert not (tmp_path / "o3").exists() and not (tmp_path / "o4").exists()
+
+
+@pytest.mark.parametrize("calibrated", [False, True])
+def test_inverse_let_go_before_the_tables_changes_no_file(monkeypatch, calibrated):
+    """After the point precision a run lets the selected inverse go when nothing after it reads
+    more of Qxx than the photo blocks and the diagonal (no covariance.npz, cameras held, no GNSS, no
+    distances): the tables and the summary are those of a run that keeps it, and nothing made the
+    inverse again. With an estimated camera element (the report's correlations with the exterior
+    elements) it is kept."""
+    from dataclasses import replace
+
+    import striptri.pipeline as pipeline
+    from striptri.core.runs import RunOptions
+    from striptri.selected_inverse.result import _Rebuilt
+
+    p = _block(3)
+    if calibrated:
+        sigma = np.full_like(p.cameras.interior, np.nan)
+        sigma[:, 0] = np.inf  # c estimated
+        p = replace(p, cameras=replace(p.cameras, sigma_interior=sigma))
+    run = RunOptions(blunders="snoop")
+    let_go = pipeline.adjust_products(p, options_for(p), run)
+    engine = let_go.result._covariance._inv._engine
+    assert isinstance(engine, _Rebuilt) != calibrated
+    if not calibrated:
+        assert not engine.rebuilt
+    monkeypatch.setattr(pipeline, "_reads_covariance_entries", lambda project, result: True)
+    kept = pipeline.adjust_products(p, options_for(p), run)
+    assert not isinstance(kept.result._covariance._inv._engine, _Rebuilt)
+    for name, text in kept.files.items():
+        if name.endswith(".csv"):
+            assert let_go.files[name] == text, name
+    import json
+
+    a, b = (json.loads(x.files["summary.json"]) for x in (let_go, kept))
+    for s in (a, b):
+        s.pop("timings_s"), s.pop("started")
+    assert a == b

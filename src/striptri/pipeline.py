@@ -312,6 +312,11 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
             for w in caught:
                 if not figure_imports.from_figure_packages(w):
                     warn(str(w.message))
+    if run.covariance is None and not _reads_covariance_entries(adjusted, result):
+        # the tables and the report read only the photo blocks and the diagonal of Qxx: without
+        # the rest of the inverse, the report phase is no longer the run's peak of memory
+        result.release_covariance()
+        give_back_free_memory()
     t0 = time.perf_counter()
     photo_cols, point_cols = photo_table(adjusted, result), point_table(adjusted, result, points)
     if frame is not None:
@@ -367,6 +372,18 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     files = {**tables, "summary.json": summary.json(), "report.html": html}
     products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products
+
+
+def _reads_covariance_entries(project: Project, result: AdjustmentResult) -> bool:
+    """Whether the tables or the report read entries of Qxx beyond the photo blocks and the
+    diagonal: the estimated camera elements' correlations with the exterior elements (the report's
+    camera section, precision.camera_correlations), cameras.csv's balanced elements
+    (report.tables.camera_table), the GNSS unknowns' tables and report section (precision.gnss)
+    and distances.csv's tests (reliability.distances)."""
+    cams = project.cameras
+    balanced = cams.r0 is not None and bool(np.isfinite(cams.r0).any())
+    estimated = bool((result.layout.camera_cols >= 0).any())
+    return estimated or balanced or result.layout.gnss_cols is not None or project.distances is not None
 
 
 SIGMA0_IMPLAUSIBLE = 10.0  # sigma0 a posteriori beyond which a converged result is suspect

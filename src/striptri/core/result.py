@@ -200,6 +200,12 @@ class AdjustmentResult:
                 raise NumericalFailure(self._precision_failure(exc), reason="singular") from exc
         return self._covariance
 
+    def release_covariance(self) -> None:
+        """Let the selected inverse behind ``covariance`` go, keeping its photo blocks and diagonal
+        (Covariance.release: what needs more makes it again); nothing when it was never computed."""
+        if self._covariance is not None:
+            self._covariance.release()
+
     def _precision_failure(self, exc: Exception | None) -> str:
         """Why Qxx cannot be formed: a singular N (naming the first element that is not determined)
         or one with numbers that are not finite; with the adjustment's own failure when it had one."""

@@ -367,7 +367,7 @@ def camera_correlations(result) -> list[dict]:
     lay, cov = result.layout, result.covariance
     s0 = result.sigma0_for_precision
     photo_cols = lay.photo_cols.ravel()
-    q_photo = cov.entries(photo_cols, photo_cols)
+    q_photo = np.append(cov.diag(), 0.0)[photo_cols]  # -1, a held element, reads zero
     s_photo = np.sqrt(np.maximum(np.where(photo_cols >= 0, q_photo, np.nan), 0.0))
     out = []
     for j in range(len(lay.camera_cols)):

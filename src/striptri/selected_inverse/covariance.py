@@ -36,6 +36,7 @@ class Covariance:
             # the factor is not kept: every entry precision reads lies in the pattern of the inverse
             # (quadratic_form factorises again when asked)
             self._inv = for_layout(N, layout, keep_factor=False)
+            self._rebuild = lambda: for_layout(N, layout, keep_factor=False)
             return
         N_min, mask = free_network.minimum_constraint_system(N)
         self._inv = for_layout(N_min, layout)
@@ -47,6 +48,17 @@ class Covariance:
         self._CtY = C.T @ Y
         if free_network.extra is not None:  # the point datum: + HK V HK^T (point_datum)
             self._CtY = self._CtY + free_network.extra
+
+    def release(self) -> bool:
+        """Free the inverse's computed pattern and the blocks kept for group_forms once the run has
+        read all it needs beyond the photo blocks and the diagonal, which stay (docs/decisions.md
+        "The inverse let go before the tables"). Anything else read later makes the inverse again.
+        Not for a free network (its photo blocks are entries). Returns whether it was released."""
+        if self.free_network is not None:
+            return False
+        self._inv.release(self._rebuild)
+        self._store = BlockStore()
+        return True
 
     def entries(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Qxx[rows, cols] elementwise (broadcast; index -1, a fixed element, reads zero)."""
