@@ -327,3 +327,37 @@ def _glibc() -> bool:
     import platform
 
     return platform.libc_ver()[0] == "glibc"
+
+
+DEFER_SCRIPT = """
+import sys
+from striptri._entry import defer_unused_numpy_modules
+deferred = defer_unused_numpy_modules() if sys.argv[1] == "deferred" else []
+import scipy.linalg, scipy.sparse  # scipy's array API layer reads every name of numpy
+loaded = sorted(m for m in ("numpy.f2py.crackfortran", "charset_normalizer", "numpy.testing._private.utils")
+                if m in sys.modules)
+import numpy as np
+np.testing.assert_allclose([1.0], [1.0])  # still there, loaded on first use
+assert callable(np.f2py.get_include)
+print(",".join(deferred) + "|" + ",".join(loaded) + "|" + str("numpy.testing._private.utils" in sys.modules))
+"""
+
+
+def test_the_command_defers_numpys_unused_modules(tmp_path):
+    """_entry.defer_unused_numpy_modules (the console script, before striptri imports numpy):
+    numpy.f2py and numpy.testing are not executed by scipy's import, and load in full when used."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "defer.py"
+    script.write_text(DEFER_SCRIPT)
+
+    def run(mode):
+        proc = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout.strip().split("|")
+
+    deferred, loaded, used = run("deferred")
+    assert deferred == "numpy.f2py,numpy.testing" and loaded == "" and used == "True"
+    _, loaded, _ = run("plain")  # what scipy's import does without it (if this scipy does it at all)
+    assert set(loaded.split(",")) <= {"numpy.f2py.crackfortran", "charset_normalizer", "numpy.testing._private.utils"}

@@ -22,6 +22,7 @@ def main() -> None:
         signal.signal(sig, _raise_interrupted)
     one_malloc_arena()  # before any thread (OpenBLAS's start with numpy)
     try:
+        defer_unused_numpy_modules()
         from striptri.cli import main as command
     except KeyboardInterrupt:
         _stop(signal.SIGINT)
@@ -33,6 +34,48 @@ def main() -> None:
         _stop(signal.SIGINT, starting=False)
     except Interrupted as exc:
         _stop(exc.signum, starting=False)
+
+
+DEFERRED = ("numpy.f2py", "numpy.testing")
+
+
+def defer_unused_numpy_modules() -> list[str]:
+    """Load numpy.f2py and numpy.testing only when first used (importlib.util.LazyLoader).
+
+    scipy 1.17's array API layer copies numpy's whole namespace when scipy.linalg is imported
+    (``array_api_compat._internal.clone_module``: ``hasattr(numpy, name)`` for every name of
+    ``dir(numpy)``), which imports numpy's lazily loaded submodules: f2py (with charset_normalizer)
+    and testing cost 0.08-0.1 s of every command's start, and a run uses neither. Registered lazy,
+    they are bound by that copy without being executed; any later use loads them in full. For the
+    console script only (before numpy's first import by striptri): a library caller's imports are
+    the caller's. Best effort: anything unexpected leaves numpy as it is. Returns the names
+    deferred."""
+    import importlib.util
+
+    deferred = []
+    try:
+        import numpy
+    except ImportError:  # pragma: no cover - numpy is a dependency
+        return deferred
+    for name in DEFERRED:
+        if name in sys.modules:
+            continue
+        try:
+            spec = importlib.util.find_spec(name)
+            if spec is None or spec.loader is None:
+                continue
+            spec.loader = importlib.util.LazyLoader(spec.loader)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+            # bound on numpy too: "import numpy.testing as testing" in numpy's own __getattr__ reads
+            # the attribute, which must not call __getattr__ again
+            setattr(numpy, name.rpartition(".")[2], module)
+        except (ImportError, AttributeError, ValueError):  # pragma: no cover - left as numpy has it
+            sys.modules.pop(name, None)
+            continue
+        deferred.append(name)
+    return deferred
 
 
 M_ARENA_MAX = -8  # glibc's mallopt parameter (malloc.h)
