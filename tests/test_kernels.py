@@ -14,6 +14,18 @@ import pytest
 from striptri.solvers import kernels
 
 
+@pytest.fixture(autouse=True, params=["ctypes", "f2py"])
+def route(request, monkeypatch):
+    """Every test through both routes: ctypes (the GIL released) and scipy's f2py wrappers (what
+    the kernels fall back to where the routines are not exported)."""
+    if request.param == "f2py":
+        monkeypatch.setattr(kernels, "_routine", lambda module, name: None)
+        assert not kernels.releases_gil()
+    else:
+        assert kernels.releases_gil()
+    return request.param
+
+
 def spd(n, rng):
     A = rng.normal(size=(n, n + 3))
     return A @ A.T + n * np.eye(n)

@@ -359,6 +359,20 @@ def test_subtrees_on_threads_equal_dense_inverse(monkeypatch, threads, numeric):
         selected_inverse(N.tocsr(), starts, method=numeric)
 
 
+def test_supernodes_through_scipys_wrappers(monkeypatch):
+    """Without the ctypes kernels (solvers.kernels falls back to scipy's f2py wrappers) the
+    supernodal route gives the dense inverse too, on threads as on one."""
+    from striptri.selected_inverse import supernodal
+    from striptri.solvers import kernels
+
+    monkeypatch.setattr(kernels, "_routine", lambda module, name: None)
+    monkeypatch.setattr(supernodal, "PARALLEL_MIN_WORK", 0.0)
+    monkeypatch.setattr(supernodal, "chunk_threads", lambda: 2)
+    N, starts = block(5, 12, 1, seed=11)
+    pairs = [(0, 12), (30, 31)]
+    check_blocks(N, selected_inverse(N, starts, pairs, method="sparse"), pairs)
+
+
 @pytest.mark.parametrize("min_block", [1, 7, 32, 500])
 def test_banded_block_size(monkeypatch, min_block):
     """Column blocks of the banded recurrence exactly w wide, wider, or the whole matrix."""

@@ -11,7 +11,9 @@ A C-ordered (r x c) array is the Fortran (c x r) array of its transpose, so ever
 the Fortran routine on the transposed problem: the lower triangle in C order is the upper one in
 Fortran order, a product from the left becomes one from the right. Each function states its
 result in C-order terms; operands must be C-contiguous float64 (checked), results are written in
-place where the docstring says so.
+place where the docstring says so. Where a Python or scipy build does not export the routines
+that way (``releases_gil()`` is then False), each kernel takes scipy's f2py wrapper instead: the
+same results, the GIL held.
 """
 
 from __future__ import annotations
@@ -24,21 +26,32 @@ import numpy as np
 _P = ctypes.c_void_p
 
 
+ARGUMENTS = {"dpotrf": 5, "dpotri": 5, "dtrsm": 11, "dsyrk": 10, "dsymm": 12}
+
+
 @functools.cache
 def _routine(module: str, name: str):
     """The Fortran routine ``name`` of scipy.linalg.cython_blas or cython_lapack as a ctypes
-    function (every argument a pointer, no result)."""
+    function (every argument a pointer, no result); None where this Python or scipy does not
+    export it so (the kernels then take scipy's f2py wrappers: the same numbers, the GIL held)."""
     import importlib
 
-    capsule = importlib.import_module(f"scipy.linalg.{module}").__pyx_capi__[name]
-    api = ctypes.pythonapi
-    api.PyCapsule_GetName.restype = ctypes.c_char_p
-    api.PyCapsule_GetName.argtypes = [ctypes.py_object]
-    api.PyCapsule_GetPointer.restype = ctypes.c_void_p
-    api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
-    address = api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
-    arguments = {"dpotrf": 5, "dpotri": 5, "dtrsm": 11, "dsyrk": 10, "dsymm": 12}[name]
-    return ctypes.CFUNCTYPE(None, *[_P] * arguments)(address)
+    try:
+        capsule = importlib.import_module(f"scipy.linalg.{module}").__pyx_capi__[name]
+        api = ctypes.pythonapi
+        api.PyCapsule_GetName.restype = ctypes.c_char_p
+        api.PyCapsule_GetName.argtypes = [ctypes.py_object]
+        api.PyCapsule_GetPointer.restype = ctypes.c_void_p
+        api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
+        address = api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
+    except (ImportError, AttributeError, KeyError, TypeError, ValueError):  # pragma: no cover - exotic builds
+        return None
+    return ctypes.CFUNCTYPE(None, *[_P] * ARGUMENTS[name])(address)
+
+
+def releases_gil() -> bool:
+    """Whether every kernel runs through ctypes (the GIL released), not scipy's f2py wrappers."""
+    return all(_routine("cython_lapack" if n.startswith("dpo") else "cython_blas", n) is not None for n in ARGUMENTS)
 
 
 def _char(c: str):
@@ -53,10 +66,14 @@ def _double(x: float):
     return ctypes.byref(ctypes.c_double(float(x)))
 
 
-def _array(A: np.ndarray):
+def _checked(A: np.ndarray) -> np.ndarray:
     if A.dtype != np.float64 or not A.flags.c_contiguous:
         raise ValueError("the kernels take C-contiguous float64 arrays")
-    return A.ctypes.data_as(_P)
+    return A
+
+
+def _array(A: np.ndarray):
+    return _checked(A).ctypes.data_as(_P)
 
 
 def cholesky_lower(A: np.ndarray) -> int:
@@ -64,8 +81,16 @@ def cholesky_lower(A: np.ndarray) -> int:
     A = L L'; the strict upper triangle is left as it was. Returns LAPACK's info: 0, or the
     (1-based) column whose pivot was not positive."""
     n = A.shape[0]
+    routine = _routine("cython_lapack", "dpotrf")
+    if routine is None:
+        from scipy.linalg import lapack
+
+        c, info = lapack.dpotrf(_checked(A), lower=1, clean=0)
+        low = np.tril_indices(n)
+        A[low] = c[low]
+        return int(info)
     info = ctypes.c_int(0)
-    _routine("cython_lapack", "dpotrf")(_char("U"), _int(n), _array(A), _int(n), ctypes.byref(info))
+    routine(_char("U"), _int(n), _array(A), _int(n), ctypes.byref(info))
     return info.value
 
 
@@ -73,8 +98,16 @@ def inverse_from_cholesky(L: np.ndarray) -> int:
     """In place: the lower triangle of L (A = L L', from :func:`cholesky_lower`) becomes the lower
     triangle of A^-1. Returns LAPACK's info."""
     n = L.shape[0]
+    routine = _routine("cython_lapack", "dpotri")
+    if routine is None:
+        from scipy.linalg import lapack
+
+        inv, info = lapack.dpotri(_checked(L), lower=1)
+        low = np.tril_indices(n)
+        L[low] = inv[low]
+        return int(info)
     info = ctypes.c_int(0)
-    _routine("cython_lapack", "dpotri")(_char("U"), _int(n), _array(L), _int(n), ctypes.byref(info))
+    routine(_char("U"), _int(n), _array(L), _int(n), ctypes.byref(info))
     return info.value
 
 
@@ -86,26 +119,44 @@ def solve_lower(L: np.ndarray, B: np.ndarray, *, right: bool, transposed: bool, 
     # C order: B is the Fortran B' (n x m), L the Fortran upper triangular U = L'.
     # B L^-1 = (L^-T B')' = (U^-1 B')': from the left with U, not transposed; B L^-T: with U'.
     # L^-1 B = (B' L^-T)' = (B' U^-1)': from the right with U; L^-T B: with U'.
+    routine = _routine("cython_blas", "dtrsm")
+    if routine is None:
+        from scipy.linalg import blas
+
+        B[...] = blas.dtrsm(alpha, _checked(L), _checked(B), side=int(right), lower=1, trans_a=int(transposed))
+        return
     side = "L" if right else "R"
     trans = "T" if transposed else "N"
-    _routine("cython_blas", "dtrsm")(_char(side), _char("U"), _char(trans), _char("N"), _int(n), _int(m),
-                                     _double(alpha), _array(L), _int(L.shape[0]), _array(B), _int(n))
+    routine(_char(side), _char("U"), _char(trans), _char("N"), _int(n), _int(m), _double(alpha), _array(L),
+            _int(L.shape[0]), _array(B), _int(n))
 
 
 def lower_product(A: np.ndarray, out: np.ndarray) -> None:
     """Into the lower triangle of ``out`` (m x m): A A' for A (m x k); the strict upper triangle of
     ``out`` is left as it was."""
     m, k = A.shape
+    routine = _routine("cython_blas", "dsyrk")
+    if routine is None:
+        from scipy.linalg import blas
+
+        low = np.tril_indices(m)
+        _checked(out)[low] = blas.dsyrk(1.0, _checked(A), lower=1)[low]
+        return
     # C order: A is the Fortran A' (k x m); A A' = (A')' (A'), Fortran trans "T"; C-lower = F-upper
-    _routine("cython_blas", "dsyrk")(_char("U"), _char("T"), _int(m), _int(k), _double(1.0), _array(A), _int(k),
-                                     _double(0.0), _array(out), _int(m))
+    routine(_char("U"), _char("T"), _int(m), _int(k), _double(1.0), _array(A), _int(k), _double(0.0), _array(out),
+            _int(m))
 
 
 def symmetric_times(S: np.ndarray, B: np.ndarray) -> np.ndarray:
     """S B for S symmetric (m x m, only its lower triangle read) and B (m x k)."""
     m, k = B.shape
+    routine = _routine("cython_blas", "dsymm")
+    if routine is None:
+        from scipy.linalg import blas
+
+        return np.ascontiguousarray(blas.dsymm(1.0, _checked(S), _checked(B), side=0, lower=1))
     out = np.empty((m, k))
     # C order: (S B)' = B' S, S from the right; its C-lower triangle is the Fortran upper one
-    _routine("cython_blas", "dsymm")(_char("R"), _char("U"), _int(k), _int(m), _double(1.0), _array(S), _int(m),
-                                     _array(B), _int(k), _double(0.0), _array(out), _int(k))
+    routine(_char("R"), _char("U"), _int(k), _int(m), _double(1.0), _array(S), _int(m), _array(B), _int(k),
+            _double(0.0), _array(out), _int(k))
     return out
