@@ -179,6 +179,8 @@ class _Rebuilt:
         return self._engine is not None
 
     def __getattr__(self, name: str):
+        if name.startswith("_"):  # only the engine's own attributes (not copy's or pickle's probes)
+            raise AttributeError(name)
         if self._engine is None:
             self._engine = self._rebuild()._engine
         return getattr(self._engine, name)
