@@ -80,34 +80,28 @@ def cholesky_lower(A: np.ndarray) -> int:
     """In place: the lower triangle of the symmetric (n x n) A (only it is read) becomes L with
     A = L L'; the strict upper triangle is left as it was. Returns LAPACK's info: 0, or the
     (1-based) column whose pivot was not positive."""
-    n = A.shape[0]
-    routine = _routine("cython_lapack", "dpotrf")
-    if routine is None:
-        from scipy.linalg import lapack
-
-        c, info = lapack.dpotrf(_checked(A), lower=1, clean=0)
-        low = np.tril_indices(n)
-        A[low] = c[low]
-        return int(info)
-    info = ctypes.c_int(0)
-    routine(_char("U"), _int(n), _array(A), _int(n), ctypes.byref(info))
-    return info.value
+    return _lower_in_place("dpotrf", A, clean=0)
 
 
 def inverse_from_cholesky(L: np.ndarray) -> int:
     """In place: the lower triangle of L (A = L L', from :func:`cholesky_lower`) becomes the lower
     triangle of A^-1. Returns LAPACK's info."""
-    n = L.shape[0]
-    routine = _routine("cython_lapack", "dpotri")
+    return _lower_in_place("dpotri", L)
+
+
+def _lower_in_place(name: str, A: np.ndarray, **f2py_options) -> int:
+    """LAPACK's ``name`` (dpotrf, dpotri) on the lower triangle of the square A, in place; its info."""
+    n = A.shape[0]
+    routine = _routine("cython_lapack", name)
     if routine is None:
         from scipy.linalg import lapack
 
-        inv, info = lapack.dpotri(_checked(L), lower=1)
+        out, info = getattr(lapack, name)(_checked(A), lower=1, **f2py_options)
         low = np.tril_indices(n)
-        L[low] = inv[low]
+        A[low] = out[low]
         return int(info)
     info = ctypes.c_int(0)
-    routine(_char("U"), _int(n), _array(L), _int(n), ctypes.byref(info))
+    routine(_char("U"), _int(n), _array(A), _int(n), ctypes.byref(info))
     return info.value
 
 
