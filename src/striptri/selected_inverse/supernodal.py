@@ -7,9 +7,7 @@ The pattern comes from :mod:`.symbolic`; the numeric factorisation is a supernod
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -50,9 +48,10 @@ class SupernodalInverse(Engine):
     Selected inverse: the Takahashi equations (package docstring) per supernode, backwards:
     ``Z_BP = -Z_BB L21 L11^-1``, ``Z_PP = L11^-T (L11^-1 - L21' Z_BP)``, where ``Z_BB`` (B the rows
     below P, a clique of the filled graph) is gathered from the later supernodes that own them.
-    Both passes take the independent subtrees of the supernode tree (``Supernodes.split``) on the
-    chunk threads, with the BLAS and LAPACK kernels of :mod:`striptri.solvers.kernels`, which
-    release the GIL (docs/decisions.md "The selected inversion on both cores").
+    The recurrence takes the independent subtrees of the supernode tree (``Supernodes.split``) on
+    the chunk threads; both passes use the BLAS and LAPACK kernels of :mod:`striptri.solvers.kernels`,
+    which release the GIL (docs/decisions.md "The selected inversion on both cores"). The
+    factorisation stays on one thread, so that every run gives the same numbers to the last bit.
     Work and memory are those of the factorisation (``info["stored"]`` entries). Every block of
     N^-1 between two photos that share a point (or a camera) lies in the pattern; other entries are
     solved for with the factor.
@@ -123,20 +122,17 @@ class SupernodalInverse(Engine):
         return F
 
     def _numpy_factor(self, As: sp.csr_matrix) -> np.ndarray:
-        sym = self.sym
-        L = self._scatter(As, sym.order, self._position())  # As symmetric: its rows are its columns
-        top, subtrees = sym.split(self._threads())
-        # a subtree's supernodes update their own subtree and the top's supernodes, which every
-        # subtree may update: one lock for each of those
-        locks = {int(q): threading.Lock() for q in top} if subtrees else {}
-        _each_first_failure(lambda nodes: self._factor_supernodes(L, nodes, locks), subtrees, self._threads())
-        self._factor_supernodes(L, top, {})
+        """The supernodal factorisation, on one thread: its updates of the supernodes above a subtree
+        would arrive from the threads in any order, and their sums differ in the last bits from
+        run to run (docs/decisions.md "The selected inversion on both cores")."""
+        L = self._scatter(As, self.sym.order, self._position())  # As symmetric: its rows are its columns
+        self._factor_supernodes(L, range(self.sym.count))
         return L
 
-    def _factor_supernodes(self, L: np.ndarray, nodes, locks: dict) -> None:
+    def _factor_supernodes(self, L: np.ndarray, nodes) -> None:
         """Right-looking: each supernode p of ``nodes`` (ascending) factorised, ``L11 = chol(F11)``
         (with the solvers' pivot test), ``L21 = F21 L11^-T``, and ``L21 L21'`` subtracted from the
-        supernodes that own its rows (under their lock in ``locks``, if they have one)."""
+        supernodes that own its rows."""
         sym = self.sym
         for p in nodes:
             F = self._view(L, p)
@@ -155,13 +151,12 @@ class SupernodalInverse(Engine):
                 kernels.lower_product(L21, U)
                 for q, s, _, pos, runs in sym.targets[p]:
                     G = self._view(L, q)
-                    with locks.get(q, contextlib.nullcontext()):
-                        for a, b, c in runs:  # the lower triangle of the run's columns and the rows below
-                            G[pos[a:], c: c + b - a] -= U[s + a:, s + a: s + b]
+                    for a, b, c in runs:  # the lower triangle of the run's columns and the rows below
+                        G[pos[a:], c: c + b - a] -= U[s + a:, s + a: s + b]
 
     def _threads(self) -> int:
-        """Threads over the independent subtrees: every core the command may use (chunk_threads),
-        one for a small N (the Python around the kernels would only take turns)."""
+        """Threads over the independent subtrees of the recurrence: every core the command may use
+        (chunk_threads), one for a small N (the Python around the kernels would only take turns)."""
         return 1 if float(self.sym.work.sum()) < PARALLEL_MIN_WORK else chunk_threads()
 
     def _cholmod_factor(self, As: sp.csr_matrix) -> np.ndarray:
@@ -291,8 +286,8 @@ class SupernodalInverse(Engine):
 
 def _each_first_failure(fn, parts: list, threads: int) -> None:
     """fn(part) for every part, on ``threads`` threads (all submitted at once, so a thread that
-    finishes takes the next part). A singular pivot in several parts: the one of the part that
-    comes first in supernode order is raised, as working through the supernodes in order would.
+    finishes takes the next part). An exception in several parts: the one of the part that comes
+    first in supernode order is raised, as working through the supernodes in order would.
     The caller's numpy error state holds in the threads (as in parallel.map_ordered)."""
     if threads <= 1 or len(parts) <= 1:
         for part in parts:
