@@ -344,8 +344,8 @@ def test_subtrees_on_threads_equal_dense_inverse(monkeypatch, threads, numeric):
     monkeypatch.setattr(supernodal, "PARALLEL_MIN_WORK", 0.0)
     monkeypatch.setattr(supernodal, "chunk_threads", lambda: threads)  # whatever the cores
     used = []
-    real = supernodal._each_first_failure
-    monkeypatch.setattr(supernodal, "_each_first_failure",
+    real = supernodal.run_all
+    monkeypatch.setattr(supernodal, "run_all",
                         lambda fn, parts, n: used.append((len(parts), n)) or real(fn, parts, n))
     N, starts = block(6, 15, 1, seed=5)
     pairs = [(0, 15), (40, 41), (7, 89)]

@@ -54,6 +54,29 @@ def map_ordered(fn: Callable, items: Iterable, threads: int) -> Iterator:
                 future.cancel()
 
 
+def run_all(fn: Callable, items: Sequence, threads: int) -> None:
+    """fn(item) for every item on ``threads`` threads, all submitted at once (a thread that finishes
+    takes the next item: give the largest first), for work whose numpy and BLAS calls release the
+    GIL (the selected inversion's independent subtrees). The caller's numpy error state holds in
+    the threads, as in :func:`map_ordered`; the exception of the first failing item (in the items'
+    order) is raised once all have ended. One thread (or one item): here, item by item."""
+    if threads <= 1 or len(items) <= 1:
+        for item in items:
+            fn(item)
+        return
+    state = np.geterr()
+
+    def task(item):
+        with np.errstate(**state):
+            fn(item)
+
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="striptri-all") as pool:
+        futures = [pool.submit(task, item) for item in items]
+    for future in futures:
+        if future.exception() is not None:
+            raise future.exception()
+
+
 def map_unordered(fn: Callable, tasks: Sequence, workers: int | None = None,
                   scheduler=None) -> Iterator[tuple[int, object]]:
     """(index of the task, fn(task)) for every task, in the order they finish. scheduler: None

@@ -8,12 +8,12 @@ The pattern comes from :mod:`.symbolic`; the numeric factorisation is a supernod
 from __future__ import annotations
 
 import functools
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
+from ..parallel import run_all
 from ..solvers import SingularNormalMatrix, Structure, kernels
 from ..solvers.base import check_pivots
 from ..solvers.threads import chunk_threads
@@ -186,7 +186,7 @@ class SupernodalInverse(Engine):
         of its own supernodes and of their ancestors)."""
         top, subtrees = self.sym.split(self._threads())
         self._invert_supernodes(L, Z, top[::-1])
-        _each_first_failure(lambda nodes: self._invert_supernodes(L, Z, nodes[::-1]), subtrees, self._threads())
+        run_all(lambda nodes: self._invert_supernodes(L, Z, nodes[::-1]), subtrees, self._threads())
         return Z
 
     def _invert_supernodes(self, L: np.ndarray, Z: np.ndarray, nodes) -> None:
@@ -282,26 +282,4 @@ class SupernodalInverse(Engine):
         X = np.empty_like(y)
         X[sym.order] = y
         return X
-
-
-def _each_first_failure(fn, parts: list, threads: int) -> None:
-    """fn(part) for every part, on ``threads`` threads (all submitted at once, so a thread that
-    finishes takes the next part). An exception in several parts: the one of the part that comes
-    first in supernode order is raised, as working through the supernodes in order would.
-    The caller's numpy error state holds in the threads (as in parallel.map_ordered)."""
-    if threads <= 1 or len(parts) <= 1:
-        for part in parts:
-            fn(part)
-        return
-    state = np.geterr()
-
-    def task(part):
-        with np.errstate(**state):
-            fn(part)
-
-    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="striptri-supernodes") as pool:
-        futures = [pool.submit(task, part) for part in parts]
-    failed = [(part[0], f.exception()) for part, f in zip(parts, futures) if f.exception() is not None]
-    if failed:
-        raise min(failed, key=lambda item: item[0])[1]
 
