@@ -15,6 +15,7 @@ import pytest
 from striptri.adjustment import adjust
 from striptri.bundle import adjust as bundle_adjust
 from striptri.bundle import padding
+from striptri.equations import padding as join_rule
 from striptri.core.options import AdjustmentOptions
 from striptri.equations.groups import build_batches
 from striptri.io import read_project
@@ -51,13 +52,13 @@ def test_joined_batches_hold_every_point_once_with_its_rays(project):
             padded_rays += len(rows) - n
         np.testing.assert_array_equal(b.photo_index, project.image_points.photo_index[b.image_rows])
         if isinstance(b, padding.PaddedBatch):
-            assert b.real.sum() * (1 + padding.MAX_PADDING) >= b.real.size
-    assert 0 < padded_rays <= padding.MAX_PADDING * real_rays
+            assert b.real.sum() * (1 + join_rule.MAX_PADDING) >= b.real.size
+    assert 0 < padded_rays <= join_rule.MAX_PADDING * real_rays
 
 
 def test_large_batches_are_kept_as_they_are(project, monkeypatch):
     batches = build_batches(project, chains=False)
-    monkeypatch.setattr(padding, "SMALL_BATCH", 1)  # no batch is small
+    monkeypatch.setattr(join_rule, "SMALL_BATCH", 1)  # no batch is small
     assert padding.pad_batches(batches) == batches
 
 

@@ -213,7 +213,7 @@ def test_bundle_dense_padded_equals_dense_unpadded(monkeypatch, tmp_path, dampin
     import sys
     from pathlib import Path
 
-    from striptri.bundle import padding
+    from striptri.equations import padding  # the rule of joining
     from striptri.io import read_project
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))

@@ -264,7 +264,7 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     obs = problem.obs
     approx = project.points.xyz_approx
     now = _Estimate(problem.initial_state,
-                    initial_points(problem.batches, problem.initial_state, obs, problem.unknowns, options.chunk_size,
+                    initial_points(problem.linearised, problem.initial_state, obs, problem.unknowns, options.chunk_size,
                                    None if approx is None else approx - problem.offset),
                     obs.plate.copy(), obs.control.copy(), np.zeros(len(problem.pobs)))
     timings = Timings(initial_points=time.perf_counter() - t_start, linearisation_and_reduction=0.0, solve=0.0,

@@ -3,14 +3,14 @@
 The bundle linearises its points batch by batch, one batch per number of rays k (groups.GroupBatch).
 On long tracks the counts spread widely (close range: 30 to 93 rays per target), so 150 targets
 make some 60 batches of two or three points, and each linearisation pays numpy's cost per call
-60 times. Here neighbouring counts are joined into one batch of the largest k among them: a point
-with fewer rays repeats its last ray, and the repeated rays carry weight zero (``real`` False; the
+60 times. Here neighbouring counts are joined (equations.padding) into one batch of the largest k
+among them: a point with fewer rays repeats its last ray, and the repeated rays carry weight zero (``real`` False; the
 linearisation zeroes their whitened Jacobians and misclosures, bundle.reduced.linearise_points), so
 they add exact zeros to every sum; the back substitution and the final checks read only the real
 rays (:func:`real_rays`).
 
 Only where the points' share of the reduced system is summed dense (bundle.dense): there a ray
-costs O(w) and the padding at most MAX_PADDING more rays; the ray-pair sums of the other paths
+costs O(w) and the padding at most equations.padding.MAX_PADDING more rays; the ray-pair sums of the other paths
 cost O(k^2) per point, and their batches (aerial blocks) are large anyway.
 """
 
@@ -21,9 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..equations.groups import GroupBatch
-
-MAX_PADDING = 0.1  # padded rays at most this fraction of the real rays of a joined batch (0.1: measured best at close range)
-SMALL_BATCH = 64  # batches of fewer points are joined; a larger one pays its call overhead already
+from ..equations.padding import joined
 
 
 @dataclass(frozen=True)
@@ -53,28 +51,15 @@ def real_rays(batch: GroupBatch, *per_ray: np.ndarray) -> tuple[np.ndarray, ...]
 
 
 def pad_batches(batches: list[GroupBatch]) -> list[GroupBatch]:
-    """The batches with small ones (under SMALL_BATCH points) of one family and given axes joined,
-    in order of k, as long as the padded rays stay within MAX_PADDING of the real ones; larger and
-    lone batches as they are. Every point stays in exactly one batch."""
-    small: dict[tuple, list[GroupBatch]] = {}
-    out = []
-    for b in batches:
-        if len(b) < SMALL_BATCH and len(b):
-            small.setdefault((b.family, b.given_axes), []).append(b)
-        else:
-            out.append(b)
-    for parts in small.values():
-        parts.sort(key=lambda b: b.k)
-        group: list[GroupBatch] = []
-        for b in parts:
-            rays = sum(len(g) * g.k for g in group) + len(b) * b.k
-            if group and sum(len(g) for g in group + [b]) * b.k > (1 + MAX_PADDING) * rays:
-                out.append(_joined(group))
-                group = []
-            group.append(b)
-        if group:
-            out.append(_joined(group))
-    return out
+    """The batches with small ones of one family and given axes joined (equations.padding.joined:
+    neighbouring k, the padded rays within MAX_PADDING of the real ones), in the order of their
+    first batch; larger and lone batches as they are. Every point stays in exactly one batch."""
+    by_shape: dict[tuple, list[int]] = {}
+    for i, b in enumerate(batches):
+        by_shape.setdefault((b.family, b.given_axes), []).append(i)
+    groups = [[idx[j] for j in g] for idx in by_shape.values()
+              for g in joined([batches[i].k for i in idx], [len(batches[i]) for i in idx])]
+    return [_joined([batches[i] for i in g]) for g in sorted(groups, key=min)]
 
 
 def _joined(group: list[GroupBatch]) -> GroupBatch:

@@ -87,8 +87,8 @@ def initial_points(batches: list[GroupBatch], state: State, obs: Observations, u
         for chunk in batch.chunks(chunk_size):
             xyz_centre, r = _rays(chunk, state, obs)
             pt = chunk.point_index
-            if chunk.k >= 2:
-                xyz_ground = intersect_rays(xyz_centre, r)
+            if chunk.k >= 2:  # a padded batch (bundle.padding): its real rays only
+                xyz_ground = intersect_rays(xyz_centre, r, mask=getattr(chunk, "real", None))
             else:
                 xyz_ground = np.full((len(pt), 3), np.nan)
                 single.append((chunk, xyz_centre[:, 0], r[:, 0]))

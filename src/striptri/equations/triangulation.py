@@ -27,7 +27,7 @@ from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads
 from ..geometry.lens import DISTORTION_ELEMENTS, NCP, has_distortion, ideal_xy, projection_terms
 from .parameters import State, UnknownLayout
-from . import weights
+from . import padding, weights
 from .point_precision import orientation_part
 
 
@@ -240,18 +240,18 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
     if with_orientation:
         forms = Qxx.group_forms if hasattr(Qxx, "group_forms") else _dense_forms(Qxx)
         rotation_maps = layout.rotation_maps(state)
-    tasks = []
-    for k in np.unique(counts[counts > 0]):
-        sel_k = np.flatnonzero(counts == k)
-        # determined when the rays and the given coordinates (held or weighted) are at least three
-        n_obs = 2 * k + weighted[sel_k].sum(axis=1)
-        sel_k = sel_k[(2 * k + given_mask[sel_k].sum(axis=1) >= 3) & ((~fixed[sel_k]).sum(axis=1) <= n_obs)]
-        step = ORIENTATION_CHUNK if with_orientation else POINT_CHUNK
-        tasks += [(int(k), sel_k[first: first + step]) for first in range(0, len(sel_k), step)]
+    # determined when the rays and the given coordinates (held or weighted) are at least three
+    enough = ((counts > 0) & (2 * counts + given_mask.sum(axis=1) >= 3)
+              & ((~fixed).sum(axis=1) <= 2 * counts + weighted.sum(axis=1)))
+    step = ORIENTATION_CHUNK if with_orientation else POINT_CHUNK
+    # by ray count, neighbouring counts of few points joined with padded rays of weight zero
+    # (equations.padding: long tracks of many lengths)
+    tasks = [(k, sel_k[first: first + step]) for k, sel_k in padding.count_groups(counts, np.flatnonzero(enough))
+             for first in range(0, len(sel_k), step)]
 
     def chunk(task):  # chunks of points (memory bounded), on the chunk threads (parallel.map_ordered)
         k, sel = task
-        rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+        rows, real = padding.padded_rows(order, starts, counts, sel, k)
         ph = photo_index[rows]
         R_ground_from_cam, xyz_centre = state.R_ground_from_cam[ph], state.xyz0[ph]
         interior, conv = interior_photo[ph], convention_photo[ph]
@@ -260,9 +260,9 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
         free = ~fixed[sel]  # (m, 3)
         xy_ray = ideal_xy(xy_obs, interior, conv, meas) if with_lens else xy_obs
         xyz_point = _initial_points(R_ground_from_cam, xyz_centre, interior[..., :3], xy_ray, xyz_given[sel],
-                                    given_mask[sel])
+                                    given_mask[sel], real)
         Pw = weights.variance_weight(q_given[sel], weighted[sel])
-        wxy = weights.weight(rays.sigma_xy[rows])  # (m, k, 2)
+        wxy = weights.weight(rays.sigma_xy[rows]) * real[..., None]  # (m, k, 2); padded rays: zero
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             for _ in range(iterations):
                 res, dX, *_ = ray_terms(R_ground_from_cam, xyz_centre, interior, conv, xyz_point, xy_obs, meas,
@@ -293,7 +293,9 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
             J = np.concatenate([dO, drot_u, dint[..., estimated]], 3)  # (m, k, 2, 6 + e)
             G = np.einsum("mija,mjac->mijc", G_rows.reshape(m, 3, k, 2), J)  # (m, 3, k, 6 + e)
             Qo = orientation_part(G, ph, camera_of_photo[ph], photo_cols, camera_cols[:, estimated], forms)
-        return sel, ok, xyz_point, Qm, weak_sel, Qo, (rows, res) if with_residuals else None
+        # the residuals of the real rays, with whether their point is determined
+        found = (rows[real], res[real], ok[real.nonzero()[0]]) if with_residuals else None
+        return sel, ok, xyz_point, Qm, weak_sel, Qo, found
 
     # the work of a point grows like k^2 with the orientation part (k x k photo pairs of Qxx), like k
     # without: sized so, the 150 long tracks of the close-range block stay in the caller's thread when
@@ -303,8 +305,8 @@ def triangulate(rays: RayObservations, control: GivenCoordinates, *, state: Stat
     residuals = np.full((len(photo_index), 2), np.nan) if with_residuals else None
     for sel, ok, xyz_point, Qm, weak_sel, Qo, rays_res in map_ordered(chunk, tasks, chunk_threads(size)):
         if rays_res is not None:
-            rows, res = rays_res
-            residuals[rows[ok]] = res[ok]
+            rows, res, of_ok = rays_res
+            residuals[rows[of_ok]] = res[of_ok]
         weak[sel] = weak_sel
         xyz[sel[ok]] = xyz_point[ok]
         cov_m[sel[ok]] = Qm[ok]
@@ -502,15 +504,15 @@ def _hold(Nx, gx, free):
     return Nx, gx
 
 
-def _initial_points(R_ground_from_cam, xyz_centre, interior, xy, xyz_given, given):
-    """Starting coordinates: the ray intersection (k >= 2), or the ray met with the given
-    height / the vertical through the given plan position (one ray); given values (held or
-    weighted) where there are any."""
+def _initial_points(R_ground_from_cam, xyz_centre, interior, xy, xyz_given, given, real=None):
+    """Starting coordinates: the ray intersection (k >= 2; of the real rays (m, k) when given), or
+    the ray met with the given height / the vertical through the given plan position (one ray);
+    given values (held or weighted) where there are any."""
     fixed = given
     m, k, _ = xy.shape
     r = ray_ground(R_ground_from_cam, xy, interior)
     if k >= 2:
-        xyz_ground = intersect_rays(xyz_centre, r, safe=True)
+        xyz_ground = intersect_rays(xyz_centre, r, mask=real, safe=True)
     else:
         r0, O0 = r[:, 0], xyz_centre[:, 0]
         height = np.where(fixed[:, 2], xyz_given[:, 2], np.nan)

@@ -51,7 +51,7 @@ from ..equations.point_precision import orientation_part
 from ..equations.groups import points_with_conditions
 from ..model import Project
 from ..equations.triangulation import Triangulated, ray_terms
-from ..equations import weights
+from ..equations import padding, weights
 
 METHOD = "bundle"
 MAX_ENTRIES = 1 << 21  # entries of the gathered Qcc blocks (m D^2) of one chunk of points (16 MB)
@@ -126,21 +126,22 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     # (nan there only where their conditions degenerate); their (90) cofactors as they are
     undetermined = with_conditions & tri.undetermined
     wanted = tri.determined  # with the points with conditions; one without: its (90) only
-    for k in np.unique(counts[wanted]):
-        k = int(k)
-        sel_k = np.flatnonzero(wanted & (counts == k))
+    # by ray count, neighbouring counts of few points joined, the shorter tracks padded with rays of
+    # weight zero (equations.padding: their G is zero, their rows of Qvv are not read)
+    for k, sel_k in padding.count_groups(counts, np.flatnonzero(wanted)):
         width = 6 * k + camera_cols.shape[1] * k
         step = max(1, MAX_ENTRIES // (width * width))
         for first in range(0, len(sel_k), step):
             sel = sel_k[first: first + step]
-            rows = order[starts[sel][:, None] + np.arange(k)[None, :]]
+            rows, real = padding.padded_rows(order, starts, counts, sel, k)
             ph = ip.photo_index[rows]
             params, conv = state.camera_terms(ph)
             with np.errstate(all="ignore"):
                 _, dX, dO, drot, dcam = ray_terms(state.R_ground_from_cam[ph], state.xyz0[ph], params, conv,
                                                   tri.xyz[sel], result.plate_adjusted[rows], obs.plate[rows], lens)
             Jc = np.concatenate([dO, drot @ T[ph], dcam[..., elements]], 3)  # (m, k, 2, 6 + e)
-            Qm, pJX = tri.cov_measurement[sel], dX * weights.inverse_variance(obs.q_plate[rows])[..., None]
+            p = weights.inverse_variance(obs.q_plate[rows]) * real[..., None]
+            Qm, pJX = tri.cov_measurement[sel], dX * p[..., None]
             rays = _Rays(Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], obs.q_plate[rows])
             chunk = _ray_cofactors(gather, rays, layout.photo_cols, camera_cols, full=blocks is not None,
                                    residuals=residuals)
@@ -148,11 +149,13 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
             if not residuals:
                 continue
             cond = with_conditions[sel] & ~undetermined[sel]
-            q_plate[rows[cond]] = chunk.diagonal[cond]
+            q_plate[rows[cond[:, None] & real]] = chunk.diagonal[cond[:, None] & real]
             q_control[sel] = np.where(weighted[sel] & cond[:, None],
                                       obs.q_control[sel] - np.diagonal(chunk.Q_pp, axis1=1, axis2=2), 0.0)
-            if blocks is not None and cond.any():
-                blocks.append((rows[cond], chunk.block[cond]))
+            if blocks is not None and cond.any():  # per real ray count: the blocks of its real rays
+                for n in np.unique(counts[sel[cond]]):
+                    of_n = cond & (counts[sel] == n)
+                    blocks.append((rows[of_n, :n], chunk.block[of_n, : 2 * n, : 2 * n]))
     points = Triangulated(xyz=tri.xyz, cov_measurement=tri.cov_measurement,
                           cov_orientation=np.where(tri.determined[:, None, None], cov_orientation, 0.0),
                           determined=tri.determined, weak=tri.weak)
