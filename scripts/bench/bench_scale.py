@@ -63,6 +63,7 @@ import signal
 import statistics
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -203,15 +204,50 @@ def _limit_memory(gb: float | None):
     return apply
 
 
+TREE_SAMPLE_S = 0.01  # how often the resident memory of a run's processes is summed
+
+
+def _session_rss_mib(session: int) -> float:
+    """The resident memory of every process of the session (MiB): the run's command, and the
+    processes it started (striptri's drawing worker, report.drawing), summed."""
+    total = 0
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            if int(fields[3]) != session:  # the session id (fields after the command's name: state, ppid, pgrp, session)
+                continue
+            with open(f"/proc/{entry.name}/status") as f:
+                total += next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
+        except (OSError, ValueError, IndexError, StopIteration):
+            continue
+    return total / 1024
+
+
+def _sample_session(session: int, stop: threading.Event, peak: list) -> None:
+    while not stop.wait(TREE_SAMPLE_S):
+        peak[0] = max(peak[0], _session_rss_mib(session))
+
+
 def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float | None, time_file: Path) -> dict:
     """Run cmd under /usr/bin/time and timeout(1). -> wall s (this process' clock), peak MiB, CPU s
-    (user + system), exit status, timed_out, the last line of stderr, the load average around it."""
+    (user + system), exit status, timed_out, the last line of stderr, the load average around it.
+
+    The peak: the largest of /usr/bin/time's (the largest single process: the high-water mark, no
+    sampling) and the sum of the resident memory of all the run's processes sampled every
+    TREE_SAMPLE_S (``tree_peak_mib``: a command that draws its figures in a second process pays
+    for both at once)."""
     full = [TIME, "-f", "%e %M %U %S", "-o", str(time_file),
             "timeout", "--foreground", "--signal=TERM", "--kill-after=10", f"{time_limit:.0f}"] + cmd
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     proc = subprocess.Popen(full, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, preexec_fn=_limit_memory(memory_gb))
+    stop, tree_peak = threading.Event(), [0.0]
+    sampler = threading.Thread(target=_sample_session, args=(proc.pid, stop, tree_peak), daemon=True)
+    sampler.start()
     try:
         out, err = proc.communicate(timeout=time_limit + 120)
     except subprocess.TimeoutExpired:  # timeout(1) itself did not end it: stop the group this run started
@@ -221,6 +257,8 @@ def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float 
         os.killpg(proc.pid, signal.SIGTERM)
         raise
     wall = time.perf_counter() - t0
+    stop.set()
+    sampler.join()
     # 124: ended by timeout's TERM; 137: killed 10 s later (a TERM is handled between Python bytecodes only)
     timed_out = proc.returncode == 124 or (proc.returncode == 137 and wall >= time_limit)
     rep = {"wall_s": wall, "exit_status": proc.returncode, "timed_out": timed_out,
@@ -234,6 +272,8 @@ def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float 
         rep["cpu_s"] = float(last[2]) + float(last[3])
     except (OSError, IndexError, ValueError):
         pass
+    rep["tree_peak_mib"] = tree_peak[0]
+    rep["peak_mib"] = max(rep.get("peak_mib", 0.0), tree_peak[0])
     return rep
 
 

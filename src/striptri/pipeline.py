@@ -8,6 +8,7 @@ output folder whole or not at all.
 
 from __future__ import annotations
 
+import contextlib
 import time
 import warnings
 from collections.abc import Callable
@@ -20,6 +21,7 @@ from .precision import export as covariance_export
 from .core import diagnosis, termination
 from .report import gnss as gnss_output, inactive, html as report
 from .equations import plate_corrections
+from .equations.groups import rays_per_point
 from . import progress, solvers
 from .core.adjusted_points import triangulate_adjusted, undetermined_points
 from .precision import collinearity_form
@@ -28,6 +30,7 @@ from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
 from .errors import InputError
 from .report import figures as figure_imports
+from .report import drawing
 from .report.figures import normal_matrix_structure
 from .report.tables import (camera_table, check_point_statistics, finite_or_none, gnss_tables, photo_table,  # noqa: F401
                             point_covariances, point_table, residual_table)
@@ -229,8 +232,10 @@ def adjust_products(project: Project, options: AdjustmentOptions, run: RunOption
     frame): photos.csv and points.csv are written back in the project's CRS, summary.json and the
     report name the frame; check-point differences stay those of the local frame (metres)."""
     started = run_started()
-    with single_threaded():  # BLAS threads set by striptri (solvers.threads), also for API callers
-        products = _adjust_products(project, options, run, on_warning, seconds_reading, frame, started)
+    # BLAS threads set by striptri (solvers.threads), also for API callers; the report's figures
+    # drawn by a second process (report.drawing), which _adjust_products starts and this ends
+    with single_threaded(), contextlib.ExitStack() as workers:
+        products = _adjust_products(project, options, run, on_warning, seconds_reading, frame, started, workers)
     return products
 
 
@@ -255,8 +260,10 @@ def run_metadata(project: Project, options: AdjustmentOptions, started: str, **m
             "project": None if project.source is None else str(project.source), "options": chosen}
 
 
-def _adjust_products(project, options, run, on_warning, seconds_reading, frame, started) -> AdjustmentProducts:
-    """adjust_products' work, with the BLAS threads already set; started: run_started()'s time."""
+def _adjust_products(project, options, run, on_warning, seconds_reading, frame, started,
+                     workers: contextlib.ExitStack) -> AdjustmentProducts:
+    """adjust_products' work, with the BLAS threads already set; started: run_started()'s time;
+    workers: where the drawing worker is entered (it ends with adjust_products)."""
     from dataclasses import replace as _replace
 
     point_precision, blunders, keep_unconverged = run.point_precision, run.blunders, run.keep_unconverged
@@ -278,7 +285,15 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         warn(str(note))
     # the pipeline's phases beyond the adjustment (summary.json timings_s, docs/file-formats.md)
     phases: dict[str, float] = {} if seconds_reading is None else {"read": seconds_reading}
-    figure_imports.preload()  # matplotlib imported on the other core while the adjustment computes
+    # the report's figures drawn by a second process when the run uses both cores (report.drawing):
+    # "now" it imports matplotlib while the adjustment computes; "later" (large runs) once the
+    # point precision is done, beside the tables: not on top of the run's peaks of memory. Without
+    # one, matplotlib is imported by a thread of this process while the adjustment computes.
+    worker = drawing.when_to_start(rays_per_point(project))
+    if worker == "now":
+        workers.enter_context(drawing.worker_for(True))
+    elif worker is None:
+        figure_imports.preload()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -317,6 +332,15 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         # the rest of the inverse, the report phase is no longer the run's peak of memory
         result.release_covariance()
         give_back_free_memory()
+    if worker == "later":  # the run's peaks of memory are behind: the worker's import beside the tables
+        workers.enter_context(drawing.worker_for(True))
+    early: dict = {}  # with a drawing worker: the figures asked for now, drawn while the tables are written
+    t0 = time.perf_counter()
+    if drawing.drawing_elsewhere():
+        early["structure"] = _structure(adjusted, result)
+        early["sections"] = report.figure_sections(adjusted, result, det.w[det.rows], points=points,
+                                                   flags=det.flag[det.rows])
+    seconds_early = time.perf_counter() - t0  # the report's, asked for early
     t0 = time.perf_counter()
     photo_cols, point_cols = photo_table(adjusted, result), point_table(adjusted, result, points)
     if frame is not None:
@@ -362,16 +386,24 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
 
     t0 = time.perf_counter()
     give_back_free_memory()
-    structure = normal_matrix_structure(result.N, result.layout.block_starts(), len(adjusted.photos),
-                                        labels=structure_labels(adjusted, result.layout))
+    structure = early["structure"] if "structure" in early else _structure(adjusted, result)
     html = report.html_report(adjusted, result, summary, det.w[det.rows], points=points,
                               flags=det.flag[det.rows],
-                              parts=report.ReportParts(figures={"structure": structure}, distances=distance_cols))
-    summary.timings_s["report"] = round(time.perf_counter() - t0, 6)
+                              parts=report.ReportParts(figures={"structure": structure}, distances=distance_cols,
+                                                       sections=early.get("sections")))
+    summary.timings_s["report"] = round(time.perf_counter() - t0 + seconds_early, 6)
     progress.phase("report", summary.timings_s["report"])
     files = {**tables, "summary.json": summary.json(), "report.html": html}
     products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products
+
+
+def _structure(project: Project, result: AdjustmentResult):
+    """The report's figure of the normal matrix's structure (report.drawing.draw: bytes, or a
+    figure a worker draws), from the pattern of its blocks."""
+    return drawing.draw(figure_imports.structure_figure,
+                        *figure_imports.structure_parts(result.N, result.layout.block_starts()),
+                        len(project.photos), labels=structure_labels(project, result.layout))
 
 
 def _reads_covariance_entries(project: Project, result: AdjustmentResult) -> bool:

@@ -133,44 +133,72 @@ def _png_savefig(fig, tight: bool) -> bytes:
     return buf.getvalue()
 
 
-STRUCTURE_CELLS = 1500  # blocks drawn one cell each up to this many; beyond, one pixel per group of blocks
-STRUCTURE_PIXELS = 750
+STRUCTURE_PHOTO, STRUCTURE_CAMERA = (0.12, 0.31, 0.47), (0.77, 0.35, 0.07)  # the colours of the blocks
+# The square axes of the figure are about 465 pixels across at DPI: an image of more pixels (or more
+# cells) would only be resampled down, dropping marks, in an array of 32 bytes per pixel (150 MB for
+# 1,500 x 1,500 cells). Up to STRUCTURE_CELLS blocks one cell each; beyond, one pixel per group.
+STRUCTURE_CELLS = 450
+STRUCTURE_PIXELS = 450
 
 
 def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, title: str = "",
                             labels=None) -> bytes:
+    """:func:`structure_figure` of N (its arguments there)."""
+    return structure_figure(*structure_parts(N, block_starts), n_photo_blocks, title, labels)
+
+
+class BlockStructure(NamedTuple):
+    """The nonzero blocks of a normal matrix (block_pattern's), rows compressed: indptr (nb + 1,)
+    and indices (nnz,). Plain arrays: a drawing worker (report.drawing) gets them without scipy."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+
+
+def structure_parts(N, block_starts: np.ndarray) -> tuple:
+    """(the nonzero blocks of N (BlockStructure; None when N is empty), N's size): what
+    :func:`structure_figure` draws, small where N is large."""
+    n = N.shape[0]
+    if not n:
+        return None, 0
+    pattern = block_pattern(N, block_starts)
+    return BlockStructure(pattern.indptr, pattern.indices), n
+
+
+def structure_figure(pattern, n: int, n_photo_blocks: int, title: str = "", labels=None) -> bytes:
     """The nonzero pattern of the normal matrix (Schmid Fig. 10): one mark per nonzero 6x6 photo
     block (camera columns last), with the block grid for small projects. Beyond STRUCTURE_CELLS
     blocks the pattern is drawn as an image of STRUCTURE_PIXELS pixels a side, a pixel coloured when
     any block it covers is nonzero (camera blocks on top).
 
-    N: (n, n) sparse; block_starts: first column of each photo and camera block (UnknownLayout.
-    block_starts); n_photo_blocks: how many of the blocks are photos; labels: the ids of the blocks
+    pattern: the nonzero blocks of the normal matrix N (BlockStructure: structure_parts of N and
+    the first column of each photo and camera block, UnknownLayout.block_starts); n: N's size;
+    n_photo_blocks: how many of the blocks are photos; labels: the ids of the blocks
     (photo ids, then camera ids), shown on the axes where they fit (at most STRUCTURE_LABELS blocks;
     beyond, the axes count the blocks from 1).
     """
-    n = N.shape[0]
     if n == 0:
         return _empty_normal_matrix(title)
-    pattern = block_pattern(N, block_starts)
-    nb = pattern.shape[0]
-    bi = np.repeat(np.arange(nb), np.diff(pattern.indptr))
-    bandwidth = int(np.max(np.abs(bi - pattern.indices), initial=0))
+    nb = len(pattern.indptr) - 1
+    rows = np.repeat(np.arange(nb), np.diff(pattern.indptr))
+    cols = np.asarray(pattern.indices)
+    bandwidth = int(np.max(np.abs(rows - cols), initial=0))
     fig = _figure(figsize=(6.4, 5.5))  # room for the title beside the square axes
     ax = fig.subplots()
-    rows, cols = pattern.nonzero()
     is_cam = (rows >= n_photo_blocks) | (cols >= n_photo_blocks)
+    # 8-bit colours: an image of floats would take 8 times the memory (and matplotlib copies it)
+    photo, camera = (np.round(255 * np.array(c)).astype(np.uint8) for c in (STRUCTURE_PHOTO, STRUCTURE_CAMERA))
     if nb <= STRUCTURE_CELLS:  # filled cells, as in Schmid's Fig. 10
-        image = np.ones((nb, nb, 3))
-        image[rows[~is_cam], cols[~is_cam]] = (0.12, 0.31, 0.47)
-        image[rows[is_cam], cols[is_cam]] = (0.77, 0.35, 0.07)
+        image = np.full((nb, nb, 3), 255, dtype=np.uint8)
+        image[rows[~is_cam], cols[~is_cam]] = photo
+        image[rows[is_cam], cols[is_cam]] = camera
         ax.imshow(image, interpolation="nearest")
     else:  # one pixel per group of blocks
         px = STRUCTURE_PIXELS
-        image = np.ones((px, px, 3))
+        image = np.full((px, px, 3), 255, dtype=np.uint8)
         pr, pc = rows * px // nb, cols * px // nb
-        image[pr[~is_cam], pc[~is_cam]] = (0.12, 0.31, 0.47)
-        image[pr[is_cam], pc[is_cam]] = (0.77, 0.35, 0.07)
+        image[pr[~is_cam], pc[~is_cam]] = photo
+        image[pr[is_cam], pc[is_cam]] = camera
         ax.imshow(image, interpolation="nearest", extent=(-0.5, nb - 0.5, nb - 0.5, -0.5))
     ax.set_xlim(-0.5, nb - 0.5)
     ax.set_ylim(nb - 0.5, -0.5)
@@ -191,7 +219,7 @@ def normal_matrix_structure(N, block_starts: np.ndarray, n_photo_blocks: int, ti
         what = "photo number"
     ax.set_xlabel(f"{what} (photos in order, then cameras in orange)" if is_cam.any() else what)
     ax.set_ylabel(what)
-    fill = pattern.nnz / max(nb * nb, 1)
+    fill = len(cols) / max(nb * nb, 1)
     ax.set_title(title or f"normal matrix: {n} unknowns, {nb} blocks, {fill:.1%} of blocks filled, "
                           f"block bandwidth {bandwidth}", fontsize=9)
     return png_of(fig)

@@ -23,7 +23,7 @@ import time
 from dataclasses import dataclass, field
 import numpy as np
 
-from . import figures as fig
+from . import drawing, figures as fig
 from ..core.result import AdjustmentResult
 from ..bundle.distances import report_parts as distance_report_parts
 from ..reliability.distances import distance_table
@@ -252,8 +252,8 @@ def _convergence_section(result: AdjustmentResult) -> list[str]:
     hist = result.history
     inner = [h.solver_info.inner_iterations for h in hist]
     has_inner = any(i is not None for i in inner)
-    png = fig.convergence([h.vtpv for h in hist], [h.max_correction for h in hist],
-                          [np.nan if i is None else i for i in inner] if has_inner else None)
+    png = drawing.draw(fig.convergence, [h.vtpv for h in hist], [h.max_correction for h in hist],
+                       [np.nan if i is None else i for i in inner] if has_inner else None)
     header = ["iteration", "v<sup>T</sup>P v", "largest correction / its &sigma;", "seconds"]
     if has_inner:
         header += ["inner iterations", "relative residual"]
@@ -320,7 +320,8 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
     groups = [rows_of[bounds[p]:bounds[p + 1]] for p in shown]
     rms_photo = unit.factor * np.hypot(*stats["rms"].T) / np.sqrt(2)  # RMS per coordinate, in unit.label
     titles = [f"{ids[p]}  ({stats['count'][p]} pts, {rms_photo[p]:{unit.spec}} {unit.label})" for p in shown]
-    png = fig.plate_residuals_per_photo(xy, v, flagged, groups, titles, h, fig.ScaleBar(mag, bar, bar_label))
+    png = drawing.draw(fig.plate_residuals_per_photo, xy, v, flagged, groups, titles, h,
+                       fig.ScaleBar(mag, bar, bar_label))
     parts.append("<h3>Per photograph</h3>")
     parts.append(_img(png, "residual vectors per photograph",
                       f"Residual vectors on the format of {what}; panel title: photo, measurements, RMS residual "
@@ -339,8 +340,8 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
                  "pattern there points to a systematic image error (lens distortion, film deformation) rather than "
                  "noise.")
     if len(xy) <= page.MAX_VECTORS:
-        png = fig.plate_residuals_stacked(xy, v, flagged, h, fig.ScaleBar(mag_all, bar_all, unit.length(bar_all)),
-                                          cell_means, plate_unit=unit.plate)
+        png = drawing.draw(fig.plate_residuals_stacked, xy, v, flagged, h,
+                           fig.ScaleBar(mag_all, bar_all, unit.length(bar_all)), cell_means, plate_unit=unit.plate)
         left = f"the residuals of all photographs drawn over one format (x{mag_all:g})."
     else:  # a raster of the RMS residual per cell, and the worst vectors on top
         _, ms, count = _cell_statistics(xy, length[:, None] ** 2, h, page.FIELD_CELLS)
@@ -348,10 +349,9 @@ def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, 
         worst = np.argsort(-(flagged * (1.0 + absw.max(initial=0.0)) + absw), kind="stable")[:page.WORST_VECTORS]
         mag_w = min(mag_all, fig.nice_number(0.3 * h / max(float(length[worst].max()), 1e-300)))
         bar_w = fig.nice_number(0.3 * h / mag_w)
-        png = fig.plate_residuals_stacked(xy[worst], v[worst], flagged[worst], h,
-                                          fig.ScaleBar(mag_w, bar_w, unit.length(bar_w)),
-                                          cell_means, field=(rms * unit.factor, unit.label, len(xy)),
-                                          plate_unit=unit.plate)
+        png = drawing.draw(fig.plate_residuals_stacked, xy[worst], v[worst], flagged[worst], h,
+                           fig.ScaleBar(mag_w, bar_w, unit.length(bar_w)), cell_means,
+                           field=(rms * unit.factor, unit.label, len(xy)), plate_unit=unit.plate)
         left = (f"the RMS length of the residuals of all {len(xy)} measurements in each cell of a {page.FIELD_CELLS} "
                 f"&times; {page.FIELD_CELLS} grid over the format ({unit.label}; white: no measurement), and on top the "
                 f"{len(worst)} with the largest normalised residual |w| (<span class='flag'>red</span>: flagged), "
@@ -459,8 +459,8 @@ def _gnss_section(project: Project, result: AdjustmentResult) -> list[str]:
 
 @dataclass(frozen=True)
 class ReportParts:
-    """What the caller of html_report made already or wants back: figures, name -> PNG bytes made
-    elsewhere ("structure": the normal matrix pattern); distances, distances.csv's columns
+    """What the caller of html_report made already or wants back: figures, name -> PNG bytes (or a
+    report.drawing figure) made elsewhere ("structure": the normal matrix pattern); distances, distances.csv's columns
     (reliability.distances.distance_table) when the caller formed them (formed here otherwise);
     timings, a dict that receives the seconds each section took (section id -> s; "total" for
     the whole report)."""
@@ -468,6 +468,35 @@ class ReportParts:
     figures: dict = field(default_factory=dict)
     distances: dict | None = None
     timings: dict | None = None
+    sections: dict | None = None  # figure_sections' sections, made before (their figures drawn meanwhile)
+
+
+def _residual_inputs(project: Project, result: AdjustmentResult, w: np.ndarray, flags) -> tuple:
+    """(w as floats, the largest |w| of each measurement, its flag, the flags' wording, the
+    photos' statistics): what the sections of the residuals read (html_report's arguments)."""
+    w = np.asarray(w, dtype=float)
+    absw = np.nan_to_num(np.abs(w), nan=0.0).max(axis=1) if len(w) else np.zeros(0)
+    flagged = _flags_of(flags, w)
+    return w, absw, flagged, _flag_text(flags), _photo_statistics(project, result.plate_residuals, absw, flagged)
+
+
+def figure_sections(project: Project, result: AdjustmentResult, w: np.ndarray, points: Triangulated | None = None,
+                    flags=None) -> dict[str, tuple[list[str], float]]:
+    """The report's sections with figures (convergence, residuals and, with points, points), each
+    with the seconds it took: ReportParts.sections of :func:`html_report` with the same arguments.
+    The pipeline asks for them before it writes the tables, so that a drawing worker
+    (report.drawing) draws their figures meanwhile."""
+    _, absw, flagged, flag_text, stats = _residual_inputs(project, result, w, flags)
+    makers = {"convergence": lambda: _convergence_section(result),
+              "residuals": lambda: _residuals_section(project, result, stats, flagged, flag_text, absw)}
+    if points is not None:
+        makers["points"] = lambda: _points_section(project, result, points, _point_covariance(result, points))
+    out = {}
+    for key, make in makers.items():
+        start = time.perf_counter()
+        section = make()
+        out[key] = (section, time.perf_counter() - start)
+    return out
 
 
 def html_report(project: Project, result: AdjustmentResult, summary: RunSummary, w: np.ndarray,
@@ -482,15 +511,15 @@ def html_report(project: Project, result: AdjustmentResult, summary: RunSummary,
     """
     t0 = time.perf_counter()
     figures, distances, timings = parts.figures or {}, parts.distances, parts.timings
-    w = np.asarray(w, dtype=float)
-    absw = np.nan_to_num(np.abs(w), nan=0.0).max(axis=1) if len(w) else np.zeros(0)
-    flagged = _flags_of(flags, w)
-    flag_text = _flag_text(flags)
-    stats = _photo_statistics(project, result.plate_residuals, absw, flagged)
+    w, absw, flagged, flag_text, stats = _residual_inputs(project, result, w, flags)
     src = html.escape(str(project.source or ""))
     seconds: dict[str, float] = {"preparation": time.perf_counter() - t0}
+    made = parts.sections or {}
 
     def timed(key: str, make) -> list[str]:
+        if key in made:  # made by the caller (figure_sections), with the seconds it took
+            section, seconds[key] = made[key]
+            return section
         start = time.perf_counter()
         parts = make()
         seconds[key] = seconds.get(key, 0.0) + time.perf_counter() - start
@@ -540,7 +569,11 @@ def html_report(project: Project, result: AdjustmentResult, summary: RunSummary,
                    and (k != "inactive" or summary.inactive is not None)
                    and (k != "automatic" or summary.automatic_tie_points is not None)
                    and (k != "distances" or (project.distances is not None and points is not None)))
-    total = time.perf_counter() - t0
+    body_text = "\n".join(p for section in body for p in section if p)
+    waited = time.perf_counter()
+    body_text = drawing.fill(body_text)  # the figures of a drawing worker (report.drawing), waited for here
+    if drawing.drawing_elsewhere():
+        seconds["waiting for the figures drawn by the second process"] = time.perf_counter() - waited
     slow = sorted(((v, k) for k, v in seconds.items() if v >= 0.005), reverse=True)
     breakdown = ", ".join(f"{html.escape(SECTIONS.get(k, k).lower())} {v:.2f}" for v, k in slow)
     parts = [
@@ -554,8 +587,8 @@ def html_report(project: Project, result: AdjustmentResult, summary: RunSummary,
         f"<nav>{nav}</nav>",
         run_block(summary),
     ]
-    for section in body:
-        parts += [p for p in section if p]
+    parts.append(body_text)
+    total = time.perf_counter() - t0 + sum(spent for _, spent in made.values())
     parts.append(f"<footer>Written by striptri. Report and figures built in {total:.2f} s"
                  + (f" ({breakdown})" if breakdown else "") + ". "
                  "The numbers in full are in photos.csv, points.csv, residuals.csv and summary.json beside "

@@ -11,7 +11,7 @@ from pathlib import Path
 from dataclasses import dataclass
 import numpy as np
 
-from . import figures as fig
+from . import drawing, figures as fig
 from ..core.result import AdjustmentResult
 from ..model import KIND_NAMES, Project
 from ..precision.residuals import W_CRITICAL
@@ -145,10 +145,15 @@ def _table(header, rows, cls: str = "", left: int = 0, row_classes=None, wrap: t
             + "".join(body) + "</table></div>")
 
 
-def _img(png: bytes, alt: str, caption: str = "") -> str:
-    data = base64.b64encode(png).decode("ascii")
-    cap = f"<figcaption>{caption}</figcaption>" if caption else ""
-    return f"<figure><img alt='{html.escape(alt)}' src='data:image/png;base64,{data}'>{cap}</figure>"
+def _img(png, alt: str, caption: str = "") -> str:
+    """The figure's HTML; png: its PNG bytes, or a figure still being drawn (report.drawing: a
+    placeholder until drawing.fill)."""
+    def markup(data: bytes) -> str:
+        encoded = base64.b64encode(data).decode("ascii")
+        cap = f"<figcaption>{caption}</figcaption>" if caption else ""
+        return f"<figure><img alt='{html.escape(alt)}' src='data:image/png;base64,{encoded}'>{cap}</figure>"
+
+    return drawing.html_of(png, markup)
 
 
 # the page's building blocks for the other striptri reports (match.report)

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import figures as fig
-from . import plan_views
+from . import drawing, plan_views
 from ..core.result import AdjustmentResult
 from ..model import CHECK, KIND_NAMES, Project
 from ..equations.triangulation import Triangulated
@@ -60,7 +60,8 @@ def _points_section(project: Project, result: AdjustmentResult, points: Triangul
     if n_determined <= page.MAX_ELLIPSES:
         strips = plan_views.flies_strips(result.state.R_ground_from_cam)
         plan = plan_views.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
-        png = plan_views.error_ellipses(plan, cov[:, :2, :2], fig.ScaleBar(mag, bar, bar_label), labels=pts.ids)
+        png = drawing.draw(plan_views.error_ellipses, plan, cov[:, :2, :2], fig.ScaleBar(mag, bar, bar_label),
+                           labels=pts.ids)
         stations = ("projection centres (+) along their flight lines (arrow: direction of flight)" if strips else
                     "camera stations (+; convergent photographs, no flight lines)")
         figure = _img(png, "error ellipses of the ground points",
@@ -144,8 +145,8 @@ def _precision_map(project, points, spread: _Spread):
     unit, scale = ("cm", 100.0) if len(finite) == 0 or np.percentile(finite, 99) < 1.0 else ("m", 1.0)
     strips = plan_views.flies_strips(project.photos.R_ground_from_cam)
     plan = plan_views.BlockPlan(centres[:, :2], project.photos.strip_ids, xyz[:, :2], kind_names, strips)
-    png = plan_views.precision_map(plan, grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z), cov[:, :2, :2],
-                            fig.ScaleBar(mag, bar, bar_label))
+    png = drawing.draw(plan_views.precision_map, plan, grid_extent, (grid_h, grid_z, unit, scale), (worst_h, worst_z),
+                       cov[:, :2, :2], fig.ScaleBar(mag, bar, bar_label))
     n_shown = int(pos.sum())
     n_strips = len(set(project.photos.strip_ids))
     lines = " with its flight lines" if strips and n_strips <= plan_views.MAP_FLIGHT_LINES else ""

@@ -1,0 +1,173 @@
+"""report.drawing (issue 29): the report's figures drawn by a second process while the run goes on.
+The report is the same byte for byte (but the footer's seconds) whichever process draws; a figure the
+worker cannot draw, or a worker that dies, leaves the figure to the command's process; the worker
+ends with the run, also when the run is interrupted, and never outlives the command."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from striptri.core.options import AdjustmentOptions
+from striptri.io import read_project
+from striptri.pipeline import adjust_products
+from striptri.report import drawing
+
+import drawing_helpers
+
+TESTS = Path(__file__).resolve().parent
+DATA = TESTS.parents[0] / "data" / "synthetic_strips"
+sys.path.insert(0, str(TESTS.parents[0] / "scripts" / "bench"))
+import close_range  # noqa: E402
+
+
+@pytest.fixture
+def helpers_importable(monkeypatch):
+    """The worker (a fresh interpreter) can import drawing_helpers; it knows this process's pid."""
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv(drawing_helpers.PARENT, str(os.getpid()))
+
+
+def _drawn_by(text: str) -> int:
+    return int(re.search(r"drawn by (\d+)", text).group(1))
+
+
+def _figures_and_text(report: str) -> tuple[list[str], str]:
+    """The report's images (alt text and PNG bytes, base64) in order, and its text without them,
+    with digits as 0 and without the footer (the time it started and the seconds it took differ
+    between two runs)."""
+    images = re.findall(r"<img alt='([^']*)' src='data:image/png;base64,([^']*)'>", report)
+    text = re.sub(r"<img [^>]*>", "<img>", re.sub(r"<footer>.*?</footer>", "", report, flags=re.S))
+    return images, re.sub(r"\d", "0", text)
+
+
+@pytest.mark.parametrize("when", ["now", "later"])
+def test_the_report_drawn_by_a_worker_is_the_report_drawn_here(monkeypatch, when):
+    project = read_project(DATA / "block_3x6")
+    monkeypatch.setattr(drawing, "when_to_start", lambda rays: None)
+    here = adjust_products(project, AdjustmentOptions())
+    monkeypatch.setattr(drawing, "when_to_start", lambda rays: when)
+    elsewhere = adjust_products(project, AdjustmentOptions())
+    footer = re.search(r"<footer>.*?</footer>", elsewhere.files["report.html"], flags=re.S).group(0)
+    assert "drawn by the second process" in footer  # the worker drew them
+    assert drawing.MARK not in elsewhere.files["report.html"]  # every placeholder filled
+    # convergence, residuals per photo and over one format, error ellipses, structure of N
+    assert elsewhere.files["report.html"].count("data:image/png;base64,") == 5
+    images, text = _figures_and_text(elsewhere.files["report.html"])
+    assert len(images) == 5 and (images, text) == _figures_and_text(here.files["report.html"])  # the same pixels
+    for name in ("photos.csv", "points.csv", "residuals.csv"):
+        assert elsewhere.files[name] == here.files[name]
+    assert not drawing.drawing_elsewhere()  # ended with the run
+
+
+def test_the_worker_draws_and_a_figure_it_cannot_draw_is_drawn_here(helpers_importable):
+    with drawing.worker_for(True) as worker:
+        assert worker is not None and drawing.drawing_elsewhere()
+        there = drawing.draw(drawing_helpers.anywhere, b"a")
+        failed = drawing.draw(drawing_helpers.only_in_the_parent, b"b")
+        assert isinstance(there, drawing.Pending) and isinstance(failed, drawing.Pending)
+        text = drawing.html_of(there, bytes.decode) + " | " + drawing.html_of(failed, bytes.decode)
+        assert drawing.MARK in text
+        text = drawing.fill(text)
+    first, second = text.split(" | ")
+    assert first.startswith("a ") and _drawn_by(first) == worker.process.pid != os.getpid()
+    assert second.startswith("b ") and _drawn_by(second) == os.getpid()
+    assert worker.process.poll() is not None  # ended with the block
+
+
+def test_a_worker_that_dies_leaves_its_figures_to_this_process(helpers_importable):
+    with drawing.worker_for(True) as worker:
+        worker.process.kill()
+        worker.process.wait()
+        text = drawing.fill(drawing.html_of(drawing.draw(drawing_helpers.anywhere, b"c"), bytes.decode))
+    assert _drawn_by(text) == os.getpid()
+
+
+def test_arguments_that_do_not_pickle_are_drawn_here(helpers_importable):
+    with drawing.worker_for(True):
+        figure = drawing.draw(drawing_helpers.anywhere, b"d", **{})
+        unpicklable = drawing.draw(lambda v: drawing_helpers.anywhere(v()), lambda: b"e")
+        text = drawing.fill(drawing.html_of(figure, bytes.decode) + "|" + drawing.html_of(unpicklable, bytes.decode))
+    there, here = text.split("|")
+    assert _drawn_by(there) != os.getpid() and _drawn_by(here) == os.getpid()
+
+
+def test_the_worker_ends_when_the_run_fails(helpers_importable):
+    with pytest.raises(ValueError, match="the run failed"):
+        with drawing.worker_for(True) as worker:
+            drawing.draw(drawing_helpers.anywhere, b"f")
+            raise ValueError("the run failed")
+    assert worker.process.poll() is not None
+    assert not drawing.drawing_elsewhere()
+
+
+def test_without_a_worker_figures_are_drawn_at_once():
+    with drawing.worker_for(False) as worker:
+        assert worker is None
+        assert drawing.draw(drawing_helpers.anywhere, b"g").startswith(b"g drawn by")
+
+
+def _workers_of(mark: str) -> list[int]:
+    """The processes (pids) whose environment holds the mark: the command and its worker."""
+    found = []
+    for entry in os.scandir("/proc"):
+        if entry.name.isdigit():
+            try:
+                with open(f"/proc/{entry.name}/environ", "rb") as f:
+                    if mark.encode() in f.read():
+                        with open(f"/proc/{entry.name}/cmdline", "rb") as g:
+                            if b"striptri.report.drawing" in g.read():
+                                found.append(int(entry.name))
+            except OSError:
+                continue
+    return found
+
+
+@pytest.fixture
+def long_tracks(tmp_path):
+    """50 photos, 60 targets of 12 to 45 rays: large enough for two threads (and a worker)."""
+    return close_range.write_close_range(tmp_path / "p", close_range.make_close_range(50, 60, seed=3))
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
+def test_the_command_draws_in_a_worker_and_leaves_none_behind(tmp_path, long_tracks):
+    mark = f"STRIPTRI_TEST_MARK={uuid.uuid4().hex}"
+    env = {**os.environ, "STRIPTRI_THREADS": "2", mark.split("=")[0]: mark.split("=")[1]}
+    proc = subprocess.run([sys.executable, "-m", "striptri", "adjust", str(long_tracks), "--out", str(tmp_path / "o"),
+                           "--method", "bundle"], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    report = (tmp_path / "o" / "report.html").read_text()
+    assert "drawn by the second process" in report and drawing.MARK not in report
+    assert report.count("data:image/png;base64,") == 5
+    assert not _workers_of(mark)
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig", (signal.SIGINT, signal.SIGTERM), ids=lambda s: signal.Signals(s).name)
+def test_an_interrupted_command_ends_its_worker(tmp_path, long_tracks, sig):
+    mark = f"STRIPTRI_TEST_MARK={uuid.uuid4().hex}"
+    env = {**os.environ, "STRIPTRI_THREADS": "2", mark.split("=")[0]: mark.split("=")[1]}
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "striptri", "adjust", str(long_tracks), "--out", str(out),
+                             "--method", "bundle"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 60
+    while not _workers_of(mark) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert _workers_of(mark), "the worker did not start"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + sig, err
+    assert "Traceback" not in err
+    assert not out.exists()  # no partial output
+    deadline = time.monotonic() + drawing.STOP_SECONDS + 5
+    while _workers_of(mark) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _workers_of(mark)
