@@ -287,8 +287,9 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     phases: dict[str, float] = {} if seconds_reading is None else {"read": seconds_reading}
     # the report's figures drawn by a second process when the run uses both cores (report.drawing):
     # "now" it imports matplotlib while the adjustment computes; "later" (large runs) once the
-    # point precision is done, beside the tables: not on top of the run's peaks of memory. Without
-    # one, matplotlib is imported by a thread of this process while the adjustment computes.
+    # gross-error tests are done, beside the point precision and the tables: not on top of the
+    # run's peaks of memory (the iterations, the tests). Without one, matplotlib is imported by a
+    # thread of this process while the adjustment computes.
     worker = drawing.when_to_start(rays_per_point(project))
     if worker == "now":
         workers.enter_context(drawing.worker_for(True))
@@ -305,6 +306,8 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
                 det = detect_blunders(project, options, blunder_options(blunders), first)
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total, 0.0)
+            if worker == "later":  # the run's peaks of memory are behind
+                workers.enter_context(drawing.worker_for(True))
             progress.phase("reliability measures (gross errors)", phases["gross_errors"])
             if not result.converged:
                 warn("kept although the adjustment did not converge (--keep-unconverged): "
@@ -332,8 +335,6 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         # the rest of the inverse, the report phase is no longer the run's peak of memory
         result.release_covariance()
         give_back_free_memory()
-    if worker == "later":  # the run's peaks of memory are behind: the worker's import beside the tables
-        workers.enter_context(drawing.worker_for(True))
     early: dict = {}  # with a drawing worker: the figures asked for now, drawn while the tables are written
     t0 = time.perf_counter()
     if drawing.drawing_elsewhere():

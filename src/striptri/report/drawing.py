@@ -181,16 +181,16 @@ def worker_for(use: bool):
             worker.stop()
 
 
-# From this many plate measurements on, the worker starts after the point precision: the run's own
-# peaks of memory (adjustment, gross-error tests, the inverse) are behind, and the tables take long
-# enough for its import. Below, it starts with the run: the worker's 65-100 MB beside a small run's
-# memory, and no phase after the tests long enough to hide its import.
+# From this many plate measurements on, the worker starts after the gross-error tests: the run's own
+# peaks of memory (the iterations, the tests) are behind, and the point precision and the tables
+# take long enough for its import. Below, it starts with the run: the worker's 65-100 MB beside a
+# small run's memory, and no phase after the tests long enough to hide its import.
 LATER_FROM = 50_000
 
 
 def when_to_start(rays_per_point) -> str | None:
     """When a run with these rays per point (n_points,) starts its drawing worker: "now" (with
-    the run), "later" (after the point precision: LATER_FROM measurements or more), or None: no
+    the run), "later" (after the gross-error tests: LATER_FROM measurements or more), or None: no
     worker, when the run is too small to use more than one thread (solvers.threads.chunk_threads on
     its ray pairs, the sum of k^2 over its points of k rays; at least two cores, not ``--threads
     1``): a smaller run ends before the worker would have imported matplotlib."""
