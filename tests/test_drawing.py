@@ -171,3 +171,22 @@ def test_an_interrupted_command_ends_its_worker(tmp_path, long_tracks, sig):
     while _workers_of(mark) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _workers_of(mark)
+
+
+def test_when_the_worker_starts(monkeypatch):
+    """None for a run too small for two threads, for --threads 1 and on one core; "now" for a
+    small run that is large enough, "later" (after the gross-error tests) from LATER_FROM
+    measurements."""
+    from striptri.solvers import threads
+
+    monkeypatch.setattr(threads, "available_cores", lambda: 2)
+    long_tracks = [40] * 60  # 96,000 ray pairs, 2,400 measurements
+    many = [4] * (drawing.LATER_FROM // 4)  # LATER_FROM measurements of four-ray points
+    assert drawing.when_to_start([3] * 50) is None  # 450 ray pairs: one thread
+    assert drawing.when_to_start(long_tracks) == "now"
+    assert drawing.when_to_start(many) == "later"
+    assert drawing.when_to_start(many[:-1]) == "now"
+    with threads.use_threads(1):
+        assert drawing.when_to_start(many) is None
+    monkeypatch.setattr(threads, "available_cores", lambda: 1)
+    assert drawing.when_to_start(many) is None
