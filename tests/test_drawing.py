@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -17,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from striptri.core.options import AdjustmentOptions
+from striptri.core.runs import RunOptions
 from striptri.io import read_project
 from striptri.pipeline import adjust_products
 from striptri.report import drawing
@@ -49,13 +51,32 @@ def _figures_and_text(report: str) -> tuple[list[str], str]:
     return images, re.sub(r"\d", "0", text)
 
 
+@pytest.fixture(scope="module")
+def with_a_gross_error(tmp_path_factory):
+    """block_3x6 with 0.1 mm added to one plate coordinate: snooping rejects it and adjusts again."""
+    folder = tmp_path_factory.mktemp("gross") / "block_3x6"
+    shutil.copytree(DATA / "block_3x6", folder)
+    table = folder / "image_points.csv"
+    lines = table.read_text().splitlines()
+    fields = lines[40].split(",")
+    fields[2] = repr(float(fields[2]) + 0.1)
+    lines[40] = ",".join(fields)
+    table.write_text("\n".join(lines) + "\n")
+    return folder
+
+
 @pytest.mark.parametrize("when", ["now", "later"])
-def test_the_report_drawn_by_a_worker_is_the_report_drawn_here(monkeypatch, when):
-    project = read_project(DATA / "block_3x6")
+@pytest.mark.parametrize("gross", [False, True], ids=["tests keep the adjustment", "snooping adjusts again"])
+def test_the_report_drawn_by_a_worker_is_the_report_drawn_here(monkeypatch, with_a_gross_error, when, gross):
+    """The figures of the first adjustment asked for early ("now") serve the report only when the
+    tests keep its result; after a rejection they are drawn anew."""
+    project = read_project(with_a_gross_error if gross else DATA / "block_3x6")
+    run = RunOptions(blunders="snoop" if gross else "off")
     monkeypatch.setattr(drawing, "when_to_start", lambda rays: None)
-    here = adjust_products(project, AdjustmentOptions())
+    here = adjust_products(project, AdjustmentOptions(), run)
+    assert (here.summary.blunders["rejected"] > 0) == gross
     monkeypatch.setattr(drawing, "when_to_start", lambda rays: when)
-    elsewhere = adjust_products(project, AdjustmentOptions())
+    elsewhere = adjust_products(project, AdjustmentOptions(), run)
     footer = re.search(r"<footer>.*?</footer>", elsewhere.files["report.html"], flags=re.S).group(0)
     assert "drawn by the second process" in footer  # the worker drew them
     assert drawing.MARK not in elsewhere.files["report.html"]  # every placeholder filled

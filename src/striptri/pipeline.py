@@ -300,12 +300,17 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         try:
             t0 = time.perf_counter()
             first = adjust(project, options)  # step 1: the adjustment of all rows
+            t_first = time.perf_counter()
+            # a worker running: the adjustment's own figures drawn during the tests, for the report
+            # when the tests keep its result
+            of_first = _figures_of_adjustment(project, first) if drawing.drawing_elsewhere() else {}
+            seconds_early = time.perf_counter() - t_first
             if options.method == "sequential":  # step 2: the blunder procedure on it
                 det = without_tests(project, first, "not tested (sequential method)")
             else:
                 det = detect_blunders(project, options, blunder_options(blunders), first)
             adjusted, result = det.project, det.result
-            phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total, 0.0)
+            phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total - seconds_early, 0.0)
             if worker == "later":  # the run's peaks of memory are behind
                 workers.enter_context(drawing.worker_for(True))
             progress.phase("reliability measures (gross errors)", phases["gross_errors"])
@@ -338,10 +343,14 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     early: dict = {}  # with a drawing worker: the figures asked for now, drawn while the tables are written
     t0 = time.perf_counter()
     if drawing.drawing_elsewhere():
-        early["structure"] = _structure(adjusted, result)
-        early["sections"] = report.figure_sections(adjusted, result, det.w[det.rows], points=points,
-                                                   flags=det.flag[det.rows])
-    seconds_early = time.perf_counter() - t0  # the report's, asked for early
+        if result is not first or adjusted is not project:  # the tests adjusted again: drawn anew
+            of_first = {}
+        early["structure"] = of_first["structure"] if of_first else _structure(adjusted, result)
+        made = of_first.get("sections", {})
+        early["sections"] = {**made, **report.figure_sections(
+            adjusted, result, det.w[det.rows], points=points, flags=det.flag[det.rows],
+            keys=[k for k in report.FIGURE_SECTIONS if k not in made])}
+    seconds_early += time.perf_counter() - t0  # the report's, asked for early
     t0 = time.perf_counter()
     photo_cols, point_cols = photo_table(adjusted, result), point_table(adjusted, result, points)
     if frame is not None:
@@ -397,6 +406,13 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     files = {**tables, "summary.json": summary.json(), "report.html": html}
     products = AdjustmentProducts(adjusted, result, points, summary, files, det, list(said))
     return products
+
+
+def _figures_of_adjustment(project: Project, result: AdjustmentResult) -> dict:
+    """The report's figures that need only the adjustment (the structure of N, the convergence
+    section), asked for from the drawing worker (_adjust_products' "early")."""
+    return {"structure": _structure(project, result),
+            "sections": report.figure_sections(project, result, keys=("convergence",))}
 
 
 def _structure(project: Project, result: AdjustmentResult):

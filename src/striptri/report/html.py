@@ -480,21 +480,28 @@ def _residual_inputs(project: Project, result: AdjustmentResult, w: np.ndarray, 
     return w, absw, flagged, _flag_text(flags), _photo_statistics(project, result.plate_residuals, absw, flagged)
 
 
-def figure_sections(project: Project, result: AdjustmentResult, w: np.ndarray, points: Triangulated | None = None,
-                    flags=None) -> dict[str, tuple[list[str], float]]:
-    """The report's sections with figures (convergence, residuals and, with points, points), each
-    with the seconds it took: ReportParts.sections of :func:`html_report` with the same arguments.
-    The pipeline asks for them before it writes the tables, so that a drawing worker
+FIGURE_SECTIONS = ("convergence", "residuals", "points")  # the sections with figures
+
+
+def figure_sections(project: Project, result: AdjustmentResult, w: np.ndarray | None = None,
+                    points: Triangulated | None = None, flags=None,
+                    keys=FIGURE_SECTIONS) -> dict[str, tuple[list[str], float]]:
+    """The report's sections with figures among ``keys`` (convergence, residuals (w needed) and,
+    with points, points), each with the seconds it took: ReportParts.sections of :func:`html_report`
+    with the same arguments. The pipeline asks for them early, so that a drawing worker
     (report.drawing) draws their figures meanwhile."""
-    _, absw, flagged, flag_text, stats = _residual_inputs(project, result, w, flags)
-    makers = {"convergence": lambda: _convergence_section(result),
-              "residuals": lambda: _residuals_section(project, result, stats, flagged, flag_text, absw)}
-    if points is not None:
-        makers["points"] = lambda: _points_section(project, result, points, _point_covariance(result, points))
     out = {}
-    for key, make in makers.items():
+    for key in keys:
+        if key == "points" and points is None:
+            continue
         start = time.perf_counter()
-        section = make()
+        if key == "convergence":
+            section = _convergence_section(result)
+        elif key == "residuals":
+            _, absw, flagged, flag_text, stats = _residual_inputs(project, result, w, flags)
+            section = _residuals_section(project, result, stats, flagged, flag_text, absw)
+        else:
+            section = _points_section(project, result, points, _point_covariance(result, points))
         out[key] = (section, time.perf_counter() - start)
     return out
 
