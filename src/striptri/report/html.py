@@ -38,13 +38,13 @@ from ..equations.triangulation import Triangulated
 from ..core.runs import RunSummary
 from . import page  # the page's limits, read at call time (tests set them)
 from .page import (
-    SECTIONS, ResidualUnit, _STYLE, _card, _cell, _flag_text, _flags_of, _fmt, _half_format, _img,
+    SECTIONS, ResidualUnit, _STYLE, _card, _cell, _flag_text, _flags_of, _fmt, _img,
     _photo_statistics, _point_covariance, _section, _table, _without_folders, chi2_quantile, length_unit,
     residual_unit, run_block,
 )
 from .points import (
-    _cell_statistics, _check_points_section, _flagged_section, _largest_section, _points_section,
-    _rejected_section,
+    _check_points_section, _flagged_section, _largest_section, _points_section, _rejected_section,
+    _residuals_section,
 )
 
 
@@ -271,95 +271,6 @@ def _convergence_section(result: AdjustmentResult) -> list[str]:
              + (" Right: inner iterations of the iterative solver." if has_inner else "")),
         _table(header, rows),
     ]
-
-
-def _residuals_section(project: Project, result: AdjustmentResult, stats: dict, flagged: np.ndarray,
-                       flag_text: str, absw: np.ndarray) -> list[str]:
-    ip = project.image_points
-    xy, v = ip.xy, result.plate_residuals
-    if len(xy) == 0:
-        return [_section("residuals"), "<p>No plate measurements.</p>"]
-    unit = residual_unit(project)
-    h = _half_format(xy)
-    length = np.hypot(v[:, 0], v[:, 1])
-    sig = ip.sigma_xy[np.isfinite(ip.sigma_xy) & (ip.sigma_xy > 0)]
-    sigma_prior = float(np.median(sig)) if len(sig) else 1e-3 * h
-    resolvable = 0.01 * sigma_prior  # smaller residuals are zero to the eye (no redundancy, exact plates)
-    typical = float(np.percentile(length, 95))
-    vanish = not typical > resolvable
-    if vanish:
-        typical = sigma_prior  # scale as for residuals of the a-priori size
-    # a typical (95 %) residual drawn as about 15 % of the format side in the small panels, half that over all
-    mag = fig.nice_number(0.3 * h / max(typical, 1e-300))
-    mag_all = fig.nice_number(0.5 * mag)
-    bar = fig.nice_number(0.3 * h / mag)
-    bar_all = fig.nice_number(0.3 * h / mag_all)
-    bar_label = unit.length(bar)
-    n_ph = len(project.photos)
-    ids = project.photos.ids
-    rms_all = np.sqrt(np.mean(v**2, axis=0))
-    parts = [
-        _section("residuals"),
-        f"<p>RMS of the plate residuals: v<sub>x</sub> {unit(rms_all[0])} {unit.label}, v<sub>y</sub> "
-        f"{unit(rms_all[1])} {unit.label} over {len(xy)} measurements (plate coordinates in {unit.plate_words}). "
-        f"Vectors are drawn magnified <b>{mag:g} times</b> per photograph (<b>{mag_all:g} times</b> over "
-        f"all photographs); the bar is the length of a residual of {bar_label}. "
-        f"Dark blue: residuals; <span class='flag'>red</span>: {flag_text}.</p>",
-        "<p class='note'>All residuals vanish (below 1 % of the a-priori &sigma;): there is no redundancy or the "
-        "plates are exact.</p>" if vanish else "",
-    ]
-    order = np.argsort(-(stats["flagged"] * 1e6 + np.nan_to_num(np.hypot(*stats["rms"].T))), kind="stable")
-    if n_ph <= page.MAX_PHOTO_PANELS:
-        shown, what = np.arange(n_ph), "every photograph"
-    else:
-        shown = order[:page.WORST_PANELS]
-        what = (f"the {page.WORST_PANELS} photographs with the most flagged measurements and the largest RMS residual "
-                f"(of {n_ph}; residuals.csv lists all)")
-    rows_of = np.argsort(ip.photo_index, kind="stable")
-    bounds = np.searchsorted(ip.photo_index[rows_of], np.arange(n_ph + 1))
-    groups = [rows_of[bounds[p]:bounds[p + 1]] for p in shown]
-    rms_photo = unit.factor * np.hypot(*stats["rms"].T) / np.sqrt(2)  # RMS per coordinate, in unit.label
-    titles = [f"{ids[p]}  ({stats['count'][p]} pts, {rms_photo[p]:{unit.spec}} {unit.label})" for p in shown]
-    png = drawing.draw(fig.plate_residuals_per_photo, xy, v, flagged, groups, titles, h,
-                       fig.ScaleBar(mag, bar, bar_label))
-    parts.append("<h3>Per photograph</h3>")
-    parts.append(_img(png, "residual vectors per photograph",
-                      f"Residual vectors on the format of {what}; panel title: photo, measurements, RMS residual "
-                      f"per coordinate. Frame: &plusmn;{h:g} {unit.plate} about the principal point."))
-    # all photographs stacked, and the mean residual per cell of a 5 x 5 grid
-    cells = 5
-    centres_5, means, counts = _cell_statistics(xy, v, h, cells)
-    biggest = float(np.max(np.hypot(means[:, 0], means[:, 1]), initial=0.0))
-    cell_means = None
-    right = ""
-    if biggest > resolvable:
-        mag2 = fig.nice_number(0.3 * h / biggest)
-        bar2 = fig.nice_number(0.3 * h / mag2)
-        cell_means = (centres_5, means, counts, fig.ScaleBar(mag2, bar2, unit.length(bar2)))
-        right = (f" Right: the mean residual in each cell of a {cells} &times; {cells} grid (x{mag2:g}); a regular "
-                 "pattern there points to a systematic image error (lens distortion, film deformation) rather than "
-                 "noise.")
-    if len(xy) <= page.MAX_VECTORS:
-        png = drawing.draw(fig.plate_residuals_stacked, xy, v, flagged, h,
-                           fig.ScaleBar(mag_all, bar_all, unit.length(bar_all)), cell_means, plate_unit=unit.plate)
-        left = f"the residuals of all photographs drawn over one format (x{mag_all:g})."
-    else:  # a raster of the RMS residual per cell, and the worst vectors on top
-        _, ms, count = _cell_statistics(xy, length[:, None] ** 2, h, page.FIELD_CELLS)
-        rms = np.where(count > 0, np.sqrt(ms[:, 0]), np.nan).reshape(page.FIELD_CELLS, page.FIELD_CELLS)
-        worst = np.argsort(-(flagged * (1.0 + absw.max(initial=0.0)) + absw), kind="stable")[:page.WORST_VECTORS]
-        mag_w = min(mag_all, fig.nice_number(0.3 * h / max(float(length[worst].max()), 1e-300)))
-        bar_w = fig.nice_number(0.3 * h / mag_w)
-        png = drawing.draw(fig.plate_residuals_stacked, xy[worst], v[worst], flagged[worst], h,
-                           fig.ScaleBar(mag_w, bar_w, unit.length(bar_w)), cell_means,
-                           field=(rms * unit.factor, unit.label, len(xy)), plate_unit=unit.plate)
-        left = (f"the RMS length of the residuals of all {len(xy)} measurements in each cell of a {page.FIELD_CELLS} "
-                f"&times; {page.FIELD_CELLS} grid over the format ({unit.label}; white: no measurement), and on top the "
-                f"{len(worst)} with the largest normalised residual |w| (<span class='flag'>red</span>: flagged), "
-                f"drawn x{mag_w:g}.")
-    caption = ("Left: " + left + right) if right else left[:1].upper() + left[1:]
-    parts.append("<h3>All photographs over one format</h3>")
-    parts.append(_img(png, "residual vectors of all photographs", caption))
-    return parts
 
 
 def _photos_section(project: Project, result: AdjustmentResult, stats: dict) -> list[str]:
