@@ -211,3 +211,16 @@ def test_when_the_worker_starts(monkeypatch):
         assert drawing.when_to_start(many) is None
     monkeypatch.setattr(threads, "available_cores", lambda: 1)
     assert drawing.when_to_start(many) is None
+
+
+def test_a_worker_that_does_not_answer_is_killed_and_its_figure_drawn_here(helpers_importable, monkeypatch):
+    monkeypatch.setattr(drawing, "WAIT_SECONDS", 1.0)
+    with drawing.worker_for(True) as worker:
+        os.kill(worker.process.pid, signal.SIGSTOP)  # alive, but draws nothing
+        try:
+            text = drawing.fill(drawing.html_of(drawing.draw(drawing_helpers.anywhere, b"h"), bytes.decode))
+        finally:
+            if worker.process.poll() is None:
+                os.kill(worker.process.pid, signal.SIGCONT)
+    assert _drawn_by(text) == os.getpid()
+    assert worker.process.poll() is not None  # killed

@@ -204,31 +204,43 @@ def _limit_memory(gb: float | None):
     return apply
 
 
-TREE_SAMPLE_S = 0.01  # how often the resident memory of a run's processes is summed
+TREE_SAMPLE_S = 0.01  # how often the resident memory of a run's process tree is summed
 
 
-def _session_rss_mib(session: int) -> float:
-    """The resident memory of every process of the session (MiB): the run's command, and the
-    processes it started (striptri's drawing worker, report.drawing), summed."""
-    total = 0
-    for entry in os.scandir("/proc"):
-        if not entry.name.isdigit():
+def _children(pid: int) -> list[int]:
+    """The child processes of pid (every thread's children)."""
+    out = []
+    try:
+        for task in os.scandir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task.name}/children") as f:
+                out += [int(c) for c in f.read().split()]
+    except OSError:
+        pass
+    return out
+
+
+def _tree_rss_mib(root: int) -> float:
+    """The resident memory of a process and all its descendants (MiB), summed: the run's command
+    and the processes it started, also those in a session of their own (striptri's drawing
+    worker, report.drawing)."""
+    total, todo, seen = 0, [root], set()
+    while todo:
+        pid = todo.pop()
+        if pid in seen:
             continue
+        seen.add(pid)
         try:
-            with open(f"/proc/{entry.name}/stat") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-            if int(fields[3]) != session:  # the session id (fields after the command's name: state, ppid, pgrp, session)
-                continue
-            with open(f"/proc/{entry.name}/status") as f:
+            with open(f"/proc/{pid}/status") as f:
                 total += next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
-        except (OSError, ValueError, IndexError, StopIteration):
+        except (OSError, ValueError, StopIteration):
             continue
+        todo += _children(pid)
     return total / 1024
 
 
-def _sample_session(session: int, stop: threading.Event, peak: list) -> None:
+def _sample_tree(root: int, stop: threading.Event, peak: list) -> None:
     while not stop.wait(TREE_SAMPLE_S):
-        peak[0] = max(peak[0], _session_rss_mib(session))
+        peak[0] = max(peak[0], _tree_rss_mib(root))
 
 
 def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float | None, time_file: Path) -> dict:
@@ -246,7 +258,7 @@ def measured_run(cmd: list[str], env: dict, time_limit: float, memory_gb: float 
     proc = subprocess.Popen(full, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, preexec_fn=_limit_memory(memory_gb))
     stop, tree_peak = threading.Event(), [0.0]
-    sampler = threading.Thread(target=_sample_session, args=(proc.pid, stop, tree_peak), daemon=True)
+    sampler = threading.Thread(target=_sample_tree, args=(proc.pid, stop, tree_peak), daemon=True)
     sampler.start()
     try:
         out, err = proc.communicate(timeout=time_limit + 120)

@@ -36,11 +36,13 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from dataclasses import dataclass, field
 
 # the figures' numpy work is small: no BLAS threads beside the command's
 WORKER_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 STOP_SECONDS = 2.0  # the worker's time to leave after it is told to; then it is killed
+WAIT_SECONDS = 600.0  # the longest wait for one drawing (the 100,000-photo block's take seconds); then drawn here
 MARK = "\ue000"  # a private-use character around a placeholder: never in the report's own text
 
 
@@ -95,9 +97,17 @@ class Worker:
         return job
 
     def png(self, job: Pending) -> bytes:
-        """The figure's PNG bytes: the worker's, or drawn here when the worker failed on it."""
+        """The figure's PNG bytes: the worker's, or drawn here when the worker failed on it, has
+        ended, or has not answered within WAIT_SECONDS (then it is killed: a hung worker must not
+        hang the command)."""
+        deadline = time.monotonic() + WAIT_SECONDS
         with self.arrived:
-            self.arrived.wait_for(lambda: job.key in self.done or not self.alive)
+            while job.key not in self.done and self.alive:
+                if not self.arrived.wait(timeout=1.0) and self.process.poll() is not None:
+                    self.alive = False  # ended without a word (its output's end is on its way)
+                elif time.monotonic() > deadline:
+                    self.process.kill()
+                    self.alive = False
             ok, png = self.done.pop(job.key, (False, None))
         return png if ok else _call(job.function, job.args, job.kwargs)
 
