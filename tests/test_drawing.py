@@ -76,7 +76,20 @@ def test_the_report_drawn_by_a_worker_is_the_report_drawn_here(monkeypatch, with
     here = adjust_products(project, AdjustmentOptions(), run)
     assert (here.summary.blunders["rejected"] > 0) == gross
     monkeypatch.setattr(drawing, "when_to_start", lambda rays: when)
+    asked: list[str] = []
+    draw = drawing.draw
+
+    def counted(function, *args, **kwargs):
+        asked.append(function.__name__)
+        return draw(function, *args, **kwargs)
+
+    monkeypatch.setattr(drawing, "draw", counted)
     elsewhere = adjust_products(project, AdjustmentOptions(), run)
+    # drawn once each, but for the adjustment's own figures asked for early ("now") and drawn anew
+    # after the rejection
+    twice = {"structure_figure", "convergence"} if when == "now" and gross else set()
+    assert sorted(asked) == sorted(["structure_figure", "convergence", "plate_residuals_per_photo",
+                                    "plate_residuals_stacked", "error_ellipses", *twice])
     footer = re.search(r"<footer>.*?</footer>", elsewhere.files["report.html"], flags=re.S).group(0)
     assert "drawn by the second process" in footer  # the worker drew them
     assert drawing.MARK not in elsewhere.files["report.html"]  # every placeholder filled

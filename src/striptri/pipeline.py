@@ -343,8 +343,8 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     early: dict = {}  # with a drawing worker: the figures asked for now, drawn while the tables are written
     t0 = time.perf_counter()
     if drawing.drawing_elsewhere():
-        if result is not first or adjusted is not project:  # the tests adjusted again: drawn anew
-            of_first = {}
+        if result is not first:  # the tests adjusted again: drawn anew (a subset with every row is
+            of_first = {}        # the same photos and cameras: the first figures hold)
         early["structure"] = of_first["structure"] if of_first else _structure(adjusted, result)
         made = of_first.get("sections", {})
         early["sections"] = {**made, **report.figure_sections(

@@ -21,7 +21,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-MAX_PADDING = 0.1  # padded rays at most this fraction of the real rays of a joined batch (0.1: measured best at close range)
+# padded rays at most this fraction of the real rays of a joined batch (0.1: measured best at close range)
+MAX_PADDING = 0.1
 SMALL_BATCH = 64  # batches of fewer points are joined; a larger one pays its call overhead already
 
 
