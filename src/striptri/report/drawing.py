@@ -15,11 +15,12 @@ report.plan_views and its arguments: arrays and small records). Without a worker
 drawn at once and its PNG bytes returned; with one, the call is queued (without waiting) and a
 :class:`Pending` figure returned, which :func:`html_of` writes as a placeholder that :func:`fill`
 replaces by the image when the report is complete, waiting for the drawings only then. The same
-function draws the same pixels in either process: the report is the same byte for byte (tested).
+function draws the same pixels in either process: the report's images are the same byte for byte
+(tested).
 
 Failure is not a result, and neither is a lost figure: a figure that fails in the worker, or a
-worker that dies or cannot start, is drawn again in this process, which raises what it raises
-there. The worker runs in a session of its own (a Ctrl-C at the terminal reaches the command only,
+worker that dies, cannot start or does not answer within WAIT_SECONDS, is drawn again in this
+process, which raises what it raises there. The worker runs in a session of its own (a Ctrl-C at the terminal reaches the command only,
 which ends the worker), ends when its input ends (also when the command dies), and writes no file.
 """
 
