@@ -258,11 +258,9 @@ def _call(function, args: tuple, kwargs: dict) -> bytes:
 def _serve(jobs, results) -> None:  # pragma: no cover - runs in the worker process
     """The worker: import what the figures need, then draw every job until its input ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the command's to handle
-    from . import figures
+    from .figures import import_figure_modules
 
-    for name in figures.FIGURE_MODULES:
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
+    import_figure_modules()
     while (message := _read(jobs)) is not None:
         key, module, name, args, kwargs = pickle.loads(message)
         try:

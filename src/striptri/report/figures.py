@@ -40,19 +40,20 @@ def preload() -> None:
     finish its import first."""
     if _preloading or all(name in sys.modules for name in FIGURE_MODULES):
         return
-
-    def work() -> None:
-        import importlib
-
-        for name in FIGURE_MODULES:
-            try:
-                importlib.import_module(name)
-            except ImportError:  # the report's own import says what is missing
-                return
-
-    thread = threading.Thread(target=work, name="striptri-figure-imports")
+    thread = threading.Thread(target=import_figure_modules, name="striptri-figure-imports")
     _preloading.append(thread)
     thread.start()
+
+
+def import_figure_modules() -> None:
+    """Import FIGURE_MODULES (preload's thread; the drawing worker, report.drawing, at its start)."""
+    import importlib
+
+    for name in FIGURE_MODULES:
+        try:
+            importlib.import_module(name)
+        except ImportError:  # the figures' own import says what is missing
+            return
 
 
 def from_figure_packages(message: warnings.WarningMessage) -> bool:
