@@ -201,7 +201,7 @@ def test_an_interrupted_command_ends_its_worker(tmp_path, long_tracks, sig):
     assert proc.returncode == 128 + sig, err
     assert "Traceback" not in err
     assert not out.exists()  # no partial output
-    deadline = time.monotonic() + drawing.STOP_SECONDS + 5
+    deadline = time.monotonic() + 5
     while _workers_of(mark) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _workers_of(mark)

@@ -20,8 +20,9 @@ function draws the same pixels in either process: the report's images are the sa
 
 Failure is not a result, and neither is a lost figure: a figure that fails in the worker, or a
 worker that dies, cannot start or does not answer within WAIT_SECONDS, is drawn again in this
-process, which raises what it raises there. The worker runs in a session of its own (a Ctrl-C at the terminal reaches the command only,
-which ends the worker), ends when its input ends (also when the command dies), and writes no file.
+process, which raises what it raises there. The worker runs in a session of its own (a Ctrl-C at the
+terminal reaches the command only, which ends the worker), ends when its input ends (also when the
+command dies), writes no file, and is killed when the command is done with it.
 """
 
 from __future__ import annotations
@@ -42,7 +43,6 @@ from dataclasses import dataclass, field
 
 # the figures' numpy work is small: no BLAS threads beside the command's
 WORKER_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-STOP_SECONDS = 2.0  # the worker's time to leave after it is told to; then it is killed
 WAIT_SECONDS = 600.0  # the longest wait for one drawing (the 100,000-photo block's take seconds); then drawn here
 MARK = "\ue000"  # a private-use character around a placeholder: never in the report's own text
 
@@ -113,11 +113,11 @@ class Worker:
         return png if ok else _call(job.function, job.args, job.kwargs)
 
     def stop(self) -> None:
-        """Tell the worker to leave (end of its input); kill it when it does not within STOP_SECONDS."""
-        self.outbox.put(None)
+        """End the worker. It holds nothing of the run (it writes no file; a figure asked of it and
+        not yet answered is drawn here), so it is killed at once: left to unwind an interpreter with
+        matplotlib loaded, it kept the command waiting 0.15 s at its end."""
+        self.outbox.put(None)  # the sender's end, should the kill not reach the worker
         try:
-            self.process.wait(STOP_SECONDS)
-        except subprocess.TimeoutExpired:
             self.process.kill()
             self.process.wait()
         finally:
