@@ -362,6 +362,7 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     # alive beside the trial's
     normals.kept = damped.kept = None
     trial_state = state.updated(layout, dx)
+    t_back = time.perf_counter()  # the back substitution's end; the trial's normals or cost follow
     if damping.lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
         trial = _assemble_or_none(problem, trial_state, step.xyz)
         trial_ee = trial.ee if trial is not None else np.inf
@@ -381,15 +382,18 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
                 "It is stuck away from a solution (or points are crossing the plane of a camera).",
                 termination.causes_text(causes())]).replace("\n\n", "\n"), reason="diverged")
         damping.more()
-        timings.add("linearisation_and_reduction", t2 - t1)
-        return None, problem.assemble(state, xyz, damping.lam)
+        again = problem.assemble(state, xyz, damping.lam)
+        timings.add("solve", t1 - t0)
+        timings.add("back_substitution", t_back - t1)
+        timings.add("linearisation_and_reduction", time.perf_counter() - t_back)
+        return None, again
     damping.after_good_step(actual, predicted)
     new = _Estimate(trial_state, step.xyz, step.plate_hat, step.control_hat, step.v_par, step.vtpv)
     normals = trial if trial is not None and damping.lam == 0.0 else problem.assemble(new.state, new.xyz, damping.lam)
     t3 = time.perf_counter()
     timings.add("solve", t1 - t0)
-    timings.add("back_substitution", t2 - t1)
-    timings.add("linearisation_and_reduction", t3 - t2)
+    timings.add("back_substitution", t_back - t1)
+    timings.add("linearisation_and_reduction", t3 - t_back)  # the trial's normals, or those formed after it
     if problem.free_network is not None:  # the datum's move, which N does not see (datum.FreeNetwork)
         step.correction = float(np.hypot(step.correction, problem.network.datum_correction(d)))
     history.append(Iteration(vtpv=new.vtpv, max_correction=step.correction, seconds=t3 - t0,
