@@ -134,6 +134,54 @@ def test_the_collinearity_form_equals_the_conditions_form(solved, name):
 
 
 @pytest.mark.parametrize("name", list(PROJECTS))
+def test_the_product_route_equals_the_conditions_form(solved, monkeypatch, name):
+    """Small systems with long tracks take Qcc G^T as one product with the whole Qcc
+    (collinearity_form._by_products) instead of gathering Qcc among each point's sets; here every
+    project takes it (PRODUCT_RATIO infinite): qvv of the plate and control observations, of the
+    observed elements and the points' orientation parts equal the conditions form's and the
+    gathering route's."""
+    project, result = solved(name)
+    ref = residual_cofactors(project, result, form="conditions")
+    monkeypatch.setattr(collinearity_form, "PRODUCT_RATIO", 0.0)
+    gathered = collinearity_form.residual_cofactors(project, result)
+    monkeypatch.setattr(collinearity_form, "PRODUCT_RATIO", np.inf)
+    col = residual_cofactors(project, result, form="collinearity")
+    products = collinearity_form.residual_cofactors(project, result)
+    has = ref.plate > 0
+    assert has.any() and np.array_equal(col.plate[~has], ref.plate[~has])
+    np.testing.assert_allclose(col.plate[has], ref.plate[has], rtol=RTOL, atol=0)
+    weighted = ref.control > 0
+    np.testing.assert_allclose(col.control[weighted], ref.control[weighted], rtol=RTOL, atol=0)
+    np.testing.assert_allclose(col.parameters, ref.parameters, rtol=RTOL, atol=0)
+    # against the gathering route, where both subtract alike: to round-off of q
+    q = result_cofactors(project, result)
+    assert np.all(np.abs(products.plate - gathered.plate) <= 1e-12 * np.abs(gathered.plate) + FLOOR * q["plate"])
+    assert np.all(np.abs(products.control - gathered.control) <= 1e-12 * np.abs(gathered.control)
+                  + FLOOR * q["control"])
+    cov = gathered.points.cov_orientation
+    np.testing.assert_allclose(products.points.cov_orientation, cov, rtol=0, atol=1e-12 * np.abs(cov).max())
+    np.testing.assert_array_equal(products.imprecise, gathered.imprecise)
+
+
+def test_long_tracks_of_a_small_system_take_the_product_route(solved, monkeypatch):
+    """The route is chosen by its cost (PRODUCT_RATIO): the close-range block's tracks take the
+    product, the short tracks of a block with more unknowns gather."""
+    calls = []
+    real = collinearity_form._by_products
+    monkeypatch.setattr(collinearity_form, "_by_products", lambda *a: calls.append(1) or real(*a))
+    project, result = solved("close range")
+    collinearity_form.residual_cofactors(project, result)
+    assert calls
+    calls.clear()
+    design = replace(WEIGHTED_BLOCK, flight=sim.FlightDesign(n_photos=12, n_strips=5, overlap=2 / 3, sidelap=0.6))
+    project = sim.simulate_project("block", sim.SimulateOptions(design, sim.NoiseOptions()), 1)[0]
+    result = adjust(project, BUNDLE)  # 60 photos, 360 unknowns, tracks of 2 to 9 rays
+    assert result.layout.n_unknowns <= collinearity_form.DENSE_UNKNOWNS
+    collinearity_form.residual_cofactors(project, result)
+    assert not calls
+
+
+@pytest.mark.parametrize("name", list(PROJECTS))
 def test_the_subtraction_loses_digits_only_where_it_says(solved, name):
     """bundle.precision alone: qvv to RTOL + FLOOR / r of the conditions form's; beyond RTOL only on
     the points it marks imprecise (a redundancy number below R_SUBTRACTION)."""

@@ -24,7 +24,11 @@ camera, so everything is formed from Qcc among the point's unknown sets (``Covar
 D = 6k + e columns when the point's rays share one camera): ``Qcc G^T`` is (D, 3), ``Jc Qcc`` is
 (2k, D), the diagonal of Qvv O(k) more and the whole 2k x 2k block (reliability.separability)
 O(k^2). Batched over the points of k rays (struct of arrays), chunked so that a chunk's blocks stay
-within MAX_ENTRIES.
+within MAX_ENTRIES. A small system (at most DENSE_UNKNOWNS unknowns, Qcc read whole) with long tracks
+forms ``Qcc G^T`` instead as one product with the whole Qcc (:func:`_by_products`, O(n^2) a point
+but in BLAS, where the gather reads D^2 entries one by one): the diagonal of Qvv then needs Qcc only
+among each ray's own columns. At close range (66 rays a point, 695 unknowns) that route is 2.3 times
+faster; a 100-photo block's tracks of 3 or 4 rays gather 1.7 times faster (PRODUCT_RATIO).
 
 At convergence (adjusted rays that meet in X^) both forms are the same linear model: the
 conditions are the collinearity equations with the point eliminated (A Jp = 0, B = -A Jc), so the
@@ -56,6 +60,11 @@ from ..equations import padding, weights
 METHOD = "bundle"
 MAX_ENTRIES = 1 << 21  # entries of the gathered Qcc blocks (m D^2) of one chunk of points (16 MB)
 DENSE_UNKNOWNS = 2048  # up to this many unknowns Qcc is read once whole (32 MB) and gathered from
+# _Qcc.by_products: multiply-adds of the whole product that cost as much as one entry gathered. Measured:
+# the product wins 2.3x at 3 n^2 / width^2 = 2.8 (close range), the gather 1.7x at 2,400 (a 100-photo
+# block); by the costs of one entry gathered (~7 ns) and one multiply-add in BLAS (~0.1 ns) they cross
+# near 60. Taken lower: where they are close the gather needs no scratch of n x 3m.
+PRODUCT_RATIO = 32
 # qvv = q - J Qxx J^T is exact to a few eps of q: a redundancy number r keeps ~ -log10(r / 1e-15)
 # digits. Points with a coordinate below this r are marked imprecise (at worst ~1e-11 relative here);
 # precision.residual_cofactors takes them from the conditions form, which has no subtraction.
@@ -105,7 +114,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     n_points = len(project.points)
     obs = observations_of(project, result.offset)
     state, layout = result.state, result.layout
-    gather = _qcc_reader(result)
+    qcc = _Qcc(result)
     given = project.points.given_axes
     weighted = given & (obs.q_control > 0)
     counts = np.bincount(ip.point_index, minlength=n_points)
@@ -130,7 +139,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     # weight zero (equations.padding: their G is zero, their rows of Qvv are not read)
     for k, sel_k in padding.count_groups(counts, np.flatnonzero(wanted)):
         width = 6 * k + camera_cols.shape[1] * k
-        step = max(1, MAX_ENTRIES // (width * width))
+        step = qcc.points_per_chunk(k, width, camera_cols.shape[1])
         for first in range(0, len(sel_k), step):
             sel = sel_k[first: first + step]
             rows, real = padding.padded_rows(order, starts, counts, sel, k)
@@ -143,7 +152,7 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
             p = weights.inverse_variance(obs.q_plate[rows]) * real[..., None]
             Qm, pJX = tri.cov_measurement[sel], dX * p[..., None]
             rays = _Rays(Jc, dX, Qm, pJX, ph, state.camera_of_photo[ph], obs.q_plate[rows])
-            chunk = _ray_cofactors(gather, rays, layout.photo_cols, camera_cols, full=blocks is not None,
+            chunk = _ray_cofactors(qcc, rays, layout.photo_cols, camera_cols, full=blocks is not None,
                                    residuals=residuals)
             cov_orientation[sel] = chunk.orientation
             if not residuals:
@@ -185,23 +194,42 @@ class _RayChunk:
     block: np.ndarray | None  # (m, 2k, 2k) the plate block of Qvv, (x, y) per ray
 
 
-def _qcc_reader(result: AdjustmentResult):
-    """A function of covariance.Slots -> Qcc among their sets (m, D, D) (Covariance.set_blocks'
-    contract). Small systems (at most DENSE_UNKNOWNS unknowns, e.g. close range) read Qcc whole
-    once and gather from it, several times faster than reading it by blocks of set pairs."""
-    cov = result.covariance
-    n = result.layout.n_unknowns
-    if n > DENSE_UNKNOWNS:
-        return cov.set_blocks
-    Q = np.zeros((n + 1, n + 1))  # row and column -1 (a fixed element) read zero
-    Q[:n, :n] = cov.dense_solved()
+class _Qcc:
+    """Qcc among the points' unknown sets. ``gather(parts)``: covariance.Slots -> Qcc among their
+    sets (m, D, D) (Covariance.set_blocks' contract). Small systems (at most DENSE_UNKNOWNS
+    unknowns, e.g. close range) read Qcc whole once (``dense``, (n + 1, n + 1) with a zero last row
+    and column for the fixed elements, -1) and gather from it, several times faster than reading
+    it by blocks of set pairs; long tracks there take the product route (:meth:`by_products`)."""
 
-    def gather(parts):
+    def __init__(self, result: AdjustmentResult):
+        cov = result.covariance
+        n = result.layout.n_unknowns
+        self.blocks = cov.set_blocks
+        self.dense = None
+        if n <= DENSE_UNKNOWNS:
+            self.dense = np.zeros((n + 1, n + 1))  # row and column -1 (a fixed element) read zero
+            self.dense[:n, :n] = cov.dense_solved()
+
+    def gather(self, parts):
+        if self.dense is None:
+            return self.blocks(parts)
         m = len(parts[0].sets)
         idx = np.concatenate([P.columns[P.sets].reshape(m, -1) for P in parts], 1)  # (m, D)
-        return Q[idx[:, :, None], idx[:, None, :]]
+        return self.dense[idx[:, :, None], idx[:, None, :]]
 
-    return gather
+    def by_products(self, width: int) -> bool:
+        """Whether points whose unknown sets have ``width`` columns take the product route:
+        ``Qcc G^T`` as one product with the whole Qcc (3 n^2 multiply-adds a point) instead of
+        Qcc gathered among the point's sets (width^2 entries read, then multiplied). The gather's
+        entries cost about PRODUCT_RATIO multiply-adds each (close range, one BLAS thread)."""
+        n = 0 if self.dense is None else len(self.dense)
+        return self.dense is not None and 3 * n * n <= PRODUCT_RATIO * width * width
+
+    def points_per_chunk(self, k: int, width: int, e: int) -> int:
+        """Points of k rays (their sets ``width`` columns, e camera elements a ray) in one chunk."""
+        if self.by_products(width):
+            return max(1, MAX_ENTRIES // max(3 * len(self.dense), k * (6 + e) ** 2))
+        return max(1, MAX_ENTRIES // (width * width))
 
 
 class _Rays(NamedTuple):
@@ -218,9 +246,9 @@ class _Rays(NamedTuple):
     q: np.ndarray
 
 
-def _ray_cofactors(gather, rays: _Rays, photo_cols, camera_cols, full: bool, residuals: bool = True) -> _RayChunk:
-    """Qvv of the rays (m points of k rays each) and their Q_pp (module doc). gather: _qcc_reader's;
-    photo_cols (n_photos, 6), camera_cols (n_cameras, e): columns of Qcc. full: also the whole
+def _ray_cofactors(qcc: _Qcc, rays: _Rays, photo_cols, camera_cols, full: bool, residuals: bool = True) -> _RayChunk:
+    """Qvv of the rays (m points of k rays each) and their Q_pp (module doc). qcc: the result's
+    Qcc; photo_cols (n_photos, 6), camera_cols (n_cameras, e): its columns. full: also the whole
     plate block of Qvv; residuals=False: Q_pp and its orientation part only."""
     Jc, dX, Qm, pJX, ph, camera, q = rays
     m, k = ph.shape
@@ -228,6 +256,9 @@ def _ray_cofactors(gather, rays: _Rays, photo_cols, camera_cols, full: bool, res
     # point's unknown sets (its k photos, then its camera once when its rays share one, else one
     # camera set per ray)
     G = -np.einsum("mij,mkaj,mkac->mikc", Qm, pJX, Jc, optimize=True)
+    if not full and qcc.by_products(Jc.shape[3] * k):
+        return _by_products(qcc.dense, rays, G, photo_cols, camera_cols, residuals)
+    gather = qcc.gather
     read: dict = {}
 
     def forms(parts):  # Qcc gathered once per chunk: the residual cofactors below read it again
@@ -283,4 +314,45 @@ def _ray_cofactors(gather, rays: _Rays, photo_cols, camera_cols, full: bool, res
             cam = cam.reshape(m, k, 2, k, e)[:, a, :, a, :].transpose(1, 0, 2, 3)
         d += np.einsum("mkac,mkac->mka", cam, Jcam)
     d += np.einsum("mri,mri->mr", W + JcT, JX).reshape(m, k, 2)  # 2 Jc Qcc G^T Jp^T + Jp Q_pp Jp^T
+    return _RayChunk(q - d, Q_pp, GQG, None)
+
+
+def _by_products(Q: np.ndarray, rays: _Rays, G: np.ndarray, photo_cols, camera_cols, residuals: bool) -> _RayChunk:
+    """_ray_cofactors' diagonal of Qvv and Q_pp by products with the whole Qcc (Q: (n + 1, n + 1),
+    its last row and column zero for the fixed elements): long tracks of a small system (close
+    range), where a point's sets cover much of Qcc. ``Y = Qcc Gs`` (n + 1, 3m), Gs every point's G
+    placed in its columns, is one product; then ``G Qcc G^T`` of a point is its G against its rows of
+    Y, ``Jc Qcc G^T`` of a ray its Jc against its own rows of Y, and ``Jc_a Qcc Jc_a^T`` (the
+    diagonal) needs Qcc only among the ray's own 6 + e columns: no point's D x D block of Qcc is
+    formed."""
+    Jc, dX, Qm, pJX, ph, camera, q = rays
+    m, k = ph.shape
+    n1 = len(Q)
+    point = np.arange(m)[:, None, None]
+    kept: list[np.ndarray] = []  # Y, for the rays' Jc Qcc G^T below
+
+    def forms(parts):
+        gs = np.zeros(n1 * 3 * m)
+        for P in parts:  # Gs[column, 3 point + i] += G_i at that column (a camera shared by rays: summed)
+            cols = np.where(P.columns[P.sets] < 0, n1 - 1, P.columns[P.sets])  # (m, s, w)
+            at = (cols[:, None] * (3 * m) + 3 * point[..., None] + np.arange(3)[None, :, None, None])
+            gs += np.bincount(at.ravel(), weights=P.G.ravel(), minlength=len(gs))
+        Y = (Q @ gs.reshape(n1, 3 * m)).reshape(n1, m, 3)
+        kept.append(Y)
+        GQG = np.zeros((m, 3, 3))
+        for P in parts:  # column -1 reads Y's last row, zero
+            GQG += np.einsum("mrsw,mswj->mrj", P.G, Y[P.columns[P.sets], point], optimize=True)
+        return GQG
+
+    GQG = orientation_part(G, ph, camera, photo_cols, camera_cols, forms)  # Schmid's (90)
+    Q_pp = Qm + GQG
+    if not residuals:
+        return _RayChunk(None, Q_pp, GQG, None)
+    # each ray's own columns: its photo's six, then its camera's e
+    own = np.concatenate([photo_cols[ph], camera_cols[camera]], 2)  # (m, k, 6 + e); -1: Q's zero last row
+    Y = kept[0]
+    JcT = (Jc @ Y[own, point]).reshape(m, 2 * k, 3)  # Jc Qcc G^T
+    d = np.einsum("mkac,mkac->mka", Jc @ Q[own[..., :, None], own[..., None, :]], Jc)  # Jc_a Qcc Jc_a^T
+    JX = dX.reshape(m, 2 * k, 3)
+    d += np.einsum("mri,mri->mr", 2.0 * JcT + JX @ Q_pp, JX).reshape(m, k, 2)  # 2 Jc Qcc G^T Jp^T + Jp Q_pp Jp^T
     return _RayChunk(q - d, Q_pp, GQG, None)
