@@ -222,11 +222,11 @@ def test_the_points_equal_the_triangulation_with_schmid_90(solved, monkeypatch, 
     """points_of, from a pass of its own or kept from the residual cofactors' pass."""
     project, result = solved(name)
     ref = triangulate_adjusted(project, result, orientation_part=True)
-    monkeypatch.setattr(collinearity_form, "_last", ())
+    monkeypatch.setattr(collinearity_form, "_last", {})
     if kept:
         passed = collinearity_form.residual_cofactors(project, result)
     tri = collinearity_form.points_of(project, result)
-    assert (tri is passed.points) if kept else collinearity_form._last[2] is tri
+    assert (tri is passed.points) if kept else collinearity_form._last["points"] is tri
     np.testing.assert_array_equal(tri.determined, ref.determined)
     ok = ref.determined
     np.testing.assert_array_equal(tri.xyz[ok], ref.xyz[ok])

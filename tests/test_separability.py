@@ -21,7 +21,7 @@ from striptri.core.runs import RunOptions
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.model import TIE
 from striptri.pipeline import adjust_products
-from striptri.precision.residuals import residual_cofactors
+from striptri.precision.residuals import plate_blocks_of, residual_cofactors
 from striptri.reliability import FLAG_INSEPARABLE, FLAG_REJECTED, BlunderOptions, detect_blunders
 from striptri.reliability.rejections import rejection_groups
 from striptri.reliability.snooping import RETEST_SIGMA_FACTOR
@@ -67,9 +67,8 @@ def test_the_blocks_of_qvv_extend_its_diagonal(clean_block):
 
 
 def test_the_reliability_pass_gives_the_same_blocks(clean_block):
-    """Snooping takes the blocks from the pass that computes the redundancy numbers
-    (residual_cofactors with plate_blocks), not from a second pass: the same blocks as
-    plate_cofactor_blocks, and the same diagonal as without them."""
+    """The pass that computes the redundancy numbers gives the blocks too (residual_cofactors with
+    plate_blocks): the same blocks as plate_cofactor_blocks, and the same diagonal as without them."""
     project, result = clean_block
     reference = plate_cofactor_blocks(project, result, OPTIONS)
     cof = residual_cofactors(project, result, OPTIONS, plate_blocks=True)
@@ -78,6 +77,33 @@ def test_the_reliability_pass_gives_the_same_blocks(clean_block):
         np.testing.assert_array_equal(rows, rows_ref)
         np.testing.assert_allclose(qvv, qvv_ref, rtol=0, atol=1e-12 * np.abs(qvv_ref).max())
     np.testing.assert_array_equal(cof.plate, residual_cofactors(project, result, OPTIONS).plate)
+
+
+@pytest.mark.parametrize("method", ("conditions", "bundle"))
+def test_the_blocks_of_the_suspected_points_are_their_blocks_of_the_whole_pass(clean_block, method):
+    """Snooping forms blocks of Qvv only in a round with a w above the critical value, and only for
+    the points of such rows (precision.residuals.plate_blocks_of): each point's correlations equal
+    those of the pass over every point (the conditions form; for a bundle result the collinearity
+    form), and no other point has any."""
+    project = clean_block[0]
+    options = AdjustmentOptions(method=method)
+    result = adjust(project, options)
+    ip = project.image_points
+    m = len(ip)
+    every = Correlations(residual_cofactors(project, result, options, plate_blocks=True).plate_blocks, m)
+    suspects = np.zeros(len(project.points), dtype=bool)
+    suspects[::7] = True
+    some = Correlations(plate_blocks_of(project, result, options, suspects), m)
+    for i in range(m):
+        rows, rho = some.of_row(i)
+        if not suspects[ip.point_index[i]]:
+            assert not len(rows)
+            continue
+        rows_ref, rho_ref = every.of_row(i)
+        assert len(rows) > 1
+        a, b = np.argsort(rows), np.argsort(rows_ref)
+        np.testing.assert_array_equal(rows[a], rows_ref[b])
+        np.testing.assert_allclose(rho[a], rho_ref[b], rtol=0, atol=1e-9)
 
 
 def test_the_x_of_a_three_ray_strip_point_are_correlated_to_one(clean_block):

@@ -97,29 +97,40 @@ class CollinearityCofactors:
     imprecise: np.ndarray
 
 
-_last: tuple = ()  # (weak references to the project and the result, their Triangulated) of the last pass
+# the last pass over a project and a result: weak references to both, and what a second pass over them
+# (the blocks of data snooping's suspects, reliability.snooping) or points_of reads again: "points",
+# the Triangulated with the (90) cofactors (a pass over every point), "adjusted" (X^ with N_pp^-1)
+# and "qcc" (_Qcc: Qcc read whole for a small system)
+_last: dict = {}
+
+
+def _is_last(project: Project, result: AdjustmentResult) -> bool:
+    return bool(_last) and _last["project"]() is project and _last["result"]() is result
 
 
 def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks: bool = False,
-                       residuals: bool = True) -> CollinearityCofactors:
+                       residuals: bool = True, points: np.ndarray | None = None) -> CollinearityCofactors:
     """Residual cofactors of the plate and control observations and the points' cofactors of a
     bundle result by the collinearity form (module doc). Points with conditions whose rays do not
     determine them at the adjusted values, or only weakly (triangulation.Triangulated.undetermined),
     are left to the conditions form (``imprecise``), which needs no N_pp^-1 (docs/decisions.md
     "Undetermined points"). The points are kept
     for :func:`points_of` (weakly: the last pass only). residuals=False: the points only (plate
-    and control zero)."""
+    and control zero). points: (n_pt,) bool, only these points (the others' qvv, blocks and
+    orientation parts zero; such a pass is not kept)."""
     global _last
     ip = project.image_points
     n_points = len(project.points)
     obs = observations_of(project, result.offset)
     state, layout = result.state, result.layout
-    qcc = _Qcc(result)
+    if not _is_last(project, result):
+        _last = {"project": weakref.ref(project), "result": weakref.ref(result), "qcc": _Qcc(result),
+                 "adjusted": triangulate_adjusted(project, result)}  # X^: the adjusted rays' intersection, N_pp^-1
+    qcc, tri = _last["qcc"], _last["adjusted"]
     given = project.points.given_axes
     weighted = given & (obs.q_control > 0)
     counts = np.bincount(ip.point_index, minlength=n_points)
     with_conditions = points_with_conditions(project)
-    tri = triangulate_adjusted(project, result)  # X^: the adjusted rays' intersection, N_pp^-1
     order = np.lexsort((ip.photo_index, ip.point_index))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     T = layout.rotation_maps(state)
@@ -135,6 +146,9 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
     # (nan there only where their conditions degenerate); their (90) cofactors as they are
     undetermined = with_conditions & tri.undetermined
     wanted = tri.determined  # with the points with conditions; one without: its (90) only
+    if points is not None:
+        wanted = wanted & points
+        undetermined = undetermined & points
     # by ray count, neighbouring counts of few points joined, the shorter tracks padded with rays of
     # weight zero (equations.padding: their G is zero, their rows of Qvv are not read)
     for k, sel_k in padding.count_groups(counts, np.flatnonzero(wanted)):
@@ -165,15 +179,18 @@ def residual_cofactors(project: Project, result: AdjustmentResult, plate_blocks:
                 for n in np.unique(counts[sel[cond]]):
                     of_n = cond & (counts[sel] == n)
                     blocks.append((rows[of_n, :n], chunk.block[of_n, : 2 * n, : 2 * n]))
-    points = Triangulated(xyz=tri.xyz, cov_measurement=tri.cov_measurement,
-                          cov_orientation=np.where(tri.determined[:, None, None], cov_orientation, 0.0),
-                          determined=tri.determined, weak=tri.weak)
-    _last = (weakref.ref(project), weakref.ref(result), points)
+    triangulated = Triangulated(xyz=tri.xyz, cov_measurement=tri.cov_measurement,
+                                cov_orientation=np.where(tri.determined[:, None, None], cov_orientation, 0.0),
+                                determined=tri.determined, weak=tri.weak)
+    if points is None:  # a pass over every point
+        _last["points"] = triangulated
     small = np.zeros(n_points, dtype=bool)
     if residuals:
         np.logical_or.at(small, ip.point_index, (q_plate < R_SUBTRACTION * obs.q_plate).any(axis=1))
         small |= (weighted & (q_control < R_SUBTRACTION * obs.q_control)).any(axis=1)
-    return CollinearityCofactors(q_plate, q_control, blocks, points, (small & with_conditions) | undetermined)
+    imprecise = (small & with_conditions) | undetermined
+    return CollinearityCofactors(q_plate, q_control, blocks, triangulated,
+                                 imprecise if points is None else imprecise & points)
 
 
 def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
@@ -181,8 +198,8 @@ def points_of(project: Project, result: AdjustmentResult) -> Triangulated:
     ``adjusted_points.triangulate_adjusted(project, result, orientation_part=True)`` (equal to
     rounding, tested), by the collinearity form: those of the last :func:`residual_cofactors` pass
     when it was over the same project and result (the pipeline's reliability measures), else a pass."""
-    if _last and _last[0]() is project and _last[1]() is result:
-        return _last[2]
+    if _is_last(project, result) and "points" in _last:
+        return _last["points"]
     return residual_cofactors(project, result, residuals=False).points
 
 

@@ -89,12 +89,25 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
                              undetermined=undetermined)
 
 
+def plate_blocks_of(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
+                    points: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The plate blocks of Qvv (``residual_cofactors(..., plate_blocks=True).plate_blocks``) of the
+    groups of the points ``points`` (n_pt,) bool only: the w-tests' correlations of the points
+    that data snooping suspects (reliability.separability), without the blocks of every other
+    point. A project with distances: every group's (joint groups couple points)."""
+    if collinearity_form.applies(project, result):
+        return _collinearity_cofactors(project, result, options, True, points).plate_blocks
+    if getattr(project, "distances", None) is not None:
+        return _conditions_cofactors(project, result, options, True)[2]
+    return _conditions_cofactors(project, result, options, True, points=points)[2]
+
+
 def _collinearity_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
-                            plate_blocks: bool) -> ResidualCofactors:
+                            plate_blocks: bool, points: np.ndarray | None = None) -> ResidualCofactors:
     """The collinearity form (bundle.precision), with the points where its subtraction ``q - J Qxx
     J^T`` would lose digits (a redundancy number below bundle.precision.R_SUBTRACTION) taken from
-    the conditions form, which forms their qvv without it."""
-    c = collinearity_form.residual_cofactors(project, result, plate_blocks)
+    the conditions form, which forms their qvv without it. points: (n_pt,) bool, only these."""
+    c = collinearity_form.residual_cofactors(project, result, plate_blocks, points=points)
     q_plate, q_control, blocks = c.plate, c.control, c.plate_blocks
     undetermined = np.zeros(len(project.points), dtype=bool)
     if c.imprecise.any():

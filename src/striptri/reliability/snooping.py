@@ -39,7 +39,7 @@ from ..adjustment import AdjustmentOptions, AdjustmentResult, adjust
 from ..errors import InputError, NumericalFailure
 from ..model import Project
 from ..core.result import sigma0_of
-from ..precision.residuals import residual_cofactors
+from ..precision.residuals import plate_blocks_of, residual_cofactors
 from .measures import critical_value, plate_reliability, row_abs
 from .robust import studentised_gross_errors
 from .separability import Correlations, inseparable_rows
@@ -334,7 +334,7 @@ def _snoop_rounds(project, options, blunders, keep, rejected, rounds, current, f
             rounds[-1].rejected = 0
             stopped = f"failure: {exc}"
             break
-        rel = plate_reliability(current, result, options, blunders.alpha0, blunders.beta0, cofactor_blocks=separable)
+        rel = plate_reliability(current, result, options, blunders.alpha0, blunders.beta0)
         rows = np.flatnonzero(keep)
         last = (current, result, rel, rows)
         abs_w = row_abs(rel.w)
@@ -348,8 +348,14 @@ def _snoop_rounds(project, options, blunders, keep, rejected, rounds, current, f
             break
         sub = current.image_points
         expand, members = None, {}
-        if separable and np.any(abs_w > crit):
-            corr = Correlations(rel.cofactor_blocks, len(sub))
+        may_take = limit - len(rejected) > 0 and len(rounds) + 1 < blunders.max_rounds  # as below
+        if separable and may_take and np.any(abs_w > crit):
+            # the w-tests' correlations of the points of the rows that may be taken (select_rejections
+            # expands only those): their blocks of Qvv, formed now (a clean round forms none, nor
+            # one whose picks are dropped at the limits)
+            suspects = np.zeros(len(current.points), dtype=bool)
+            suspects[sub.point_index[abs_w > crit]] = True
+            corr = Correlations(plate_blocks_of(current, result, options, suspects), len(sub))
 
             def expand(i):
                 members[i] = inseparable_rows(corr, i, rel.w, crit)
