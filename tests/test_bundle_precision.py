@@ -182,6 +182,37 @@ def test_long_tracks_of_a_small_system_take_the_product_route(solved, monkeypatc
 
 
 @pytest.mark.parametrize("name", list(PROJECTS))
+def test_the_collinearity_form_of_a_conditions_result_equals_its_conditions_form(tmp_path_factory, name):
+    """A result of the method of conditions, where it takes the collinearity form (a small system):
+    the same qvv of the plate, control and observed elements and the same plate blocks of Qvv as its
+    conditions form, and the points' (90) cofactors of its triangulation."""
+    project = PROJECTS[name](tmp_path_factory)
+    result = adjust(project, AdjustmentOptions(method="conditions"))
+    assert result.converged and collinearity_form.applies(project, result)
+    ref = residual_cofactors(project, result, plate_blocks=True, form="conditions")
+    col = residual_cofactors(project, result, plate_blocks=True)
+    has = ref.plate > 0
+    assert has.any() and np.array_equal(col.plate[~has], ref.plate[~has])
+    np.testing.assert_allclose(col.plate[has], ref.plate[has], rtol=RTOL, atol=0)
+    weighted = ref.control > 0
+    np.testing.assert_allclose(col.control[weighted], ref.control[weighted], rtol=RTOL, atol=0)
+    np.testing.assert_allclose(col.parameters, ref.parameters, rtol=RTOL, atol=0)
+    n = len(project.image_points)
+    keys_ref, q_ref = _block_entries(ref.plate_blocks, n)
+    keys_col, q_col = _block_entries(col.plate_blocks, n)
+    np.testing.assert_array_equal(keys_col, keys_ref)
+    d = ref.plate.ravel()
+    assert np.all(np.abs(q_col - q_ref) <= RTOL * np.sqrt(d[keys_ref // (2 * n)] * d[keys_ref % (2 * n)]))
+    tri = collinearity_form.points_of(project, result)
+    ref_points = triangulate_adjusted(project, result, orientation_part=True)
+    ok = ref_points.determined
+    np.testing.assert_array_equal(tri.determined, ok)
+    scale = np.sqrt(np.einsum("nii->ni", ref_points.cov_measurement + ref_points.cov_orientation))
+    scale = scale[:, :, None] * scale[:, None, :]
+    assert np.all(np.abs(tri.cov_orientation - ref_points.cov_orientation) <= RTOL * scale)
+
+
+@pytest.mark.parametrize("name", list(PROJECTS))
 def test_the_subtraction_loses_digits_only_where_it_says(solved, name):
     """bundle.precision alone: qvv to RTOL + FLOOR / r of the conditions form's; beyond RTOL only on
     the points it marks imprecise (a redundancy number below R_SUBTRACTION)."""
@@ -321,15 +352,22 @@ def test_the_output_tables_are_those_of_the_conditions_form(solved, monkeypatch,
     _assert_close_tree(fast.summary["blunders"], ref.summary["blunders"])
 
 
-def test_the_form_is_chosen_automatically(solved):
-    """Bundle results without distances or free network take the collinearity form; results of the
-    method of conditions, with a free-network datum or with distances keep the conditions form."""
+def test_the_form_is_chosen_automatically(solved, monkeypatch):
+    """Bundle results without distances or free network take the collinearity form, and so do
+    results of the method of conditions whose Qcc is read whole (a small system); a larger one of
+    the conditions method, and results with a free-network datum or with distances, keep the
+    conditions form."""
     project, result = solved("block, weighted control")
     auto = residual_cofactors(project, result, plate_blocks=True)
     col = residual_cofactors(project, result, plate_blocks=True, form="collinearity")
     np.testing.assert_array_equal(auto.plate, col.plate)
     conditions = adjust(project, AdjustmentOptions(method="conditions"))
+    assert collinearity_form.applies(project, conditions)
+    np.testing.assert_array_equal(residual_cofactors(project, conditions).plate,
+                                  residual_cofactors(project, conditions, form="collinearity").plate)
+    monkeypatch.setattr(collinearity_form, "DENSE_UNKNOWNS", conditions.layout.n_unknowns - 1)
     assert not collinearity_form.applies(project, conditions)
+    assert collinearity_form.applies(project, result)
     np.testing.assert_array_equal(residual_cofactors(project, conditions).plate,
                                   residual_cofactors(project, conditions, form="conditions").plate)
     assert not collinearity_form.applies(replace(project, distances=object()), result)

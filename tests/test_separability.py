@@ -67,16 +67,18 @@ def test_the_blocks_of_qvv_extend_its_diagonal(clean_block):
 
 
 def test_the_reliability_pass_gives_the_same_blocks(clean_block):
-    """The pass that computes the redundancy numbers gives the blocks too (residual_cofactors with
-    plate_blocks): the same blocks as plate_cofactor_blocks, and the same diagonal as without them."""
+    """The conditions form's pass that computes the redundancy numbers gives the blocks too
+    (residual_cofactors with plate_blocks): the same blocks as plate_cofactor_blocks, and the same
+    diagonal as without them. (This small block's own pass takes the collinearity form, whose
+    blocks equal these: tests/test_bundle_precision.py.)"""
     project, result = clean_block
     reference = plate_cofactor_blocks(project, result, OPTIONS)
-    cof = residual_cofactors(project, result, OPTIONS, plate_blocks=True)
+    cof = residual_cofactors(project, result, OPTIONS, plate_blocks=True, form="conditions")
     assert len(cof.plate_blocks) == len(reference)
     for (rows, qvv), (rows_ref, qvv_ref) in zip(cof.plate_blocks, reference):
         np.testing.assert_array_equal(rows, rows_ref)
         np.testing.assert_allclose(qvv, qvv_ref, rtol=0, atol=1e-12 * np.abs(qvv_ref).max())
-    np.testing.assert_array_equal(cof.plate, residual_cofactors(project, result, OPTIONS).plate)
+    np.testing.assert_array_equal(cof.plate, residual_cofactors(project, result, OPTIONS, form="conditions").plate)
 
 
 @pytest.mark.parametrize("method", ("conditions", "bundle"))

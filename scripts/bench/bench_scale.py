@@ -744,10 +744,10 @@ RUNS_NOTE = (
 )
 PHASES_NOTE = (
     "striptri's phases (s; summary.json timings_s, medians; for the bundle method the conditions column is "
-    "its initial_points and assembly its linearisation_and_reduction, and its back_substitution holds the "
-    "linearisation of each Gauss-Newton trial step; adjust_other: the rest of the adjustment's total; remainder: "
-    "whole wall time minus the phases, i.e. interpreter start, imports, writing the files; some imports happen "
-    "inside the phases, e.g. matplotlib's in report):"
+    "its initial_points and assembly its linearisation_and_reduction (with the linearisation of each "
+    "Gauss-Newton trial step since the ninth round of issue 29; before, back_substitution held it); "
+    "adjust_other: the rest of the adjustment's total; remainder: whole wall time minus the phases, i.e. "
+    "interpreter start, imports, writing the files; report: with a drawing worker, the wait for its figures):"
 )
 
 
