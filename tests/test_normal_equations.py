@@ -363,3 +363,26 @@ def test_lower_inverse_equals_the_general_inverse(n):
     assert np.abs(got - want).max() <= 1e-13 * np.abs(want).max()
     assert np.all(np.triu(got, 1) == 0.0)
     assert lower_inverse(L[:0]).shape == (0, n, n)
+
+
+def test_a_chunk_scatter_adds_its_blocks_where_they_belong(monkeypatch):
+    """ChunkScatter sums a chunk's ray-pair blocks by position and adds them at their positions, or
+    over the stretch of positions they span (SPAN_FILL): both equal np.add.at of every block, and
+    the two layouts give the same numbers to the last bit."""
+    from striptri.equations import normal_equations
+
+    rng = np.random.default_rng(5)
+    pos = rng.choice(np.arange(40, 90), size=(7, 3, 3))  # 7 groups of 3 rays: pairs onto 50 of 200 positions
+    blocks = rng.normal(size=(7, 3, 3, 2, 2))
+    reference = np.zeros((200, 4))
+    np.add.at(reference, pos.ravel(), blocks.reshape(-1, 4))
+    out = {}
+    for f in (0.0, np.inf):
+        monkeypatch.setattr(normal_equations, "SPAN_FILL", f)
+        scatter = normal_equations.ChunkScatter(pos)
+        assert (scatter.span is not None) == (f == 0.0)
+        target = np.zeros(200 * 4)
+        scatter.add(target, blocks)
+        out[f] = target
+    np.testing.assert_allclose(out[0.0].reshape(200, 4), reference, rtol=1e-14, atol=1e-14)
+    np.testing.assert_array_equal(out[0.0], out[np.inf])

@@ -133,18 +133,35 @@ def _columns_summed(Bw: np.ndarray, cols: np.ndarray):
     return (S.T @ Bw[0].T).T[None], unique[None]
 
 
+SPAN_FILL = 0.25  # ChunkScatter: a chunk whose positions fill at least this much of their span adds a slice
+
+
 class ChunkScatter:
     """Where one chunk's ray-pair blocks go in a BlockPattern's data, worked out once per adjustment:
     the distinct pattern positions the chunk touches (``positions``) and a 0/1 summation matrix
     (``P``: positions x ray pairs, a sparse matrix) that sums the pairs landing on the same
     position. Each iteration then adds ``P @ blocks`` at those positions: one sparse product per
-    chunk, instead of a scatter over the whole pattern."""
+    chunk, instead of a scatter over the whole pattern.
+
+    A chunk whose positions fill much of the stretch between its first and last (SPAN_FILL; long
+    tracks, where a few points couple most pairs of photos) sums onto every position of that
+    stretch instead (``span``; P has a row for each, empty where the chunk adds nothing) and adds
+    them as one slice: a fancy-indexed ``+=`` of 6,400 rows of 36 numbers took 1.4 ms, 0.59 s of the
+    close-range block's 3.5 s adjustment, all of it in the thread that gathers the chunks (0.34 s
+    as slices)."""
 
     def __init__(self, pos: np.ndarray):
         self.positions, inverse = np.unique(pos, return_inverse=True)
         n_pairs = pos.size
-        self.P = sp.csr_matrix((np.ones(n_pairs), (inverse.ravel(), np.arange(n_pairs))),
-                               shape=(len(self.positions), n_pairs))
+        row = inverse.ravel()
+        self.span = None
+        if len(self.positions):
+            first, last = int(self.positions[0]), int(self.positions[-1])
+            if len(self.positions) >= SPAN_FILL * (last - first + 1):
+                self.span = slice(first, last + 1)
+                row = self.positions[row] - first
+        rows = len(self.positions) if self.span is None else self.span.stop - self.span.start
+        self.P = sp.csr_matrix((np.ones(n_pairs), (row, np.arange(n_pairs))), shape=(rows, n_pairs))
 
     def add(self, target: np.ndarray, blocks: np.ndarray) -> None:
         """target (n_positions * r * s,) += the blocks (m, k, k, r, s) (block (a, b) of group m is
@@ -158,8 +175,8 @@ class ChunkScatter:
         return self.P @ np.ascontiguousarray(blocks).reshape(-1, size)
 
     def add_sums(self, target: np.ndarray, sums: np.ndarray) -> None:
-        """target += sums (ChunkScatter.sums) at their positions."""
-        target.reshape(-1, sums.shape[1])[self.positions] += sums
+        """target += sums (ChunkScatter.sums) at their positions (or over their span)."""
+        target.reshape(-1, sums.shape[1])[self.positions if self.span is None else self.span] += sums
 
     def add_pairs_by_ray(self, target: np.ndarray, blocks: np.ndarray) -> None:
         """The same for blocks laid out ray by ray, (m, k, r, k, s) (block (a, b) is
