@@ -361,3 +361,29 @@ def test_the_command_defers_numpys_unused_modules(tmp_path):
     assert deferred == "numpy.f2py,numpy.testing" and loaded == "" and used == "True"
     _, loaded, _ = run("plain")  # what scipy's import does without it (if this scipy does it at all)
     assert set(loaded.split(",")) <= {"numpy.f2py.crackfortran", "charset_normalizer", "numpy.testing._private.utils"}
+
+
+LEAVE_SCRIPT = """
+import atexit, sys
+from striptri._entry import leave
+atexit.register(lambda: sys.stdout.write("exit handler ran\\n"))
+sys.stdout.write("buffered line")  # no newline: still in the buffer when leave() is called
+code = {"none": None, "three": 3, "big": 258, "text": "a message"}[sys.argv[1]]
+leave(code)
+sys.stdout.write("never reached\\n")
+"""
+
+
+@pytest.mark.parametrize(("code", "status"), [("none", 0), ("three", 3), ("big", 2), ("text", 1)])
+def test_the_console_script_leaves_as_sys_exit_would(tmp_path, code, status):
+    """_entry.leave (the console script's end, without the interpreter's teardown): the exit status
+    of sys.exit(code), the exit handlers run, the buffered output flushed, a message to stderr."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "leave.py"
+    script.write_text(LEAVE_SCRIPT)
+    proc = subprocess.run([sys.executable, str(script), code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == status
+    assert proc.stdout == "buffered lineexit handler ran\n"
+    assert proc.stderr == ("a message\n" if code == "text" else "")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import signal
 import sys
+from typing import NoReturn
 
 from striptri.errors import Interrupted
 
@@ -34,6 +35,38 @@ def main() -> None:
         _stop(signal.SIGINT, starting=False)
     except Interrupted as exc:
         _stop(exc.signum, starting=False)
+    except SystemExit as exc:  # the command has ended (click exits with its status)
+        leave(exc.code)
+
+
+def leave(code) -> NoReturn:
+    """End the process with the status of ``sys.exit(code)`` once the command has ended: the
+    exit handlers run and the standard streams are flushed as at a normal exit, but the
+    interpreter's teardown of every module and object is left to the end of the process, which
+    gives the memory back at once (that teardown took 0.06-0.1 s after the close-range block and
+    after 5,000 photos, with numpy, scipy and the results loaded). Every file of the run is
+    complete and closed by then (the output's commit), and the drawing worker has been stopped;
+    threads still alive are idle pool threads. For the console script only: a caller of
+    ``striptri.cli.main`` keeps its interpreter."""
+    import atexit
+    import os
+
+    if code is None:
+        status = 0
+    elif isinstance(code, int):
+        status = code
+    else:  # sys.exit("message"): printed, status 1
+        sys.stderr.write(f"{code}\n")
+        status = 1
+    try:
+        atexit._run_exitfuncs()  # noqa: SLF001 - what the interpreter would run now (logging's flush, finalizers)
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # a closed pipe: nothing more can be said there
+                pass
+        os._exit(status & 0xFF)  # as the operating system takes sys.exit(status)
 
 
 DEFERRED = ("numpy.f2py", "numpy.testing")
