@@ -387,3 +387,17 @@ def test_the_console_script_leaves_as_sys_exit_would(tmp_path, code, status):
     assert proc.returncode == status
     assert proc.stdout == "buffered lineexit handler ran\n"
     assert proc.stderr == ("a message\n" if code == "text" else "")
+
+
+def test_a_profiled_command_exits_as_python_does(tmp_path):
+    """Under a profiler (or a tracer such as coverage) the console script exits normally, so that
+    the profiler writes its data (cProfile's own main then sets the status: it ignores SystemExit)."""
+    import subprocess
+    import sys
+
+    stats = tmp_path / "profile.out"
+    proc = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(stats), "-m", "striptri", "--version"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "striptri" in proc.stdout
+    assert stats.exists() and stats.stat().st_size > 0

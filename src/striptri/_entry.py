@@ -36,7 +36,9 @@ def main() -> None:
     except Interrupted as exc:
         _stop(exc.signum, starting=False)
     except SystemExit as exc:  # the command has ended (click exits with its status)
-        leave(exc.code)
+        if sys.gettrace() is None and sys.getprofile() is None:
+            leave(exc.code)
+        raise  # under a profiler or a coverage tracer, which write their data at the normal exit
 
 
 def leave(code) -> NoReturn:
@@ -47,7 +49,9 @@ def leave(code) -> NoReturn:
     after 5,000 photos, with numpy, scipy and the results loaded). Every file of the run is
     complete and closed by then (the output's commit), and the drawing worker has been stopped;
     threads still alive are idle pool threads. For the console script only: a caller of
-    ``striptri.cli.main`` keeps its interpreter."""
+    ``striptri.cli.main`` keeps its interpreter, and so does a command run under a profiler or
+    a tracer (``python -m cProfile -m striptri``, coverage), whose data are written at the
+    interpreter's exit."""
     import atexit
     import os
 
