@@ -97,6 +97,27 @@ def _block_entries(blocks, n_rows):
     return keys[order], values[order]
 
 
+def _assert_same_qvv(col, ref) -> None:
+    """qvv of every plate coordinate elementwise (rows of points without conditions: zero in both),
+    of the weighted control coordinates and of the observed elements, to RTOL."""
+    has = ref.plate > 0
+    assert has.any() and np.array_equal(col.plate[~has], ref.plate[~has])
+    np.testing.assert_allclose(col.plate[has], ref.plate[has], rtol=RTOL, atol=0)
+    weighted = ref.control > 0
+    np.testing.assert_allclose(col.control[weighted], ref.control[weighted], rtol=RTOL, atol=0)
+    np.testing.assert_allclose(col.parameters, ref.parameters, rtol=RTOL, atol=0)
+
+
+def _assert_same_blocks(col, ref, n_rows: int) -> None:
+    """The plate blocks of Qvv: the same entries, each to RTOL of sqrt(qvv_ii qvv_jj) (the
+    correlations to RTOL)."""
+    keys_ref, q_ref = _block_entries(ref.plate_blocks, n_rows)
+    keys_col, q_col = _block_entries(col.plate_blocks, n_rows)
+    np.testing.assert_array_equal(keys_col, keys_ref)
+    d = ref.plate.ravel()
+    assert np.all(np.abs(q_col - q_ref) <= RTOL * np.sqrt(d[keys_ref // (2 * n_rows)] * d[keys_ref % (2 * n_rows)]))
+
+
 def result_cofactors(project, result) -> dict:
     """The a-priori cofactors q of the plate (m, 2) and control (n, 3) observations."""
     from striptri.equations.observations import observations_of
@@ -111,22 +132,9 @@ def test_the_collinearity_form_equals_the_conditions_form(solved, name):
     assert collinearity_form.applies(project, result)
     ref = residual_cofactors(project, result, plate_blocks=True, form="conditions")
     col = residual_cofactors(project, result, plate_blocks=True, form="collinearity")
-    # qvv of every plate coordinate, elementwise (rows of points without conditions: zero in both)
-    has = ref.plate > 0
-    assert has.any() and np.array_equal(col.plate[~has], ref.plate[~has])
-    np.testing.assert_allclose(col.plate[has], ref.plate[has], rtol=RTOL, atol=0)
-    weighted = ref.control > 0
-    np.testing.assert_allclose(col.control[weighted], ref.control[weighted], rtol=RTOL, atol=0)
-    assert not col.control[~weighted].any()
-    np.testing.assert_allclose(col.parameters, ref.parameters, rtol=RTOL, atol=0)
-    # the plate blocks: the same entries, each to 1e-9 of sqrt(qvv_ii qvv_jj) (correlations to 1e-9)
-    n = len(project.image_points)
-    keys_ref, q_ref = _block_entries(ref.plate_blocks, n)
-    keys_col, q_col = _block_entries(col.plate_blocks, n)
-    np.testing.assert_array_equal(keys_col, keys_ref)
-    d = ref.plate.ravel()
-    scale = np.sqrt(d[keys_ref // (2 * n)] * d[keys_ref % (2 * n)])
-    assert np.all(np.abs(q_col - q_ref) <= RTOL * scale)
+    _assert_same_qvv(col, ref)
+    assert not col.control[~(ref.control > 0)].any()
+    _assert_same_blocks(col, ref, len(project.image_points))
     # the redundancy numbers add up to the redundancy
     r = col.redundancy_numbers(project, result)
     total = r["plate"].sum() + r["control"].sum() + r["parameters"].sum()
@@ -147,12 +155,7 @@ def test_the_product_route_equals_the_conditions_form(solved, monkeypatch, name)
     monkeypatch.setattr(collinearity_form, "PRODUCT_RATIO", np.inf)
     col = residual_cofactors(project, result, form="collinearity")
     products = collinearity_form.residual_cofactors(project, result)
-    has = ref.plate > 0
-    assert has.any() and np.array_equal(col.plate[~has], ref.plate[~has])
-    np.testing.assert_allclose(col.plate[has], ref.plate[has], rtol=RTOL, atol=0)
-    weighted = ref.control > 0
-    np.testing.assert_allclose(col.control[weighted], ref.control[weighted], rtol=RTOL, atol=0)
-    np.testing.assert_allclose(col.parameters, ref.parameters, rtol=RTOL, atol=0)
+    _assert_same_qvv(col, ref)
     # against the gathering route, where both subtract alike: to round-off of q
     q = result_cofactors(project, result)
     assert np.all(np.abs(products.plate - gathered.plate) <= 1e-12 * np.abs(gathered.plate) + FLOOR * q["plate"])
@@ -191,18 +194,8 @@ def test_the_collinearity_form_of_a_conditions_result_equals_its_conditions_form
     assert result.converged and collinearity_form.applies(project, result)
     ref = residual_cofactors(project, result, plate_blocks=True, form="conditions")
     col = residual_cofactors(project, result, plate_blocks=True)
-    has = ref.plate > 0
-    assert has.any() and np.array_equal(col.plate[~has], ref.plate[~has])
-    np.testing.assert_allclose(col.plate[has], ref.plate[has], rtol=RTOL, atol=0)
-    weighted = ref.control > 0
-    np.testing.assert_allclose(col.control[weighted], ref.control[weighted], rtol=RTOL, atol=0)
-    np.testing.assert_allclose(col.parameters, ref.parameters, rtol=RTOL, atol=0)
-    n = len(project.image_points)
-    keys_ref, q_ref = _block_entries(ref.plate_blocks, n)
-    keys_col, q_col = _block_entries(col.plate_blocks, n)
-    np.testing.assert_array_equal(keys_col, keys_ref)
-    d = ref.plate.ravel()
-    assert np.all(np.abs(q_col - q_ref) <= RTOL * np.sqrt(d[keys_ref // (2 * n)] * d[keys_ref % (2 * n)]))
+    _assert_same_qvv(col, ref)
+    _assert_same_blocks(col, ref, len(project.image_points))
     tri = collinearity_form.points_of(project, result)
     ref_points = triangulate_adjusted(project, result, orientation_part=True)
     ok = ref_points.determined
