@@ -16,3 +16,11 @@ def only_in_the_parent(value: bytes) -> bytes:
     if str(os.getpid()) != os.environ[PARENT]:
         raise RuntimeError("this figure fails in the worker")
     return anywhere(value)
+
+
+def slowly(value: bytes, seconds: float) -> bytes:
+    """A figure that takes ``seconds`` to draw."""
+    import time
+
+    time.sleep(seconds)
+    return anywhere(value)

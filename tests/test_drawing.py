@@ -117,12 +117,61 @@ def test_the_worker_draws_and_a_figure_it_cannot_draw_is_drawn_here(helpers_impo
     assert worker.process.poll() is not None  # ended with the block
 
 
-def test_a_worker_that_dies_leaves_its_figures_to_this_process(helpers_importable):
-    with drawing.worker_for(True) as worker:
+@pytest.mark.parametrize("drawers", [1, 2])
+def test_a_worker_that_dies_leaves_its_figures_to_this_process(helpers_importable, drawers):
+    with drawing.worker_for(True, drawers) as worker:  # killed before it has imported matplotlib (and forked)
         worker.process.kill()
         worker.process.wait()
         text = drawing.fill(drawing.html_of(drawing.draw(drawing_helpers.anywhere, b"c"), bytes.decode))
     assert _drawn_by(text) == os.getpid()
+
+
+def _running(pid: int) -> bool:
+    """Whether the process runs (neither gone nor a zombie)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in "ZX"
+    except OSError:
+        return False
+
+
+def _both_ready(worker, seconds: float = 60.0) -> set[int]:
+    deadline = time.monotonic() + seconds
+    while len(worker.pids) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return set(worker.pids)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_two_drawers_share_the_figures_and_end_with_the_block(helpers_importable):
+    """Figures asked for together are drawn two at a time, by the worker and its twin (a fork of
+    it), in the report's order; both end with the block."""
+    with drawing.worker_for(True, drawers=2) as worker:
+        pids = _both_ready(worker)
+        figures = [drawing.draw(drawing_helpers.slowly, str(i).encode(), 0.3) for i in range(4)]
+        text = drawing.fill(" | ".join(drawing.html_of(f, bytes.decode) for f in figures))
+    drawn = text.split(" | ")
+    assert [t.split()[0] for t in drawn] == ["0", "1", "2", "3"]
+    assert len(pids) == 2 and worker.process.pid in pids and os.getpid() not in pids
+    assert {_drawn_by(t) for t in drawn} == pids
+    deadline = time.monotonic() + 5  # the twin is the worker's child: the system reaps it
+    while any(_running(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_running(pid) for pid in pids)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_a_twin_that_dies_leaves_its_figures_to_the_other_drawer(helpers_importable):
+    with drawing.worker_for(True, drawers=2) as worker:
+        pids = _both_ready(worker)
+        (twin,) = pids - {worker.process.pid}
+        os.kill(twin, signal.SIGKILL)
+        deadline = time.monotonic() + 5
+        while _running(twin) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        figures = [drawing.draw(drawing_helpers.anywhere, str(i).encode()) for i in range(3)]
+        text = drawing.fill(" | ".join(drawing.html_of(f, bytes.decode) for f in figures))
+    assert [_drawn_by(t) for t in text.split(" | ")] == [worker.process.pid] * 3
 
 
 def test_arguments_that_do_not_pickle_are_drawn_here(helpers_importable):

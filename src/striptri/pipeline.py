@@ -292,7 +292,7 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     # thread of this process while the adjustment computes.
     worker = drawing.when_to_start(rays_per_point(project))
     if worker == "now":
-        workers.enter_context(drawing.worker_for(True))
+        workers.enter_context(drawing.worker_for(True, drawing.DRAWERS_NOW))
     elif worker is None:
         figure_imports.preload()
     with warnings.catch_warnings(record=True) as caught:
