@@ -168,6 +168,39 @@ def test_auto_picks_by_pattern():
     assert selected_inverse(strip(40, 1)[0], method="auto").method == "banded"
     N, starts = block(3, 120, 1)  # strips of 120: sidelap 121 photos apart, half-bandwidth 731
     assert selected_inverse(N, starts, method="auto").method == "sparse"
+    full = nearly_full_matrix(300)
+    assert selected_inverse(full, method="auto").method == "dense"  # beyond DENSE_LIMIT, but full
+
+
+def nearly_full_matrix(n: int, seed: int = 0) -> sp.csr_matrix:
+    """An SPD n x n matrix with every entry nonzero (a close range's N: each target on most photos),
+    its diagonal entries 1e-4 to 1e4 apart as N's are (metres and radians)."""
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((2 * n, n))
+    s = 10.0 ** rng.uniform(-2, 2, n)
+    return sp.csr_matrix((A.T @ A) * s[:, None] * s[None, :])
+
+
+@pytest.mark.parametrize("method", ROUTES)
+def test_the_whole_inverse_of_every_route(method):
+    """SelectedInverse.whole: the dense route's own inverse (LAPACK potri), the others' n solves:
+    each the dense inverse, symmetric."""
+    N, starts = strip(12, 1, seed=4)
+    Q = selected_inverse(N, starts, method=method).whole()
+    ref = dense_inverse(N)
+    d = np.sqrt(N.diagonal())
+    np.testing.assert_allclose(Q * d[:, None] * d[None, :], ref * d[:, None] * d[None, :], rtol=0, atol=RTOL)
+    np.testing.assert_array_equal(Q, Q.T)
+
+
+def test_a_nearly_full_matrix_inverted_dense_equals_the_dense_inverse():
+    N = nearly_full_matrix(300, seed=1)
+    inv = selected_inverse(N, np.arange(0, 300, 6), method="auto")
+    assert inv.method == "dense"
+    check_blocks(N, inv)
+    d = np.sqrt(N.diagonal())
+    np.testing.assert_allclose(inv.whole() * d[:, None] * d[None, :], dense_inverse(N) * d[:, None] * d[None, :],
+                               rtol=0, atol=RTOL)
 
 
 # --------------------------------------------------------------------------- blocks and pairs

@@ -628,6 +628,25 @@ def test_auto_picks_from_the_pattern():
     assert auto.name == result.solver == "banded"
 
 
+def test_auto_solves_a_nearly_full_matrix_dense():
+    """Beyond DENSE_LIMIT unknowns, a matrix with at least DENSE_FILL of its entries nonzero (a close
+    range's) up to DENSE_FULL_LIMIT unknowns is solved dense; sparser, or larger, it is not."""
+    from striptri.solvers.selection import DENSE_FILL, DENSE_FULL_LIMIT, nearly_full
+
+    rng = np.random.default_rng(5)
+    n = 2 * solvers.DENSE_LIMIT
+    A = rng.standard_normal((2 * n, n))
+    full = sp.csr_matrix(A.T @ A)
+    assert solvers.resolve_solver("auto", n, full) == "dense"
+    banded = sp.csr_matrix(full.toarray() * (np.abs(np.subtract.outer(np.arange(n), np.arange(n))) < 0.2 * n))
+    assert banded.nnz < DENSE_FILL * n * n and solvers.resolve_solver("auto", n, banded) == "banded"
+    assert not nearly_full(sp.identity(DENSE_FULL_LIMIT + 1, format="csr") + sp.csr_matrix(
+        np.ones((DENSE_FULL_LIMIT + 1, DENSE_FULL_LIMIT + 1))))
+    result = make_solver(SolverOptions("auto"), Structure(n)).solve(full, np.ones(n))
+    assert result.solver == "dense"
+    np.testing.assert_allclose(full @ result.dx, np.ones(n), rtol=0, atol=1e-9)
+
+
 def test_auto_in_an_adjustment_reports_the_concrete_solver(strip8_dense):
     project, ref = strip8_dense
     r = adjust(project)

@@ -30,7 +30,8 @@ pivot test of :mod:`striptri.solvers` (so the same N counts as singular everywhe
   supernodal one here, the whole selected inversion twice as long, on synthetic blocks of 10,000
   photos with single-threaded BLAS: scripts/bench/bench_selected_inverse.py), so ``auto`` never
   picks it.
-* ``dense`` - the reference for tiny systems: the dense inverse.
+* ``dense`` - the reference for tiny systems, and the route for nearly full ones (close range,
+  solvers.selection.nearly_full): the dense inverse (LAPACK ``potri``).
 
 Entries outside the computed pattern (e.g. the block of two photos at opposite ends of a strip)
 are columns of N^-1 obtained by solving with the factor already in hand: O(nnz(L)) per column.
@@ -54,6 +55,7 @@ import scipy.sparse as sp
 
 from ..solvers import BANDED_MAX_BANDWIDTH, DENSE_LIMIT, Structure, jacobi_scaled
 from ..solvers.banded import choose_split
+from ..solvers.selection import nearly_full
 from ..solvers.memory import give_back_free_memory
 from ..solvers.sparse_cholesky import cholmod_module
 from .banded import BandedInverse
@@ -93,7 +95,8 @@ def selected_inverse(N: sp.spmatrix, blocks=None, pairs: Sequence[tuple[int, int
     block_starts: the partition of the columns into photo/camera blocks that the sparse route
     orders and factorises by (``UnknownLayout.block_starts()``); by default the blocks' own
     starts, or consecutive blocks of 6. It affects the speed only.
-    method: one of METHODS; ``auto`` picks ``dense`` up to DENSE_LIMIT unknowns, ``banded`` when the
+    method: one of METHODS; ``auto`` picks ``dense`` up to DENSE_LIMIT unknowns or for a nearly
+    full N (solvers.selection.nearly_full), ``banded`` when the
     photo part (camera columns split off as a border) has a half-bandwidth of at most
     BANDED_MAX_BANDWIDTH (the thresholds of the solvers' ``auto``), else ``sparse``.
     keep_factor: the sparse routes keep the Cholesky factor beside the selected inverse (for
@@ -199,7 +202,7 @@ def _choose_method(method: str, As: sp.csr_matrix, structure: Structure) -> str:
             cholmod_module()  # SolverUnavailable with the install command
         return method
     n = As.shape[0]
-    if n <= DENSE_LIMIT:
+    if n <= DENSE_LIMIT or nearly_full(As):
         return "dense"
     _, w = choose_split(As, structure)
     return "banded" if w <= BANDED_MAX_BANDWIDTH else "sparse"

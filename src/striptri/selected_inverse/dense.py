@@ -1,6 +1,8 @@
-"""The ``dense`` route of the selected inversion: the reference for tiny systems.
+"""The ``dense`` route of the selected inversion: the reference for tiny systems, and the route for
+nearly full ones (close range).
 
-The whole ``N~^-1`` from a dense LAPACK Cholesky factor; every entry is looked up, none solved for.
+The whole ``N~^-1`` from a dense LAPACK Cholesky factor (``potri``); every entry is looked up, none
+solved for.
 """
 
 from __future__ import annotations
@@ -8,13 +10,15 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
+from scipy.linalg import lapack
 
 from ..solvers.direct import dense_cholesky
 from .engine import Engine, not_fixed
 
 
 class DenseInverse(Engine):
-    """The reference: the dense inverse of the scaled matrix (LAPACK Cholesky)."""
+    """The reference: the dense inverse of the scaled matrix (LAPACK Cholesky, then ``potri``, the
+    inverse from the factor in a third of the work of n solves)."""
 
     name = "dense"
 
@@ -23,7 +27,14 @@ class DenseInverse(Engine):
         self.n = As.shape[0]
         c = dense_cholesky(As.toarray())
         self._factor = c
-        self._Z = la.cho_solve((c, True), np.eye(self.n), check_finite=False)
+        Z, info = lapack.dpotri(c, lower=1)
+        if info != 0:  # pragma: no cover - the factor passed the pivot test: cannot happen
+            raise ValueError(f"dpotri failed (info {info})")
+        self._Z = np.tril(Z) + np.tril(Z, -1).T  # potri fills the lower triangle
+
+    def whole(self) -> np.ndarray:
+        """The whole N~^-1 (n, n), symmetric."""
+        return self._Z
 
     looks_up = True
 

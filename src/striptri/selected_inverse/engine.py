@@ -32,6 +32,10 @@ class Engine:
     def diag(self) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def whole(self) -> np.ndarray | None:
+        """The whole N~^-1 (n, n) where the route holds it (dense), else None."""
+        return None
+
     def compute_with_diag(self, rows, cols):
         return self.compute(rows, cols), self.diag()
 

@@ -128,6 +128,15 @@ class SelectedInverse:
         first = np.array([self._start[(int(i), int(i))] for i in ids], dtype=int)
         return self._values[first[:, None] + np.arange(m * m)[None, :]].reshape(len(ids), m, m)
 
+    def whole(self) -> np.ndarray:
+        """The whole N^-1 (n, n), symmetric: the route's own where it holds it (dense), else n
+        solves with the factor."""
+        Z = self._engine.whole()
+        if Z is None:
+            Q = self.solve(np.eye(self.n))
+            return 0.5 * (Q + Q.T)
+        return Z * np.outer(self._s, self._s)  # s_i s_j: symmetric to the last bit, as Z
+
     def solve(self, b: np.ndarray) -> np.ndarray:
         """N^-1 b (b: (n,) or (n, q)) with the factor."""
         b = np.asarray(b, dtype=float)

@@ -17,6 +17,13 @@ from .sparse_cholesky import CholmodSolver, cholmod_available
 
 # auto: measured on a 2-core machine (scripts/bench/bench_solvers.py, docs/solvers.md)
 DENSE_LIMIT = 120  # unknowns up to which the dense reference is as fast as anything (~20 photos)
+# ... and up to DENSE_FULL_LIMIT unknowns (a 72 MB matrix) where N is nearly full, at least DENSE_FILL
+# of its entries nonzero (close range: every target on half the photos, N 98 % full): a sparse or
+# banded factor of a full matrix is the dense one with index work on top. The close-range block's
+# 695 unknowns: a solve 7.3 ms dense against 15.5 ms banded, the whole inverse 12 ms against 43 ms
+# (docs/solvers.md).
+DENSE_FULL_LIMIT = 3000
+DENSE_FILL = 0.5
 BANDED_MAX_BANDWIDTH = 500  # bandwidth of the photo part up to which banded beats cholmod and sparse
 BANDED_MAX_STORAGE = 50_000_000  # band entries (400 MB) beyond which banded is not chosen
 
@@ -36,7 +43,8 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
                    structure: Structure | None = None) -> str:
     """The concrete solver ``name`` stands for (or the name itself, validated).
 
-    ``auto`` (docs/solvers.md): ``dense`` up to DENSE_LIMIT unknowns; else ``banded`` when the
+    ``auto`` (docs/solvers.md): ``dense`` up to DENSE_LIMIT unknowns, or where N is nearly full
+    (:func:`nearly_full`); else ``banded`` when the
     photo part of N (camera columns split off as a border) has a lower bandwidth of at most
     BANDED_MAX_BANDWIDTH (and its band fits BANDED_MAX_STORAGE and the memory budget) - a strip,
     or a block of strips of up to about 80 photos numbered strip after strip; else the sparse
@@ -48,7 +56,7 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
         raise ValueError(f"unknown solver {name!r}; choose one of {', '.join(SOLVERS)}")
     if name != "auto":
         return name
-    if n_unknowns <= DENSE_LIMIT:
+    if n_unknowns <= DENSE_LIMIT or (N is not None and nearly_full(N)):
         return "dense"
     if N is not None:
         A = sp.csr_matrix(N)
@@ -62,6 +70,14 @@ def resolve_solver(name: str, n_unknowns: int, N: sp.spmatrix | None = None,
             return "strip-pcg"
         return choice
     return sparse_choice()
+
+
+def nearly_full(N) -> bool:
+    """Whether N (n x n, sparse or dense) is solved and inverted dense beyond DENSE_LIMIT: at most
+    DENSE_FULL_LIMIT unknowns with at least DENSE_FILL of its entries nonzero."""
+    n = N.shape[0]
+    nonzeros = N.nnz if sp.issparse(N) else np.count_nonzero(N)
+    return n <= DENSE_FULL_LIMIT and nonzeros >= DENSE_FILL * n * n
 
 
 def sparse_choice() -> str:
