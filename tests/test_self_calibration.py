@@ -247,3 +247,48 @@ def test_image_convention_affinity_and_shear_recovered_and_methods_agree(method)
         cols = a.layout.camera_cols[0] >= 0
         diff = np.abs(a.state.interior[0] - b.state.interior[0])[cols] / sig[cols]
         assert diff.max() < 1e-5, diff
+
+
+@pytest.mark.parametrize("convention", [PLATE, IMAGE])
+def test_the_sweeps_lens_table_gives_each_chunks_ideal_points(convention, monkeypatch):
+    """linearise.lens_table (the ideal plate points of every image row, once per sweep) gives the
+    chunks the systems they compute for themselves: the same to round-off (the image convention's
+    Newton iterations stop when all rows of a call have converged, so a row may take one more step
+    below its tolerance); where the model is not in play, or there are more than LENS_TABLE_ROWS
+    rows, there is no table; and the adjustment is the same with and without it."""
+    from striptri.equations import linearise as lin_module
+    from striptri.equations.linearise import lens_table
+
+    project, _, prm = calibration_project(convention, sim.NoiseOptions(), free=FREE + ("c", "xp", "yp"))
+    cams = replace(project.cameras, interior=(prm * (1 + 0.1 * np.arange(NCP) / NCP))[None, :])
+    project = replace(project, cameras=cams)
+    offset = reduction_offset(project)
+    state, layout = initial_state(project, offset), build_layout(project)
+    obs = observations_of(project, offset)
+    plate_hat = obs.plate + np.random.default_rng(9).normal(0, 1e-3, obs.plate.shape)
+    at = At.of(state, layout, obs, plate_hat, obs.control)
+    batches = build_batches(project)
+    table = lens_table(batches, at)
+    assert table is not None
+    rows = np.concatenate([b.image_rows.ravel() for b in batches])
+    assert np.all(table.converged[rows]) and np.all(table.xy[rows] != plate_hat[rows])  # undistorted
+    for batch in batches:
+        for chunk in batch.chunks(7):
+            own, read = linearise(chunk, at), linearise(chunk, at, lens=table)
+            for name in ("A", "B", "w", "g"):
+                a, b = getattr(own, name), getattr(read, name)
+                np.testing.assert_allclose(b, a, rtol=0, atol=1e-12 * max(np.abs(a).max(), 1.0), err_msg=name)
+    held = replace(project, cameras=model.Cameras(project.cameras.ids, np.concatenate([prm[:3], np.zeros(NCP - 3)])[None, :],
+                                                  np.full((1, NCP), np.nan), project.cameras.convention))
+    held_state, held_layout = initial_state(held, offset), build_layout(held)
+    assert lens_table(batches, At.of(held_state, held_layout, obs, plate_hat, obs.control)) is None
+    monkeypatch.setattr(lin_module, "LENS_TABLE_ROWS", len(rows) - 1)
+    assert lens_table(batches, at) is None
+    options = AdjustmentOptions(method="conditions")
+    per_chunk = adjust(project, options)
+    monkeypatch.setattr(lin_module, "LENS_TABLE_ROWS", len(rows))
+    with_table = adjust(project, options)
+    assert per_chunk.iterations == with_table.iterations
+    np.testing.assert_allclose(with_table.state.xyz0, per_chunk.state.xyz0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(with_table.state.interior, per_chunk.state.interior, rtol=1e-10, atol=0)
+    assert with_table.vtpv == pytest.approx(per_chunk.vtpv, rel=1e-10)

@@ -20,7 +20,7 @@ from ..geometry.camera import plate_vector
 from ..errors import NumericalFailure
 from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads
-from ..geometry.lens import NCP, ideal_from_observed
+from ..geometry.lens import NCP, IdealPoints, ideal_from_observed
 from .conditions import collinearity, expanded, of_rays, ray_chain, ray_conditions
 from .groups import COLLINEARITY, GroupBatch, sweep_size
 from .observations import Observations
@@ -72,14 +72,16 @@ def group_observations(batch: GroupBatch, obs: Observations, plate_hat, control_
 
 
 def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form: str = "3d",
-             with_lens: bool = True, plate_measured=None, ray_function=None):
+             with_lens: bool | IdealPoints = True, plate_measured=None, ray_function=None):
     """Conditions and primitive derivatives of a chunk at (l^, x^): conditions.Linearised, with
     ``d_interior`` (m, nc, k, NCP) with respect to all camera elements (striptri.geometry.lens).
 
     The conditions see the ideal plate points of the observations (lens.ideal_from_observed);
     their derivatives are carried on to the observations and the camera elements by the chain
     rule. with_lens=False skips the camera model (allowed only when no additional parameter is
-    nonzero or estimated: the ideal points are then the observations). plate_measured: the
+    nonzero or estimated: the ideal points are then the observations); the sweep's
+    :func:`lens_table` (the ideal plate points of every image row at this (x^, l^)) is read instead
+    of computing them for the chunk. plate_measured: the
     measurements (all image rows) when plate_hat are adjusted observations (lens doc: the plate
     convention corrects the measurement and adds the residual). ray_function: callable(r, O) ->
     conditions.RayConditions evaluated instead of the group's ray conditions (e.g.
@@ -95,7 +97,11 @@ def evaluate(batch: GroupBatch, state: State, plate_hat, control_hat, scale_form
     params, conv = state.camera_terms(batch.photo_index)
     xyz_control = control_hat[batch.point_index]
     meas = None if plate_measured is None else plate_measured[batch.image_rows]
-    ideal = ideal_from_observed(xy, params, conv, meas) if with_lens else None
+    if isinstance(with_lens, IdealPoints):
+        r, table = batch.image_rows, with_lens
+        ideal = IdealPoints(table.xy[r], table.d_obs[r], table.d_camera[r], table.converged[r])
+    else:
+        ideal = ideal_from_observed(xy, params, conv, meas) if with_lens else None
     if ideal is not None:
         if not ideal.converged.all():
             raise NumericalFailure(
@@ -149,14 +155,45 @@ class At(NamedTuple):
         return cls.of(result.state, result.layout, obs, result.plate_adjusted, result.control_adjusted)
 
 
-def linearise(batch: GroupBatch, at: At, scale_form: str = "3d", transform=None) -> GroupSystem:
+# The ideal plate points of all image rows are computed once per sweep (lens_table) up to this many
+# rows (208 bytes each: 52 MB); beyond, chunk by chunk.
+LENS_TABLE_ROWS = 250_000
+
+
+def lens_table(batches, at: At) -> IdealPoints | None:
+    """The ideal plate points of the image rows of ``batches`` at ``at`` (lens.ideal_from_observed,
+    indexed by image row; rows of no batch read zero), in one call: where the camera model is in
+    play (self-calibration, distortion) and there are at most LENS_TABLE_ROWS rows; else None.
+
+    The undistortion's Newton iterations are a few dozen small numpy operations whatever the
+    number of rays; chunk by chunk (one call per chunk, a chunk per ray count) they held the
+    interpreter for most of their time: the close-range block's conditions method made 413
+    calls of a median 120 rays, 0.52 s in all, on the chunk threads."""
+    if not batches or not at.layout.lens_in_play(at.state):
+        return None
+    rows = np.concatenate([b.image_rows.ravel() for b in batches])
+    if len(rows) > LENS_TABLE_ROWS:
+        return None
+    params, conv = at.state.camera_terms(np.concatenate([b.photo_index.ravel() for b in batches]))
+    ideal = ideal_from_observed(at.plate_hat[rows], params, conv, at.obs.plate[rows])
+    n = len(at.obs.plate)
+    table = IdealPoints(np.zeros((n, 2)), np.zeros((n, 2, 2)), np.zeros((n, 2, NCP)), np.ones(n, dtype=bool))
+    table.xy[rows], table.d_obs[rows], table.d_camera[rows] = ideal.xy, ideal.d_obs, ideal.d_camera
+    table.converged[rows] = ideal.converged
+    return table
+
+
+def linearise(batch: GroupBatch, at: At, scale_form: str = "3d", transform=None,
+              lens: IdealPoints | None = None) -> GroupSystem:
     """The Gauss-Helmert blocks of a chunk of groups (module doc), linearised ``at`` (x^, l^).
 
     transform: optional callable(batch) -> (m, nc, nc) invertible matrices that recombine each
-    group's conditions (used by the tests to show the result does not depend on it).
+    group's conditions (used by the tests to show the result does not depend on it). lens: the
+    sweep's :func:`lens_table` (None: the ideal plate points computed for this chunk).
     """
     state, layout, rotation_maps, obs, plate_hat, control_hat = at
-    lin = evaluate(batch, state, plate_hat, control_hat, scale_form, layout.lens_in_play(state), obs.plate)
+    lin = evaluate(batch, state, plate_hat, control_hat, scale_form,
+                   layout.lens_in_play(state) if lens is None else lens, obs.plate)
     m, nc = lin.g.shape
     k = batch.k
     l, l_hat, Q = group_observations(batch, obs, plate_hat, control_hat)
@@ -232,6 +269,7 @@ class Sweep:
         # the joint groups of the points joined by distances (joint_groups; None without) and the
         # adjusted distances d + v_d (the observed ones when None)
         self.joint, self.distance_hat = joint, distance_hat
+        self._lens = None  # (lens_table,), worked out at the first systems()
 
     def joint_systems(self) -> list:
         """The linearised joint groups (joint_groups.JointSystem) of this sweep; none without distances."""
@@ -254,9 +292,13 @@ class Sweep:
         thread, the time of the linearisation and of then)."""
         scale_form, transform = self.options.conditions.scale_form, self.options.conditions.condition_transform
 
+        if self._lens is None:
+            self._lens = (lens_table(self.batches, self.at),)
+        lens = self._lens[0]
+
         def work(item):
             chunk, extra = item
-            system = linearise(chunk, self.at, scale_form, transform)
+            system = linearise(chunk, self.at, scale_form, transform, lens)
             if then is None:
                 return chunk, system
             return chunk, system, (then(chunk, system) if alongside is None else then(chunk, system, extra))
