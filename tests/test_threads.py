@@ -247,6 +247,33 @@ def test_free_memory_of_a_chunk_thread_is_handed_back():
     assert after - base < 30  # handed back
 
 
+def test_the_conditions_method_trims_between_assemblies_from_trim_from_measurements(monkeypatch):
+    """conditions_method.adjust: free memory handed back before and after every assembly from
+    TRIM_FROM plate measurements on (the factorisation's peak), not below (each sweep would get the
+    pages anew); the adjustment is the same either way."""
+    from pathlib import Path
+
+    from striptri.conditions_method import adjust as conditions
+    from striptri.core.options import AdjustmentOptions
+    from striptri.adjustment import adjust
+    from striptri.io import read_project
+
+    project = read_project(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6")
+    trims = []
+    monkeypatch.setattr(conditions, "give_back_free_memory", lambda: trims.append(1))
+    results, counts = [], []
+    for limit in (len(project.image_points) + 1, len(project.image_points)):
+        monkeypatch.setattr(conditions, "TRIM_FROM", limit)
+        trims.clear()
+        results.append(adjust(project, AdjustmentOptions(method="conditions")))
+        counts.append(len(trims))
+    below, at = results
+    assert counts[0] == 0
+    assert counts[1] >= 2 * at.iterations  # before and after each assembly (and the final checks')
+    assert at.iterations == below.iterations
+    np.testing.assert_array_equal(at.state.xyz0, below.state.xyz0)
+
+
 @pytest.mark.parametrize("point_precision", ["schmid90", "joint92"])
 def test_the_precision_passes_give_the_same_numbers_in_smaller_chunks(monkeypatch, point_precision):
     """The precision passes take fewer groups at once than the assembly (linearise.PRECISION_CHUNK:
