@@ -183,8 +183,9 @@ class Worker:
         except (OSError, ValueError, EOFError, pickle.UnpicklingError):
             pass
         finally:
-            with contextlib.suppress(OSError):
-                jobs.close()
+            for stream in (jobs, answers):  # (the worker's own are closed by stop too)
+                with contextlib.suppress(OSError):
+                    stream.close()
             with self.arrived:
                 if key is not None:  # the drawer died on this job: drawn here (which raises what it raises)
                     self.done.setdefault(key, (False, None))
