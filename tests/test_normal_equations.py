@@ -386,3 +386,30 @@ def test_a_chunk_scatter_adds_its_blocks_where_they_belong(monkeypatch):
         out[f] = target
     np.testing.assert_allclose(out[0.0].reshape(200, 4), reference, rtol=1e-14, atol=1e-14)
     np.testing.assert_array_equal(out[0.0], out[np.inf])
+
+
+def test_a_chunk_scatters_summation_matrix_is_the_one_a_coo_conversion_makes(monkeypatch):
+    """ChunkScatter builds its summation matrix P from one stable sort of the pairs by position: the
+    same distinct positions as np.unique and, row for row, the same columns in the same order as
+    the CSR matrix scipy makes of the pairs' (row, pair) coordinates, in both layouts; so its sums
+    are the same numbers to the last bit."""
+    import scipy.sparse as sp
+
+    from striptri.equations import normal_equations
+
+    rng = np.random.default_rng(8)
+    pos = rng.choice(np.arange(30, 1000), size=(9, 4, 4))
+    for f in (0.0, np.inf):
+        monkeypatch.setattr(normal_equations, "SPAN_FILL", f)
+        scatter = normal_equations.ChunkScatter(pos)
+        positions, inverse = np.unique(pos, return_inverse=True)
+        np.testing.assert_array_equal(scatter.positions, positions)
+        row = inverse.ravel() if scatter.span is None else positions[inverse.ravel()] - positions[0]
+        rows = len(positions) if scatter.span is None else positions[-1] - positions[0] + 1
+        want = sp.csr_matrix((np.ones(pos.size), (row, np.arange(pos.size))), shape=(rows, pos.size))
+        assert scatter.P.shape == want.shape and scatter.P.indices.dtype == want.indices.dtype
+        np.testing.assert_array_equal(scatter.P.indptr, want.indptr)
+        np.testing.assert_array_equal(scatter.P.indices, want.indices)
+        np.testing.assert_array_equal(scatter.P.data, want.data)
+    empty = normal_equations.ChunkScatter(np.zeros((0, 3, 3), dtype=np.int64))
+    assert len(empty.positions) == 0 and empty.P.shape == (0, 0)

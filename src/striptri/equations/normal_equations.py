@@ -151,17 +151,27 @@ class ChunkScatter:
     as slices)."""
 
     def __init__(self, pos: np.ndarray):
-        self.positions, inverse = np.unique(pos, return_inverse=True)
-        n_pairs = pos.size
-        row = inverse.ravel()
+        # one stable sort of the pairs by position gives the distinct positions and P's rows at
+        # once (P's columns in each row in pair order, as a COO -> CSR conversion would leave them)
+        pos = np.asarray(pos).ravel()
+        n_pairs = len(pos)
+        order = np.argsort(pos, kind="stable")
+        ordered = pos[order]
+        first_of_run = np.ones(n_pairs, dtype=bool)
+        first_of_run[1:] = ordered[1:] != ordered[:-1]
+        self.positions = ordered[first_of_run]
         self.span = None
-        if len(self.positions):
+        row = np.cumsum(first_of_run) - 1  # of each pair in order
+        rows = len(self.positions)
+        if rows:
             first, last = int(self.positions[0]), int(self.positions[-1])
-            if len(self.positions) >= SPAN_FILL * (last - first + 1):
+            if rows >= SPAN_FILL * (last - first + 1):
                 self.span = slice(first, last + 1)
-                row = self.positions[row] - first
-        rows = len(self.positions) if self.span is None else self.span.stop - self.span.start
-        self.P = sp.csr_matrix((np.ones(n_pairs), (row, np.arange(n_pairs))), shape=(rows, n_pairs))
+                row, rows = ordered - first, last - first + 1
+        index = np.int32 if max(n_pairs, rows) < 2**31 else np.int64
+        indptr = np.zeros(rows + 1, dtype=index)
+        np.cumsum(np.bincount(row, minlength=rows), out=indptr[1:])
+        self.P = sp.csr_matrix((np.ones(n_pairs), order.astype(index), indptr), shape=(rows, n_pairs))
 
     def add(self, target: np.ndarray, blocks: np.ndarray) -> None:
         """target (n_positions * r * s,) += the blocks (m, k, k, r, s) (block (a, b) of group m is
