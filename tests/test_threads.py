@@ -72,6 +72,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from striptri import parallel  # noqa: E402
 from striptri.parallel import map_ordered  # noqa: E402
 
 
@@ -100,7 +101,8 @@ def test_map_ordered_holds_few_results_and_stops_with_the_caller():
     results = map_ordered(task, range(1000), 2)
     assert next(results) == 0
     time.sleep(0.05)
-    assert len(started) <= 1 + 2  # the one taken and one in the works per thread
+    # the one taken and AHEAD_PER_THREAD in the works per thread, all started by now
+    assert len(started) == 1 + parallel.AHEAD_PER_THREAD * 2
     results.close()
     n = len(started)
     time.sleep(0.05)

@@ -21,12 +21,20 @@ import numpy as np
 from striptri.errors import InputError
 
 
+# chunks in flight per thread of map_ordered (measured, issue 29: the close-range block's sweeps of
+# 59 chunks of very unequal work and the 5,000-photo block's 37 chunks ran 10-20 % faster with two
+# than with one; the memory of two more chunks' results, 3-5 MB at 5,000 photos)
+AHEAD_PER_THREAD = 2
+
+
 def map_ordered(fn: Callable, items: Iterable, threads: int) -> Iterator:
     """fn(item) for every item, in the items' order, computed by ``threads`` threads ahead of the
     caller (solvers.threads.chunk_threads): the chunks of an adjustment, whose numpy work (batched
     products, factorisations of small matrices, elementwise arithmetic on large arrays) releases
-    the GIL. One chunk per thread is in the works while the caller takes the one before, so
-    memory holds threads + 1 chunks' results (a 4,096-group chunk's products are tens of MB).
+    the GIL. AHEAD_PER_THREAD chunks per thread are in the works while the caller takes the one
+    before, so memory holds 2 threads + 1 chunks' results (a 4,096-group chunk's products are tens
+    of MB): with one per thread, a thread whose chunk was done waited while the caller still
+    waited for the one before it or summed it (docs/decisions.md "Two chunks per thread in flight").
     One thread (or one item): fn runs here, item by item. The caller's numpy error state holds in
     the threads too (np.errstate is per thread), and the first exception of a task is raised here."""
     items = list(items)
@@ -40,8 +48,9 @@ def map_ordered(fn: Callable, items: Iterable, threads: int) -> Iterator:
             return fn(item)
 
     with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="striptri-chunk") as pool:
-        pending = collections.deque(pool.submit(task, item) for item in items[:threads])
-        items = iter(items[threads:])
+        ahead = AHEAD_PER_THREAD * threads
+        pending = collections.deque(pool.submit(task, item) for item in items[:ahead])
+        items = iter(items[ahead:])
         try:
             while pending:
                 result = pending.popleft().result()
