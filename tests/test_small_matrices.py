@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from striptri.equations.triangulation import (CLEARLY_REGULAR, SINGULAR_RCOND, _lapack_safe_inverse, safe_inverse,
-                                              safe_solve, symmetric_eigenvalues_3, symmetric_inverse_3)
+from striptri.equations.triangulation import (CLEARLY_REGULAR, SINGULAR_RCOND, _lapack_safe_inverse, ray_normals,
+                                              safe_inverse, safe_solve, symmetric_eigenvalues_3, symmetric_inverse_3)
 
 
 def batch(seed, m=4000, spread=0.0):
@@ -156,3 +156,23 @@ def test_safe_inverse_of_other_sizes_equals_lapack(n, with_singular):
     assert ok.sum() == 300 - 3 * with_singular
     np.testing.assert_allclose(got[ok], want[ok], rtol=1e-10, atol=0)
     assert np.isnan(got[~ok]).all()
+
+
+def test_ray_normals_equal_their_definition():
+    """ray_normals: J' W J and J' W res of each point's rays, as the sums over rays and the plate's
+    two axes they stand for (padded rays of weight zero add nothing)."""
+    rng = np.random.default_rng(17)
+    m, k = 40, 5
+    dX, res = rng.normal(size=(m, k, 2, 3)), rng.normal(size=(m, k, 2))
+    w = rng.uniform(0.5, 2.0, size=(m, k, 2))
+    w[:, -1] = 0.0  # a padded ray
+    Nx, gx = ray_normals(dX, w, res)
+    for i in range(m):
+        J = dX[i].reshape(2 * k, 3)
+        W = np.diag(w[i].reshape(-1))
+        np.testing.assert_allclose(Nx[i], J.T @ W @ J, rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(gx[i], J.T @ W @ res[i].reshape(-1), rtol=1e-13, atol=1e-13)
+    Nx_only, none = ray_normals(dX, w)
+    assert none is None
+    np.testing.assert_array_equal(Nx_only, Nx)
+    np.testing.assert_allclose(ray_normals(dX[:, :-1], w[:, :-1], res[:, :-1])[0], Nx, rtol=1e-13, atol=1e-13)
