@@ -352,6 +352,72 @@ def test_the_command_keeps_its_threads_in_one_malloc_arena(tmp_path):
     assert user.stdout.strip() == "False"
 
 
+FAULTS_SCRIPT = """
+import resource, sys
+import numpy as np
+if sys.argv[1] == "kept":
+    from striptri.solvers.memory import keep_freed_memory
+    assert keep_freed_memory()
+def sweep():  # ten 4 MB temporaries alive together, then all freed (a sweep's chunks)
+    arrays = [np.ones(512 * 1024) for _ in range(10)]
+    del arrays
+sweep()
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(20):
+    sweep()
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+def test_a_small_run_keeps_the_pages_it_frees(tmp_path):
+    """solvers.memory.keep_freed_memory: twenty sweeps of ten 4 MB temporaries. With glibc's own
+    thresholds the freed top of the heap goes back to the system after each sweep and the next
+    one takes its 10,240 pages again, zeroed (page faults); kept, the sweeps after the first take
+    none. A threshold the user set in the environment is left alone."""
+    import subprocess
+    import sys
+
+    if not _glibc():
+        pytest.skip("glibc's mallopt is needed")
+    script = tmp_path / "faults.py"
+    script.write_text(FAULTS_SCRIPT)
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("GLIBC_TUNABLES", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")}
+
+    def faults(mode: str) -> int:
+        proc = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=120,
+                              env=env)
+        assert proc.returncode == 0, proc.stderr
+        return int(proc.stdout)
+
+    assert faults("default") >= 20 * 5000  # half of each sweep's pages at least
+    assert faults("kept") < 1000
+    user = subprocess.run([sys.executable, "-c", "from striptri.solvers.memory import keep_freed_memory; "
+                           "print(keep_freed_memory())"], capture_output=True, text=True, timeout=60,
+                          env={**env, "GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1000000"})
+    assert user.stdout.strip() == "False"
+
+
+def test_the_command_keeps_freed_pages_below_trim_from_measurements(monkeypatch, tmp_path):
+    """pipeline.run_adjust keeps the freed pages (keep_freed_memory) in a run of fewer than
+    TRIM_FROM plate measurements, the runs whose assemblies are not trimmed either, and not in
+    a larger one."""
+    from pathlib import Path
+
+    from striptri import pipeline
+    from striptri.io import read_project
+
+    project_dir = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6"
+    n = len(read_project(project_dir).image_points)
+    calls = []
+    monkeypatch.setattr(pipeline, "keep_freed_memory", lambda: calls.append(1) or True)
+    for limit, expected in ((n + 1, 1), (n, 0)):
+        monkeypatch.setattr(pipeline, "TRIM_FROM", limit)
+        calls.clear()
+        pipeline.run_adjust(project_dir, tmp_path / f"out{limit}")
+        assert len(calls) == expected
+
+
 def _glibc() -> bool:
     import platform
 

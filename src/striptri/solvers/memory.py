@@ -116,6 +116,43 @@ def _malloc_trim():
     return trim
 
 
+# glibc's mallopt parameters (malloc.h) and what keep_freed_memory sets them to
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+KEPT_MMAP_THRESHOLD = 32 * 2**20  # the largest glibc takes (DEFAULT_MMAP_THRESHOLD_MAX, 64-bit)
+KEPT_TRIM_THRESHOLD = 2**30
+
+
+def keep_freed_memory() -> bool:
+    """Let this process keep the C heap's freed pages for its next allocations (glibc's
+    ``mallopt``: the mmap threshold at its largest, 32 MB, the trim threshold at 1 GB), for the
+    rest of the process; give_back_free_memory still hands them back where called. For a small
+    command run (pipeline.run_adjust), whose sweeps allocate and free the same arrays again and
+    again: with glibc's own thresholds the top of the heap was handed back after each of them
+    and its pages came back zeroed by the kernel (page faults; docs/decisions.md "Freed pages kept
+    in a small run"). The threshold of mmap is set with the one of trimming: a trim threshold
+    alone would fix the mmap threshold at its start value, 128 kB, and map every larger array
+    anew. A MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_ or GLIBC_TUNABLES in the environment
+    is the user's choice and is left alone. True when set (glibc), else False."""
+    if any(os.environ.get(name) for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")):
+        return False
+    mallopt = _mallopt()
+    if mallopt is None:
+        return False
+    return bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
+
+
+@functools.cache
+def _mallopt():
+    """glibc's mallopt, or None (another C library)."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return None
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return mallopt
+
+
 def give_back_free_memory() -> None:
     """Hand the free pages of the C heap back to the system (glibc's ``malloc_trim(0)``; nothing
     elsewhere), between phases whose temporaries are gone.
