@@ -482,6 +482,11 @@ def test_row_statistic_takes_the_larger_magnitude():
     r = row_statistic(w)
     np.testing.assert_array_equal(r[[0, 1, 3]], [-2.0, 0.5, -3.0])
     assert np.isnan(r[2])
+    # a two-ray point's x and y: one statistic; x's sign whichever is larger in the last bits
+    tie = np.array([[0.39018144518173, -0.39018144518169], [-0.39018144518169, 0.39018144518173],
+                    [0.5, np.nan], [np.nan, -0.5], [1.0, -1.0 - 1e-6]])
+    np.testing.assert_array_equal(row_statistic(tie), [0.39018144518173, -0.39018144518169, 0.5, -0.5, -1.0 - 1e-6])
+    assert row_statistic(np.zeros((0, 2))).shape == (0,)
 
 
 @pytest.mark.parametrize("blunder_method", ["off", "snoop", "robust"])

@@ -59,11 +59,19 @@ def minimal_detectable_bias(sigma: np.ndarray, r: np.ndarray, delta0: float) -> 
     return np.where(ok, np.asarray(sigma) * delta0 / np.sqrt(np.where(ok, r, 1.0)), np.inf)
 
 
+# magnitudes of w_x and w_y this close are one statistic (a point of two rays has one condition,
+# and all its w are equal but for their signs): row_statistic then takes x's, whatever the round-off
+SAME_MAGNITUDE = 1e-9
+
+
 def row_statistic(w: np.ndarray) -> np.ndarray:
-    """The signed w of the larger magnitude of x and y of every row. w: (m, 2) -> (m,); nan where
-    both are nan (the form of residuals.csv's w column)."""
+    """The signed w of the larger magnitude of x and y of every row, x's where the two agree to
+    SAME_MAGNITUDE relative (a two-ray point's: the last bits of the arithmetic would otherwise
+    choose the sign). w: (m, 2) -> (m,); nan where both are nan (the form of residuals.csv's w
+    column)."""
     a = np.where(np.isnan(w), -1.0, np.abs(w))
-    return w[np.arange(len(w)), np.argmax(a, axis=1)]
+    take_y = a[:, 1] > a[:, 0] * (1.0 + SAME_MAGNITUDE)
+    return np.where(take_y, w[:, 1], w[:, 0]) if len(w) else np.zeros(0)
 
 
 def row_abs(w: np.ndarray) -> np.ndarray:
