@@ -32,7 +32,7 @@ def map_ordered(fn: Callable, items: Iterable, threads: int) -> Iterator:
     caller (solvers.threads.chunk_threads): the chunks of an adjustment, whose numpy work (batched
     products, factorisations of small matrices, elementwise arithmetic on large arrays) releases
     the GIL. AHEAD_PER_THREAD chunks per thread are in the works while the caller takes the one
-    before, so memory holds 2 threads + 1 chunks' results (a 4,096-group chunk's products are tens
+    before, so memory holds 2 x threads + 1 chunks' results (a 4,096-group chunk's products are tens
     of MB): with one per thread, a thread whose chunk was done waited while the caller still
     waited for the one before it or summed it (docs/decisions.md "Two chunks per thread in flight").
     One thread (or one item): fn runs here, item by item. The caller's numpy error state holds in

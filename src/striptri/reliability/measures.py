@@ -71,7 +71,7 @@ def row_statistic(w: np.ndarray) -> np.ndarray:
     column)."""
     a = np.where(np.isnan(w), -1.0, np.abs(w))
     take_y = a[:, 1] > a[:, 0] * (1.0 + SAME_MAGNITUDE)
-    return np.where(take_y, w[:, 1], w[:, 0]) if len(w) else np.zeros(0)
+    return np.where(take_y, w[:, 1], w[:, 0])
 
 
 def row_abs(w: np.ndarray) -> np.ndarray:

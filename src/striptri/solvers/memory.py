@@ -105,15 +105,20 @@ def fits(estimate_bytes: float, budget: int | None = None) -> bool:
 
 
 @functools.cache
-def _malloc_trim():
-    """glibc's malloc_trim, or None (another C library, or none found)."""
+def _libc_function(name: str, argtypes: tuple, restype):
+    """The C library's function ``name`` (glibc's malloc_trim, mallopt), or None (another C library,
+    or none found)."""
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        trim = libc.malloc_trim
+        function = getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
     except (OSError, AttributeError):
         return None
-    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
-    return trim
+    function.argtypes, function.restype = list(argtypes), restype
+    return function
+
+
+def _malloc_trim():
+    """glibc's malloc_trim, or None."""
+    return _libc_function("malloc_trim", (ctypes.c_size_t,), ctypes.c_int)
 
 
 # glibc's mallopt parameters (malloc.h) and what keep_freed_memory sets them to
@@ -135,22 +140,10 @@ def keep_freed_memory() -> bool:
     is the user's choice and is left alone. True when set (glibc), else False."""
     if any(os.environ.get(name) for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")):
         return False
-    mallopt = _mallopt()
+    mallopt = _libc_function("mallopt", (ctypes.c_int, ctypes.c_int), ctypes.c_int)
     if mallopt is None:
         return False
     return bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
-
-
-@functools.cache
-def _mallopt():
-    """glibc's mallopt, or None (another C library)."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return None
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    return mallopt
 
 
 def give_back_free_memory() -> None:
