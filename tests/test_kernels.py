@@ -93,3 +93,26 @@ def test_rejects_fortran_order_and_other_types():
     with pytest.raises(ValueError, match="C-contiguous float64"):
         kernels.symmetric_times(np.eye(3, dtype=np.float32), np.ones((3, 2)))
 
+
+
+def test_views_at_an_offset_and_read_only_inputs():
+    """A kernel reads and writes where the array's view starts (a block of rows of a larger array,
+    as the supernodes' views of the flat factor are), and takes read-only inputs (their pointer
+    comes through numpy, not a ctypes double laid over the buffer)."""
+    rng = np.random.default_rng(9)
+    flat = rng.normal(size=60)
+    outside = np.concatenate([flat[:12], flat[42:]])
+    B = flat[12:42].reshape(6, 5)  # C-contiguous, 12 values into the buffer
+    before = B.copy()
+    L = np.tril(spd(5, rng))
+    kernels.solve_lower(L, B, right=True, transposed=False)
+    assert close(B, before @ np.linalg.inv(L))
+    assert np.array_equal(np.concatenate([flat[:12], flat[42:]]), outside)  # nothing else written
+    S = spd(6, rng)
+    S.setflags(write=False)
+    X = rng.normal(size=(6, 2))
+    X.setflags(write=False)
+    assert close(kernels.symmetric_times(S, X), S @ X)
+    out = np.zeros((6, 6))
+    kernels.lower_product(X, out)
+    assert close(out[np.tril_indices(6)], (X @ X.T)[np.tril_indices(6)])
