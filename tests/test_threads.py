@@ -398,10 +398,10 @@ def test_a_small_run_keeps_the_pages_it_frees(tmp_path):
     assert user.stdout.strip() == "False"
 
 
-def test_the_command_keeps_freed_pages_below_trim_from_measurements(monkeypatch, tmp_path):
+def test_the_command_keeps_freed_pages_in_a_small_run(monkeypatch, tmp_path):
     """pipeline.run_adjust keeps the freed pages (keep_freed_memory) in a run of fewer than
-    TRIM_FROM plate measurements, the runs whose assemblies are not trimmed either, and not in
-    a larger one."""
+    SMALL_RUN_MEASUREMENTS plate measurements (the conditions method's TRIM_FROM: the runs whose
+    assemblies are not trimmed either), and not in a larger one."""
     from pathlib import Path
 
     from striptri import pipeline
@@ -412,7 +412,7 @@ def test_the_command_keeps_freed_pages_below_trim_from_measurements(monkeypatch,
     calls = []
     monkeypatch.setattr(pipeline, "keep_freed_memory", lambda: calls.append(1) or True)
     for limit, expected in ((n + 1, 1), (n, 0)):
-        monkeypatch.setattr(pipeline, "TRIM_FROM", limit)
+        monkeypatch.setattr(pipeline, "SMALL_RUN_MEASUREMENTS", limit)
         calls.clear()
         pipeline.run_adjust(project_dir, tmp_path / f"out{limit}")
         assert len(calls) == expected

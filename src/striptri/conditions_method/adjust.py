@@ -44,7 +44,7 @@ from ..equations.normal_equations import (BlockPattern, NormalAccumulator, Patte
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from ..equations import weights
-from ..solvers.memory import give_back_free_memory
+from ..solvers.memory import SMALL_RUN_MEASUREMENTS, give_back_free_memory
 
 METHOD = "conditions"
 # From this many plate measurements on, free memory is handed back to the system before and after
@@ -53,7 +53,7 @@ METHOD = "conditions"
 # stake and the trims cost more than they give back: each sweep gets the pages it handed back anew,
 # zeroed (close range, 10,022 measurements of 66-ray tracks, whose ray pairs make 190 MB of products
 # a sweep: the whole command 3.83 -> 3.44 s, medians of four, the same peak, 360 MB).
-TRIM_FROM = 50_000
+TRIM_FROM = SMALL_RUN_MEASUREMENTS
 # Gauss-Newton steps of the intersection behind consistent_start after the linear one: any point
 # makes the conditions hold, but one step brings back 37 of 54 turned-photo starts of block_3x6
 # against 31 without (docs/decisions.md "A consistent first linearisation")

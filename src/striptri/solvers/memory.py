@@ -121,6 +121,11 @@ def _malloc_trim():
     return _libc_function("malloc_trim", (ctypes.c_size_t,), ctypes.c_int)
 
 
+# A run of fewer plate measurements is small: its peaks of memory are not at stake, so the command
+# keeps the pages it frees (keep_freed_memory) and the conditions method does not trim around its
+# assemblies (conditions_method.adjust.TRIM_FROM); from this many on, both hand memory back
+SMALL_RUN_MEASUREMENTS = 50_000
+
 # glibc's mallopt parameters (malloc.h) and what keep_freed_memory sets them to
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 KEPT_MMAP_THRESHOLD = 32 * 2**20  # the largest glibc takes (DEFAULT_MMAP_THRESHOLD_MAX, 64-bit)
