@@ -375,6 +375,56 @@ class TestCholmod(SolverSuite):
         factorised = [h.solver_info.analyses for h in r.history if h.solver_info.refinements is None]
         assert r.iterations > 1 and factorised == [1] * len(factorised) and len(factorised) >= 2
 
+    def test_a_held_factor_is_refactorised_in_its_own_memory(self, tmp_path):
+        """While the solver holds its factor (the method of conditions' whole run), a new N is
+        factorised into the memory of the last factor (Factor.cholesky_inplace), released or not:
+        the same numbers to the last bit as a new factor, without taking the factor's pages from
+        the system again. Five refactorisations of a 4,803-unknown block: about 16,000 page faults
+        with a new factor each time, under a quarter of that in place. Not held, the factor is
+        dropped after each solve, as before."""
+        import subprocess
+
+        N, st = block_case(4, 6, 1, seed=12)
+        b = np.random.default_rng(12).normal(size=N.shape[0])
+        held, fresh = self.make(st), self.make(st)
+        held.holds_factor = True
+        held.solve(N, b)
+        for k in range(1, 4):
+            Nk = N * (1.0 + k) + sp.diags(N.diagonal() * 0.01 * k)
+            held.release()
+            x = held.solve(Nk, b).dx
+            assert np.array_equal(x, fresh.solve(Nk, b).dx)
+        held.holds_factor = False
+        held.release()
+        assert held.solve_again(b) is None
+        script = tmp_path / "refactorise.py"
+        script.write_text(REFACTORISE_SCRIPT)
+
+        def faults(mode: str) -> int:
+            proc = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=120)
+            assert proc.returncode == 0, proc.stderr
+            return int(proc.stdout)
+
+        assert 4 * faults("held") < faults("dropped")
+
+
+REFACTORISE_SCRIPT = """
+import resource, sys
+import numpy as np
+from striptri.solvers import SolverOptions, make_solver
+from striptri.solvers.synthetic import block_normal_matrix
+N, st = block_normal_matrix(20, 40, np.random.default_rng(5), n_cameras=1)
+b = np.ones(N.shape[0])
+solver = make_solver(SolverOptions("cholmod"), st)
+solver.holds_factor = sys.argv[1] == "held"
+solver.solve(N, b)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for k in range(5):
+    solver.release()
+    solver.solve(N * (1.0 + k), b)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
 
 class TestCvxopt(SolverSuite):
     name = "cvxopt"

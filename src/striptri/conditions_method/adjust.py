@@ -350,7 +350,8 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     no_unknowns = problem.layout.n_unknowns == 0
-    solver.holds_factor = True  # the converged iteration's factor serves the final checks
+    # the converged iteration's factor serves the final checks, and each factor's memory the next one
+    solver.holds_factor = True
     try:
         for _ in range(options.max_iterations):
             try:
@@ -365,7 +366,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
                 converged = True
                 break
             if not history[-1].max_correction < REUSE_FACTOR_BELOW:
-                solver.release()  # not held while the next iteration assembles (nor past the last one)
+                solver.release()  # N moves too much for solve_again (its memory serves the next factor)
         if not converged:  # the next correction of a stopped iteration comes from N at the solution
             solver.release()
 
@@ -378,8 +379,8 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
         checks, next_correction = _final_checks(final, acc, now.vtpv, problem.pobs, now.v_par, free_network, solver)
         timings.final_checks = time.perf_counter() - t0
     finally:
-        solver.release()
         solver.holds_factor = False
+        solver.release()
     timings.total = time.perf_counter() - t_start
     status, message = "converged", ""
     if not converged:

@@ -116,7 +116,8 @@ class NormalSolver:
         return None
 
     def release(self) -> None:
-        """Drop the factor held for solve_again (nothing when none is held)."""
+        """Drop the factor held for solve_again (nothing when none is held). While ``holds_factor``
+        a solver may keep its memory for the next factorisation (cholmod: ``cholesky_inplace``)."""
 
 
 REFINEMENT_STEPS = 3  # refinements tried on a held factor (solve_on_held_factor)

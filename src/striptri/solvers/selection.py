@@ -120,6 +120,7 @@ class AutoSolver(NormalSolver):
 
     def release(self):
         if self._chosen is not None:
+            self._chosen.holds_factor = self.holds_factor
             self._chosen.release()
 
 
