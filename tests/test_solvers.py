@@ -376,7 +376,7 @@ class TestCholmod(SolverSuite):
         assert r.iterations > 1 and factorised == [1] * len(factorised) and len(factorised) >= 2
 
     def test_a_held_factor_is_refactorised_in_its_own_memory(self, tmp_path):
-        """While the solver holds its factor (the method of conditions' whole run), a new N is
+        """While the solver holds its factor (an adjustment's whole run), a new N is
         factorised into the memory of the last factor (Factor.cholesky_inplace), released or not:
         the same numbers to the last bit as a new factor, without taking the factor's pages from
         the system again. Five refactorisations of a 4,803-unknown block: about 16,000 page faults
@@ -406,6 +406,30 @@ class TestCholmod(SolverSuite):
             return int(proc.stdout)
 
         assert 4 * faults("held") < faults("dropped")
+
+    @pytest.mark.parametrize("method", ["conditions", "bundle"])
+    def test_an_adjustment_refactorises_in_place(self, strip8_dense, method, monkeypatch):
+        """Both methods hold their solver's factor for the whole run: every factorisation after the
+        first writes into the last one's memory, and the memory is let go when the run ends (also
+        the bundle method's, which never asks for solve_again). The result is the dense solver's."""
+        from striptri.solvers.sparse_cholesky import CholmodSolver
+
+        project, dense = strip8_dense
+        reused, made = [], []
+        solve = CholmodSolver.solve
+
+        def spying(solver, N, b):
+            made.append(solver)
+            reused.append(solver._numeric is not None)
+            return solve(solver, N, b)
+
+        monkeypatch.setattr(CholmodSolver, "solve", spying)
+        r = adjust(project, AdjustmentOptions(method=method, solver="cholmod"))
+        dense = dense if method == "conditions" else adjust(project, AdjustmentOptions(method=method, solver="dense"))
+        assert len(reused) >= 2 and reused == [False] + [True] * (len(reused) - 1)
+        assert len(set(map(id, made))) == 1
+        assert made[0]._numeric is None and made[0].solve_again(np.ones(3)) is None
+        np.testing.assert_allclose(r.vtpv, dense.vtpv, rtol=1e-9)
 
 
 REFACTORISE_SCRIPT = """

@@ -4,7 +4,7 @@ The symbolic factorisation (ordering and the pattern of L, ``cholmod.analyze``) 
 solver object, i.e. once per adjustment, at the first solve; every outer iteration then only
 refactorises numerically. Without ``holds_factor`` that is a new numeric factor from the kept
 analysis (``Factor.cholesky``), dropped after the solve, so that it does not occupy memory while the
-next iteration assembles. With ``holds_factor`` (the method of conditions, for the whole run) the
+next iteration assembles. With ``holds_factor`` (both adjustment methods, for their whole run) the
 factor is kept for ``solve_again`` until ``release``, and its memory until the solver stops holding:
 the next factorisation writes into it (``Factor.cholesky_inplace``), the same numbers, without
 taking the factor's pages from the system again, zeroed (5,000 photos: 25,000 page faults and 0.18 s
