@@ -425,11 +425,11 @@ class TestCholmod(SolverSuite):
 
         monkeypatch.setattr(CholmodSolver, "solve", spying)
         r = adjust(project, AdjustmentOptions(method=method, solver="cholmod"))
-        dense = dense if method == "conditions" else adjust(project, AdjustmentOptions(method=method, solver="dense"))
+        reference = dense if method == "conditions" else adjust(project, AdjustmentOptions(method=method, solver="dense"))
         assert len(reused) >= 2 and reused == [False] + [True] * (len(reused) - 1)
         assert len(set(map(id, made))) == 1
         assert made[0]._numeric is None and made[0].solve_again(np.ones(3)) is None
-        np.testing.assert_allclose(r.vtpv, dense.vtpv, rtol=1e-9)
+        np.testing.assert_allclose(r.vtpv, reference.vtpv, rtol=1e-9)
 
 
 REFACTORISE_SCRIPT = """
