@@ -278,14 +278,11 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     if problem.redundancy < 0:
         _explain_too_few(problem, now.state, now.xyz)
     solver = solver_for(options, problem.layout, project)
-    # each factor is made in the memory of the last (solvers.sparse_cholesky: the same numbers, without
-    # taking the factor's pages from the system again; docs/decisions.md "Refactorised in place")
-    solver.holds_factor = True
     # only after a failure; large residuals of a settled iteration are named when nothing in the input is
     causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     status = "iteration_limit"
-    try:
+    with solvers.holding_factor(solver):  # each factor made in the memory of the last
         while len(history) < options.max_iterations:
             accepted, normals = _step(problem, solver, now, normals, damping, history, timings, causes)
             if accepted is None:  # a failed step: taken again with more damping
@@ -297,9 +294,6 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
 
         t0 = time.perf_counter()
         normals, checks, next_correction = _final_checks(problem, solver, now, normals if damping.lam == 0.0 else None)
-    finally:
-        solver.holds_factor = False
-        solver.release()
     free_network = None  # a free network: its inner constraints at the solution (the precision's)
     if problem.free_network is not None:
         free_network = problem.datum_at(now.state, now.xyz, normals.N, at_solution=True)

@@ -351,8 +351,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     no_unknowns = problem.layout.n_unknowns == 0
     # the converged iteration's factor serves the final checks, and each factor's memory the next one
-    solver.holds_factor = True
-    try:
+    with solvers.holding_factor(solver):
         for _ in range(options.max_iterations):
             try:
                 now, floor = _iteration(problem, solver, now, history, timings)
@@ -378,9 +377,6 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
             free_network = problem.datum_at(now.state, acc.N, now.plate_hat, at_solution=True)
         checks, next_correction = _final_checks(final, acc, now.vtpv, problem.pobs, now.v_par, free_network, solver)
         timings.final_checks = time.perf_counter() - t0
-    finally:
-        solver.holds_factor = False
-        solver.release()
     timings.total = time.perf_counter() - t_start
     status, message = "converged", ""
     if not converged:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -118,6 +119,20 @@ class NormalSolver:
     def release(self) -> None:
         """Drop the factor held for solve_again (nothing when none is held). While ``holds_factor``
         a solver may keep its memory for the next factorisation (cholmod: ``cholesky_inplace``)."""
+
+
+@contextlib.contextmanager
+def holding_factor(solver: NormalSolver):
+    """The solver holds its factor inside the block (an adjustment's run): solve_again serves the
+    N of its last solve until release, and each factorisation is made in the memory of the last
+    (cholmod: ``cholesky_inplace``; docs/decisions.md "Refactorised in place"). At the end the
+    solver stops holding and lets the factor go."""
+    solver.holds_factor = True
+    try:
+        yield solver
+    finally:
+        solver.holds_factor = False
+        solver.release()
 
 
 REFINEMENT_STEPS = 3  # refinements tried on a held factor (solve_on_held_factor)
