@@ -9,7 +9,7 @@ import pytest
 
 from striptri import model
 from striptri.adjustment import AdjustmentOptions, adjust
-from striptri.selected_inverse.covariance import Covariance
+from striptri.selected_inverse.covariance import Covariance, Slots
 from striptri.io import read_project
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
@@ -77,3 +77,32 @@ def test_release_keeps_photo_blocks_and_diagonal_and_rebuilds_the_rest(case):
     assert cov.quadratic_form(f) == pytest.approx(f @ Q @ f, rel=1e-8)
     if released:
         assert cov._inv._engine.rebuilt
+
+
+def test_blocks_read_once_and_equal_entries(case):
+    """block_entries equals entries to the last bit (a free network reads entries); group_forms
+    reads each block of Qxx once: a second batch over the same photos looks them up (no read, and
+    no lock) and gives the same numbers, which equal G Q G^T of the dense reference."""
+    r, Q = case
+    cov = Covariance(r.N, r.layout, r.free_network)
+    cols = r.layout.photo_cols
+    a, b = np.arange(len(cols)), np.roll(np.arange(len(cols)), 1)
+    np.testing.assert_array_equal(cov.block_entries(cols[a], cols[b]),
+                                  cov.entries(cols[a][:, :, None], cols[b][:, None, :]))
+    reads = []
+    real = cov.block_entries
+    cov.block_entries = lambda ca, cb: reads.append(len(ca)) or real(ca, cb)
+    rng = np.random.default_rng(2)
+    sets = np.stack([a, b, np.roll(a, 2)], axis=1)  # three photos a group
+    G = rng.normal(size=(len(a), 4, 3, 6))
+    first = cov.group_forms([Slots(G, sets, cols)])
+    assert reads
+    count = len(reads)
+    again = cov.group_forms([Slots(G, sets, cols)])
+    assert len(reads) == count
+    np.testing.assert_array_equal(again, first)
+    Qp = np.pad(Q, ((0, 1), (0, 1)))
+    g = G.reshape(len(a), 4, 18)
+    c = cols[sets].reshape(len(a), 18)
+    want = g @ Qp[c[:, :, None], c[:, None, :]] @ np.swapaxes(g, 1, 2)
+    np.testing.assert_allclose(first, want, atol=1e-8 * np.abs(want).max())

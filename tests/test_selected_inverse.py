@@ -460,6 +460,38 @@ def test_entries_of_point_groups(method):
         inv.entries(np.array([183]), np.array([0]))
 
 
+@pytest.mark.parametrize("method", ROUTES)
+def test_block_entries_equal_entries(method):
+    """block_entries(): the blocks between column sets, the same numbers to the last bit as
+    entries() (on the sparse routes one lookup a block): a photo with itself, with another either
+    way round, with the camera; a fixed element, a column shared by two photos, columns apart in
+    the order and pairs outside the computed pattern go through entries()."""
+    N, starts = block(4, 10, 1, seed=8)
+    inv = selected_inverse(N, starts, method=method)
+    photos = 6 * np.arange(40)[:, None] + np.arange(6)
+    rng = np.random.default_rng(5)
+    a, b = rng.integers(0, 40, 300), rng.integers(0, 40, 300)
+    a[:40] = b[:40] = np.arange(40)
+    a[40:70], b[40:70] = np.arange(30), np.arange(30) + 10  # neighbours in the next strip
+    ca, cb = photos[a], photos[b]
+    ca[80, 2] = -1
+    cb[81, 0] = ca[81, 0]
+    cb[82] = cb[82][::-1]
+    got = inv.block_entries(ca, cb)
+    np.testing.assert_array_equal(got, inv.entries(ca[:, :, None], cb[:, None, :]))
+    np.testing.assert_array_equal(inv.block_entries(cb, ca), inv.entries(cb[:, :, None], ca[:, None, :]))
+    camera = np.tile(240 + np.arange(3), (len(a), 1))
+    np.testing.assert_array_equal(inv.block_entries(ca, camera), inv.entries(ca[:, :, None], camera[:, None, :]))
+    ref = np.pad(dense_inverse(N), ((0, 1), (0, 1)))
+    want = ref[ca[:, :, None], cb[:, None, :]]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+    if method in ("sparse", "cholmod"):  # the photo pairs of the pattern were read a block at a time
+        _, ok = inv._engine.block_lookup(photos[a[:70]], photos[b[:70]])
+        assert ok.all()
+        _, ok = inv._engine.block_lookup(ca[80:83], cb[80:83])
+        assert not ok.any()
+
+
 def test_banded_route_passes_once_for_many_requests(monkeypatch):
     """The first request fills the band of the inverse; later requests (the chunks of
     covariance.group_forms) read it without another pass over the factor, and stay exact."""

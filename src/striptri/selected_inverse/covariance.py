@@ -74,13 +74,21 @@ class Covariance:
         return (q - np.einsum("...a,...a->...", hr, yc) - np.einsum("...a,...a->...", yr, hc)
                 + np.einsum("...a,ab,...b->...", hr, self._CtY, hc))
 
+    def block_entries(self, ca: np.ndarray, cb: np.ndarray) -> np.ndarray:
+        """(u, wa, wb) the blocks Qxx[ca[i], cb[i]] between the column sets ca (u, wa) and cb (u, wb):
+        ``entries(ca[:, :, None], cb[:, None, :])``, the same numbers, read a block at a time where
+        the selected inverse can (SelectedInverse.block_entries)."""
+        if self.free_network is not None:
+            return self.entries(ca[:, :, None], cb[:, None, :])
+        return self._inv.block_entries(ca, cb)
+
     def group_forms(self, parts: Sequence["Slots"]) -> np.ndarray:
         """``G Qxx G^T`` of every group of a batch (group_forms with this Qxx)."""
-        return group_forms(self.entries, parts, store=self._store)
+        return group_forms(self.entries, parts, store=self._store, blocks=self.block_entries)
 
     def set_blocks(self, parts: Sequence["Slots"]) -> np.ndarray:
         """Qxx among the unknown sets of every group of a batch (set_blocks with this Qxx)."""
-        return set_blocks(self.entries, parts, store=self._store)
+        return set_blocks(self.entries, parts, store=self._store, blocks=self.block_entries)
 
     def photo_blocks(self) -> np.ndarray:
         """(n_photos, 6, 6) blocks of Qxx of every photo's elements (fixed elements zero)."""
@@ -174,10 +182,12 @@ def strongest_correlations(correlations: np.ndarray, width: int) -> list[tuple[i
 
 
 def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
-                block_chunk: int = BLOCK_CHUNK, store: "BlockStore | None" = None) -> np.ndarray:
+                block_chunk: int = BLOCK_CHUNK, store: "BlockStore | None" = None,
+                blocks: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """``G Q G^T`` (m, r, r) for every group of a batch, G the derivatives of the slots ``parts``
     (one G of the group, split by kind of unknown set) and Q the entries of Qxx that
-    ``entries(rows, cols)`` gives (broadcast; -1 reads zero).
+    ``entries(rows, cols)`` gives (broadcast; -1 reads zero); ``blocks(ca, cb)``, when given, reads
+    the same numbers a block at a time (Covariance.block_entries).
 
     Q is read by blocks: the distinct pairs of sets of the batch (two photos that share a point,
     a photo and a camera, ...) are each read once (and kept in ``store`` for later batches, when
@@ -189,7 +199,7 @@ def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: 
     out = np.zeros((m, r, r))
     if m == 0:
         return out
-    for a, b, table, index, swap in _set_pairs(entries, parts, store):
+    for a, b, table, index, swap in _set_pairs(_reader(entries, blocks), parts, store):
         Pa, Pb = parts[a], parts[b]
         sa, wa = Pa.G.shape[2:]
         sb, wb = Pb.G.shape[2:]
@@ -207,13 +217,18 @@ def group_forms(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: 
     return out
 
 
-def _set_pairs(entries, parts: Sequence["Slots"], store: "BlockStore | None"):
+def _reader(entries, blocks):
+    """``read(ca, cb)``: the (u, wa, wb) blocks of Q between column sets, by ``blocks`` or by entries."""
+    return blocks if blocks is not None else (lambda ca, cb: entries(ca[:, :, None], cb[:, None, :]))
+
+
+def _set_pairs(read, parts: Sequence["Slots"], store: "BlockStore | None"):
     """(a, b, table, index, swap) for every pair a <= b of a batch's slots, the blocks of Q between
-    their unknown sets read once through ``store`` (BlockStore.blocks)."""
+    their unknown sets read once (``read``, _reader) through ``store`` (BlockStore.blocks)."""
     store = BlockStore() if store is None else store
     for a, Pa in enumerate(parts):
         for b in range(a, len(parts)):
-            yield (a, b, *store.blocks(entries, Pa, parts[b], same=a == b))
+            yield (a, b, *store.blocks(read, Pa, parts[b], same=a == b))
 
 
 def _set_pair_block(table: np.ndarray, index: np.ndarray, swap: np.ndarray | None, groups: slice) -> np.ndarray:
@@ -227,7 +242,8 @@ def _set_pair_block(table: np.ndarray, index: np.ndarray, swap: np.ndarray | Non
 
 
 def set_blocks(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: Sequence[Slots],
-               store: "BlockStore | None" = None) -> np.ndarray:
+               store: "BlockStore | None" = None,
+               blocks: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """Q restricted to the unknown sets of every group of a batch: (m, D, D) with D = sum over
     ``parts`` of s * w, the sets of parts[0] first, each set's w columns together (set-major), as
     ``P.G.reshape(m, r, s * w)`` orders a group's derivatives. Q is read by blocks of set pairs as
@@ -239,7 +255,7 @@ def set_blocks(entries: Callable[[np.ndarray, np.ndarray], np.ndarray], parts: S
     out = np.zeros((m, starts[-1], starts[-1]))
     if m == 0:
         return out
-    for a, b, table, index, swap in _set_pairs(entries, parts, store):
+    for a, b, table, index, swap in _set_pairs(_reader(entries, blocks), parts, store):
         Q = _set_pair_block(table, index, swap, slice(None))
         out[:, starts[a]:starts[a + 1], starts[b]:starts[b + 1]] = Q
         if a != b:
@@ -273,9 +289,10 @@ class BlockStore:
         self._tags[id(columns)] = (columns, tag)
         return tag
 
-    def blocks(self, entries, Pa: Slots, Pb: Slots, same: bool):
+    def blocks(self, read, Pa: Slots, Pb: Slots, same: bool):
         """(table (u, wa, wb), index (m, sa, sb) into it, swap (m, sa, sb) or None) for the set pairs
-        of a batch: where swap is true the block is read transposed (Q[b, a] = Q[a, b]^T)."""
+        of a batch, the blocks not kept yet read by ``read(ca, cb)`` ((u, wa, wb) blocks between
+        column sets): where swap is true the block is read transposed (Q[b, a] = Q[a, b]^T)."""
         i = np.broadcast_to(Pa.sets[:, :, None], Pa.sets.shape + Pb.sets.shape[1:])
         j = np.broadcast_to(Pb.sets[:, None, :], i.shape)
         nb = np.int64(len(Pb.columns))
@@ -286,10 +303,27 @@ class BlockStore:
             swap = swap if swap.any() else None
         key = i.astype(np.int64) * nb + j
         tag = (self._tag(Pa.columns), self._tag(Pb.columns), same)
+        kept = self._kept(tag, key)  # all read before (an earlier batch, an earlier pass): no lock
+        if kept is not None:
+            return kept + (swap,)
         with self._lock:
-            return self._blocks(entries, Pa, Pb, key, tag, nb) + (swap,)
+            return self._blocks(read, Pa, Pb, key, tag, nb) + (swap,)
 
-    def _blocks(self, entries, Pa: Slots, Pb: Slots, key: np.ndarray, tag, nb):
+    def _kept(self, tag, key: np.ndarray):
+        """(table, index) of ``key`` when every block is kept already, else None. Reads one snapshot
+        of the kept table (replaced whole under the lock; its rows below ``used`` never change)."""
+        kept = self._tables.get(tag)
+        if kept is None:
+            return None
+        keys, rows, table, used = kept
+        if not len(keys):
+            return None
+        pos = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
+        if not np.array_equal(keys[pos], key):
+            return None
+        return table[:used], rows[pos]
+
+    def _blocks(self, read, Pa: Slots, Pb: Slots, key: np.ndarray, tag, nb):
         """The blocks of ``key`` (read now where not yet kept) and their rows in the kept table. The
         table grows by TABLE_GROWTH at a time (the blocks read before are copied only then, not with
         every batch: a sweep's batches copied the whole table each, 0.7 GB over the 5,000-photo
@@ -303,7 +337,7 @@ class BlockStore:
             keys) else wanted
         if len(missing):
             ui, uj = missing // nb, missing % nb
-            new = entries(Pa.columns[ui][:, :, None], Pb.columns[uj][:, None, :])
+            new = read(Pa.columns[ui], Pb.columns[uj])
             if used + len(new) > len(table):  # a larger table; earlier batches keep the old one
                 grown = np.empty((max(int(TABLE_GROWTH * len(table)), used + len(new)), wa, wb))
                 grown[:used] = table[:used]

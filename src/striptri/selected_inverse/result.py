@@ -110,6 +110,24 @@ class SelectedInverse:
             out[at] = self._unscaled(self._engine.solved_entries(rr, cc), rr, cc)
         return out.reshape(shape)
 
+    def block_entries(self, ca: np.ndarray, cb: np.ndarray) -> np.ndarray:
+        """(u, wa, wb) the blocks N^-1[ca[i], cb[i]] between the column sets ca (u, wa) and cb
+        (u, wb): ``entries(ca[:, :, None], cb[:, None, :])``, the same numbers, but one lookup a
+        block where the route's engine can (``block_lookup``: sets whose columns lie together in its
+        order, e.g. a photo's six, in the computed pattern); entries for the others."""
+        ca, cb = np.asarray(ca, dtype=int), np.asarray(cb, dtype=int)
+        lookup = getattr(self._engine, "block_lookup", None)
+        if lookup is None or not len(ca) or ca.shape[1] == 0 or cb.shape[1] == 0:
+            return self.entries(ca[:, :, None], cb[:, None, :])
+        self._check(ca, cb)
+        values, ok = lookup(ca, cb)
+        s = np.append(self._s, 0.0)
+        out = np.empty(values.shape)
+        out[ok] = values[ok] * s[ca[ok]][:, :, None] * s[cb[ok]][:, None, :]  # as _unscaled
+        if not ok.all():
+            out[~ok] = self.entries(ca[~ok][:, :, None], cb[~ok][:, None, :])
+        return out
+
     def _check(self, r: np.ndarray, c: np.ndarray) -> None:
         if len(r) and (min(r.min(), c.min()) < -1 or max(r.max(), c.max()) >= self.n):
             raise IndexError(f"indices must lie in -1..{self.n - 1}")

@@ -245,6 +245,41 @@ class SupernodalInverse(Engine):
         vals[~found] = 0.0
         return vals, found | ~ok
 
+    def block_lookup(self, ca: np.ndarray, cb: np.ndarray):
+        """(values (u, wa, wb), ok (u,)): the blocks Z[ca[i], cb[i]] of sets whose columns are
+        consecutive positions of the order (a photo's or a camera's block, kept whole by the
+        symbolic analysis), each found with one lookup (Supernodes.locate) instead of one per entry:
+        the block sits in the columns of the earlier set's supernode, on the consecutive rows of the
+        later set. ``ok`` false (values unset): a fixed element, columns apart in the order, or a
+        block outside the computed pattern; entries for those."""
+        sym = self.sym
+        pos = self._position()
+        (u, wa), wb = ca.shape, cb.shape[1]
+        ok = (ca >= 0).all(axis=1) & (cb >= 0).all(axis=1)
+        qa, qb = pos[np.maximum(ca, 0)], pos[np.maximum(cb, 0)]
+        pa, pb = qa[:, 0], qb[:, 0]
+        ok &= (qa == pa[:, None] + np.arange(wa)).all(axis=1) & (qb == pb[:, None] + np.arange(wb)).all(axis=1)
+        a_first = pa <= pb  # the block of a's columns on b's rows (else b's columns on a's rows)
+        lo, hi = np.where(a_first, pa, pb), np.where(a_first, pb, pa)
+        w_lo, w_hi = np.where(a_first, wa, wb), np.where(a_first, wb, wa)
+        flat, found = sym.locate(hi, lo)
+        last, found_last = sym.locate(hi + w_hi - 1, lo)
+        sn = np.searchsorted(sym.start, lo, side="right") - 1
+        width = np.diff(sym.start)[sn]
+        ok &= found & found_last & (last == flat + (w_hi - 1) * width) & (lo + w_lo <= sym.start[sn + 1])
+        values = np.zeros((u, wa, wb))
+        take = np.flatnonzero(ok & a_first)  # stored as b's rows by a's columns: transposed
+        values[take] = np.swapaxes(self.Z[self._block_places(flat[take], width[take], wb, wa)], 1, 2)
+        take = np.flatnonzero(ok & ~a_first)  # a's rows by b's columns
+        values[take] = self.Z[self._block_places(flat[take], width[take], wa, wb)]
+        return values, ok
+
+    @staticmethod
+    def _block_places(flat: np.ndarray, width: np.ndarray, rows: int, cols: int) -> np.ndarray:
+        """(u, rows, cols) flat places of blocks whose first entry is at ``flat`` in supernodes of
+        ``width`` columns (row-major storage of each supernode)."""
+        return flat[:, None, None] + np.arange(rows)[:, None] * width[:, None, None] + np.arange(cols)
+
     def compute(self, rows, cols):
         vals, found = self.lookup(rows, cols)
         if not np.all(found):
