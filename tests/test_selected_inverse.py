@@ -397,6 +397,43 @@ def test_subtrees_on_threads_equal_dense_inverse(monkeypatch, threads, numeric):
         selected_inverse(N.tocsr(), starts, method=numeric)
 
 
+@pytest.mark.parametrize("threads", [2, 3])
+def test_factorisation_on_threads_is_the_one_thread_factorisation(monkeypatch, threads):
+    """The supernodal factorisation with its subtrees on threads gives the one-thread factor to the
+    last bit (the updates of the top of the tree taken in the one-thread order), and a singular
+    pivot names the column one thread names, also when two subtrees fail."""
+    from striptri.selected_inverse import supernodal
+
+    monkeypatch.setattr(supernodal, "chunk_threads", lambda: threads)
+    N, starts = block(8, 15, 1, seed=9)
+
+    def factor(min_work):
+        monkeypatch.setattr(supernodal, "PARALLEL_MIN_WORK", min_work)
+        return selected_inverse(N, starts, method="sparse")._engine
+
+    one = factor(np.inf)
+    calls = []
+    real = supernodal.SupernodalInverse._factor_on_threads
+    monkeypatch.setattr(supernodal.SupernodalInverse, "_factor_on_threads",
+                        lambda self, L, n: calls.append(n) or real(self, L, n))
+    many = factor(0.0)
+    assert calls == [threads]
+    top, subtrees = many.sym.split(threads)
+    assert len(subtrees) >= 2 and len(top)
+    np.testing.assert_array_equal(many.L, one.L)
+    np.testing.assert_array_equal(many.Z, one.Z)
+    bad = N.tolil()
+    for col in (30, 500):  # negative pivots in different subtrees
+        bad[col, col] = -bad[col, col]
+    columns = []
+    for min_work in (np.inf, 0.0):
+        monkeypatch.setattr(supernodal, "PARALLEL_MIN_WORK", min_work)
+        with pytest.raises(SingularNormalMatrix) as caught:
+            selected_inverse(bad.tocsr(), starts, method="sparse")
+        columns.append(caught.value.column)
+    assert columns[0] == columns[1] is not None
+
+
 def test_supernodes_through_scipys_wrappers(monkeypatch):
     """Without the ctypes kernels (solvers.kernels falls back to scipy's f2py wrappers) the
     supernodal route gives the dense inverse too, on threads as on one."""

@@ -51,8 +51,12 @@ class SupernodalInverse(Engine):
     The recurrence takes the independent subtrees of the supernode tree (``Supernodes.split``) on
     the chunk threads; both passes use the BLAS and LAPACK kernels of :mod:`striptri.solvers.kernels`,
     which release the GIL (docs/decisions.md "The selected inversion on both cores"). The
-    factorisation stays on one thread, so that every run gives the same numbers to the last bit.
-    Work and memory are those of the factorisation (``info["stored"]`` entries). Every block of
+    factorisation runs the subtrees on the threads too, but takes the updates of the supernodes
+    above them in the one-thread order (:meth:`_factor_on_threads`): every run, on any number of
+    threads, gives the same numbers to the last bit.
+    Work and memory are those of the factorisation (``info["stored"]`` entries; on threads, while
+    the subtrees run, also their kept updates of the top: a fifth to a third of L at 5,000 to
+    100,000 photos). Every block of
     N^-1 between two photos that share a point (or a camera) lies in the pattern; other entries are
     solved for with the factor.
     """
@@ -122,17 +126,65 @@ class SupernodalInverse(Engine):
         return F
 
     def _numpy_factor(self, As: sp.csr_matrix) -> np.ndarray:
-        """The supernodal factorisation, on one thread: its updates of the supernodes above a subtree
-        would arrive from the threads in any order, and their sums differ in the last bits from
-        run to run (docs/decisions.md "The selected inversion on both cores")."""
+        """The supernodal factorisation: its independent subtrees on the chunk threads
+        (:meth:`_factor_on_threads`), the same numbers to the last bit as on one thread."""
         L = self._scatter(As, self.sym.order, self._position())  # As symmetric: its rows are its columns
-        self._factor_supernodes(L, range(self.sym.count))
+        threads = self._threads()
+        if threads > 1:
+            self._factor_on_threads(L, threads)
+        else:
+            self._factor_supernodes(L, range(self.sym.count))
         return L
 
-    def _factor_supernodes(self, L: np.ndarray, nodes) -> None:
+    def _factor_on_threads(self, L: np.ndarray, threads: int) -> None:
+        """The factorisation with the independent subtrees of the supernode tree (Supernodes.split)
+        on ``threads`` threads, bit for bit the one-thread factorisation's (docs/decisions.md "The
+        selected inversion's factorisation on both cores").
+
+        Every entry of L must take its updates in the one-thread order, ascending by the supernode
+        that sends them: sums in another order differ in the last bits, and would differ from run to
+        run with the threads' timing. A subtree's supernodes update supernodes of their own subtree
+        (in order, its thread doing them one after the other) and of ``top``. Their updates of
+        ``top`` are kept instead; then, in ascending order over all supernodes, the kept ones are
+        subtracted and the supernodes of ``top`` factorised (each subtracting its own updates at
+        once), so that every entry of ``top`` takes its updates in the one-thread order too. A
+        singular pivot is raised as one thread raises it: at the first failing supernode."""
+        sym = self.sym
+        top, subtrees = sym.split(threads)
+        in_top = np.zeros(sym.count, dtype=bool)
+        in_top[top] = True
+        kept: dict[int, list] = {}
+        failed: dict[int, SingularNormalMatrix] = {}
+
+        def subtree(nodes):
+            for p in nodes:
+                try:
+                    self._factor_supernodes(L, (p,), in_top, kept)
+                except SingularNormalMatrix as exc:
+                    failed[int(p)] = exc  # the subtree stops there, as one thread would
+                    return
+
+        run_all(subtree, subtrees, threads)
+        first_failure = min(failed, default=sym.count)
+        for p in np.union1d(top, np.fromiter(kept, dtype=int, count=len(kept))):
+            if p >= first_failure:
+                break
+            if in_top[p]:
+                self._factor_supernodes(L, (p,))
+                continue
+            for q, pos, parts in kept.pop(int(p)):
+                G = self._view(L, q)
+                for a, b, c, part in parts:
+                    G[pos[a:], c: c + b - a] -= part
+        if failed:
+            raise failed[first_failure]
+
+    def _factor_supernodes(self, L: np.ndarray, nodes, deferred: np.ndarray | None = None,
+                           kept: dict | None = None) -> None:
         """Right-looking: each supernode p of ``nodes`` (ascending) factorised, ``L11 = chol(F11)``
         (with the solvers' pivot test), ``L21 = F21 L11^-T``, and ``L21 L21'`` subtracted from the
-        supernodes that own its rows."""
+        supernodes that own its rows; its parts for the supernodes marked in ``deferred`` are kept
+        instead (``kept[p]``: (q, pos, [(a, b, c, the part of a run)]), for _factor_on_threads)."""
         sym = self.sym
         for p in nodes:
             F = self._view(L, p)
@@ -150,6 +202,10 @@ class SupernodalInverse(Engine):
                 U = np.zeros((len(L21), len(L21)))
                 kernels.lower_product(L21, U)
                 for q, s, _, pos, runs in sym.targets[p]:
+                    if deferred is not None and deferred[q]:
+                        kept.setdefault(int(p), []).append(
+                            (q, pos, [(a, b, c, U[s + a:, s + a: s + b].copy()) for a, b, c in runs]))
+                        continue
                     G = self._view(L, q)
                     for a, b, c in runs:  # the lower triangle of the run's columns and the rows below
                         G[pos[a:], c: c + b - a] -= U[s + a:, s + a: s + b]
