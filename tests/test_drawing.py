@@ -286,3 +286,87 @@ def test_a_worker_that_does_not_answer_is_killed_and_its_figure_drawn_here(helpe
                 os.kill(worker.process.pid, signal.SIGCONT)
     assert _drawn_by(text) == os.getpid()
     assert worker.process.poll() is not None  # killed
+
+
+class _Stand_in:
+    """In place of drawing.Worker where only the decision to start one is tested."""
+
+    made: list = []
+
+    def __init__(self, drawers: int = 1):
+        self.threads = [None] * drawers
+        self.process = type("P", (), {"poll": staticmethod(lambda: None)})()
+        self.stopped = False
+        _Stand_in.made.append(self)
+
+    def stop(self):
+        self.stopped = True
+
+
+def test_which_commands_start_their_worker_early(monkeypatch, tmp_path):
+    """early_worker starts a worker (with DRAWERS_NOW drawers) only for a project folder whose
+    image_points.csv has EARLY_BYTES and a run with two threads for its chunks; it stops whatever
+    the pipeline did not take."""
+    from striptri.solvers import threads
+
+    monkeypatch.setattr(drawing, "Worker", _Stand_in)
+    monkeypatch.setattr(threads, "available_cores", lambda: 2)
+    _Stand_in.made = []
+    low, high = drawing.EARLY_BYTES
+    for size, started in ((low - 1, False), (low, True), (high, True), (high + 1, False)):
+        folder = tmp_path / str(size)
+        folder.mkdir()
+        (folder / "image_points.csv").write_bytes(b"x" * size)
+        with drawing.early_worker(folder):
+            assert bool(drawing._early) == started, size
+            early = list(drawing._early)
+        assert not drawing._early and all(w.stopped for w in early)
+        assert all(len(w.threads) == drawing.DRAWERS_NOW for w in early)
+    with drawing.early_worker(tmp_path / "nowhere"):
+        assert not drawing._early
+    with threads.use_threads(1), drawing.early_worker(tmp_path / str(low)):
+        assert not drawing._early
+    assert len(_Stand_in.made) == 2
+
+
+@pytest.mark.parametrize("when", ["now", "later", None])
+def test_the_run_takes_the_early_worker_or_stops_it(monkeypatch, when):
+    """A run that decides "now" takes the worker started early (no second one; its figures are drawn
+    there); "later" and no worker stop it (and "later" starts its own after the tests)."""
+    made, stopped = [], []
+    real_init, real_stop = drawing.Worker.__init__, drawing.Worker.stop
+    monkeypatch.setattr(drawing.Worker, "__init__", lambda self, *a: made.append(self) or real_init(self, *a))
+    monkeypatch.setattr(drawing.Worker, "stop", lambda self: stopped.append(self) or real_stop(self))
+    monkeypatch.setattr(drawing, "EARLY_BYTES", (0, 10**9))
+    monkeypatch.setattr(drawing, "when_to_start", lambda rays: when)
+    from striptri.solvers import threads
+
+    monkeypatch.setattr(threads, "available_cores", lambda: 2)
+    project = read_project(DATA / "block_3x6")
+    with drawing.early_worker(DATA / "block_3x6"):
+        early = made[0]
+        products = adjust_products(project, AdjustmentOptions(), RunOptions())
+        assert early in stopped  # taken and stopped with the run, or stopped at its decision
+    footer = re.search(r"<footer>.*?</footer>", products.files["report.html"], flags=re.S).group(0)
+    assert ("drawn by the second process" in footer) == (when is not None)
+    assert len(made) == {"now": 1, "later": 2, None: 1}[when]
+    assert set(made) == set(stopped) and early.process.poll() is not None
+    assert not drawing._early and not drawing.drawing_elsewhere()
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
+def test_a_command_with_an_early_worker_draws_there_and_leaves_none_behind(tmp_path):
+    """100 photos, 100 targets: image_points.csv within EARLY_BYTES, so the command starts its worker
+    before reading the project; the report is complete and no worker is left."""
+    project = close_range.write_close_range(tmp_path / "p", close_range.make_close_range(100, 100, seed=3))
+    size = (Path(project) / "image_points.csv").stat().st_size
+    assert drawing.EARLY_BYTES[0] <= size <= drawing.EARLY_BYTES[1]
+    mark = f"STRIPTRI_TEST_MARK={uuid.uuid4().hex}"
+    env = {**os.environ, "STRIPTRI_THREADS": "2", mark.split("=")[0]: mark.split("=")[1]}
+    proc = subprocess.run([sys.executable, "-m", "striptri", "adjust", str(project), "--out", str(tmp_path / "o"),
+                           "--method", "bundle"], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    report = (tmp_path / "o" / "report.html").read_text()
+    assert "drawn by the second process" in report and drawing.MARK not in report
+    assert report.count("data:image/png;base64,") == 5
+    assert not _workers_of(mark)

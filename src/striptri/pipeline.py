@@ -295,7 +295,9 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     worker = drawing.when_to_start(rays_per_point(project))
     if worker == "now":
         workers.enter_context(drawing.worker_for(True, drawing.DRAWERS_NOW))
-    elif worker is None:
+    else:
+        drawing.discard_early_worker()  # one started before the project was read (drawing.early_worker)
+    if worker is None:
         figure_imports.preload()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -76,12 +76,15 @@ def adjust(project_dir, out_dir, quiet, **given):
     --keep-unconverged."""
     import contextlib
 
-    from striptri import progress
-    from striptri.pipeline import run_adjust
+    from striptri.report import drawing
 
-    run = run_options(given)
-    with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):
-        products = run_adjust(project_dir, out_dir, run, on_warning=_warn)
+    with drawing.early_worker(project_dir):  # before the pipeline's imports and the reading
+        from striptri import progress
+        from striptri.pipeline import run_adjust
+
+        run = run_options(given)
+        with contextlib.nullcontext() if quiet else progress.reporting(progress.StderrProgress()):
+            products = run_adjust(project_dir, out_dir, run, on_warning=_warn)
     s = products.summary
     b = s["blunders"]
     if b["method"] != "off" or b["suspect"]:
