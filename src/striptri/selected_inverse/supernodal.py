@@ -138,8 +138,8 @@ class SupernodalInverse(Engine):
 
     def _factor_on_threads(self, L: np.ndarray, threads: int) -> None:
         """The factorisation with the independent subtrees of the supernode tree (Supernodes.split)
-        on ``threads`` threads, bit for bit the one-thread factorisation's (docs/decisions.md "The
-        selected inversion's factorisation on both cores").
+        on ``threads`` threads, bit for bit the one-thread factorisation's (docs/decisions.md "Qxx
+        read a block at a time; the selected inversion's factorisation on both cores, in order").
 
         Every entry of L must take its updates in the one-thread order, ascending by the supernode
         that sends them: sums in another order differ in the last bits, and would differ from run to
