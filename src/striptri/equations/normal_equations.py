@@ -281,20 +281,21 @@ class BlockPattern:
 
     def _full_indices(self):
         n = self.n_photos
-        a, b = np.divmod(self.pp, n)
-        i6, j6 = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+        dt = np.int32 if self.n_full < 2**31 else np.int64  # the set-up's largest arrays: half the memory
+        a, b = (x.astype(dt) for x in np.divmod(self.pp, n))
+        i6, j6 = (x.astype(dt) for x in np.meshgrid(np.arange(6), np.arange(6), indexing="ij"))
         rows = [(6 * a[:, None, None] + i6).ravel()]
         cols = [(6 * b[:, None, None] + j6).ravel()]
         if self.with_cameras:
             nc = self.n_cameras
-            p, c = np.divmod(self.pc, nc)
-            el = self.camera_elements
-            i, j = np.meshgrid(np.arange(6), el, indexing="ij")
+            p, c = (x.astype(dt) for x in np.divmod(self.pc, nc))
+            el = np.asarray(self.camera_elements, dtype=dt)
+            i, j = np.meshgrid(np.arange(6, dtype=dt), el, indexing="ij")
             r_pc = (6 * p[:, None, None] + i).ravel()
             c_pc = (6 * n + NCP * c[:, None, None] + j).ravel()
             rows += [r_pc, c_pc]
             cols += [c_pc, r_pc]
-            ca, cb = np.divmod(self.cc, nc)
+            ca, cb = (x.astype(dt) for x in np.divmod(self.cc, nc))
             i3, j3 = np.meshgrid(el, el, indexing="ij")
             rows.append((6 * n + NCP * ca[:, None, None] + i3).ravel())
             cols.append((6 * n + NCP * cb[:, None, None] + j3).ravel())
@@ -330,7 +331,7 @@ class BlockPattern:
                 n_pc = len(self.pc) * 6 * self.camera_width
                 rows[start + n_pc : start + 2 * n_pc] = rows[start : start + n_pc]
                 cols[start + n_pc : start + 2 * n_pc] = cols[start : start + n_pc]
-            self._dense_places = rows * self.n_full + cols
+            self._dense_places = rows.astype(np.int64) * self.n_full + cols
         return self.reduction(S).matrix(N_full.reshape(-1)[self._dense_places])
 
     def reduction(self, S: sp.csr_matrix) -> "ReducedPattern":
@@ -359,14 +360,14 @@ class ReducedPattern:
         per_row = np.diff(S.indptr)
         if per_row.max(initial=0) > 1 or not np.all(S.data == 1.0):
             raise ValueError("S must map each full element to at most one unknown with weight 1")
-        col_of = np.full(S.shape[0], -1, dtype=np.int64)
+        col_of = np.full(S.shape[0], -1, dtype=np.int32 if n < 2**31 else np.int64)
         col_of[per_row == 1] = S.indices
         r = col_of[rows]
         del rows
         c = col_of[cols]
         del cols, full_indices
         kept = np.flatnonzero((r >= 0) & (c >= 0))
-        key = r[kept]
+        key = r[kept].astype(np.int64)
         del r
         key *= n
         key += c[kept]
