@@ -220,17 +220,23 @@ def long_tracks(tmp_path):
     return close_range.write_close_range(tmp_path / "p", close_range.make_close_range(50, 60, seed=3))
 
 
-@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
-def test_the_command_draws_in_a_worker_and_leaves_none_behind(tmp_path, long_tracks):
+def _command_draws_in_a_worker_and_leaves_none(project, tmp_path) -> None:
+    """``striptri adjust PROJECT`` (bundle method, two threads) ends well, its report's five figures
+    drawn by the second process, and leaves no worker behind."""
     mark = f"STRIPTRI_TEST_MARK={uuid.uuid4().hex}"
     env = {**os.environ, "STRIPTRI_THREADS": "2", mark.split("=")[0]: mark.split("=")[1]}
-    proc = subprocess.run([sys.executable, "-m", "striptri", "adjust", str(long_tracks), "--out", str(tmp_path / "o"),
+    proc = subprocess.run([sys.executable, "-m", "striptri", "adjust", str(project), "--out", str(tmp_path / "o"),
                            "--method", "bundle"], capture_output=True, text=True, env=env, timeout=300)
     assert proc.returncode == 0, proc.stderr
     report = (tmp_path / "o" / "report.html").read_text()
     assert "drawn by the second process" in report and drawing.MARK not in report
     assert report.count("data:image/png;base64,") == 5
     assert not _workers_of(mark)
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
+def test_the_command_draws_in_a_worker_and_leaves_none_behind(tmp_path, long_tracks):
+    _command_draws_in_a_worker_and_leaves_none(long_tracks, tmp_path)
 
 
 @pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs /proc")
@@ -361,12 +367,4 @@ def test_a_command_with_an_early_worker_draws_there_and_leaves_none_behind(tmp_p
     project = close_range.write_close_range(tmp_path / "p", close_range.make_close_range(100, 100, seed=3))
     size = (Path(project) / "image_points.csv").stat().st_size
     assert drawing.EARLY_BYTES[0] <= size <= drawing.EARLY_BYTES[1]
-    mark = f"STRIPTRI_TEST_MARK={uuid.uuid4().hex}"
-    env = {**os.environ, "STRIPTRI_THREADS": "2", mark.split("=")[0]: mark.split("=")[1]}
-    proc = subprocess.run([sys.executable, "-m", "striptri", "adjust", str(project), "--out", str(tmp_path / "o"),
-                           "--method", "bundle"], capture_output=True, text=True, env=env, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    report = (tmp_path / "o" / "report.html").read_text()
-    assert "drawn by the second process" in report and drawing.MARK not in report
-    assert report.count("data:image/png;base64,") == 5
-    assert not _workers_of(mark)
+    _command_draws_in_a_worker_and_leaves_none(project, tmp_path)
