@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from striptri.equations.normal_equations import TRIANGULAR_BLOCK, BlockPattern, ReducedPattern, lower_inverse
+from striptri.equations.block_pattern import BlockPattern, ReducedPattern
+from striptri.equations.normal_equations import TRIANGULAR_BLOCK, lower_inverse
 
 
 def _pattern(rng, n_photos=9, n_cameras=2, with_cameras=True, elements=(0, 1, 2, 5)):
@@ -241,7 +242,7 @@ def test_dense_scatters_worked_out_once_equal_those_of_each_chunk(tmp_path):
     from striptri.bundle.points import initial_points
     from striptri.core.options import AdjustmentOptions
     from striptri.io import read_project
-    from striptri.equations.normal_equations import ray_columns
+    from striptri.equations.block_pattern import ray_columns
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
     import close_range
@@ -369,7 +370,7 @@ def test_a_chunk_scatter_adds_its_blocks_where_they_belong(monkeypatch):
     """ChunkScatter sums a chunk's ray-pair blocks by position and adds them at their positions, or
     over the stretch of positions they span (SPAN_FILL): both equal np.add.at of every block, and
     the two layouts give the same numbers to the last bit."""
-    from striptri.equations import normal_equations
+    from striptri.equations import block_pattern
 
     rng = np.random.default_rng(5)
     pos = rng.choice(np.arange(40, 90), size=(7, 3, 3))  # 7 groups of 3 rays: pairs onto 50 of 200 positions
@@ -378,8 +379,8 @@ def test_a_chunk_scatter_adds_its_blocks_where_they_belong(monkeypatch):
     np.add.at(reference, pos.ravel(), blocks.reshape(-1, 4))
     out = {}
     for f in (0.0, np.inf):
-        monkeypatch.setattr(normal_equations, "SPAN_FILL", f)
-        scatter = normal_equations.ChunkScatter(pos)
+        monkeypatch.setattr(block_pattern, "SPAN_FILL", f)
+        scatter = block_pattern.ChunkScatter(pos)
         assert (scatter.span is not None) == (f == 0.0)
         target = np.zeros(200 * 4)
         scatter.add(target, blocks)
@@ -395,13 +396,13 @@ def test_a_chunk_scatters_summation_matrix_is_the_one_a_coo_conversion_makes(mon
     are the same numbers to the last bit."""
     import scipy.sparse as sp
 
-    from striptri.equations import normal_equations
+    from striptri.equations import block_pattern
 
     rng = np.random.default_rng(8)
     pos = rng.choice(np.arange(30, 1000), size=(9, 4, 4))
     for f in (0.0, np.inf):
-        monkeypatch.setattr(normal_equations, "SPAN_FILL", f)
-        scatter = normal_equations.ChunkScatter(pos)
+        monkeypatch.setattr(block_pattern, "SPAN_FILL", f)
+        scatter = block_pattern.ChunkScatter(pos)
         positions, inverse = np.unique(pos, return_inverse=True)
         np.testing.assert_array_equal(scatter.positions, positions)
         row = inverse.ravel() if scatter.span is None else positions[inverse.ravel()] - positions[0]
@@ -411,5 +412,5 @@ def test_a_chunk_scatters_summation_matrix_is_the_one_a_coo_conversion_makes(mon
         np.testing.assert_array_equal(scatter.P.indptr, want.indptr)
         np.testing.assert_array_equal(scatter.P.indices, want.indices)
         np.testing.assert_array_equal(scatter.P.data, want.data)
-    empty = normal_equations.ChunkScatter(np.zeros((0, 3, 3), dtype=np.int64))
+    empty = block_pattern.ChunkScatter(np.zeros((0, 3, 3), dtype=np.int64))
     assert len(empty.positions) == 0 and empty.P.shape == (0, 0)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from striptri.equations import normal_equations as ne
+from striptri.equations.block_pattern import BlockPattern
 from striptri.equations import ray_columns
 from striptri.equations.conditions import expanded
 from striptri.equations.ray_columns import RayColumns
@@ -114,7 +115,7 @@ def test_group_products_by_ray_equal_the_dense_products(with_cameras):
     w = 6 + len(elements)
     photo = np.stack([rng.choice(n_photos, k, replace=False) for _ in range(m)])
     cam = np.zeros_like(photo)
-    pat = ne.BlockPattern(n_photos, 1, with_cameras, [(photo, cam)], elements)
+    pat = BlockPattern(n_photos, 1, with_cameras, [(photo, cam)], elements)
     rays = _chain_rays(k)
     nc = len(rays)
     per_ray = rng.normal(size=(m, nc, 3, w))

@@ -2,7 +2,7 @@
 
 Eliminating a point adds ``-Y N_pc`` to the reduced camera system (bundle.reduced), with
 ``Y = N_cp N_pp^-1`` (3 columns, rows in the columns of the point's rays). Set the Y of all points
-side by side in one matrix G_Y (rows: the full parameter space of normal_equations.BlockPattern;
+side by side in one matrix G_Y (rows: the full parameter space of block_pattern.BlockPattern;
 3 columns per point), their N_cp likewise in G_N, and the points' share of the whole system is
 ``-G_Y G_N^T``: one BLAS product for all points instead of k^2 ray-pair blocks per point scattered
 into the pattern. Likewise ``b_rcs`` gets ``-G_Y b_p`` (b_p of all points stacked) and the reduced
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..equations.normal_equations import BlockPattern, ray_columns
+from ..equations.block_pattern import BlockPattern, ray_columns
 
 # Dense when the product's work, n_full^2 per point, is at most this many times the ray pairs'
 # (6k)^2 per point: BLAS does the one product so much faster than numpy the small blocks and their

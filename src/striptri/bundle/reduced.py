@@ -34,7 +34,7 @@ from ..geometry.collinearity import plate_from_ground
 from ..equations.groups import GroupBatch
 from ..geometry.lens import NCP, projection_terms
 from ..equations.linearise import Observations
-from ..equations.normal_equations import BlockPattern, ray_columns, selection_matrix
+from ..equations.block_pattern import BlockPattern, ray_columns, selection_matrix
 from ..equations.parameters import State, UnknownLayout
 from ..equations.triangulation import ray_terms
 from .dense import DenseSchur, dense_pays
@@ -237,7 +237,7 @@ class ReducedNormals:
     observations.
 
     The point contributions are scattered into the block pattern of N computed once per adjustment
-    (normal_equations.BlockPattern: 6x6 photo, 6x3 and 3x3 camera blocks in the full element
+    (block_pattern.BlockPattern: 6x6 photo, 6x3 and 3x3 camera blocks in the full element
     space); :meth:`finish` reduces it to the unknowns with the selection ``S`` (fixed elements
     dropped, tied elements summed), ``N_rcs = S^T N_full S``. The reduced camera system has the
     pattern of the conditions method's N: two photos are coupled when they see a common point.

@@ -39,8 +39,9 @@ from ..equations.joint_groups import JointGroups, whiten_joint
 from ..equations.linearise import At, Sweep
 from ..model import Project
 from ..equations.triangulation import GivenCoordinates, RayObservations, triangulate
-from ..equations.normal_equations import (BlockPattern, NormalAccumulator, PatternAccumulator, group_products,
-                                         selection_matrix, sums_camera_columns, whiten)
+from ..equations.block_pattern import BlockPattern, selection_matrix
+from ..equations.normal_equations import (NormalAccumulator, PatternAccumulator, group_products, sums_camera_columns,
+                                         whiten)
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from ..equations import weights
@@ -140,7 +141,7 @@ def _non_finite_points(sweep: Sweep) -> np.ndarray:
 @dataclass(frozen=True)
 class Assembly:
     """What the assembly computes once per adjustment: the block pattern of N, the selection S,
-    and each chunk's scatters (normal_equations.ChunkScatter; camera-summed for the chunks of long
+    and each chunk's scatters (block_pattern.ChunkScatter; camera-summed for the chunks of long
     one-camera tracks, normal_equations.sums_camera_columns), in the order Sweep.systems yields
     the chunks."""
 
