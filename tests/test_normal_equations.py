@@ -414,3 +414,40 @@ def test_a_chunk_scatters_summation_matrix_is_the_one_a_coo_conversion_makes(mon
         np.testing.assert_array_equal(scatter.P.data, want.data)
     empty = block_pattern.ChunkScatter(np.zeros((0, 3, 3), dtype=np.int64))
     assert len(empty.positions) == 0 and empty.P.shape == (0, 0)
+
+
+@pytest.mark.parametrize("case", ["block_3x6", "close_range_one_camera", "close_range_two_cameras"])
+def test_an_assembly_without_normals_forms_the_same_u(tmp_path, case):
+    """A chord step's assembly (assemble_normals with normals False: group_misclosures, no ray-pair
+    products) forms u, ug, w^T P w, g^T P g, the largest misclosure and the kept whitened chunks of
+    the full assembly to the last bit, and no N; on a block with the cameras held and on close
+    range (long tracks of one camera, summed camera columns, and of two cameras)."""
+    import sys
+    from pathlib import Path
+
+    from striptri.conditions_method.adjust import _Problem
+    from striptri.core.options import AdjustmentOptions
+    from striptri.io import read_project
+
+    from cli_support import DATA
+
+    if case == "block_3x6":
+        project = read_project(DATA / "block_3x6")
+    else:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+        import close_range
+
+        written = close_range.write_close_range(tmp_path / "p", close_range.make_close_range(24, 40, seed=3))
+        project = read_project(_two_cameras(written) if case.endswith("two_cameras") else written)
+    problem = _Problem(project, AdjustmentOptions(method="conditions", chunk_size=16))
+    sweep = problem.sweep(problem.initial_state, problem.obs.plate, problem.obs.control)
+    full = problem.assemble(sweep, 1, keep=True)
+    alone = problem.assemble(sweep, 1, keep=True, normals=False)
+    assert alone.N is None and full.N.nnz > 0
+    assert problem.assembly.pattern.with_cameras == (case != "block_3x6")
+    for name in ("u", "ug"):
+        assert np.array_equal(getattr(alone, name), getattr(full, name))
+    assert (alone.wPw, alone.gPg, alone.max_misclosure) == (full.wPw, full.gPg, full.max_misclosure)
+    assert len(alone.kept) == len(full.kept) > 1
+    for a, b in zip(alone.kept, full.kept):
+        assert np.array_equal(a.Bw, b.Bw) and np.array_equal(a.ww, b.ww) and np.array_equal(a.Gt, b.Gt)

@@ -177,46 +177,19 @@ class SolverSuite:
             solver.solve(N, b)
             solver.solve(N2, b)
         again = solver.solve_again(b2)
+        assert solver.holding() == (again is not None)
         if self.name not in HOLDS_FACTOR:
             assert again is None
             return
         assert scaled_error(N2, again, dense_reference(N2, b2)) < DIRECT_RTOL
         solver.release()
-        assert solver.solve_again(b2) is None
+        assert solver.solve_again(b2) is None and not solver.holding()
         solver.solve(N2, b)
+        assert solver.holding()
         bad, _ = indefinite_case()
         with pytest.raises(SingularNormalMatrix):
             solver.solve(bad, np.ones(12))
-        assert solver.solve_again(b2) is None
-
-    def test_refinement_on_the_factor_of_a_nearby_matrix(self):
-        """solve_on_held_factor: with the factor of N0 held, N1 = N0 + a small change is solved to
-        the accuracy of N1's own factor (the refinement's stopping rule, 1e-6 in the metric of N1,
-        and far better in fact); a change as large as N0 itself is refused (None), so is a solver
-        that holds no factor."""
-        N0, st = block_case(3, 5, 1, seed=41)
-        rng = np.random.default_rng(41)
-        b = rng.normal(size=N0.shape[0])
-        d = np.sqrt(N0.diagonal())
-        change = sp.diags(d) @ sp.random(N0.shape[0], N0.shape[0], density=0.02, random_state=41) @ sp.diags(d)
-        change = (change + change.T) * 0.5
-        N1, N_far = sp.csr_matrix(N0 + 1e-4 * change), sp.csr_matrix(N0 + 10.0 * sp.diags(N0.diagonal()))
-        solver = self.make(st)
-        solver.holds_factor = True
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SlowConvergenceWarning)
-            solver.solve(N0, b)
-        done = solvers.solve_on_held_factor(solver, N1, b)
-        if self.name not in HOLDS_FACTOR:
-            assert done is None
-            return
-        x, steps = done
-        assert 1 <= steps <= solvers.base.REFINEMENT_STEPS
-        assert scaled_error(N1, x, dense_reference(N1, b)) < DIRECT_RTOL
-        assert scaled_error(N1, solver.solve_again(b), dense_reference(N1, b)) > 1e-8  # the refinement's work
-        assert solvers.solve_on_held_factor(solver, N_far, b) is None
-        solver.release()
-        assert solvers.solve_on_held_factor(solver, N1, b) is None
+        assert solver.solve_again(b2) is None and not solver.holding()
 
     # -- singular and indefinite N ---------------------------------------------------------------
 
@@ -368,11 +341,11 @@ class TestCholmod(SolverSuite):
         assert result.info.analyses == 1
 
     def test_an_adjustment_analyses_once(self, strip8_dense):
-        """One symbolic analysis for every factorisation of an adjustment (the iterations that refine
-        on a held factor report their refinements instead)."""
+        """One symbolic analysis for every factorisation of an adjustment (the iterations that solve
+        on a held factor, chord steps, report that instead)."""
         project, _ = strip8_dense
         r = adjust(project, AdjustmentOptions(solver="cholmod"))
-        factorised = [h.solver_info.analyses for h in r.history if h.solver_info.refinements is None]
+        factorised = [h.solver_info.analyses for h in r.history if h.solver_info.held_factor is None]
         assert r.iterations > 1 and factorised == [1] * len(factorised) and len(factorised) >= 2
 
     def test_a_held_factor_is_refactorised_in_its_own_memory(self, tmp_path):
@@ -465,11 +438,11 @@ class TestCvxopt(SolverSuite):
         assert result.info.analyses == 1
 
     def test_an_adjustment_analyses_once(self, strip8_dense):
-        """One symbolic analysis for every factorisation of an adjustment (the iterations that refine
-        on a held factor report their refinements instead)."""
+        """One symbolic analysis for every factorisation of an adjustment (the iterations that solve
+        on a held factor, chord steps, report that instead)."""
         project, _ = strip8_dense
         r = adjust(project, AdjustmentOptions(solver="cvxopt"))
-        factorised = [h.solver_info.analyses for h in r.history if h.solver_info.refinements is None]
+        factorised = [h.solver_info.analyses for h in r.history if h.solver_info.held_factor is None]
         assert r.iterations > 1 and factorised == [1] * len(factorised) and len(factorised) >= 2
 
 

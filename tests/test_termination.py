@@ -177,11 +177,11 @@ def test_a_normal_matrix_singular_after_regular_ones_is_a_divergence(monkeypatch
     real = conditions_adjust._iteration
     calls = []
 
-    def singular_at_third(problem, solver, now, history, timings):
+    def singular_at_third(problem, solver, now, history, timings, *held):
         calls.append(len(history))
         if len(history) == 2:
             raise NumericalFailure("the control leaves the datum undetermined", reason="datum_defect")
-        return real(problem, solver, now, history, timings)
+        return real(problem, solver, now, history, timings, *held)
 
     monkeypatch.setattr(conditions_adjust, "_iteration", singular_at_third)
     exc = failure(read_project(DATA / "strip8"), AdjustmentOptions())
@@ -190,7 +190,7 @@ def test_a_normal_matrix_singular_after_regular_ones_is_a_divergence(monkeypatch
     assert msg.startswith("the adjustment by conditions diverged at iteration 3: its normal matrix became singular")
     assert "regular in the 2 iterations before" in msg and "largest correction" in msg
 
-    def singular_at_first(problem, solver, now, history, timings):
+    def singular_at_first(problem, solver, now, history, timings, *held):
         raise NumericalFailure("the control leaves the datum undetermined", reason="datum_defect")
 
     monkeypatch.setattr(conditions_adjust, "_iteration", singular_at_first)

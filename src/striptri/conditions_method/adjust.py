@@ -12,7 +12,9 @@ Convergence: core.convergence (``sqrt(dx^T N dx) < tolerance``, the largest corr
 function of the unknowns in units of its standard deviation).
 
 Each iteration linearises its conditions once, chunk by chunk: the assembly whitens each chunk,
-sums it into N and u and keeps the whitened chunk for the back substitution after the solve.
+sums it into N and u and keeps the whitened chunk for the back substitution after the solve. Near
+the solution the iterations solve on the factor of an earlier N and form u alone (chord steps,
+:func:`_iteration`); the final checks form N at the solution.
 """
 
 from __future__ import annotations
@@ -40,8 +42,8 @@ from ..equations.linearise import At, Sweep
 from ..model import Project
 from ..equations.triangulation import GivenCoordinates, RayObservations, triangulate
 from ..equations.block_pattern import BlockPattern, selection_matrix
-from ..equations.normal_equations import (NormalAccumulator, PatternAccumulator, group_products, sums_camera_columns,
-                                         whiten)
+from ..equations.normal_equations import (NormalAccumulator, PatternAccumulator, group_misclosures, group_products,
+                                         sums_camera_columns, whiten)
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from ..equations import weights
@@ -74,12 +76,14 @@ class _WhitenedChunk:
     Gt: np.ndarray
 
 
-def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool = False):
+def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool = False,
+                     normals: bool = True):
     """N and u of one sweep: point groups into the block pattern, then the observed elements.
     keep: also keep each chunk's whitened system for the back substitution (acc.kept), so that an
-    iteration linearises its conditions once. acc.max_misclosure: the largest |g| of a condition
-    in units of its standard deviation (Schmid's final check)."""
-    acc = PatternAccumulator(assembly.pattern, assembly.S)
+    iteration linearises its conditions once. normals: False forms u, w^T P w and the misclosures
+    but not N (acc.N None; a chord step). acc.max_misclosure: the largest |g| of a condition in
+    units of its standard deviation (Schmid's final check)."""
+    acc = PatternAccumulator(assembly.pattern, assembly.S, normals)
     acc.kept = [] if keep else None
     acc.max_misclosure = 0.0
     cam_of_photo = sweep.state.camera_of_photo
@@ -87,8 +91,11 @@ def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assem
     def products(chunk, system, scatters):  # in the chunk's thread: whitened, its products for N and u
         white = whiten(system, residual_map=keep)
         kept = _WhitenedChunk(chunk, white.Bw, white.ww, system.cols, white.Gt) if keep else None
-        return kept, group_products(assembly.pattern, white.Bw, white.ww, white.gw, chunk.photo_index,
-                                    cam_of_photo[chunk.photo_index], white, scatters)
+        photo = chunk.photo_index
+        if not normals:  # a chord step: u alone
+            return kept, group_misclosures(assembly.pattern, white.Bw, white.ww, white.gw, photo, cam_of_photo[photo])
+        return kept, group_products(assembly.pattern, white.Bw, white.ww, white.gw, photo, cam_of_photo[photo], white,
+                                    scatters)
 
     for (chunk, system, (kept, made)), scatters in zip(sweep.systems(products, assembly.scatters),
                                                        assembly.scatters, strict=True):
@@ -111,15 +118,16 @@ def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assem
 
 
 def _assemble_checked(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", project: Project,
-                      iteration: int, keep: bool = False):
+                      iteration: int, keep: bool = False, normals: bool = True):
     """assemble_normals, with numbers that are not finite (an overflow: wild values, c in another unit)
     explained as a NumericalFailure naming the points whose conditions fail and the likely cause."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            acc = assemble_normals(sweep, pobs, assembly, keep)
+            acc = assemble_normals(sweep, pobs, assembly, keep, normals)
     except np.linalg.LinAlgError:
         acc = None
-    if acc is not None and np.isfinite(acc.u).all() and np.isfinite(acc.N.data).all() and np.isfinite(acc.wPw):
+    if (acc is not None and np.isfinite(acc.u).all() and (acc.N is None or np.isfinite(acc.N.data).all())
+            and np.isfinite(acc.wPw)):
         return acc
     raise NumericalFailure(not_finite_message(project, _non_finite_points(sweep), iteration), reason="not_finite")
 
@@ -201,22 +209,23 @@ def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterOb
     return plate_hat, control_hat, v_par, vtpv, distance_hat
 
 
-REUSE_FACTOR_BELOW = 100.0  # a correction (sd) below which the next iteration tries its factor (_solve_on_held_factor)
+# Chord steps (docs/decisions.md "Chord steps on the last factor"): after an iteration whose
+# correction is below REUSE_FACTOR_BELOW standard deviations, the next one solves on the factor the
+# solver holds (an earlier N's) and forms u alone; they go on while each correction is below
+# CHORD_RATE times the one before, else N is formed and factorised again.
+REUSE_FACTOR_BELOW = 100.0
+CHORD_RATE = 0.5
 
 
-def _solve_on_held_factor(acc, solver: solvers.NormalSolver) -> solvers.SolveResult | None:
-    """N dx = -u by the factor of an earlier iteration, which the solver holds when that iteration's
-    correction was below REUSE_FACTOR_BELOW standard deviations, refined until it is the solve with
-    N's own factor to REFINED_TO (solvers.solve_on_held_factor). None when no factor is held or the
-    refinement does not get there (then N is factorised). Near the solution N moves by terms of the
-    size of the last correction, so the last iterations of a run share one factorisation
-    (docs/decisions.md "The last iterations on one factor")."""
-    done = solvers.solve_on_held_factor(solver, acc.N, -acc.u)
-    if done is None:
-        solver.release()  # N has moved too far: its own factor replaces the held one
-        return None
-    dx, steps = done
-    return solvers.SolveResult(dx, solver.name, solvers.SolverInfo(refinements=steps))
+def _keeps_factor(history: list[Iteration]) -> bool:
+    """Whether the next iteration may solve on the factor the solver holds (a chord step): the last
+    correction is below REUSE_FACTOR_BELOW standard deviations and, when it was a chord step
+    itself, below CHORD_RATE times the one before (the held N still serves)."""
+    last = history[-1]
+    if not last.max_correction < REUSE_FACTOR_BELOW:
+        return False
+    return not (last.solver_info.held_factor and len(history) > 1
+                and not last.max_correction < CHORD_RATE * history[-2].max_correction)
 
 
 def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork) -> solvers.SolveResult:
@@ -280,11 +289,11 @@ class _Problem:
         return Sweep(self.batches, At.of(state, self.layout, self.obs, plate_hat, control_hat), self.options,
                      self.joint, distance_hat)
 
-    def assemble(self, sweep: Sweep, iteration: int, keep: bool = False):
+    def assemble(self, sweep: Sweep, iteration: int, keep: bool = False, normals: bool = True):
         trim = len(self.obs.plate) >= TRIM_FROM
         if trim:
             give_back_free_memory()  # the last iteration's factor and kept chunks, freed
-        acc = _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep)
+        acc = _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep, normals)
         if trim:
             give_back_free_memory()  # the chunk threads' products, before the factorisation
         return acc
@@ -351,11 +360,12 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     no_unknowns = problem.layout.n_unknowns == 0
+    factored = None  # the N whose factor the solver holds for the next iteration's chord step
     # the converged iteration's factor serves the final checks, and each factor's memory the next one
     with solvers.holding_factor(solver):
         for _ in range(options.max_iterations):
             try:
-                now, floor = _iteration(problem, solver, now, history, timings)
+                now, floor, N = _iteration(problem, solver, now, history, timings, factored)
             except NumericalFailure as exc:  # N singular after regular ones: the iteration, not the datum
                 if not history or exc.reason not in ("datum_defect", "singular"):
                     raise
@@ -365,8 +375,10 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
             if has_converged(history, options.tolerance, floor):
                 converged = True
                 break
-            if not history[-1].max_correction < REUSE_FACTOR_BELOW:
+            factored = N if problem.free_network is None and solver.holding() and _keeps_factor(history) else None
+            if factored is None:
                 solver.release()  # N moves too much for solve_again (its memory serves the next factor)
+        factored = N = None  # the final checks form N at the solution
         if not converged:  # the next correction of a stopped iteration comes from N at the solution
             solver.release()
 
@@ -417,19 +429,28 @@ def consistent_start(project: Project, state: State, layout: UnknownLayout, obs:
     return plate_hat, control_hat
 
 
-def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteration], timings: Timings):
+def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteration], timings: Timings,
+               factored=None):
     """One iteration from ``now``: assemble N and u (keeping the whitened chunks), solve, back-
-    substitute and update; appends to ``history`` and ``timings``. Returns the new estimate and the
-    round-off floor of its correction (core.convergence.energy_floor)."""
+    substitute and update; appends to ``history`` and ``timings``. Returns the new estimate, the
+    round-off floor of its correction (core.convergence.energy_floor) and the N it solved with.
+
+    factored: the N of an earlier iteration whose factor the solver holds (None: none may serve).
+    Then this iteration is a chord step: it forms u alone and solves ``dx = -F^-1 u`` on that
+    factor. Near the solution N moves by terms of the size of the last correction, so the step
+    differs from Gauss-Newton's by that fraction of itself, and the iteration converges to the same
+    solution: where u vanishes (docs/decisions.md "Chord steps on the last factor")."""
     t0 = time.perf_counter()
     state, layout = now.state, problem.layout
     sweep = problem.sweep(state, now.plate_hat, now.control_hat, now.distance_hat)
-    acc = problem.assemble(sweep, len(history) + 1, keep=True)
+    acc = problem.assemble(sweep, len(history) + 1, keep=True, normals=factored is None)
     t1 = time.perf_counter()
-    if problem.free_network is not None:
-        problem.free_network = problem.datum_at(state, acc.N, now.plate_hat)
-    solved = _solve_on_held_factor(acc, solver) if problem.free_network is None else None
-    if solved is None:
+    if factored is not None:
+        acc.N = factored
+        solved = solvers.SolveResult(solver.solve_again(-acc.u), solver.name, solvers.SolverInfo(held_factor=True))
+    else:
+        if problem.free_network is not None:
+            problem.free_network = problem.datum_at(state, acc.N, now.plate_hat)
         solved = _solve_or_explain(acc, solver, state, problem, diagnose=not history)
     dx = solved.dx
     t2 = time.perf_counter()
@@ -457,7 +478,7 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info,
                              element_correction=element))
     progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, solved.info)
-    return _Estimate(state, plate_hat, control_hat, v_par, vtpv, distance_hat), floor
+    return _Estimate(state, plate_hat, control_hat, v_par, vtpv, distance_hat), floor, acc.N
 
 
 def _distance_change(before, after, project: Project) -> float:

@@ -192,16 +192,33 @@ def _check_scatters(products: GroupProducts, scatters) -> None:
         raise ValueError("a chunk of long one-camera tracks needs BlockPattern.scatters with camera_summed")
 
 
-def _group_products(pat: BlockPattern, Bw, ww, gw, photo, cam, white: Whitened | None) -> GroupProducts:
+def group_misclosures(pat: BlockPattern, Bw, ww, gw, photo, cam) -> GroupProducts:
+    """What a chunk adds to u, w^T P w and g^T P g, without N's blocks (pp, pc and cc None;
+    arguments as group_products): an iteration that solves on the factor of an earlier N
+    (conditions_method.adjust, chord steps) forms no new N."""
+    Bw, full_cols, ug, one_camera = _misclosure_products(pat, Bw, ww, gw, photo, cam)
+    return GroupProducts(None, None, None, ug, full_cols.reshape(photo.shape[0], -1), float(np.sum(ww * ww)),
+                         float(np.sum(gw * gw)), photo, cam, one_camera, summed=True)
+
+
+def _misclosure_products(pat: BlockPattern, Bw, ww, gw, photo, cam):
+    """Bw with the columns that count (only the 6 photo columns of each ray when the cameras are
+    held), their full-space columns (m, k, 6 + w), ``B~^T [w~ g~]`` (m, k (6 + w), 2) and whether
+    the chunk sums its camera columns (sums_camera_columns)."""
     m, k = photo.shape
-    wPw, gPg = float(np.sum(ww * ww)), float(np.sum(gw * gw))
     full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + w)
-    one_camera = sums_camera_columns(pat, cam)
     if not pat.with_cameras:  # cameras held: only the 6 photo columns of each ray count
         Bw = Bw.reshape(m, Bw.shape[1], k, -1)[..., :6].reshape(m, -1, 6 * k)
         full_cols = full_cols[..., :6]
-    width = full_cols.shape[-1]
     ug = np.matmul(np.swapaxes(Bw, 1, 2), np.stack([ww, gw], -1))
+    return Bw, full_cols, ug, sums_camera_columns(pat, cam)
+
+
+def _group_products(pat: BlockPattern, Bw, ww, gw, photo, cam, white: Whitened | None) -> GroupProducts:
+    m, k = photo.shape
+    wPw, gPg = float(np.sum(ww * ww)), float(np.sum(gw * gw))
+    Bw, full_cols, ug, one_camera = _misclosure_products(pat, Bw, ww, gw, photo, cam)
+    width = full_cols.shape[-1]
     if white is not None and white.by_ray is not None and (one_camera or not pat.with_cameras):
         pp, pc, cc = _blocks_by_ray(white, pat.with_cameras)
         return GroupProducts(pp, pc, cc, ug, full_cols.reshape(m, k * width), wPw, gPg, photo, cam, one_camera)
@@ -258,13 +275,14 @@ def _blocks_by_ray(white: Whitened, with_cameras: bool):
 
 class PatternAccumulator:
     """Sums the whitened groups into the block pattern (module doc); the same outputs as
-    NormalAccumulator (N, u, wPw, ug, gPg) once :meth:`finish` has been called."""
+    NormalAccumulator (N, u, wPw, ug, gPg) once :meth:`finish` has been called; with normals False
+    (chunks of group_products with normals False) all but N, which is None."""
 
-    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix):
-        self.pattern, self.S = pattern, S
-        self.pp = np.zeros(len(pattern.pp) * 36)
-        self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width)
-        self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2)
+    def __init__(self, pattern: BlockPattern, S: sp.csr_matrix, normals: bool = True):
+        self.pattern, self.S, self.normals = pattern, S, normals
+        self.pp = np.zeros(len(pattern.pp) * 36 if normals else 0)
+        self.pc = np.zeros(len(pattern.pc) * 6 * pattern.camera_width if normals else 0)
+        self.cc = np.zeros(len(pattern.cc) * pattern.camera_width**2 if normals else 0)
         self.u_full = np.zeros(pattern.n_full)
         self.ug_full = np.zeros(pattern.n_full)
         self.wPw = 0.0
@@ -294,7 +312,8 @@ class PatternAccumulator:
             else:
                 scatter.add(target, numbers)
 
-        add(scatters[0], self.pp, products.pp)
+        if products.pp is not None:
+            add(scatters[0], self.pp, products.pp)
         if products.pc is not None:
             add(scatters[1], self.pc, products.pc)
             add(scatters[2], self.cc, products.cc)
@@ -309,10 +328,10 @@ class PatternAccumulator:
     def finish(self) -> "PatternAccumulator":
         pat, S = self.pattern, self.S
         w = pat.camera_width
-        self.N = pat.reduced_matrix(S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w),
-                                    self.cc.reshape(len(pat.cc), w, w))
+        self.N = None if not self.normals else pat.reduced_matrix(
+            S, self.pp.reshape(-1, 6, 6), self.pc.reshape(len(pat.pc), 6, w), self.cc.reshape(len(pat.cc), w, w))
         self.pp = self.pc = self.cc = None  # N holds the numbers now
-        if self.extra.N.nnz:
+        if self.normals and self.extra.N.nnz:
             self.N = (self.N + self.extra.N).tocsr()
             self.N.sum_duplicates()
         self.u = S.T @ self.u_full + self.extra.u

@@ -34,7 +34,6 @@ from .base import (
     Structure,
     holding_factor,
     jacobi_scaled,
-    solve_on_held_factor,
 )
 from .cvxopt_cholesky import CvxoptSolver, cvxopt_available
 from .describe import blas, describe
@@ -60,6 +59,6 @@ __all__ = [
     "DenseSolver", "ScipySparseSolver", "BandedSolver", "CholmodSolver", "CvxoptSolver", "GaussSeidelSolver",
     "PcgSolver", "StripPcgSolver", "SLOW_STRIP_PCG", "strip_partition",
     "AutoSolver", "make_solver", "resolve_solver", "sparse_choice", "solve", "inverse", "jacobi_scaled", "bandwidth",
-    "solve_on_held_factor", "holding_factor",
+    "holding_factor",
     "cholmod_available", "cvxopt_available", "describe", "blas",
 ]

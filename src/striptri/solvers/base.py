@@ -116,6 +116,10 @@ class NormalSolver:
         (``holds_factor``; the CHOLMOD solvers); None when it does not (then solve N again)."""
         return None
 
+    def holding(self) -> bool:
+        """Whether solve_again would solve with a held factor (and not answer None)."""
+        return False
+
     def release(self) -> None:
         """Drop the factor held for solve_again (nothing when none is held). While ``holds_factor``
         a solver may keep its memory for the next factorisation (cholmod: ``cholesky_inplace``)."""
@@ -133,42 +137,6 @@ def holding_factor(solver: NormalSolver):
     finally:
         solver.holds_factor = False
         solver.release()
-
-
-REFINEMENT_STEPS = 3  # refinements tried on a held factor (solve_on_held_factor)
-REFINED_TO = 1e-6  # accepted when the last refinement changed the solution by less than this fraction
-REFINEMENT_RATE = 0.1  # given up after a refinement that shrinks the change by less than this
-
-
-def solve_on_held_factor(solver: NormalSolver, N: sp.spmatrix, b: np.ndarray,
-                         steps: int = REFINEMENT_STEPS, relative: float = REFINED_TO) -> tuple[np.ndarray, int] | None:
-    """``N^-1 b`` by the factor the solver holds from an earlier N close to this one (solve_again),
-    made exact by iterative refinement: ``x += F^-1 (b - N x)``, F the held factor. Each
-    refinement shrinks the error by ``|I - F^-1 N|``, small when N has moved little.
-
-    Returns (x, refinements) once a refinement changes x by less than ``relative`` of it, both
-    measured in the metric of N (``sqrt(e' N e)``: the adjustments' measure of a correction,
-    core.convergence.correction_in_sigma); so x is the solve with N's own factor to that fraction.
-    None when the solver holds no factor, or when ``steps`` refinements do not get there or one
-    shrinks the change by less than REFINEMENT_RATE (N has moved too far: factorise it)."""
-    x = solver.solve_again(b)
-    if x is None:
-        return None
-    Nx = N @ x
-    change = float(np.sqrt(max(float(x @ Nx), 0.0)))  # the first solve is the first change
-    for step in range(1, steps + 1):
-        e = solver.solve_again(b - Nx)
-        Ne = N @ e  # one product with N per refinement: N x follows
-        x, Nx = x + e, Nx + Ne
-        now = float(np.sqrt(max(float(e @ Ne), 0.0)))
-        if not (np.isfinite(now) and np.all(np.isfinite(x))):
-            return None
-        if now <= relative * float(np.sqrt(max(float(x @ Nx), 0.0))):
-            return x, step
-        if now > REFINEMENT_RATE * change:
-            return None
-        change = now
-    return None
 
 
 def jacobi_scaled(N: sp.spmatrix):

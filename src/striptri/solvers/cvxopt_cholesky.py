@@ -147,6 +147,9 @@ class CvxoptSolver(NormalSolver):
         self._cholmod.solve(self._factor, y)
         return np.asarray(y).reshape(-1) * s
 
+    def holding(self) -> bool:
+        return self._held_scale is not None
+
     def release(self):
         self._held_scale = None
 

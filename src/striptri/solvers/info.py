@@ -41,8 +41,9 @@ class SolverInfo:
 
     Added by the adjustment, not a solver:
 
-    refinements: the method of conditions only, the refinement steps of a solve on the factor of an
-        earlier iteration (solvers.base.solve_on_held_factor; a count); None when N was factorised.
+    held_factor: the method of conditions only, True when the iteration solved on the factor of an
+        earlier iteration's N (a chord step: N not formed anew, conditions_method.adjust); None when
+        N was formed and factorised.
     damping: the bundle only, the Levenberg-Marquardt factor lam (``N + lam diag(N)``) in force
         after the step's acceptance, i.e. the one the next step starts from (no unit); None when the
         iteration is plain Gauss-Newton.
@@ -66,7 +67,7 @@ class SolverInfo:
     mode: str | None = None
     ordering: str | None = None
     orderings: int | None = None
-    refinements: int | None = None
+    held_factor: bool | None = None
     damping: float | None = None
 
     def as_dict(self) -> dict:

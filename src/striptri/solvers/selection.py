@@ -118,6 +118,9 @@ class AutoSolver(NormalSolver):
     def solve_again(self, b):
         return None if self._chosen is None else self._chosen.solve_again(b)
 
+    def holding(self) -> bool:
+        return self._chosen is not None and self._chosen.holding()
+
     def release(self):
         if self._chosen is not None:
             self._chosen.holds_factor = self.holds_factor

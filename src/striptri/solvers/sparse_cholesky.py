@@ -162,6 +162,9 @@ class CholmodSolver(NormalSolver):
         factor, s = self._held
         return np.asarray(factor.solve_A(b * s)).reshape(-1) * s
 
+    def holding(self) -> bool:
+        return self._held is not None
+
     def release(self):
         self._held = None
         if not self.holds_factor:
