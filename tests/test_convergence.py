@@ -197,3 +197,22 @@ def test_a_chord_step_that_does_not_contract_gives_way_to_a_factorisation(monkey
     assert strict.converged and own.converged
     np.testing.assert_allclose(strict.state.xyz0, own.state.xyz0, rtol=0, atol=1e-9)
     np.testing.assert_allclose(strict.state.R_ground_from_cam, own.state.R_ground_from_cam, rtol=0, atol=1e-12)
+
+
+def test_a_chord_steps_correction_in_the_metric_of_its_n_without_n():
+    """chord_correction: for a step that solved N dx = -u, sqrt(-dx^T u) is correction_in_sigma's
+    sqrt(dx^T N dx) to round-off (a normal matrix of a strip with mixed units, Jacobi-badly scaled);
+    for a step that did not solve it (another N), it is not."""
+    import scipy.sparse as sp
+
+    from striptri.core.convergence import chord_correction
+
+    rng = np.random.default_rng(12)
+    J = sp.random(400, 60, density=0.1, random_state=12) @ sp.diags(10.0 ** rng.uniform(-3, 3, 60))
+    N = (J.T @ J + sp.identity(60) * 1e-6).tocsr()
+    u = rng.normal(size=60)
+    dx = -np.linalg.solve(N.toarray(), u)
+    assert chord_correction(dx, u) == pytest.approx(correction_in_sigma(dx, N), rel=1e-9)
+    other = -np.linalg.solve((N + sp.diags(N.diagonal())).toarray(), u)  # solved with 2 diag(N) on the diagonal
+    assert abs(chord_correction(other, u) - correction_in_sigma(other, N)) > 1e-3 * correction_in_sigma(other, N)
+    assert chord_correction(np.zeros(0), np.zeros(0)) == 0.0

@@ -28,8 +28,8 @@ import scipy.sparse as sp
 from ..equations import datum, point_datum
 from ..core import diagnosis, termination
 from .. import progress, solvers
-from ..core.convergence import (ROUNDING_FLOOR, correction_in_sigma, energy_floor, has_converged, largest_correction,
-                                round_off_floor, stop_if_diverging)
+from ..core.convergence import (ROUNDING_FLOOR, chord_correction, correction_in_sigma, energy_floor, has_converged,
+                                largest_correction, round_off_floor, stop_if_diverging)
 from ..core.explain import (datum_defect_failure, not_finite_message, reduction_check, singular_message,
                             solve_or_explain, solver_for)
 from ..equations.observations import Observations, observations_of
@@ -360,12 +360,12 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     no_unknowns = problem.layout.n_unknowns == 0
-    factored = None  # the N whose factor the solver holds for the next iteration's chord step
+    factored = None  # the diagonal of the N whose factor the solver holds, for the next iteration's chord step
     # the converged iteration's factor serves the final checks, and each factor's memory the next one
     with solvers.holding_factor(solver):
         for _ in range(options.max_iterations):
             try:
-                now, floor, N = _iteration(problem, solver, now, history, timings, factored)
+                now, floor, n_diag = _iteration(problem, solver, now, history, timings, factored)
             except NumericalFailure as exc:  # N singular after regular ones: the iteration, not the datum
                 if not history or exc.reason not in ("datum_defect", "singular"):
                     raise
@@ -375,10 +375,9 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
             if has_converged(history, options.tolerance, floor):
                 converged = True
                 break
-            factored = N if problem.free_network is None and solver.holding() and _keeps_factor(history) else None
+            factored = n_diag if problem.free_network is None and solver.holding() and _keeps_factor(history) else None
             if factored is None:
                 solver.release()  # N moves too much for solve_again (its memory serves the next factor)
-        factored = N = None  # the final checks form N at the solution
         if not converged:  # the next correction of a stopped iteration comes from N at the solution
             solver.release()
 
@@ -433,20 +432,22 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
                factored=None):
     """One iteration from ``now``: assemble N and u (keeping the whitened chunks), solve, back-
     substitute and update; appends to ``history`` and ``timings``. Returns the new estimate, the
-    round-off floor of its correction (core.convergence.energy_floor) and the N it solved with.
+    round-off floor of its correction (core.convergence.energy_floor) and the diagonal of the N it
+    solved with.
 
-    factored: the N of an earlier iteration whose factor the solver holds (None: none may serve).
-    Then this iteration is a chord step: it forms u alone and solves ``dx = -F^-1 u`` on that
-    factor. Near the solution N moves by terms of the size of the last correction, so the step
-    differs from Gauss-Newton's by that fraction of itself, and the iteration converges to the same
-    solution: where u vanishes (docs/decisions.md "Chord steps on the last factor")."""
+    factored: the diagonal of an earlier iteration's N whose factor the solver holds (None: none
+    may serve). Then this iteration is a chord step: it forms u alone and solves ``dx = -F^-1 u``
+    on that factor. Near the solution N moves by terms of the size of the last correction, so the
+    step differs from Gauss-Newton's by that fraction of itself, and the iteration converges to the
+    same solution: where u vanishes (docs/decisions.md "Chord steps on the last factor"). Its
+    correction in the measure of that N, ``sqrt(dx^T N dx)``, is ``sqrt(-dx^T u)``: N itself is not
+    kept."""
     t0 = time.perf_counter()
     state, layout = now.state, problem.layout
     sweep = problem.sweep(state, now.plate_hat, now.control_hat, now.distance_hat)
     acc = problem.assemble(sweep, len(history) + 1, keep=True, normals=factored is None)
     t1 = time.perf_counter()
     if factored is not None:
-        acc.N = factored
         solved = solvers.SolveResult(solver.solve_again(-acc.u), solver.name, solvers.SolverInfo(held_factor=True))
     else:
         if problem.free_network is not None:
@@ -464,11 +465,12 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     timings.add("assembly", t1 - t0 - sweep.seconds)
     timings.add("solve", t2 - t1)
     timings.add("back_substitution", t3 - t2)
+    n_diag = factored if factored is not None else acc.N.diagonal()
     if len(dx):
-        crit = correction_in_sigma(dx, acc.N)
+        crit = correction_in_sigma(dx, acc.N) if factored is None else chord_correction(dx, acc.u)
         if problem.free_network is not None:  # the datum's move, which N does not see (datum.FreeNetwork)
-            crit = float(np.hypot(crit, problem.free_network.datum_correction(acc.N.diagonal())))
-        element_floor, n_diag = round_off_floor(state, layout), acc.N.diagonal()
+            crit = float(np.hypot(crit, problem.free_network.datum_correction(n_diag)))
+        element_floor = round_off_floor(state, layout)
         floor = energy_floor(layout.n_unknowns, element_floor, n_diag)
         element = largest_correction(dx, n_diag, element_floor)
     else:  # no unknowns (every element held): the iteration is over the adjusted observations alone
@@ -478,7 +480,7 @@ def _iteration(problem: _Problem, solver, now: _Estimate, history: list[Iteratio
     history.append(Iteration(vtpv=vtpv, max_correction=crit, seconds=t3 - t0, solver_info=solved.info,
                              element_correction=element))
     progress.iteration(METHOD, len(history), vtpv, crit, t3 - t0, solved.info)
-    return _Estimate(state, plate_hat, control_hat, v_par, vtpv, distance_hat), floor, acc.N
+    return _Estimate(state, plate_hat, control_hat, v_par, vtpv, distance_hat), floor, n_diag
 
 
 def _distance_change(before, after, project: Project) -> float:

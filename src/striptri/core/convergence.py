@@ -79,6 +79,15 @@ def correction_in_sigma(dx: np.ndarray, N: sp.spmatrix) -> float:
     return float(np.sqrt(max(float(dx @ (N @ dx)), 0.0)))
 
 
+def chord_correction(dx: np.ndarray, u: np.ndarray) -> float:
+    """:func:`correction_in_sigma` of a step that solved ``N dx = -u`` exactly, without N:
+    ``dx^T N dx = -dx^T u``. The method of conditions' chord steps (conditions_method.adjust) solve
+    on the factor of an earlier N, which they do not keep; this is their correction in its metric."""
+    if not len(dx):
+        return 0.0
+    return float(np.sqrt(max(-float(dx @ u), 0.0)))
+
+
 def energy_floor(n_unknowns: int, element_floor: np.ndarray | None = None, n_diag: np.ndarray | None = None) -> float:
     """The round-off floor of :func:`correction_in_sigma`, below which a correction that no longer
     halves is accepted as converged (has_converged): ROUND_OFF_PER_UNKNOWN standard deviations in
