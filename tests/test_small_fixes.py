@@ -7,9 +7,6 @@ import re
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
-
-import pytest
 
 from cli_support import DATA, REPO, assert_clean_failure, run
 
@@ -61,7 +58,7 @@ def test_the_readme_python_example_runs():
 def test_the_readme_names_every_method_and_format():
     readme = (REPO / "README.md").read_text()
     for method in ("conditions", "bundle", "sequential"):
-        assert f"--method conditions|bundle|sequential" in readme and method in readme
+        assert "--method conditions|bundle|sequential" in readme and method in readme
     assert "--to project|colmap|bal|dbat" in readme
 
 

@@ -16,7 +16,7 @@ import pytest
 
 from cli_support import DATA, SHARED_DATA, run
 from striptri.core.runs import RunOptions
-from striptri.equations.triangulation import (WEAK_FACTOR, WEAK_RCOND, conditioning, far_weaker_than_the_rest)
+from striptri.equations.triangulation import (WEAK_FACTOR, conditioning, far_weaker_than_the_rest)
 
 LADYBUG = SHARED_DATA / "bal_ladybug49" / "problem-49-7776-pre.txt"
 

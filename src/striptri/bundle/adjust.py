@@ -369,7 +369,6 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
         trial_ee = trial.ee if trial is not None else np.inf
     else:  # damped: only the sum of squares, the normals follow with the next damping
         trial, trial_ee = None, problem.cost(trial_state, step.xyz)
-    t2 = time.perf_counter()
     ee = normals.ee  # the sum of squares where the step started
     predicted, actual = ee - step.vtpv, ee - trial_ee
     lam_step = damping.lam

@@ -17,7 +17,7 @@ approximate orientations; without them, from the distances between the projectio
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
