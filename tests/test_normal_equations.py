@@ -19,11 +19,11 @@ def _pattern(rng, n_photos=9, n_cameras=2, with_cameras=True, elements=(0, 1, 2,
     return BlockPattern(n_photos, n_cameras, with_cameras, chunks, np.array(elements))
 
 
-def _selection(rng, n_full, tie):
-    """0/1 S: about a fifth of the elements fixed, the others numbered; with ``tie`` some pairs of
-    elements share one unknown."""
+def _selection(rng, n_full, tie, fixed=0.2):
+    """0/1 S: about the fraction ``fixed`` of the elements fixed, the others numbered; with ``tie``
+    some pairs of elements share one unknown."""
     col = np.full(n_full, -1)
-    free = np.flatnonzero(rng.random(n_full) > 0.2)
+    free = np.flatnonzero(rng.random(n_full) >= fixed)
     col[free] = np.arange(len(free))
     if tie:
         twins = rng.choice(free, size=(6, 2), replace=False)
@@ -65,12 +65,17 @@ def test_block_pattern_holds_every_pair_of_a_group_and_the_diagonal(with_cameras
     assert empty.pp.tolist() == [0, 5, 10, 15] and empty.pc.tolist() == [] and empty.cc.tolist() == [0, 3]
 
 
+@pytest.mark.parametrize("fixed", [0.2, 0.0])
 @pytest.mark.parametrize("with_cameras", [True, False])
 @pytest.mark.parametrize("tie", [False, True])
-def test_reduced_matrix_equals_the_product_of_the_selection(with_cameras, tie):
+def test_reduced_matrix_equals_the_product_of_the_selection(with_cameras, tie, fixed):
+    """S^T N_full S from the block numbers (ReducedPattern): the product's numbers and its CSR
+    structure, with fixed elements (block numbers that land nowhere) or none, with tied elements
+    (summed entries) or none, with the cameras' blocks or without."""
     rng = np.random.default_rng(3 + 2 * tie + with_cameras)
     pat = _pattern(rng, with_cameras=with_cameras)
-    S = _selection(rng, pat.n_full, tie)
+    S = _selection(rng, pat.n_full, tie, fixed)
+    assert (S.getnnz(axis=1) == 0).any() == (fixed > 0)
     w = pat.camera_width
     for _ in range(2):  # the second call reuses the structure worked out by the first
         pp = rng.normal(size=(len(pat.pp), 6, 6))

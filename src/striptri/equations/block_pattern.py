@@ -240,27 +240,37 @@ class ReducedPattern:
             raise ValueError("S must map each full element to at most one unknown with weight 1")
         col_of = np.full(S.shape[0], -1, dtype=np.int32 if n < 2**31 else np.int64)
         col_of[per_row == 1] = S.indices
+        # few and small temporaries: at 20,000 photos these arrays hold ten million entries, and
+        # each one made anew is paid for in first touches of its pages (docs/decisions.md,
+        # fourteenth round)
         r = col_of[rows]
         del rows
         c = col_of[cols]
         del cols, full_indices
-        kept = np.flatnonzero((r >= 0) & (c >= 0))
-        key = r[kept].astype(np.int64)
-        del r
+        kept = None  # every block number lands in N (no element fixed): no index of the kept ones
+        keep = (r >= 0) & (c >= 0)
+        if not keep.all():
+            kept = np.flatnonzero(keep)
+            r, c = r[kept], c[kept]
+        del keep
+        key = r.astype(np.int64)
         key *= n
-        key += c[kept]
-        del c
+        key += c
         by_key = np.argsort(key, kind="stable")
-        key = key[by_key]
-        self.order = kept[by_key].astype(np.int32 if n_block_numbers < 2**31 else np.int64)
-        first = np.ones(len(key), dtype=bool)
-        first[1:] = key[1:] != key[:-1]
+        del key
+        r, c = r[by_key], c[by_key]  # in CSR order
+        position_type = np.int32 if n_block_numbers < 2**31 else np.int64
+        self.order = (by_key if kept is None else kept[by_key]).astype(position_type)
+        del by_key, kept
+        first = np.ones(len(r), dtype=bool)
+        first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
         self.starts = None if first.all() else np.flatnonzero(first)
-        key = key[first]
-        index_type = np.int32 if max(n, len(key)) < 2**31 else np.int64
-        self.indices = (key % n).astype(index_type)
+        if self.starts is not None:
+            r, c = r[first], c[first]
+        index_type = np.int32 if max(n, len(r)) < 2**31 else np.int64
+        self.indices = c.astype(index_type, copy=False)
         self.indptr = np.zeros(n + 1, dtype=index_type)
-        np.cumsum(np.bincount(key // n, minlength=n), out=self.indptr[1:])
+        np.cumsum(np.bincount(r, minlength=n), out=self.indptr[1:])
         self.shape = (n, n)
 
     def matrix(self, block_data: np.ndarray) -> sp.csr_matrix:
