@@ -175,28 +175,46 @@ def test_the_last_iterations_on_one_factor_give_the_same_adjustment(monkeypatch,
     assert abs(reused.checks.vtpv_reduction_relative_difference) < 1e-9
 
 
-def test_a_chord_step_that_does_not_contract_gives_way_to_a_factorisation(monkeypatch):
-    """A chord step whose correction is not below CHORD_RATE times the one before (made so here by
-    a rate no step meets) is followed by an iteration that forms and factorises N again, and a
-    correction of REUSE_FACTOR_BELOW or more by one too; the adjustment ends at the same solution
-    as with every N factorised (orientations to 1e-9 of the metres' and radians' scale)."""
+def test_the_factor_is_kept_for_chord_steps_only_while_the_corrections_shrink_a_hundredfold():
+    """_keeps_factor: a chord step follows a correction below REUSE_FACTOR_BELOW sd that shrank by
+    CHORD_RATE or more against the one before (or a first iteration's, or one below the round-off
+    floor); not a large correction, nor one that shrank less."""
+    from striptri.conditions_method import adjust as conditions
+    from striptri.core.result import Iteration
+
+    def history(*corrections):
+        return [Iteration(vtpv=1.0, max_correction=c, seconds=0.0) for c in corrections]
+
+    keeps = conditions._keeps_factor
+    assert conditions.CHORD_RATE == 0.01 and conditions.REUSE_FACTOR_BELOW == 100.0
+    assert keeps(history(3515.0, 14.2), 1e-9)  # 4e-3: Gauss-Newton converging fast
+    assert not keeps(history(4710.0, 69.4), 1e-9)  # 1.5e-2: not yet (the film strip below)
+    assert not keeps(history(1e6, 150.0), 1e-9)  # above REUSE_FACTOR_BELOW however fast
+    assert keeps(history(0.05), 1e-9)  # a first iteration: no rate to judge
+    assert not keeps(history(3.6e-6, 2.0e-7), 1e-9) and keeps(history(3.6e-6, 2.0e-7), 7.7e-5)  # stalled at round-off
+
+
+def test_a_strongly_nonlinear_strip_takes_no_chord_step_before_gauss_newton_converges_fast(monkeypatch):
+    """The scanned-film strip (self-calibrating, far approximations) by cvxopt's CHOLMOD: its second
+    correction (69 sd) shrank only 68-fold, and a chord step on that factor would contract by 0.06
+    then 0.7 (nine iterations with a rate limit of 0.5). The factor is kept only after Gauss-Newton's
+    ten-thousand-fold step, so the run takes the five iterations of factorising every N, the last a
+    chord step, and ends at the same solution."""
     from striptri.conditions_method import adjust as conditions
 
-    project = read_project(DATA / "block_3x6")
+    project = read_project(DATA.parent / "film_strip")
     options = AdjustmentOptions(solver="cvxopt")
-    monkeypatch.setattr(conditions, "CHORD_RATE", 1e-30)
-    strict = adjust(project, options)
-    chord = [h.solver_info.held_factor for h in strict.history]
-    corrections = [h.max_correction for h in strict.history]
-    for i in range(1, len(chord)):  # each iteration after a small correction: a chord step only after a factorised one
-        expected = True if corrections[i - 1] < conditions.REUSE_FACTOR_BELOW and chord[i - 1] is None else None
-        assert chord[i] is expected, (i, chord, corrections)
-    assert True in chord and chord[-1] is None  # the chord step did not contract enough: N factorised anew
+    chord = adjust(project, options)
+    assert [h.solver_info.held_factor for h in chord.history] == [None] * 4 + [True]
     monkeypatch.setattr(conditions, "REUSE_FACTOR_BELOW", 0.0)
     own = adjust(project, options)
-    assert strict.converged and own.converged
-    np.testing.assert_allclose(strict.state.xyz0, own.state.xyz0, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(strict.state.R_ground_from_cam, own.state.R_ground_from_cam, rtol=0, atol=1e-12)
+    assert own.iterations == chord.iterations == 5
+    np.testing.assert_allclose(chord.state.xyz0, own.state.xyz0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(chord.state.R_ground_from_cam, own.state.R_ground_from_cam, rtol=0, atol=1e-12)
+    monkeypatch.setattr(conditions, "REUSE_FACTOR_BELOW", 100.0)
+    monkeypatch.setattr(conditions, "CHORD_RATE", 0.5)  # the first rule: chord steps from the 69 sd factor
+    loose = adjust(project, options)
+    assert loose.iterations > own.iterations
 
 
 def test_a_chord_steps_correction_in_the_metric_of_its_n_without_n():
