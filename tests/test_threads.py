@@ -249,10 +249,12 @@ def test_free_memory_of_a_chunk_thread_is_handed_back():
     assert after - base < 30  # handed back
 
 
-def test_the_conditions_method_trims_between_assemblies_from_trim_from_measurements(monkeypatch):
+@pytest.mark.parametrize("keeping", [False, True])
+def test_the_conditions_method_trims_between_assemblies_from_trim_from_measurements(monkeypatch, keeping):
     """conditions_method.adjust: free memory handed back before and after every assembly from
     TRIM_FROM plate measurements on (the factorisation's peak), not below (each sweep would get the
-    pages anew); the adjustment is the same either way."""
+    pages anew), and at no size in a process that keeps its freed pages (keep_freed_memory: the
+    command); the adjustment is the same either way."""
     from pathlib import Path
 
     from striptri.conditions_method import adjust as conditions
@@ -263,6 +265,7 @@ def test_the_conditions_method_trims_between_assemblies_from_trim_from_measureme
     project = read_project(Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6")
     trims = []
     monkeypatch.setattr(conditions, "give_back_free_memory", lambda: trims.append(1))
+    monkeypatch.setattr(conditions, "keeps_freed_memory", lambda: keeping)
     results, counts = [], []
     for limit in (len(project.image_points) + 1, len(project.image_points)):
         monkeypatch.setattr(conditions, "TRIM_FROM", limit)
@@ -271,9 +274,30 @@ def test_the_conditions_method_trims_between_assemblies_from_trim_from_measureme
         counts.append(len(trims))
     below, at = results
     assert counts[0] == 0
-    assert counts[1] >= 2 * at.iterations  # before and after each assembly (and the final checks')
+    if keeping:
+        assert counts[1] == 0
+    else:
+        assert counts[1] >= 2 * at.iterations  # before and after each assembly (and the final checks')
     assert at.iterations == below.iterations
     np.testing.assert_array_equal(at.state.xyz0, below.state.xyz0)
+
+
+def test_keeps_freed_memory_says_whether_the_thresholds_are_set():
+    """solvers.memory.keeps_freed_memory: False in a fresh process, True once keep_freed_memory has
+    set glibc's thresholds, and False when the environment holds the user's own."""
+    import subprocess
+    import sys
+
+    if not _glibc():
+        pytest.skip("glibc's mallopt")
+    code = ("from striptri.solvers import memory; a = memory.keeps_freed_memory(); "
+            "b = memory.keep_freed_memory(); print(a, b, memory.keeps_freed_memory())")
+    fresh = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert fresh.stdout.split() == ["False", "True", "True"], fresh.stderr
+    env = {k: v for k, v in os.environ.items() if k not in ("MALLOC_MMAP_THRESHOLD_", "GLIBC_TUNABLES")}
+    user = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                          env={**env, "MALLOC_TRIM_THRESHOLD_": "1000000"})
+    assert user.stdout.split() == ["False", "False", "False"], user.stderr
 
 
 @pytest.mark.parametrize("point_precision", ["schmid90", "joint92"])
@@ -398,24 +422,19 @@ def test_a_small_run_keeps_the_pages_it_frees(tmp_path):
     assert user.stdout.strip() == "False"
 
 
-def test_the_command_keeps_freed_pages_in_a_small_run(monkeypatch, tmp_path):
-    """pipeline.run_adjust keeps the freed pages (keep_freed_memory) in a run of fewer than
-    SMALL_RUN_MEASUREMENTS plate measurements (the conditions method's TRIM_FROM: the runs whose
-    assemblies are not trimmed either), and not in a larger one."""
+def test_the_command_keeps_freed_pages_at_every_size(monkeypatch, tmp_path):
+    """pipeline.run_adjust keeps the freed pages (keep_freed_memory) in every run, small or not
+    (docs/decisions.md "Freed pages kept at every size"): with them kept, the conditions method does
+    not trim around its assemblies (keeps_freed_memory)."""
     from pathlib import Path
 
     from striptri import pipeline
-    from striptri.io import read_project
 
     project_dir = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips" / "block_3x6"
-    n = len(read_project(project_dir).image_points)
     calls = []
     monkeypatch.setattr(pipeline, "keep_freed_memory", lambda: calls.append(1) or True)
-    for limit, expected in ((n + 1, 1), (n, 0)):
-        monkeypatch.setattr(pipeline, "SMALL_RUN_MEASUREMENTS", limit)
-        calls.clear()
-        pipeline.run_adjust(project_dir, tmp_path / f"out{limit}")
-        assert len(calls) == expected
+    pipeline.run_adjust(project_dir, tmp_path / "out")
+    assert len(calls) == 1
 
 
 def _glibc() -> bool:

@@ -38,7 +38,7 @@ from .report import film as film_report
 from .io import sources
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
-from .solvers.memory import SMALL_RUN_MEASUREMENTS, give_back_free_memory, keep_freed_memory
+from .solvers.memory import give_back_free_memory, keep_freed_memory
 from .solvers.threads import single_threaded
 from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, read_project
@@ -125,8 +125,7 @@ def run_adjust(project_dir, out_dir, run: RunOptions = RunOptions(),
                          "correction would count it twice (docs/decisions.md)")
     framed = map_coordinates.in_local_frame(project) if project.settings.coordinates is not None else None
     seconds_reading = time.perf_counter() - t0
-    if len(project.image_points) < SMALL_RUN_MEASUREMENTS:  # its sweeps reuse the pages they free
-        keep_freed_memory()
+    keep_freed_memory()  # its sweeps reuse the pages they free (docs/decisions.md "Freed pages kept at every size")
     options = options_for(project, **run.adjustment)
     try:
         check_products_options(options, run.point_precision, run.blunders)

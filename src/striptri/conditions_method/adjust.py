@@ -47,7 +47,7 @@ from ..equations.normal_equations import (NormalAccumulator, PatternAccumulator,
 from ..equations.parameter_observations import ParameterObservations, build_parameter_observations
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from ..equations import weights
-from ..solvers.memory import SMALL_RUN_MEASUREMENTS, give_back_free_memory
+from ..solvers.memory import SMALL_RUN_MEASUREMENTS, give_back_free_memory, keeps_freed_memory
 
 METHOD = "conditions"
 # From this many plate measurements on, free memory is handed back to the system before and after
@@ -55,7 +55,10 @@ METHOD = "conditions"
 # the factorisation's peak (5,000 photos: 393 MB against 414 MB without). Below, the peak is not at
 # stake and the trims cost more than they give back: each sweep gets the pages it handed back anew,
 # zeroed (close range, 10,022 measurements of 66-ray tracks, whose ray pairs make 190 MB of products
-# a sweep: the whole command 3.83 -> 3.44 s, medians of four, the same peak, 360 MB).
+# a sweep: the whole command 3.83 -> 3.44 s, medians of four, the same peak, 360 MB). Nor at any size
+# in a process that keeps its freed pages (solvers.memory.keep_freed_memory, the command): there the
+# trims cost a fifth of adjust() at 5,000 photos for 5-8 % of the peak (docs/decisions.md "Freed
+# pages kept at every size").
 TRIM_FROM = SMALL_RUN_MEASUREMENTS
 # Gauss-Newton steps of the intersection behind consistent_start after the linear one: any point
 # makes the conditions hold, but one step brings back 37 of 54 turned-photo starts of block_3x6
@@ -292,7 +295,7 @@ class _Problem:
                      self.joint, distance_hat)
 
     def assemble(self, sweep: Sweep, iteration: int, keep: bool = False, normals: bool = True):
-        trim = len(self.obs.plate) >= TRIM_FROM
+        trim = len(self.obs.plate) >= TRIM_FROM and not keeps_freed_memory()
         if trim:
             give_back_free_memory()  # the last iteration's factor and kept chunks, freed
         acc = _assemble_checked(sweep, self.pobs, self.assembly, self.project, iteration, keep, normals)

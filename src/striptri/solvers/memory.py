@@ -121,34 +121,46 @@ def _malloc_trim():
     return _libc_function("malloc_trim", (ctypes.c_size_t,), ctypes.c_int)
 
 
-# A run of fewer plate measurements is small: its peaks of memory are not at stake, so the command
-# keeps the pages it frees (keep_freed_memory) and the conditions method does not trim around its
-# assemblies (conditions_method.adjust.TRIM_FROM); from this many on, both hand memory back
+# A library run of fewer plate measurements is small: its peaks of memory are not at stake, so the
+# conditions method does not trim around its assemblies (conditions_method.adjust.TRIM_FROM). The
+# command keeps the pages it frees at every size (keep_freed_memory) and then trims only between
+# its phases (docs/decisions.md "Freed pages kept at every size")
 SMALL_RUN_MEASUREMENTS = 50_000
 
 # glibc's mallopt parameters (malloc.h) and what keep_freed_memory sets them to
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 KEPT_MMAP_THRESHOLD = 32 * 2**20  # the largest glibc takes (DEFAULT_MMAP_THRESHOLD_MAX, 64-bit)
 KEPT_TRIM_THRESHOLD = 2**30
+_kept: list[bool] = []  # [True] once keep_freed_memory has set the thresholds in this process
 
 
 def keep_freed_memory() -> bool:
     """Let this process keep the C heap's freed pages for its next allocations (glibc's
     ``mallopt``: the mmap threshold at its largest, 32 MB, the trim threshold at 1 GB), for the
-    rest of the process; give_back_free_memory still hands them back where called. For a small
-    command run (pipeline.run_adjust), whose sweeps allocate and free the same arrays again and
-    again: with glibc's own thresholds the top of the heap was handed back after each of them
-    and its pages came back zeroed by the kernel (page faults; docs/decisions.md "Freed pages kept
-    in a small run"). The threshold of mmap is set with the one of trimming: a trim threshold
-    alone would fix the mmap threshold at its start value, 128 kB, and map every larger array
-    anew. A MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_ or GLIBC_TUNABLES in the environment
-    is the user's choice and is left alone. True when set (glibc), else False."""
+    rest of the process; give_back_free_memory still hands them back where called. For a command
+    run (pipeline.run_adjust), whose sweeps allocate and free the same arrays again and again:
+    with glibc's own thresholds the top of the heap was handed back after each of them and its
+    pages came back zeroed by the kernel (page faults; docs/decisions.md "Freed pages kept in a
+    small run", "Freed pages kept at every size"). The threshold of mmap is set with the one of
+    trimming: a trim threshold alone would fix the mmap threshold at its start value, 128 kB, and
+    map every larger array anew. A MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_ or GLIBC_TUNABLES
+    in the environment is the user's choice and is left alone. True when set (glibc), else False."""
     if any(os.environ.get(name) for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")):
         return False
     mallopt = _libc_function("mallopt", (ctypes.c_int, ctypes.c_int), ctypes.c_int)
     if mallopt is None:
         return False
-    return bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
+    kept = bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
+    if kept and not _kept:
+        _kept.append(True)
+    return kept
+
+
+def keeps_freed_memory() -> bool:
+    """Whether keep_freed_memory has set this process's thresholds: its sweeps then reuse the
+    pages they free, and trimming between them would only hand those pages back to be zeroed
+    anew (conditions_method.adjust)."""
+    return bool(_kept)
 
 
 def give_back_free_memory() -> None:
