@@ -222,7 +222,11 @@ def _children(pid: int) -> list[int]:
 def _tree_rss_mib(root: int) -> float:
     """The resident memory of a process and all its descendants (MiB), summed: the run's command
     and the processes it started, also those in a session of their own (striptri's drawing
-    worker, report.drawing)."""
+    worker, report.drawing, and its twin). A child that still runs its parent's program, other than
+    the drawing worker's twin (the moment between a fork or vfork and the exec of a new program),
+    is not counted: it shares its parent's pages, and counting them once more doubled a sample (a
+    5,000-photo bundle run at 790 MiB against 395 MiB in its other rounds, fifteenth round of
+    issue 29)."""
     total, todo, seen = 0, [root], set()
     while todo:
         pid = todo.pop()
@@ -231,11 +235,27 @@ def _tree_rss_mib(root: int) -> float:
         seen.add(pid)
         try:
             with open(f"/proc/{pid}/status") as f:
-                total += next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
+                rss = next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
         except (OSError, ValueError, StopIteration):
             continue
-        todo += _children(pid)
+        total += rss
+        children = _children(pid)
+        command = _command_line(pid)
+        if children and command and b"striptri.report.drawing" not in command:
+            for child in children:
+                if _command_line(child) == command:  # not exec'd yet: its parent's pages (docstring)
+                    seen.add(child)
+                    children = children + _children(child)
+        todo += children
     return total / 1024
+
+
+def _command_line(pid: int) -> bytes | None:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read()
+    except OSError:
+        return None
 
 
 def _sample_tree(root: int, stop: threading.Event, peak: list) -> None:
