@@ -4,6 +4,9 @@ is not a test.)"""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 import sys
 from pathlib import Path
 
@@ -74,3 +77,59 @@ def test_block_recipes_are_the_issue_commands(name):
     recipe = " ".join(case.recipe())
     assert recipe.startswith("striptri simulate block") and "--extra-ties 6 --control perimeter --seed 11" in recipe
     assert case.n_photos == {"b1k": 1000, "b5k": 5000, "b20k": 20000}[name]
+
+
+FORKS = """
+import os, sys, time
+import numpy as np
+a = np.ones(12_500_000)  # 100 MB resident
+if sys.argv[1] == "fork":  # a child that never execs: the parent's pages
+    pid = os.fork()
+    if pid == 0:
+        time.sleep(30)
+        os._exit(0)
+else:  # a child that runs a program of its own, with 60 MB of its own
+    import subprocess
+    subprocess.Popen([sys.executable, "-c", "import numpy as np, time; b = np.ones(7_500_000); time.sleep(30)"])
+print("ready", flush=True)
+time.sleep(30)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="the tree is read from /proc")
+@pytest.mark.parametrize("kind", ["fork", "exec"])
+def test_the_process_tree_counts_a_forked_child_once_and_an_execd_one_apart(kind):
+    """bench_scale._tree_rss_mib: a child that still runs its parent's program (between a fork and
+    an exec) shares the parent's pages and adds nothing; a child that runs a program of its own
+    adds its own resident memory."""
+    import subprocess
+    import time
+
+    import bench_scale
+
+    proc = subprocess.Popen([sys.executable, "-c", FORKS, kind], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        def rss(pid):
+            with open(f"/proc/{pid}/status") as f:
+                return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+        children = []
+        for _ in range(100):  # the exec'd child's own 60 MB, once it has them
+            children = bench_scale._children(proc.pid)
+            if children and (kind == "fork" or rss(children[0]) > 60):
+                break
+            time.sleep(0.1)
+        assert len(children) == 1
+        tree, parent = bench_scale._tree_rss_mib(proc.pid), rss(proc.pid)
+        if kind == "fork":
+            assert rss(children[0]) > 90  # the shared pages show in the child's own count
+            assert tree == pytest.approx(parent, abs=5)
+        else:
+            assert tree == pytest.approx(parent + rss(children[0]), abs=5)
+            assert tree > parent + 60
+    finally:
+        for pid in bench_scale._children(proc.pid):
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        proc.kill()
+        proc.wait()
