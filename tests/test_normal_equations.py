@@ -92,6 +92,36 @@ def test_reduced_matrix_equals_the_product_of_the_selection(with_cameras, tie, f
     assert (pat._reduction[1].starts is not None) == tie
 
 
+@pytest.mark.parametrize("fixed", [0.0, 0.2, 0.6, 1.0])
+def test_photo_blocks_are_placed_as_the_sort_places_them(fixed):
+    """ReducedPattern.of_photo_blocks (a pattern of photo blocks whose kept elements S numbers in
+    order, without ties): the same order, indices and indptr, of the same types, as the sort of
+    every entry; None where S ties elements or numbers them out of order, and BlockPattern then
+    sorts."""
+    for seed in range(6):
+        rng = np.random.default_rng(40 + seed)
+        pat = _pattern(rng, with_cameras=False)
+        S = _selection(rng, pat.n_full, False, fixed)
+        fast = ReducedPattern.of_photo_blocks(pat.pp, pat.n_photos, S)
+        slow = ReducedPattern(pat._full_indices(), S)
+        for name in ("order", "indices", "indptr"):
+            assert np.array_equal(getattr(fast, name), getattr(slow, name)), name
+            assert getattr(fast, name).dtype == getattr(slow, name).dtype, name
+        assert fast.starts is None and slow.starts is None and fast.shape == slow.shape
+    if fixed == 1.0:  # nothing to estimate: an empty N
+        assert fast.shape == (0, 0) and len(fast.order) == 0
+        return
+    tied = _selection(rng, pat.n_full, True, fixed)
+    assert ReducedPattern.of_photo_blocks(pat.pp, pat.n_photos, tied) is None
+    reversed_order = sp.csr_matrix(S.toarray()[:, ::-1])  # the same elements kept, numbered backwards
+    assert ReducedPattern.of_photo_blocks(pat.pp, pat.n_photos, reversed_order) is None
+    assert pat.reduction(reversed_order).starts is None  # sorted instead
+    expected = (reversed_order.T @ pat.matrix(np.ones((len(pat.pp), 6, 6)), None, None) @ reversed_order).tocsr()
+    expected.sort_indices()
+    got = pat.reduced_matrix(reversed_order, np.ones((len(pat.pp), 6, 6)), None, None)
+    assert np.array_equal(got.indptr, expected.indptr) and np.array_equal(got.indices, expected.indices)
+
+
 def test_a_selection_with_weights_other_than_one_is_refused():
     rng = np.random.default_rng(1)
     pat = _pattern(rng)

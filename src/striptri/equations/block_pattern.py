@@ -216,7 +216,9 @@ class BlockPattern:
         """The ReducedPattern of S, worked out at the first call (the adjustments call this when
         they make the pattern, before any chunk is linearised, when memory is lowest)."""
         if self._reduction is None or self._reduction[0] is not S:
-            self._reduction = (S, ReducedPattern(self._full_indices(), S))
+            # photo blocks only, numbered in order: placed without a sort (ReducedPattern.of_photo_blocks)
+            fast = None if self.with_cameras else ReducedPattern.of_photo_blocks(self.pp, self.n_photos, S)
+            self._reduction = (S, fast if fast is not None else ReducedPattern(self._full_indices(), S))
         return self._reduction[1]
 
 
@@ -235,11 +237,7 @@ class ReducedPattern:
         n_block_numbers = len(rows)
         S = sp.csr_matrix(S)
         n = S.shape[1]
-        per_row = np.diff(S.indptr)
-        if per_row.max(initial=0) > 1 or not np.all(S.data == 1.0):
-            raise ValueError("S must map each full element to at most one unknown with weight 1")
-        col_of = np.full(S.shape[0], -1, dtype=np.int32 if n < 2**31 else np.int64)
-        col_of[per_row == 1] = S.indices
+        col_of = _columns_of(S)
         # few and small temporaries: at 20,000 photos these arrays hold ten million entries, and
         # each one made anew is paid for in first touches of its pages (docs/decisions.md,
         # fourteenth round)
@@ -273,6 +271,54 @@ class ReducedPattern:
         np.cumsum(np.bincount(r, minlength=n), out=self.indptr[1:])
         self.shape = (n, n)
 
+    @classmethod
+    def of_photo_blocks(cls, pp: np.ndarray, n_photos: int, S: sp.csr_matrix) -> "ReducedPattern | None":
+        """The ReducedPattern of a pattern of 6 x 6 photo blocks only (pp: their sorted keys
+        ``a n_photos + b``; BlockPattern._full_indices lists their entries block by block, row by
+        row) without sorting its entries: where S numbers the kept photo elements in their order and
+        ties none, an entry's place in N's CSR order is its row's start, the widths of the blocks
+        before its own in the block row, and its column's rank among its photo's kept elements. The
+        same order, indices and indptr as the sort (tests/test_normal_equations.py); None where S
+        ties photo elements or numbers them out of order (the caller sorts)."""
+        S = sp.csr_matrix(S)
+        col_of = _columns_of(S)
+        photo = col_of[: 6 * n_photos].reshape(n_photos, 6)
+        numbered = photo[photo >= 0]
+        if np.any(numbered[1:] <= numbered[:-1]):
+            return None
+        n = S.shape[1]
+        a, b = np.divmod(pp, n_photos)
+        keep = photo >= 0
+        width = keep.sum(axis=1)[b]  # each block's kept columns
+        row_length = np.bincount(a, weights=width, minlength=n_photos).astype(np.int64)  # a kept row of photo a
+        before = np.cumsum(width) - width  # the kept columns of all earlier blocks
+        offset = before - (np.cumsum(row_length) - row_length)[a]  # ... of the earlier blocks in its block row
+        lengths = np.zeros(n, dtype=np.int64)
+        lengths[photo[keep]] = np.repeat(row_length, keep.sum(axis=1))
+        nnz = int(lengths.sum())
+        index_type = np.int32 if max(n, nnz) < 2**31 else np.int64
+        position_type = np.int32 if 36 * len(pp) < 2**31 else np.int64
+        out = cls.__new__(cls)
+        out.indptr = np.zeros(n + 1, dtype=index_type)
+        np.cumsum(lengths, out=out.indptr[1:])
+        rank = np.cumsum(keep, axis=1) - 1  # a kept column's place among its photo's kept columns
+        row_start = np.where(keep, out.indptr[np.maximum(photo, 0)], -1)  # (n_photos, 6): each kept row's start
+        place = row_start[a][:, :, None] + (offset[:, None, None] + rank[b][:, None, :])  # (nb, 6, 6)
+        out.order = np.empty(nnz, dtype=position_type)
+        out.indices = np.empty(nnz, dtype=index_type)
+        if keep.all():  # every entry lands in N
+            place = place.ravel()
+            out.order[place] = np.arange(len(place), dtype=position_type)
+            out.indices[place] = np.broadcast_to(photo[b][:, None, :], (len(pp), 6, 6)).ravel()
+        else:
+            lands = (keep[a][:, :, None] & keep[b][:, None, :]).ravel()
+            place = place.ravel()[lands]
+            out.order[place] = np.flatnonzero(lands).astype(position_type)
+            out.indices[place] = np.broadcast_to(photo[b][:, None, :], (len(pp), 6, 6)).ravel()[lands]
+        out.starts = None
+        out.shape = (n, n)
+        return out
+
     def matrix(self, block_data: np.ndarray) -> sp.csr_matrix:
         data = block_data[self.order]
         if self.starts is not None:
@@ -282,6 +328,17 @@ class ReducedPattern:
         N.has_sorted_indices = True
         N.has_canonical_format = True
         return N
+
+
+def _columns_of(S: sp.csr_matrix) -> np.ndarray:
+    """Each full element's unknown (-1: fixed) under the 0/1 selection S (CSR)."""
+    n = S.shape[1]
+    per_row = np.diff(S.indptr)
+    if per_row.max(initial=0) > 1 or not np.all(S.data == 1.0):
+        raise ValueError("S must map each full element to at most one unknown with weight 1")
+    col_of = np.full(S.shape[0], -1, dtype=np.int32 if n < 2**31 else np.int64)
+    col_of[per_row == 1] = S.indices
+    return col_of
 
 
 def ray_columns(pattern: BlockPattern, photo: np.ndarray, cam: np.ndarray) -> np.ndarray:
