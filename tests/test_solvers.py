@@ -9,6 +9,7 @@ relative error by ``cond(N~) tol`` (``|e|/|y| <= cond |r|/|b|``); they must meet
 
 from __future__ import annotations
 
+import subprocess
 import sys
 import warnings
 from pathlib import Path
@@ -748,6 +749,22 @@ def test_auto_prefers_cvxopt_to_cholmod_on_the_reference_blas(monkeypatch, refer
 
     monkeypatch.setattr(selection, "on_reference_blas", lambda solver: reference)
     assert solvers.sparse_choice() == ("cvxopt" if reference else "cholmod")
+
+
+def test_auto_does_not_import_cvxopt_when_cholmod_is_taken():
+    """cvxopt is imported only where auto may take it: CHOLMOD on an optimised BLAS takes the
+    blocks, and the run then neither imports cvxopt nor loads its OpenBLAS (a fresh interpreter,
+    whose modules are its own)."""
+    pytest.importorskip("cvxopt.cholmod")
+    pytest.importorskip("sksparse.cholmod")
+    from striptri.solvers.describe import on_reference_blas
+
+    if on_reference_blas("cholmod"):
+        pytest.skip("CHOLMOD runs on the reference BLAS here: auto takes cvxopt")
+    code = ("import sys; from striptri import solvers; print(solvers.sparse_choice(), "
+            "'cvxopt' in sys.modules, 'cvxopt.cholmod' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["cholmod", "False", "False"]
 
 
 @pytest.mark.parametrize("bad", [dict(name="lu"), dict(relaxation=2.0), dict(relaxation=0.0),

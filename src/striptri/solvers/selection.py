@@ -84,8 +84,10 @@ def sparse_choice() -> str:
     """The sparse factorisation ``auto`` takes for blocks (docs/solvers.md, measured on the
     benchmark blocks): ``cholmod`` (scikit-sparse) when installed, unless its CHOLMOD runs on the
     reference BLAS and ``cvxopt`` is installed (cvxopt's wheels bring their own OpenBLAS, 4 to 5
-    times faster there); then ``cvxopt``; ``sparse`` (scipy's SuperLU) when neither is installed."""
-    if cholmod_available() and not (cvxopt_available() and on_reference_blas("cholmod")):
+    times faster there); then ``cvxopt``; ``sparse`` (scipy's SuperLU) when neither is installed.
+    cvxopt is imported only where it may be taken: its import and its own OpenBLAS cost a run that
+    CHOLMOD solves 0.01-0.07 s and some memory (docs/decisions.md "cvxopt imported only when taken")."""
+    if cholmod_available() and not (on_reference_blas("cholmod") and cvxopt_available()):
         return "cholmod"
     if cvxopt_available():
         return "cvxopt"
