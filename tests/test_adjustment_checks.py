@@ -72,14 +72,15 @@ def test_xz_scale_form_equals_3d_on_a_strip_along_x():
     assert b.vtpv == pytest.approx(a.vtpv, rel=1e-9)
 
 
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
 @pytest.mark.parametrize("name", ["cholmod", "cvxopt"])
-def test_final_checks_solve_with_the_converged_iterations_factor(monkeypatch, name):
+def test_final_checks_solve_with_the_converged_iterations_factor(monkeypatch, name, method):
     """The final checks of a converged adjustment solve with the factor the solver holds (its last
     factorisation: the iterations after a small correction are chord steps on the one before them,
-    conditions_method.adjust._iteration): one factorisation per iteration that was not a chord
-    step and none more, and (59) holds as tightly as with N factorised again at the solution.
-    An adjustment stopped at its iteration limit factorises N at the solution for the next
-    correction."""
+    conditions_method.adjust._iteration, bundle.adjust._step): one factorisation per iteration
+    that was not a chord step and none more, and (59) holds as tightly as with N factorised again
+    at the solution. An adjustment stopped at its iteration limit factorises N at the solution for
+    the next correction."""
     from striptri import solvers
 
     solver_class = solvers.selection._SOLVER_CLASSES[name]
@@ -91,11 +92,11 @@ def test_final_checks_solve_with_the_converged_iterations_factor(monkeypatch, na
     original = solver_class.solve
     monkeypatch.setattr(solver_class, "solve", lambda self, N, b: calls.append(1) or original(self, N, b))
     project = read_project(DATA / "strip8")
-    r = adjust(project, AdjustmentOptions(solver=name))
+    r = adjust(project, AdjustmentOptions(method=method, solver=name))
     factorised = [h for h in r.history if h.solver_info.held_factor is None]
     assert r.converged and len(calls) == len(factorised) < len(r.history)
     assert r.checks.vtpv_reduction_relative_difference < 1e-8 and r.checks.max_BTk_sigma < 1e-7
     calls.clear()
-    stopped = adjust(project, AdjustmentOptions(solver=name, max_iterations=2, keep_unconverged=True))
+    stopped = adjust(project, AdjustmentOptions(method=method, solver=name, max_iterations=2, keep_unconverged=True))
     assert not stopped.converged and len(calls) == 3
     assert "correction" in stopped.termination_message

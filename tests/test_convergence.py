@@ -145,24 +145,26 @@ def test_the_bundle_converges_on_the_long_strip_too(strips):
     assert np.max(np.abs(bundle.state.xyz0 - reference.state.xyz0)) < 1e-6 * flying_height
 
 
+@pytest.mark.parametrize("method", ["conditions", "bundle"])
 @pytest.mark.parametrize("solver", ["cholmod", "cvxopt"])
-def test_the_last_iterations_on_one_factor_give_the_same_adjustment(monkeypatch, solver):
-    """The method of conditions solves the iterations after a correction below REUSE_FACTOR_BELOW on
-    the factor it holds, forming u alone (chord steps): the block of 3 x 6 photos takes 5
-    iterations, the last two on the third's factor, and ends where factorising every N ends: the
-    same iterations, the orientations to 1e-9 of their standard deviations' scale (metres,
-    radians), the final checks alike, and v^T P v to 5e-12: its round-off, not the path's (the
-    runs factorising every N with CHOLMOD and with cvxopt differ by 1.7e-12, the last two
-    iterations of one by 1.1e-12, at corrections of 1e-8 sd whose square is far below)."""
-    from striptri.conditions_method import adjust as conditions
+def test_the_last_iterations_on_one_factor_give_the_same_adjustment(monkeypatch, solver, method):
+    """Both methods solve the iterations after a correction below REUSE_FACTOR_BELOW on the factor
+    they hold (chord steps; the method of conditions forms u alone, the bundle its reduced b): the
+    block of 3 x 6 photos takes 5 iterations, the last two on the third's factor, and ends where
+    factorising every N ends: the same iterations, the orientations to 1e-9 of their standard
+    deviations' scale (metres, radians), the final checks alike, and v^T P v to 5e-12: its
+    round-off, not the path's (the runs factorising every N with CHOLMOD and with cvxopt differ by
+    1.7e-12, the last two iterations of one by 1.1e-12, at corrections of 1e-8 sd whose square is
+    far below; the bundle's chord and factorised runs by 3e-13)."""
+    from striptri.core import convergence
     from striptri.solvers import cholmod_available, cvxopt_available
 
     if not {"cholmod": cholmod_available, "cvxopt": cvxopt_available}[solver]():
         pytest.skip(f"{solver} is not installed")
     project = read_project(DATA / "block_3x6")
-    options = AdjustmentOptions(solver=solver)
+    options = AdjustmentOptions(method=method, solver=solver)
     reused = adjust(project, options)
-    monkeypatch.setattr(conditions, "REUSE_FACTOR_BELOW", 0.0)
+    monkeypatch.setattr(convergence, "REUSE_FACTOR_BELOW", 0.0)
     own = adjust(project, options)
     chord = [h.solver_info.held_factor for h in reused.history]
     assert chord == [None] * 3 + [True] * 2
@@ -176,17 +178,17 @@ def test_the_last_iterations_on_one_factor_give_the_same_adjustment(monkeypatch,
 
 
 def test_the_factor_is_kept_for_chord_steps_only_while_the_corrections_shrink_a_hundredfold():
-    """_keeps_factor: a chord step follows a correction below REUSE_FACTOR_BELOW sd that shrank by
+    """keeps_factor: a chord step follows a correction below REUSE_FACTOR_BELOW sd that shrank by
     CHORD_RATE or more against the one before (or a first iteration's, or one below the round-off
     floor); not a large correction, nor one that shrank less."""
-    from striptri.conditions_method import adjust as conditions
+    from striptri.core import convergence
     from striptri.core.result import Iteration
 
     def history(*corrections):
         return [Iteration(vtpv=1.0, max_correction=c, seconds=0.0) for c in corrections]
 
-    keeps = conditions._keeps_factor
-    assert conditions.CHORD_RATE == 0.01 and conditions.REUSE_FACTOR_BELOW == 100.0
+    keeps = convergence.keeps_factor
+    assert convergence.CHORD_RATE == 0.01 and convergence.REUSE_FACTOR_BELOW == 100.0
     assert keeps(history(3515.0, 14.2), 1e-9)  # 4e-3: Gauss-Newton converging fast
     assert not keeps(history(4710.0, 69.4), 1e-9)  # 1.5e-2: not yet (the film strip below)
     assert not keeps(history(1e6, 150.0), 1e-9)  # above REUSE_FACTOR_BELOW however fast
@@ -200,19 +202,19 @@ def test_a_strongly_nonlinear_strip_takes_no_chord_step_before_gauss_newton_conv
     then 0.7 (nine iterations with a rate limit of 0.5). The factor is kept only after Gauss-Newton's
     ten-thousand-fold step, so the run takes the five iterations of factorising every N, the last a
     chord step, and ends at the same solution."""
-    from striptri.conditions_method import adjust as conditions
+    from striptri.core import convergence
 
     project = read_project(DATA.parent / "film_strip")
     options = AdjustmentOptions(solver="cvxopt")
     chord = adjust(project, options)
     assert [h.solver_info.held_factor for h in chord.history] == [None] * 4 + [True]
-    monkeypatch.setattr(conditions, "REUSE_FACTOR_BELOW", 0.0)
+    monkeypatch.setattr(convergence, "REUSE_FACTOR_BELOW", 0.0)
     own = adjust(project, options)
     assert own.iterations == chord.iterations == 5
     np.testing.assert_allclose(chord.state.xyz0, own.state.xyz0, rtol=0, atol=1e-9)
     np.testing.assert_allclose(chord.state.R_ground_from_cam, own.state.R_ground_from_cam, rtol=0, atol=1e-12)
-    monkeypatch.setattr(conditions, "REUSE_FACTOR_BELOW", 100.0)
-    monkeypatch.setattr(conditions, "CHORD_RATE", 0.5)  # the first rule: chord steps from the 69 sd factor
+    monkeypatch.setattr(convergence, "REUSE_FACTOR_BELOW", 100.0)
+    monkeypatch.setattr(convergence, "CHORD_RATE", 0.5)  # the first rule: chord steps from the 69 sd factor
     loose = adjust(project, options)
     assert loose.iterations > own.iterations
 

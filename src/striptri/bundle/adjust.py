@@ -33,12 +33,13 @@ import numpy as np
 from ..equations import datum, point_datum
 from ..core import diagnosis, termination
 from .. import progress, solvers
-from ..core.convergence import energy_floor, has_converged, largest_correction, round_off_floor, stop_if_diverging
-from ..core.explain import (bundle_not_formed_message, datum_defect_failure, reduction_check, singular_message,
-                            solve_or_explain, solver_for)
+from ..core.convergence import (energy_floor, has_converged, keeps_factor, largest_correction, round_off_floor,
+                                stop_if_diverging)
+from ..core.explain import (bundle_not_formed_message, datum_defect_failure, singular_message, solve_or_explain,
+                            solver_for)
 from ..equations.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
-from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
+from ..core.result import AdjustmentResult, Iteration, Timings, observation_count
 from ..errors import NumericalFailure
 from ..equations.groups import GroupBatch, build_batches, sweep_size
 from ..model import Project
@@ -48,11 +49,11 @@ from ..equations.parameter_observations import ParameterObservations, build_para
 from ..equations.parameters import State, UnknownLayout, build_layout, initial_state, reduction_offset
 from .points import PointUnknowns, initial_points, point_unknowns
 from .dense import DenseSchur, dense_scatters
-from .distances import couple, distance_cost, linearise_distances, locate_points
+from .checks import final_checks
+from .distances import couple, distance_cost, locate_points
 from .padding import pad_batches, real_rays
 from .damping import COST_ROUND_OFF, LM_MAX, ROUND_OFF, Damping
 from .reduced import ReducedNormals, block_pattern, linearise_points, point_corrections, residual_sum_of_squares
-from ..equations import weights
 
 METHOD = "bundle"
 
@@ -282,9 +283,10 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))
     status = "iteration_limit"
+    steps = _Steps(damping)
     with solvers.holding_factor(solver):  # each factor made in the memory of the last
         while len(history) < options.max_iterations:
-            accepted, normals = _step(problem, solver, now, normals, damping, history, timings, causes)
+            accepted, normals = _step(problem, solver, now, normals, steps, history, timings, causes)
             if accepted is None:  # a failed step: taken again with more damping
                 continue
             now, status = accepted
@@ -293,7 +295,8 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
             status = "iteration_limit"
 
         t0 = time.perf_counter()
-        normals, checks, next_correction = _final_checks(problem, solver, now, normals if damping.lam == 0.0 else None)
+        normals, checks, next_correction = final_checks(problem, solver, now, normals if damping.lam == 0.0 else None,
+                                                        held=steps.chord.usable and status != "iteration_limit")
     free_network = None  # a free network: its inner constraints at the solution (the precision's)
     if problem.free_network is not None:
         free_network = problem.datum_at(now.state, now.xyz, normals.N, at_solution=True)
@@ -334,7 +337,26 @@ class _Estimate:
     vtpv: float = float("nan")
 
 
-def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, damping: Damping,
+@dataclass
+class _Chord:
+    """Chord steps in the bundle (docs/decisions.md "Chord steps in the bundle"), as in the method
+    of conditions: ``usable`` while the solver holds the factor of an undamped Gauss-Newton step's
+    reduced N (a control datum: no free network, no point datum); ``next``: the next step solves on
+    it (core.convergence.keeps_factor), with the reduced right-hand side formed where it starts."""
+
+    usable: bool = False
+    next: bool = False
+
+
+@dataclass
+class _Steps:
+    """How the next step is taken: its Levenberg-Marquardt damping and whether it is a chord step."""
+
+    damping: Damping = field(default_factory=Damping)
+    chord: _Chord = field(default_factory=_Chord)
+
+
+def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, steps: "_Steps",
           history: list[Iteration], timings: Timings, causes):
     """One step from ``now`` with the normals formed there (under the present damping).
 
@@ -343,16 +365,25 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     damping) for a failed one (a numerically singular system away from the start, or a step that
     raised the sum of squares). Raises NumericalFailure when damping cannot help."""
     options, layout, state, xyz = problem.options, problem.layout, now.state, now.xyz
+    damping, chord = steps.damping, steps.chord
     t0 = time.perf_counter()
     d = normals.N.diagonal()
     damped = damping.applied(normals)
-    try:
-        solved = problem.solve(damped, solver, state, xyz, undamped=normals)
-    except NumericalFailure:
-        if not history or damping.exhausted():
-            raise
-        damping.more()  # numerically singular away from the start (a weak direction): damp it more
-        return None, problem.assemble(state, xyz, damping.lam)
+    again = solver.solve_again(normals.b) if chord.next and damping.lam == 0.0 else None
+    chord.next = False
+    if again is not None:  # a chord step: the factor of an earlier step's N, this point's b
+        solved = solvers.SolveResult(again, solver.name, solvers.SolverInfo(held_factor=True))
+    else:
+        try:
+            solved = problem.solve(damped, solver, state, xyz, undamped=normals)
+        except NumericalFailure:
+            if not history or damping.exhausted():
+                raise
+            damping.more()  # numerically singular away from the start (a weak direction): damp it more
+            chord.usable = False
+            return None, problem.assemble(state, xyz, damping.lam)
+        chord.usable = (damping.lam == 0.0 and problem.free_network is None and problem.point_datum is None
+                        and solver.holding())
     dx = solved.dx
     t1 = time.perf_counter()
     step = _back_substitute(problem, state, xyz, dx, damping.lam, kept=normals.kept,
@@ -413,6 +444,7 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
         return (new, "converged"), normals
     if options.bundle.cost_tolerance > 0 and 0 <= actual <= options.bundle.cost_tolerance * ee:
         return (new, "cost_flat"), normals
+    chord.next = chord.usable and damping.lam == 0.0 and keeps_factor(history, floor)
     return (new, "iterating"), normals
 
 
@@ -525,74 +557,3 @@ def _explain_too_few(problem: _Problem, state: State, xyz: np.ndarray):
         f"{problem.unknowns.n_unknowns} point coordinates, and {len(problem.pobs)} observed elements, "
         f"for {problem.layout.n_unknowns} orientation unknowns. Add control or tie points, or fix elements."
     )
-
-
-def _final_checks(problem: _Problem, solver, now: _Estimate, normals_at_solution: ReducedNormals | None = None):
-    """The reduced camera system at the solution and the checks after convergence.
-
-    * ``max_condition_misclosure_sigma``: every observation equation holds for the adjusted
-      observations (l + v of the last step) and the final unknowns: max |l^ - f(x^, X^)| / sigma
-      (Schmid's final check);
-    * ``max_BTk_sigma``: the reduced gradient vanishes at the solution (the bundle's form of
-      Schmid 58): max |b_rcs,i| / sqrt(N_rcs,ii);
-    * ``max_point_gradient_sigma``: likewise for the point coordinates, max |b_p,i| / sqrt(N_pp,ii);
-    * ``vtpv_reduction_relative_difference``: v^T P v against the reduced sum
-      ``e^T e - sum b_p^T N_pp^-1 b_p - b_rcs^T N_rcs^-1 b_rcs`` (Schmid 59).
-
-    now: the estimate (orientations, points, adjusted observations); normals_at_solution: the
-    undamped reduced normals the iteration formed there, with their kept chunks; formed here when
-    not given.
-
-    Also returns the correction the next iteration would make (core.convergence.correction_in_sigma, as
-    in the history; None when the system is singular), a by-product of (59).
-    """
-    obs = problem.obs
-    state, xyz, plate_hat, control_hat, v_par, vtpv = now.state, now.xyz, now.plate_hat, now.control_hat, now.v_par, now.vtpv
-    reuse = normals_at_solution is not None
-    normals = normals_at_solution if reuse else problem.normals()
-    max_g, max_gp = 0.0, 0.0
-    # the distances' share of the points' gradient and of the diagonal of their normals (bundle.distances)
-    b_dist, d_dist = np.zeros_like(xyz), np.zeros_like(xyz)
-    if problem.distances is not None:
-        e_d, Ja, Jb = linearise_distances(problem.distances, xyz, problem.unknowns.free)
-        for ends, J in ((problem.distances.point_from, Ja), (problem.distances.point_to, Jb)):
-            np.add.at(b_dist, ends, J * e_d[:, None])
-            np.add.at(d_dist, ends, J**2)
-    for chunk, scatters in zip(normals.kept if reuse else problem.chunks(state, xyz), problem.scatters):
-        if not reuse:
-            normals.add_points(chunk, state.camera_of_photo, scatters, keep=False)
-        rows, e, sigma = real_rays(chunk.batch, chunk.batch.image_rows, chunk.e, chunk.sigma)
-        # l^ - f = (l - f) + (l^ - l) = sigma e + v
-        g = e + weights.whiten(plate_hat[rows] - obs.plate[rows], sigma)
-        g_control = np.sqrt(chunk.weight) * (control_hat[chunk.batch.point_index] - xyz[chunk.batch.point_index])
-        if g.size:
-            max_g = max(max_g, float(np.max(np.abs(g))), float(np.max(np.abs(g_control))))
-        pt = chunk.batch.point_index
-        d = np.einsum("mii->mi", chunk.N_pp) + d_dist[pt]
-        if chunk.b_p.size:
-            max_gp = max(max_gp, float(np.max(np.where(chunk.free, np.abs(chunk.b_p + b_dist[pt]) / np.sqrt(d), 0.0))))
-    if len(problem.pobs):
-        J, cols, e = problem.parameter_rows(state)
-        if not reuse:
-            normals.add_rows(J, cols, e)
-        max_g = max(max_g, float(np.max(np.abs(e + v_par / problem.pobs.sigma))))
-    if not reuse:
-        if problem.distances is not None:  # the chunks linearised again only for the distances' correction
-            problem.couple(normals, list(problem.chunks(state, xyz)), xyz)
-        else:
-            normals.coupling = None
-        normals.finish()
-    normals.kept = []  # not needed beyond the checks
-    d = normals.N.diagonal()
-    btk = float(np.max(np.abs(normals.b) / np.sqrt(np.where(d > 0, d, 1.0)))) if len(d) else 0.0
-    next_correction = None
-    try:
-        dx = problem.solve(normals, solver, state, xyz, target=False, explain=False).dx if len(d) else np.zeros(0)
-        reduced = normals.ee - normals.reduced - float(normals.b @ dx)
-        # the undamped step's d^T N d = b_rcs^T dx + sum b_p^T N_pp^-1 b_p (core.convergence.correction_in_sigma)
-        next_correction = float(np.sqrt(max(float(normals.b @ dx) + normals.reduced, 0.0))) if len(d) else None
-    except (solvers.SingularNormalMatrix, np.linalg.LinAlgError, NumericalFailure):
-        reduced = float("nan")
-    checks = Checks(max_condition_misclosure_sigma=max_g, max_BTk_sigma=btk,
-                    vtpv_reduction_relative_difference=reduction_check(reduced, vtpv), max_point_gradient_sigma=max_gp)
-    return normals, checks, next_correction

@@ -29,7 +29,7 @@ from ..equations import datum, point_datum
 from ..core import diagnosis, termination
 from .. import progress, solvers
 from ..core.convergence import (ROUNDING_FLOOR, chord_correction, correction_in_sigma, energy_floor, has_converged,
-                                largest_correction, round_off_floor, stop_if_diverging)
+                                keeps_factor, largest_correction, round_off_floor, stop_if_diverging)
 from ..core.explain import (datum_defect_failure, not_finite_message, reduction_check, singular_message,
                             solve_or_explain, solver_for)
 from ..equations.observations import Observations, observations_of
@@ -212,27 +212,6 @@ def _back_substitute(kept: list[_WhitenedChunk], sweep: Sweep, pobs: ParameterOb
     return plate_hat, control_hat, v_par, vtpv, distance_hat
 
 
-# Chord steps (docs/decisions.md "Chord steps on the last factor"): the next iteration solves on the
-# factor the solver holds (an earlier N's) and forms u alone while the last correction is below
-# REUSE_FACTOR_BELOW standard deviations and shrank by CHORD_RATE or more against the one before (or
-# lies below the round-off floor); else N is formed and factorised.
-REUSE_FACTOR_BELOW = 100.0
-CHORD_RATE = 0.01
-
-
-def _keeps_factor(history: list[Iteration], floor: float) -> bool:
-    """Whether the next iteration may solve on the factor the solver holds (a chord step). A chord
-    step's rate of contraction is about the change of N since its factor, which near the solution
-    is what the last Gauss-Newton step's contraction shows: so the last correction must be below
-    REUSE_FACTOR_BELOW sd and below CHORD_RATE times the one before it (a first iteration, e.g. a
-    re-adjustment from a solution, has none before it). A correction below the round-off floor
-    ``floor`` (core.convergence.energy_floor) no longer shows a rate: it keeps the factor too."""
-    last = history[-1].max_correction
-    if not last < REUSE_FACTOR_BELOW:
-        return False
-    return len(history) < 2 or last < floor or last < CHORD_RATE * history[-2].max_correction
-
-
 def _solve_free_network(acc, solver: solvers.NormalSolver, fn: datum.FreeNetwork) -> solvers.SolveResult:
     """Minimum constraints, then the S-transformation onto the inner constraints (datum.FreeNetwork,
     with its right-hand side)."""
@@ -380,7 +359,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
             if has_converged(history, options.tolerance, floor):
                 converged = True
                 break
-            factored = (n_diag if problem.free_network is None and solver.holding() and _keeps_factor(history, floor)
+            factored = (n_diag if problem.free_network is None and solver.holding() and keeps_factor(history, floor)
                         else None)
             if factored is None:
                 solver.release()  # N moves too much for solve_again (its memory serves the next factor)

@@ -132,6 +132,27 @@ def has_converged(history: list[Iteration], tolerance: float, floor: float = ROU
     return c < floor and c > STALLED * previous
 
 
+# Chord steps (docs/decisions.md "Chord steps on the last factor", "Chord steps in the bundle"):
+# the next iteration solves on the factor the solver holds (an earlier N's) while the last
+# correction is below REUSE_FACTOR_BELOW standard deviations and shrank by CHORD_RATE or more
+# against the one before (or lies below the round-off floor); else N is factorised anew.
+REUSE_FACTOR_BELOW = 100.0
+CHORD_RATE = 0.01
+
+
+def keeps_factor(history: list[Iteration], floor: float) -> bool:
+    """Whether the next iteration may solve on the factor the solver holds (a chord step). A chord
+    step's rate of contraction is about the change of N since its factor, which near the solution
+    is what the last Gauss-Newton step's contraction shows: so the last correction must be below
+    REUSE_FACTOR_BELOW sd and below CHORD_RATE times the one before it (a first iteration, e.g. a
+    re-adjustment from a solution, has none before it). A correction below the round-off floor
+    ``floor`` (energy_floor) no longer shows a rate: it keeps the factor too. Both methods use it."""
+    last = history[-1].max_correction
+    if not last < REUSE_FACTOR_BELOW:
+        return False
+    return len(history) < 2 or last < floor or last < CHORD_RATE * history[-2].max_correction
+
+
 # The divergence rule (stop_if_diverging): corrections that grow by more than DIVERGENCE_GROWTH in
 # each of DIVERGENCE_RUN iterations in a row and end above DIVERGENCE_SIZE standard deviations.
 # Gauss-Newton near a solution shrinks its corrections; a start far from one may grow them for an

@@ -41,9 +41,9 @@ class SolverInfo:
 
     Added by the adjustment, not a solver:
 
-    held_factor: the method of conditions only, True when the iteration solved on the factor of an
-        earlier iteration's N (a chord step: N not formed anew, conditions_method.adjust); None when
-        N was formed and factorised.
+    held_factor: True when the iteration solved on the factor of an earlier iteration's N (a chord
+        step: conditions_method.adjust, where N is not formed anew, and bundle.adjust, where the
+        reduced N is formed for the step's tests but not factorised); None when N was factorised.
     damping: the bundle only, the Levenberg-Marquardt factor lam (``N + lam diag(N)``) in force
         after the step's acceptance, i.e. the one the next step starts from (no unit); None when the
         iteration is plain Gauss-Newton.
