@@ -24,6 +24,9 @@ def main() -> None:
     one_malloc_arena()  # before any thread (OpenBLAS's start with numpy)
     try:
         defer_unused_numpy_modules()
+        from striptri.io import early_read
+
+        early_read.start(sys.argv[1:])  # the project read by a child while the rest loads (adjust)
         from striptri.cli import main as command
     except KeyboardInterrupt:
         _stop(signal.SIGINT)

@@ -71,7 +71,9 @@ ROTATION_OUTPUT_NAMES = {
 ANGLE_UNITS = ("deg", "gon", "rad")
 # Values of [units] plate: the unit of the plate quantities (c, xp, yp, x, y and their sigmas).
 PLATE_UNITS = ("mm", "px")
-# Values accepted for [adjustment] method and solver in project.toml (DESIGN sections 4, 5, 8).
+# Values accepted for [adjustment] solver in project.toml and --solver (DESIGN sections 5, 8;
+# docs/solvers.md): here, where reading a project needs them without loading the solvers (and scipy).
+SOLVERS = ("auto", "dense", "sparse", "banded", "cholmod", "cvxopt", "gauss-seidel", "pcg", "strip-pcg")
 
 
 class ElementState(enum.IntEnum):

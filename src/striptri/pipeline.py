@@ -35,7 +35,7 @@ from .report.figures import normal_matrix_structure
 from .report.tables import (camera_table, check_point_statistics, finite_or_none, gnss_tables, photo_table,  # noqa: F401
                             point_covariances, point_table, residual_table)
 from .report import film as film_report
-from .io import sources
+from .io import early_read, sources
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
 from .solvers.memory import give_back_free_memory, keep_freed_memory
@@ -116,7 +116,9 @@ def run_adjust(project_dir, out_dir, run: RunOptions = RunOptions(),
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
     t0 = time.perf_counter()
-    project = read_project(project_dir)
+    project = early_read.take(project_dir)  # read by the console script's child meanwhile, if it could
+    if project is None:
+        project = read_project(project_dir)
     project = plate_corrections.with_switches(project, **run.corrections)
     if project.settings.coordinates is not None and project.settings.earth_curvature:
         raise InputError(project_dir / "project.toml", None,

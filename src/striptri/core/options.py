@@ -11,8 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from typing import Callable
 
-from .. import solvers
-
 METHODS = ("conditions", "bundle", "sequential")
 # approximate values: as given in photos.csv, or from the sequential method (rough values suffice)
 INITS = ("given", "sequential")
@@ -151,6 +149,8 @@ class AdjustmentOptions:
             raise ValueError(f"the point datum needs at least three datum points, not {len(self.datum_points)}")
         if len(set(self.datum_points)) != len(self.datum_points):
             raise ValueError("a datum point is given twice")
+        from .. import solvers  # here: reading a project imports these options, not the solvers (and scipy)
+
         solvers.resolve_solver(self.solver, 0)
         if self.max_iterations < 1:
             raise ValueError("max_iterations must be at least 1")

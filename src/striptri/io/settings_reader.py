@@ -18,7 +18,6 @@ from striptri.io.toml_file import toml_line
 from striptri.io.film_reader import TOML_KEYS as FILM_TOML_KEYS
 from striptri.io.gnss_reader import TOML_KEYS as GNSS_TOML_KEYS, TOML_SECTION as GNSS_SECTION
 from striptri.equations.plate_corrections import EARTH_RADIUS_RANGE_M
-from striptri.solvers import SOLVERS
 
 try:  # Python >= 3.11
     import tomllib
@@ -126,7 +125,7 @@ def parse_settings(path: str | Path, content: str | bytes) -> model.ProjectSetti
         rotation=choice("units", "rotation", model.ROTATION_CONVENTIONS, defaults.rotation),
         sigma_image=float(sigma_image),
         method=choice("adjustment", "method", METHODS, defaults.method),
-        solver=choice("adjustment", "solver", SOLVERS, defaults.solver),
+        solver=choice("adjustment", "solver", model.SOLVERS, defaults.solver),
         max_iterations=max_iterations,
         datum=datum,
         datum_points=tuple(datum_points),

@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from ..model import SOLVERS  # noqa: F401  (re-exported: the solvers' names, kept with the project's settings)
 from .info import SolverInfo
 
-SOLVERS = ("auto", "dense", "sparse", "banded", "cholmod", "cvxopt", "gauss-seidel", "pcg", "strip-pcg")
 WARM_STARTS = ("zero", "previous", "projected")
 
 # A pivot of the Cholesky factor of the Jacobi-scaled N (unit diagonal) below this counts as zero:
