@@ -177,6 +177,34 @@ def test_the_last_iterations_on_one_factor_give_the_same_adjustment(monkeypatch,
     assert abs(reused.checks.vtpv_reduction_relative_difference) < 1e-9
 
 
+def test_the_bundles_chord_steps_start_from_normals_without_n(monkeypatch):
+    """Before a chord step the bundle forms its trial's normals without the reduced N (b alone,
+    bundle.adjust._next_is_chord), unless the corrections say the run converges there: the 3 x 6
+    block forms two such (after the third and the fourth step; the fifth converges, its normals
+    are whole for the precision) and ends at the same adjustment to the bit as with N formed in
+    every trial."""
+    from striptri import solvers
+    from striptri.bundle import adjust as bundle, reduced
+
+    if not solvers.cholmod_available():
+        pytest.skip("cholmod is not installed")
+    lean = []
+    finish = reduced.ReducedNormals.finish
+    monkeypatch.setattr(reduced.ReducedNormals, "finish", lambda self: lean.append(self.lean) or finish(self))
+    project = read_project(DATA / "block_3x6")
+    options = AdjustmentOptions(method="bundle", solver="cholmod")
+    r = adjust(project, options)
+    assert lean.count(True) == 2 and [h.solver_info.held_factor for h in r.history] == [None] * 3 + [True] * 2
+    assert r.N is not None
+    lean.clear()
+    monkeypatch.setattr(bundle, "_next_is_chord", lambda *args: False)
+    whole = adjust(project, options)
+    assert not any(lean) and whole.iterations == r.iterations
+    assert whole.vtpv == r.vtpv
+    np.testing.assert_array_equal(whole.state.xyz0, r.state.xyz0)
+    assert (whole.N != r.N).nnz == 0
+
+
 def test_the_factor_is_kept_for_chord_steps_only_while_the_corrections_shrink_a_hundredfold():
     """keeps_factor: a chord step follows a correction below REUSE_FACTOR_BELOW sd that shrank by
     CHORD_RATE or more against the one before (or a first iteration's, or one below the round-off

@@ -242,6 +242,44 @@ def test_bundle_reductions_equal_the_general_reduction(monkeypatch, tmp_path, da
     _assert_same_normals(fast, general)
 
 
+@pytest.mark.parametrize("path", ["general", "one_camera"])
+def test_bundle_lean_normals_have_the_full_normals_b(monkeypatch, tmp_path, path):
+    """The bundle's normals for a chord step (_Problem.assemble(lean=True): no N) have the right-hand
+    side b_rcs, the LM diagonal, e^T e and sum b_p^T N_pp^-1 b_p of the full normals, to round-off
+    (to the bit on the general path, whose formula they share), on the close-range project with
+    self-calibration; the dense Schur always forms N."""
+    import sys
+    from pathlib import Path
+
+    from striptri.bundle import dense, reduced
+    from striptri.bundle.adjust import _Problem
+    from striptri.bundle.points import initial_points
+    from striptri.core.options import AdjustmentOptions
+    from striptri.io import read_project
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+    import close_range
+
+    project = read_project(close_range.write_close_range(tmp_path / "p", close_range.make_close_range(24, 40, seed=3)))
+    monkeypatch.setattr(reduced, "CAMERA_SUM_RAYS", 10**9 if path == "general" else 2)
+    monkeypatch.setattr(dense, "DENSE_WORK_RATIO", 0)
+    problem = _Problem(project, AdjustmentOptions(method="bundle", chunk_size=5))
+    assert not problem.dense and problem.pattern.with_cameras
+    xyz = initial_points(problem.batches, problem.initial_state, problem.obs, problem.unknowns, 5,
+                         None if project.points.xyz_approx is None else project.points.xyz_approx - problem.offset)
+    full = problem.assemble(problem.initial_state, xyz)
+    lean = problem.assemble(problem.initial_state, xyz, lean=True)
+    assert lean.lean and lean.N is None and full.N is not None and len(lean.kept) == len(full.kept)
+    if path == "general":
+        assert np.array_equal(lean.b, full.b) and np.array_equal(lean.d, full.d)
+    np.testing.assert_allclose(lean.b, full.b, rtol=0, atol=1e-12 * abs(full.b).max())
+    np.testing.assert_allclose(lean.d, full.d, rtol=1e-12)
+    assert lean.ee == full.ee and lean.reduced == pytest.approx(full.reduced, rel=1e-12)
+    monkeypatch.setattr(dense, "DENSE_WORK_RATIO", 10**9)
+    summed_dense = _Problem(project, AdjustmentOptions(method="bundle", chunk_size=5))
+    assert summed_dense.dense and summed_dense.assemble(summed_dense.initial_state, xyz, lean=True).N is not None
+
+
 @pytest.mark.parametrize("damping", [0.0, 1e-3])
 def test_bundle_dense_padded_equals_dense_unpadded(monkeypatch, tmp_path, damping):
     """The dense sum with small batches of neighbouring ray counts joined and padded with rays of

@@ -240,11 +240,13 @@ class _Problem:
         dense = DenseSchur(self.pattern.n_full, self.n_points) if self.dense else None
         return ReducedNormals(self.pattern, self.S, dense)
 
-    def assemble(self, state: State, xyz: np.ndarray, damping: float = 0.0) -> ReducedNormals:
+    def assemble(self, state: State, xyz: np.ndarray, damping: float = 0.0, lean: bool = False) -> ReducedNormals:
         """The reduced normals at (state, xyz), with the linearised chunks kept (normals.kept) for
-        the back substitution of the step they give."""
+        the back substitution of the step they give; lean: b without N, for a chord step (the
+        block pattern's sums only; the dense Schur always forms N)."""
         normals = self.normals()
         normals.damped = damping > 0
+        normals.lean = lean and normals.dense is None
         for chunk, scatters in zip(self.chunks(state, xyz, damping), self.scatters):
             normals.add_points(chunk, state.camera_of_photo, scatters)
         if len(self.pobs):
@@ -295,7 +297,8 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
             status = "iteration_limit"
 
         t0 = time.perf_counter()
-        normals, checks, next_correction = final_checks(problem, solver, now, normals if damping.lam == 0.0 else None,
+        at_solution = normals if damping.lam == 0.0 and normals.N is not None else None  # lean: formed there
+        normals, checks, next_correction = final_checks(problem, solver, now, at_solution,
                                                         held=steps.chord.usable and status != "iteration_limit")
     free_network = None  # a free network: its inner constraints at the solution (the precision's)
     if problem.free_network is not None:
@@ -346,6 +349,21 @@ class _Chord:
 
     usable: bool = False
     next: bool = False
+    n_diag: np.ndarray | None = None  # the diagonal of the held factor's N (a lean step's floors)
+
+
+def _next_is_chord(problem: "_Problem", chord: "_Chord", history: list[Iteration], step: "_Step", trial_state: State,
+                   d: np.ndarray) -> bool:
+    """Whether the step now taken, if its trial is accepted, is followed by a chord step and not by
+    convergence: the trial's normals are then formed without N (lean). The corrections decide it
+    before the trial is formed, with the floor and the rules _step applies after it; a step whose
+    trial is refused forms its normals whole again."""
+    if not chord.usable or problem.options.bundle.cost_tolerance > 0:
+        return False
+    floor = energy_floor(problem.layout.n_unknowns + problem.unknowns.n_unknowns,
+                         round_off_floor(trial_state, problem.layout), d)
+    ahead = history + [Iteration(vtpv=step.vtpv, max_correction=step.correction, seconds=0.0)]
+    return keeps_factor(ahead, floor) and not has_converged(ahead, problem.options.tolerance, floor)
 
 
 @dataclass
@@ -367,10 +385,12 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     options, layout, state, xyz = problem.options, problem.layout, now.state, now.xyz
     damping, chord = steps.damping, steps.chord
     t0 = time.perf_counter()
-    d = normals.N.diagonal()
-    damped = damping.applied(normals)
     again = solver.solve_again(normals.b) if chord.next and damping.lam == 0.0 else None
     chord.next = False
+    if normals.N is None and again is None:  # lean normals without their factor: formed whole
+        normals = problem.assemble(state, xyz, damping.lam)
+    d = chord.n_diag if normals.N is None else normals.N.diagonal()  # a lean step's: its factor's N
+    damped = damping.applied(normals)
     if again is not None:  # a chord step: the factor of an earlier step's N, this point's b
         solved = solvers.SolveResult(again, solver.name, solvers.SolverInfo(held_factor=True))
     else:
@@ -384,6 +404,7 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
             return None, problem.assemble(state, xyz, damping.lam)
         chord.usable = (damping.lam == 0.0 and problem.free_network is None and problem.point_datum is None
                         and solver.holding())
+        chord.n_diag = d
     dx = solved.dx
     t1 = time.perf_counter()
     step = _back_substitute(problem, state, xyz, dx, damping.lam, kept=normals.kept,
@@ -396,7 +417,8 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     trial_state = state.updated(layout, dx)
     t_back = time.perf_counter()  # the back substitution's end; the trial's normals or cost follow
     if damping.lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
-        trial = _assemble_or_none(problem, trial_state, step.xyz)
+        trial = _assemble_or_none(problem, trial_state, step.xyz, lean=_next_is_chord(problem, chord, history, step,
+                                                                                       trial_state, d))
         trial_ee = trial.ee if trial is not None else np.inf
     else:  # damped: only the sum of squares, the normals follow with the next damping
         trial, trial_ee = None, problem.cost(trial_state, step.xyz)
@@ -448,15 +470,16 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     return (new, "iterating"), normals
 
 
-def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray):
-    """The reduced normals, or None where the linearisation is not finite (a point in the plane of
-    a camera makes its 3x3 block singular)."""
+def _assemble_or_none(problem: "_Problem", state: State, xyz: np.ndarray, lean: bool = False):
+    """The reduced normals (lean: without N, _Problem.assemble), or None where the linearisation is
+    not finite (a point in the plane of a camera makes its 3x3 block singular)."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         try:
-            normals = problem.assemble(state, xyz)
+            normals = problem.assemble(state, xyz, lean=lean)
         except np.linalg.LinAlgError:
             return None
-    if not (np.isfinite(normals.ee) and np.isfinite(normals.N.data).all() and np.isfinite(normals.b).all()):
+    finite_N = normals.N is None or np.isfinite(normals.N.data).all()
+    if not (np.isfinite(normals.ee) and finite_N and np.isfinite(normals.b).all()):
         return None
     return normals
 

@@ -270,6 +270,8 @@ class ReducedNormals:
         self.N: sp.csr_matrix | None = None
         self.b: np.ndarray | None = None
         self.damped = False  # the points' blocks carry Levenberg-Marquardt damping
+        # b, ee and the kept chunks only, no N (a chord step's normals, bundle.adjust; block pattern only)
+        self.lean = False
 
     @property
     def datum_metric(self) -> np.ndarray:
@@ -285,7 +287,9 @@ class ReducedNormals:
         photo = chunk.batch.photo_index
         cam = camera_of_photo[photo]
         pat = self.pattern
-        if self.dense is not None:
+        if self.lean:
+            self._add_lean(chunk, photo, cam)
+        elif self.dense is not None:
             self._add_dense(chunk, photo, cam, scatters)
         elif sums_camera_columns(pat, cam):
             scatters = scatters if scatters is not None else pat.scatters(photo, cam, camera_summed=True)
@@ -293,6 +297,24 @@ class ReducedNormals:
         else:
             self._add_general(chunk, photo, cam, scatters if scatters is not None else pat.scatters(photo, cam))
         self.ee += chunk.sum_of_squares()
+
+    def _add_lean(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray) -> None:
+        """add_points without N: ``b_c - Y b_p`` (Y = N_cp N_pp^-1, as reduce_points) and the
+        diagonal of N_cc into b_full and d_full, and the points' share of the reduced sum."""
+        pat = self.pattern
+        m, k = photo.shape
+        width = chunk.Jc.shape[-1]
+        N_pp_inv = np.linalg.inv(chunk.N_pp)
+        Y = chunk.N_cp @ N_pp_inv
+        b_c = np.einsum("mkai,mka->mki", chunk.Jc, chunk.e).reshape(m, width * k)
+        b3 = (b_c - np.einsum("mci,mi->mc", Y, chunk.b_p)).reshape(m, k, width)
+        d3 = np.einsum("mkai,mkai->mki", chunk.Jc, chunk.Jc)  # diagonal of N_cc before the reduction
+        full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
+        if not pat.with_cameras:
+            full_cols, b3, d3 = full_cols[..., :6], b3[..., :6], d3[..., :6]
+        self.b_full += np.bincount(full_cols.ravel(), weights=b3.ravel(), minlength=pat.n_full)
+        self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
+        self.reduced += float(np.sum(np.einsum("mi,mij,mj->m", chunk.b_p, N_pp_inv, chunk.b_p)))
 
     def _add_dense(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatter=None) -> None:
         """add_points summed dense (bundle.dense): the points' share into the DenseSchur, ``Jc^T e``
@@ -359,6 +381,13 @@ class ReducedNormals:
     def finish(self) -> "ReducedNormals":
         pat, S = self.pattern, self.S
         w = pat.camera_width
+        if self.lean:  # b and d alone
+            self.N, self.b, self.d = None, S.T @ self.b_full, S.T @ self.d_full
+            for J, cols, e in self.rows:
+                valid = cols >= 0
+                self.b += np.bincount(cols[valid], weights=(J * e[:, None])[valid], minlength=self.n)
+                self.d += np.bincount(cols[valid], weights=(J * J)[valid], minlength=self.n)
+            return self
         if self.dense is not None:
             N_full, b_points = self.dense.finish()
             self.b_full += b_points
