@@ -92,7 +92,7 @@ assert not early.start(["adjust", strip8])
 early.EARLY_READ_BYTES = 0
 # a reader for one folder is not taken for another, and is gone after
 assert early.start(["adjust", strip8]) and not early.start(["adjust", strip8])
-pid = early._pending[0][2]
+pid = early._pending[0][1]
 assert early.take(block) is None and not early._pending
 try:
     os.waitpid(pid, 0)
@@ -108,7 +108,7 @@ assert project is not None and project.photos.ids == ref.photos.ids
 assert (project.image_points.xy == ref.image_points.xy).all()
 # discard stops a reader not taken
 assert early.start(["adjust", block])
-pid = early._pending[0][2]
+pid = early._pending[0][1]
 early.discard()
 assert not early._pending
 try:

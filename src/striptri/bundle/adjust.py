@@ -352,16 +352,14 @@ class _Chord:
     n_diag: np.ndarray | None = None  # the diagonal of the held factor's N (a lean step's floors)
 
 
-def _next_is_chord(problem: "_Problem", chord: "_Chord", history: list[Iteration], step: "_Step", trial_state: State,
-                   d: np.ndarray) -> bool:
+def _next_is_chord(problem: "_Problem", chord: "_Chord", history: list[Iteration], step: "_Step",
+                   floor: float) -> bool:
     """Whether the step now taken, if its trial is accepted, is followed by a chord step and not by
     convergence: the trial's normals are then formed without N (lean). The corrections decide it
     before the trial is formed, with the floor and the rules _step applies after it; a step whose
     trial is refused forms its normals whole again."""
     if not chord.usable or problem.options.bundle.cost_tolerance > 0:
         return False
-    floor = energy_floor(problem.layout.n_unknowns + problem.unknowns.n_unknowns,
-                         round_off_floor(trial_state, problem.layout), d)
     ahead = history + [Iteration(vtpv=step.vtpv, max_correction=step.correction, seconds=0.0)]
     return keeps_factor(ahead, floor) and not has_converged(ahead, problem.options.tolerance, floor)
 
@@ -415,10 +413,11 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     # alive beside the trial's
     normals.kept = damped.kept = None
     trial_state = state.updated(layout, dx)
+    # the round-off floor at the trial point: for the lean decision before the trial and the tests after it
+    floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, round_off_floor(trial_state, layout), d)
     t_back = time.perf_counter()  # the back substitution's end; the trial's normals or cost follow
     if damping.lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
-        trial = _assemble_or_none(problem, trial_state, step.xyz, lean=_next_is_chord(problem, chord, history, step,
-                                                                                       trial_state, d))
+        trial = _assemble_or_none(problem, trial_state, step.xyz, lean=_next_is_chord(problem, chord, history, step, floor))
         trial_ee = trial.ee if trial is not None else np.inf
     else:  # damped: only the sum of squares, the normals follow with the next damping
         trial, trial_ee = None, problem.cost(trial_state, step.xyz)
@@ -458,7 +457,6 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
         stop_if_diverging(history, METHOD, problem.redundancy, causes)
     # a damped step is shortened: its small corrections alone do not show convergence, the undamped
     # Gauss-Newton correction from where it ended must be small too
-    floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, round_off_floor(new.state, layout), d)
     if has_converged(history, options.tolerance, floor) and (lam_step == 0.0 or has_converged(
             history[:-1] + [replace(history[-1], max_correction=_undamped_correction(problem, solver, new.state,
                                                                                      new.xyz))],

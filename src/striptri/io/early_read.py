@@ -27,7 +27,7 @@ import sys
 # the read takes less than the fork and the pickle's round trip gain
 EARLY_READ_BYTES = 2 * 2**20
 
-_pending: list = []  # (folder as given, its absolute path, the child's pid, the pipe's read end)
+_pending: list = []  # (the folder's absolute path, the child's pid, the pipe's read end)
 
 
 def start(argv: list[str]) -> bool:
@@ -53,7 +53,7 @@ def start(argv: list[str]) -> bool:
     if pid == 0:  # pragma: no cover - the child (tests/test_early_read.py runs it in a subprocess)
         _read_and_send(folder, read_end, write_end)
     os.close(write_end)
-    _pending.append((folder, os.path.abspath(folder), pid, read_end))
+    _pending.append((os.path.abspath(folder), pid, read_end))
     atexit.register(discard)
     return True
 
@@ -82,7 +82,7 @@ def take(folder) -> object | None:
     it, or it failed (the caller then reads the project itself)."""
     if not _pending:
         return None
-    given, where, pid, read_end = _pending.pop()
+    where, pid, read_end = _pending.pop()
     try:
         if os.path.abspath(os.fspath(folder)) != where:
             return None
@@ -103,7 +103,7 @@ def take(folder) -> object | None:
 def discard() -> None:
     """Stop a reader that was not taken (the command ended before it read the project)."""
     while _pending:
-        _, _, pid, read_end = _pending.pop()
+        _, pid, read_end = _pending.pop()
         _end(pid, read_end)
 
 
