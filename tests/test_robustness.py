@@ -1824,3 +1824,46 @@ def test_a_signal_turned_into_another_error_by_compiled_code_is_still_an_interru
     assert proc.returncode == status, (proc.returncode, proc.stderr)
     assert f"interrupted ({signal.Signals(sig).name})" in proc.stderr
     assert "internal error" not in proc.stderr and "Traceback" not in proc.stderr
+
+
+# Modules the command imports as it starts: one that numpy's compiled core imports from its
+# initialisation (where the signal became an ImportError), numpy's core itself, a compiled module of
+# scipy, the first module of striptri after numpy and the click command group; and two it imports
+# while the adjustment runs: scipy.special's compiled ufuncs (the gross-error tests) and zoneinfo,
+# which orjson's initialisation imports when the CSV writer first asks for orjson
+IMPORTED_WHILE_STARTING = ("datetime", "numpy._core._multiarray_umath", "scipy.linalg._fblas",
+                           "striptri.io.csvtable", "striptri.cli")
+IMPORTED_WHILE_RUNNING = ("scipy.special._ufuncs", "zoneinfo")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("module", [*IMPORTED_WHILE_STARTING, *IMPORTED_WHILE_RUNNING])
+def test_a_signal_during_an_import_ends_the_command_after_it(tmp_path, module, sig):
+    """A signal handler that raised inside an import left the module half-initialised, and a compiled
+    module so left cannot be imported again. A SIGTERM as orjson's initialisation imported zoneinfo
+    ended the command with a segmentation fault at the CSV writer's next ``import orjson`` (exit
+    status -11, no message: test_signals_at_random_moments on CI); one as numpy's core imported
+    datetime became an ImportError, which the start-up took for a missing module, and the next
+    ``import numpy`` failed with "cannot load module more than once per process" (a traceback, exit
+    status 1). The signal is sent here (an audit hook) as the import of ``module`` begins; the
+    command must end interrupted, with its message, status 128 + the signal and no output."""
+    if module == "zoneinfo":
+        pytest.importorskip("orjson")  # otherwise the command does not import it
+    out = tmp_path / "out"
+    script = textwrap.dedent(f"""
+        import os, sys
+        sent = []
+        def hook(event, args):
+            if event == "import" and args[0] == {module!r} and not sent:
+                sent.append(1)
+                os.kill(os.getpid(), {int(sig)})
+        sys.addaudithook(hook)
+        from striptri._entry import main
+        sys.argv = ["striptri", "adjust", {str(DATA / "strip8")!r}, "--out", {str(out)!r}]
+        main()
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode == 128 + sig, (proc.returncode, proc.stderr)
+    assert f"interrupted ({signal.Signals(sig).name})" in proc.stderr
+    assert not out.exists() and stray_siblings(out) == []

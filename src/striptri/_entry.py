@@ -9,20 +9,22 @@ import signal
 import sys
 from typing import NoReturn
 
-from striptri.errors import Interrupted
+from striptri.errors import Interrupted, deferred_while_importing
 
 
 def _raise_interrupted(signum, frame):
+    if deferred_while_importing(signum, frame):  # raised once the import has ended
+        return
     raise Interrupted(signum)
 
 
 def main() -> None:
     # SIGINT too as Interrupted, not KeyboardInterrupt: click would turn one that comes after the
     # command's own handling into "Aborted!" and exit status 1
-    for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
-        signal.signal(sig, _raise_interrupted)
-    one_malloc_arena()  # before any thread (OpenBLAS's start with numpy)
-    try:
+    try:  # from the first handler on, every Interrupted is inside this block
+        for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
+            signal.signal(sig, _raise_interrupted)
+        one_malloc_arena()  # before any thread (OpenBLAS's start with numpy)
         defer_unused_numpy_modules()
         from striptri.io import early_read
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 
@@ -57,3 +58,47 @@ class Interrupted(BaseException):
     def __init__(self, signum: int):
         self.signum = signum
         super().__init__(signum)
+
+
+# an import runs in these frames (module code, and the Python code a compiled module's initialisation calls)
+_IMPORT_FRAMES = ("<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>")
+REDELIVERY_DELAY_S = 0.01
+
+
+def deferred_while_importing(signum: int, frame) -> bool:
+    """For a signal handler that raises (Interrupted, KeyboardInterrupt): True when the main thread
+    is importing a module (``frame``, the interrupted frame, runs inside importlib), after arranging
+    for the signal to be sent again REDELIVERY_DELAY_S later; the handler then returns without
+    raising and the import goes on.
+
+    An exception raised inside an import leaves the module half-initialised, and a compiled module so
+    left may not be importable again (docs/decisions.md "A signal during an import is raised after
+    it"): a SIGTERM as orjson's initialisation imported zoneinfo ended the command with a
+    segmentation fault at the CSV writer's next ``import orjson``; one as numpy's core imported
+    datetime became an ImportError, and the next ``import numpy`` a traceback. Sent again once the
+    import has ended, the signal interrupts the command where it can clean up: the command still
+    ends with its message and 128 + the signal's number, a moment later (an import takes
+    milliseconds, matplotlib's 0.5 s)."""
+    while frame is not None:
+        if frame.f_code.co_filename in _IMPORT_FRAMES:
+            break
+        frame = frame.f_back
+    else:
+        return False
+    send_again_later(signum)
+    return True
+
+
+def send_again_later(signum: int) -> None:
+    """Send this process the signal ``signum`` again REDELIVERY_DELAY_S from now, from a thread of
+    its own (``_thread``, built in: no import, which may be what the signal interrupted)."""
+    import _thread
+
+    _thread.start_new_thread(_send_again, (signum,))
+
+
+def _send_again(signum: int) -> None:
+    import time
+
+    time.sleep(REDELIVERY_DELAY_S)
+    os.kill(os.getpid(), signum)

@@ -19,7 +19,7 @@ import click
 
 from striptri import __version__
 from striptri.solvers import threads
-from striptri.errors import InputError, Interrupted, NumericalFailure
+from striptri.errors import InputError, Interrupted, NumericalFailure, deferred_while_importing, send_again_later
 from striptri.io.output import committed_outputs
 
 EXIT_INPUT, EXIT_NUMERICAL = 2, 1
@@ -99,11 +99,15 @@ def _interrupted(signum: int):
 
 
 def _raise_interrupted(signum, frame):
+    if deferred_while_importing(signum, frame):  # raised once the import has ended
+        return
     _RECEIVED.append(signum)
     raise Interrupted(signum)
 
 
 def _raise_keyboard_interrupt(signum, frame):
+    if deferred_while_importing(signum, frame):
+        return
     _RECEIVED.append(signum)
     raise KeyboardInterrupt
 
@@ -139,9 +143,6 @@ def _raise_on_signals() -> dict:
     return previous
 
 
-REDELIVERY_DELAY_S = 0.01
-
-
 def _redeliver_swallowed_signals(hook, unraisable) -> None:
     """sys.unraisablehook: an Interrupted or KeyboardInterrupt that Python had to ignore (raised by
     a signal handler inside a finaliser or weakref callback) is sent again as its signal from a
@@ -154,9 +155,7 @@ def _redeliver_swallowed_signals(hook, unraisable) -> None:
     else:
         hook(unraisable)
         return
-    import threading
-
-    threading.Timer(REDELIVERY_DELAY_S, os.kill, (os.getpid(), signum)).start()
+    send_again_later(signum)
 
 
 def _restore_signals(previous: dict) -> None:
