@@ -282,6 +282,27 @@ def test_the_conditions_method_trims_between_assemblies_from_trim_from_measureme
     np.testing.assert_array_equal(at.state.xyz0, below.state.xyz0)
 
 
+@pytest.mark.parametrize("keeping", [False, True])
+def test_the_selected_inversion_trims_unless_the_freed_pages_are_kept(monkeypatch, keeping):
+    """selected_inverse hands the free pages back before it factorises (the factor and the inverse
+    are often a run's largest arrays), except in a process that keeps them (the command): there the
+    iterations' freed arrays hold the inverse's (docs/decisions.md "The largest arrays from the
+    heap too"). The inverse is the same either way."""
+    import scipy.sparse as sp
+
+    import striptri.selected_inverse as si
+
+    rng = np.random.default_rng(5)
+    B = sp.random(40, 40, density=0.1, random_state=rng) + sp.eye(40)
+    N = (B @ B.T + 40 * sp.eye(40)).tocsr()
+    trims = []
+    monkeypatch.setattr(si, "give_back_free_memory", lambda: trims.append(1))
+    monkeypatch.setattr(si, "keeps_freed_memory", lambda: keeping)
+    inverse = si.selected_inverse(N, method="sparse")
+    assert len(trims) == (0 if keeping else 1)
+    np.testing.assert_allclose(inverse.diag(), np.diag(np.linalg.inv(N.toarray())), rtol=1e-12)
+
+
 def test_keeps_freed_memory_says_whether_the_thresholds_are_set():
     """solvers.memory.keeps_freed_memory: False in a fresh process, True once keep_freed_memory has
     set glibc's thresholds, and False when the environment holds the user's own."""
@@ -295,9 +316,10 @@ def test_keeps_freed_memory_says_whether_the_thresholds_are_set():
     fresh = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert fresh.stdout.split() == ["False", "True", "True"], fresh.stderr
     env = {k: v for k, v in os.environ.items() if k not in ("MALLOC_MMAP_THRESHOLD_", "GLIBC_TUNABLES")}
-    user = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                          env={**env, "MALLOC_TRIM_THRESHOLD_": "1000000"})
-    assert user.stdout.split() == ["False", "False", "False"], user.stderr
+    for name, value in (("MALLOC_TRIM_THRESHOLD_", "1000000"), ("MALLOC_MMAP_MAX_", "65536")):
+        user = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                              env={**env, name: value})
+        assert user.stdout.split() == ["False", "False", "False"], (name, user.stderr)
 
 
 @pytest.mark.parametrize("point_precision", ["schmid90", "joint92"])
@@ -379,11 +401,13 @@ def test_the_command_keeps_its_threads_in_one_malloc_arena(tmp_path):
 FAULTS_SCRIPT = """
 import resource, sys
 import numpy as np
+np._core.multiarray._set_madvise_hugepage(False)  # pages of 4 kB, whatever the kernel's huge pages
 if sys.argv[1] == "kept":
     from striptri.solvers.memory import keep_freed_memory
     assert keep_freed_memory()
-def sweep():  # ten 4 MB temporaries alive together, then all freed (a sweep's chunks)
-    arrays = [np.ones(512 * 1024) for _ in range(10)]
+size = 512 * 1024 if sys.argv[2] == "small" else 6 * 2**20
+def sweep():  # ten 4 MB temporaries alive together, then all freed (a sweep's chunks); or ten of 48 MB
+    arrays = [np.ones(size) for _ in range(10)]
     del arrays
 sweep()
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -406,16 +430,20 @@ def test_a_small_run_keeps_the_pages_it_frees(tmp_path):
     script = tmp_path / "faults.py"
     script.write_text(FAULTS_SCRIPT)
     env = {k: v for k, v in os.environ.items()
-           if k not in ("GLIBC_TUNABLES", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")}
+           if k not in ("GLIBC_TUNABLES", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_MAX_")}
 
-    def faults(mode: str) -> int:
-        proc = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=120,
+    def faults(mode: str, size: str = "small") -> int:
+        proc = subprocess.run([sys.executable, str(script), mode, size], capture_output=True, text=True, timeout=120,
                               env=env)
         assert proc.returncode == 0, proc.stderr
         return int(proc.stdout)
 
     assert faults("default") >= 20 * 5000  # half of each sweep's pages at least
     assert faults("kept") < 1000
+    # arrays beyond the largest mmap threshold (32 MB): glibc maps each anew (12,288 pages); kept, the
+    # heap serves them too (docs/decisions.md "The largest arrays from the heap too")
+    assert faults("default", "large") >= 20 * 10 * 10_000
+    assert faults("kept", "large") < 1000
     user = subprocess.run([sys.executable, "-c", "from striptri.solvers.memory import keep_freed_memory; "
                            "print(keep_freed_memory())"], capture_output=True, text=True, timeout=60,
                           env={**env, "GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1000000"})

@@ -56,7 +56,7 @@ import scipy.sparse as sp
 from ..solvers import BANDED_MAX_BANDWIDTH, DENSE_LIMIT, Structure, jacobi_scaled
 from ..solvers.banded import choose_split
 from ..solvers.selection import nearly_full
-from ..solvers.memory import give_back_free_memory
+from ..solvers.memory import give_back_free_memory, keeps_freed_memory
 from ..solvers.sparse_cholesky import cholmod_module
 from .banded import BandedInverse
 from .dense import DenseInverse
@@ -117,7 +117,8 @@ def selected_inverse(N: sp.spmatrix, blocks=None, pairs: Sequence[tuple[int, int
             raise IndexError(f"pair ({i}, {j}) names a block outside 0..{len(block_list) - 1}")
     if n == 0:
         return SelectedInverse(EmptyInverse(), np.zeros(0), block_list, pairs)
-    give_back_free_memory()  # the factor and the inverse are often the largest arrays of a run
+    if not keeps_freed_memory():  # the command keeps them: the iterations' freed arrays hold the inverse's
+        give_back_free_memory()  # the factor and the inverse are often the largest arrays of a run
     As, s = jacobi_scaled(N)
     structure = Structure(n, _partition_starts(block_list, block_starts, n))
     chosen = _choose_method(method, As, structure)

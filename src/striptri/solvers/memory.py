@@ -128,29 +128,36 @@ def _malloc_trim():
 SMALL_RUN_MEASUREMENTS = 50_000
 
 # glibc's mallopt parameters (malloc.h) and what keep_freed_memory sets them to
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_MMAP_MAX = -1, -3, -4
 KEPT_MMAP_THRESHOLD = 32 * 2**20  # the largest glibc takes (DEFAULT_MMAP_THRESHOLD_MAX, 64-bit)
 KEPT_TRIM_THRESHOLD = 2**30
+KEPT_MMAP_MAX = 0  # no array mapped by itself: the largest ones too come from the heap and go back to it
+USER_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_MAX_", "GLIBC_TUNABLES")
 _kept: list[bool] = []  # [True] once keep_freed_memory has set the thresholds in this process
 
 
 def keep_freed_memory() -> bool:
     """Let this process keep the C heap's freed pages for its next allocations (glibc's
-    ``mallopt``: the mmap threshold at its largest, 32 MB, the trim threshold at 1 GB), for the
-    rest of the process; give_back_free_memory still hands them back where called. For a command
-    run (pipeline.run_adjust), whose sweeps allocate and free the same arrays again and again:
-    with glibc's own thresholds the top of the heap was handed back after each of them and its
-    pages came back zeroed by the kernel (page faults; docs/decisions.md "Freed pages kept in a
-    small run", "Freed pages kept at every size"). The threshold of mmap is set with the one of
-    trimming: a trim threshold alone would fix the mmap threshold at its start value, 128 kB, and
-    map every larger array anew. A MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_ or GLIBC_TUNABLES
-    in the environment is the user's choice and is left alone. True when set (glibc), else False."""
-    if any(os.environ.get(name) for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")):
+    ``mallopt``: the mmap threshold at its largest, 32 MB, the trim threshold at 1 GB, and no
+    allocation mapped by itself), for the rest of the process; give_back_free_memory still hands
+    them back where called. For a command run (pipeline.run_adjust), whose sweeps allocate and free
+    the same arrays again and again: with glibc's own thresholds the top of the heap was handed
+    back after each of them and its pages came back zeroed by the kernel (page faults;
+    docs/decisions.md "Freed pages kept in a small run", "Freed pages kept at every size"). The
+    threshold of mmap is set with the one of trimming: a trim threshold alone would fix the mmap
+    threshold at its start value, 128 kB, and map every larger array anew. Arrays above 32 MB (N,
+    the factors, the selected inverse and its factor) come from the heap too, so that each one's
+    pages serve the next instead of being unmapped and faulted in again (docs/decisions.md "The
+    largest arrays from the heap too"). A MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_,
+    MALLOC_MMAP_MAX_ or GLIBC_TUNABLES in the environment is the user's choice and is left alone.
+    True when set (glibc), else False."""
+    if any(os.environ.get(name) for name in USER_SETTINGS):
         return False
     mallopt = _libc_function("mallopt", (ctypes.c_int, ctypes.c_int), ctypes.c_int)
     if mallopt is None:
         return False
-    kept = bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
+    kept = (bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
+            and bool(mallopt(M_MMAP_MAX, KEPT_MMAP_MAX)))
     if kept and not _kept:
         _kept.append(True)
     return kept
