@@ -99,9 +99,20 @@ try:
     raise SystemExit("the child was left running")
 except ChildProcessError:
     pass
-# taken for its folder: the project read_project reads
+# nothing to wait for without a reader
+assert early.ready() and not early.waiting_for(strip8)
+# taken for its folder: the project read_project reads; waited for (its folder only) until the
+# child has sent it, then ready
 from striptri.io import read_project
+import time
 assert early.start(["adjust", strip8])
+assert not early.waiting_for(block)
+deadline = time.monotonic() + 60
+while not early.ready():
+    assert early.waiting_for(strip8)
+    assert time.monotonic() < deadline, "the child never sent its project"
+    time.sleep(0.001)
+assert not early.waiting_for(strip8)
 project = early.take(strip8)
 ref = read_project(strip8)
 assert project is not None and project.photos.ids == ref.photos.ids

@@ -38,7 +38,8 @@ from .report import film as film_report
 from .io import early_read, sources
 from .io.csvtable import format_csv
 from .io.output import OutputReservation, check_output_location
-from .solvers.memory import give_back_free_memory, keep_freed_memory
+from .solvers.memory import (WARM_BYTES_PER_INPUT_BYTE, WARM_MAX_BYTES, give_back_free_memory,
+                             keep_freed_memory, warm_heap)
 from .solvers.threads import single_threaded
 from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, read_project
@@ -116,6 +117,12 @@ def run_adjust(project_dir, out_dir, run: RunOptions = RunOptions(),
     inputs = input_paths(project_dir)
     check_output_location(out_dir, inputs)
     t0 = time.perf_counter()
+    if early_read.waiting_for(project_dir) and run.method != "sequential":
+        # the heap's first pages faulted in while the child reads (docs/decisions.md "The heap
+        # warmed while the project is read")
+        keep_freed_memory()
+        size = (project_dir / "image_points.csv").stat().st_size
+        warm_heap(min(WARM_BYTES_PER_INPUT_BYTE * size, WARM_MAX_BYTES), stop=early_read.ready)
     project = early_read.take(project_dir)  # read by the console script's child meanwhile, if it could
     if project is None:
         project = read_project(project_dir)

@@ -77,6 +77,26 @@ def _read_and_send(folder: str, read_end: int, write_end: int) -> None:  # pragm
         os._exit(status)
 
 
+def waiting_for(folder) -> bool:
+    """Whether a reader for ``folder`` runs and has not sent the project yet (its pipe is empty)."""
+    if not _pending or os.path.abspath(os.fspath(folder)) != _pending[-1][0]:
+        return False
+    return not ready()
+
+
+def ready() -> bool:
+    """Whether the reader has ended or its project can be read from the pipe (no reader: True)."""
+    if not _pending:
+        return True
+    import select
+
+    try:
+        readable, _, _ = select.select([_pending[-1][2]], [], [], 0)
+    except (OSError, ValueError):
+        return True
+    return bool(readable)
+
+
 def take(folder) -> object | None:
     """The project the reader read for ``folder`` (waiting for it), or None: no reader ran for
     it, or it failed (the caller then reads the project itself)."""
