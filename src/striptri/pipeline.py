@@ -121,8 +121,9 @@ def run_adjust(project_dir, out_dir, run: RunOptions = RunOptions(),
         # the heap's first pages faulted in while the child reads (docs/decisions.md "The heap
         # warmed while the project is read")
         keep_freed_memory()
-        size = (project_dir / "image_points.csv").stat().st_size
-        warm_heap(min(WARM_BYTES_PER_INPUT_BYTE * size, WARM_MAX_BYTES), stop=early_read.ready)
+        with contextlib.suppress(OSError):  # gone meanwhile: the read says so
+            size = (project_dir / "image_points.csv").stat().st_size
+            warm_heap(min(WARM_BYTES_PER_INPUT_BYTE * size, WARM_MAX_BYTES), stop=early_read.ready)
     project = early_read.take(project_dir)  # read by the console script's child meanwhile, if it could
     if project is None:
         project = read_project(project_dir)
