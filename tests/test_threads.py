@@ -458,6 +458,7 @@ np._core.multiarray._set_madvise_hugepage(False)  # pages of 4 kB, whatever the 
 assert memory.warm_heap(64 * 2**20) == 0  # a process that does not keep its freed pages: nothing
 assert memory.keep_freed_memory()
 assert memory.warm_heap(64 * 2**20, stop=lambda: True) == 0
+assert memory.warm_heap(2**62) == 0  # more than any address space: nothing, and no MemoryError
 if sys.argv[1] == "warm":
     assert memory.warm_heap(64 * 2**20) == 64 * 2**20
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

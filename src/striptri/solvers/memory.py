@@ -206,7 +206,10 @@ def warm_heap(budget: int, stop=lambda: False) -> int:
         return 0
     import numpy as np
 
-    block = np.empty(int(budget), dtype=np.uint8)  # address space only, until touched
+    try:
+        block = np.empty(int(budget), dtype=np.uint8)  # address space only, until touched
+    except MemoryError:  # a limit on the address space: the run is not to fail for a warm-up
+        return 0
     touched = 0
     while touched < len(block) and not stop():
         block[touched: touched + WARM_CHUNK_BYTES: PAGE_BYTES] = 0
