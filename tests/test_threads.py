@@ -427,16 +427,10 @@ def test_a_small_run_keeps_the_pages_it_frees(tmp_path):
 
     if not _glibc():
         pytest.skip("glibc's mallopt is needed")
-    script = tmp_path / "faults.py"
-    script.write_text(FAULTS_SCRIPT)
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("GLIBC_TUNABLES", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_MAX_")}
+    env = _without_malloc_settings()
 
     def faults(mode: str, size: str = "small") -> int:
-        proc = subprocess.run([sys.executable, str(script), mode, size], capture_output=True, text=True, timeout=120,
-                              env=env)
-        assert proc.returncode == 0, proc.stderr
-        return int(proc.stdout)
+        return _faults_of(tmp_path, FAULTS_SCRIPT, mode, size)
 
     assert faults("default") >= 20 * 5000  # half of each sweep's pages at least
     assert faults("kept") < 1000
@@ -472,24 +466,29 @@ def test_a_warmed_heap_serves_the_first_arrays_without_faults(tmp_path):
     64 MB of heap touched and freed in a process that keeps its freed pages; the run's first 48 MB
     of arrays then take none of the 12,288 page faults they take in a cold heap. Nothing is
     touched in a process that does not keep its pages, nor once ``stop`` says so."""
+    if not _glibc():
+        pytest.skip("glibc's mallopt is needed")
+    assert _faults_of(tmp_path, WARM_SCRIPT, "cold") >= 12_000
+    assert _faults_of(tmp_path, WARM_SCRIPT, "warm") < 500
+
+
+def _without_malloc_settings() -> dict:
+    """The environment without the user's glibc malloc settings (which keep_freed_memory leaves alone)."""
+    return {k: v for k, v in os.environ.items()
+            if k not in ("GLIBC_TUNABLES", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_MAX_")}
+
+
+def _faults_of(tmp_path, script_text: str, *args: str) -> int:
+    """The page faults a script prints, run in a fresh interpreter without the user's malloc settings."""
     import subprocess
     import sys
 
-    if not _glibc():
-        pytest.skip("glibc's mallopt is needed")
-    script = tmp_path / "warm.py"
-    script.write_text(WARM_SCRIPT)
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("GLIBC_TUNABLES", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_MAX_")}
-
-    def faults(mode: str) -> int:
-        proc = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=120,
-                              env=env)
-        assert proc.returncode == 0, proc.stderr
-        return int(proc.stdout)
-
-    assert faults("cold") >= 12_000
-    assert faults("warm") < 500
+    script = tmp_path / "faults.py"
+    script.write_text(script_text)
+    proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=120,
+                          env=_without_malloc_settings())
+    assert proc.returncode == 0, proc.stderr
+    return int(proc.stdout)
 
 
 def test_the_command_keeps_freed_pages_at_every_size(monkeypatch, tmp_path):
