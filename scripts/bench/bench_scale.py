@@ -13,7 +13,8 @@ default: the long strips of issue 12, s10k and s100k (``striptri simulate strip 
 100000 --control every-k --every-k 20 --every-k-kind XYZ --seed 11``; ``--cases s10k s100k``), and
 issue 29's 100,000-photo strip with full control every 50 models (``s100k-50``).
 
-Per case, interleaved over ``--repeats`` rounds (medians reported):
+Per case, interleaved over ``--repeats`` rounds (medians reported), each striptri run right after a
+pycolmap run (run_plan: never right after another striptri run, whose freed memory is still warm):
 
 * ``striptri adjust CASE --out OUT --method M --keep-unconverged`` (M: conditions, the default, and
   bundle) as a subprocess under ``/usr/bin/time`` (peak resident memory of the process, CPU time)
@@ -488,9 +489,7 @@ def run_case(name: str, args, log) -> dict:
     if use_colmap:
         cov_gb = prepare_colmap(project, case, data_file, child_env(args.blas_threads))
         truth_xyz = np.array([truth[p] for p in _photo_ids(project)])  # ColmapData keeps the photos' order
-    plan = [("striptri", m) for m in args.methods]
-    if use_colmap:
-        plan += [("pycolmap", (t, tol)) for t in args.threads for tol in args.tolerances]
+    plan = run_plan(args.methods, [(t, tol) for t in args.threads for tol in args.tolerances] if use_colmap else [])
     covariance_wanted = use_colmap and not args.no_covariance and cov_gb <= args.covariance_max_gb
     runs: dict[str, list[dict]] = {}
     limit = for_case(args.time_limit, name)
@@ -525,6 +524,27 @@ def run_case(name: str, args, log) -> dict:
         result["covariance_skipped"] = (f"one dense matrix over the poses would take {cov_gb:.1f} GB "
                                         f"(> --covariance-max-gb {args.covariance_max_gb:g})")
     return result
+
+
+def run_plan(methods: list[str], peer_settings: list[tuple]) -> list[tuple[str, object]]:
+    """The runs of one round, in order: each striptri method right after a pycolmap run, never after
+    another striptri run. A command that follows one of its own kind finds much of the memory it
+    is about to touch still backed by the host (this VM hands a process's freed pages back to the
+    host in the background, and touching a page anew costs 4-8 us): measured on the 5,000-photo
+    block, its factorisations took 0.70-0.73 s right after another striptri run against 0.73-0.91 s
+    (median 0.86 s) right after pycolmap or after a 3 s pause; pycolmap's own time did not depend
+    on what ran before it. Until the eighteenth round of issue 29 the bundle method ran right
+    after the method of conditions and had that advantage. The peer runs stay in their order,
+    split into one stretch before each method (with fewer peer runs than methods, the last methods
+    follow each other)."""
+    if not peer_settings:
+        return [("striptri", m) for m in methods]
+    plan: list[tuple[str, object]] = []
+    per = -(-len(peer_settings) // max(len(methods), 1))  # peer runs before each method (rounded up)
+    for i, method in enumerate(methods):
+        plan += [("pycolmap", s) for s in peer_settings[i * per:(i + 1) * per]] + [("striptri", method)]
+    plan += [("pycolmap", s) for s in peer_settings[len(methods) * per:]]
+    return plan
 
 
 def _photo_ids(project: Path) -> list[str]:
