@@ -140,8 +140,8 @@ def test_the_process_tree_counts_a_forked_child_once_and_an_execd_one_apart(kind
 def test_each_striptri_run_follows_a_pycolmap_run(methods, n_peer):
     """bench_scale.run_plan: every run of the round once, the peer's in their order, and each
     striptri method right after a pycolmap run (a striptri run right after another finds its
-    memory still warm: the bundle method's factorisations took 0.70-0.73 s there against 0.86 s
-    after pycolmap), except where there are fewer peer runs than methods."""
+    memory still warm: the 5,000-photo block's factorisations took 0.70-0.73 s there against a
+    median 0.86 s after pycolmap), except where there are fewer peer runs than methods."""
     import bench_scale
 
     peers = [(t, tol) for t in (1, 2) for tol in ("ceres-default", "1e-8", "1e-10", "1e-12", "1e-16")][:n_peer]

@@ -531,9 +531,9 @@ def run_plan(methods: list[str], peer_settings: list[tuple]) -> list[tuple[str, 
     another striptri run. A command that follows one of its own kind finds much of the memory it
     is about to touch still backed by the host (this VM hands a process's freed pages back to the
     host in the background, and touching a page anew costs 4-8 us): measured on the 5,000-photo
-    block, its factorisations took 0.70-0.73 s right after another striptri run against 0.73-0.91 s
-    (median 0.86 s) right after pycolmap or after a 3 s pause; pycolmap's own time did not depend
-    on what ran before it. Until the eighteenth round of issue 29 the bundle method ran right
+    block, its factorisations took 0.70-0.73 s right after another striptri run against 0.73-0.97 s
+    (medians 0.86 and 0.88 s) right after pycolmap or after a 3 s pause; pycolmap's own time did
+    not depend on what ran before it (docs/benchmarks.md, eighteenth round). Until the eighteenth round of issue 29 the bundle method ran right
     after the method of conditions and had that advantage. The peer runs stay in their order,
     split into one stretch before each method (with fewer peer runs than methods, the last methods
     follow each other)."""
