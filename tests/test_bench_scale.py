@@ -146,7 +146,8 @@ def test_each_striptri_run_follows_a_pycolmap_run(methods, n_peer):
 
     peers = [(t, tol) for t in (1, 2) for tol in ("ceres-default", "1e-8", "1e-10", "1e-12", "1e-16")][:n_peer]
     plan = bench_scale.run_plan(methods, peers)
-    assert sorted(map(str, plan)) == sorted(map(str, [("striptri", m) for m in methods] + [("pycolmap", s) for s in peers]))
+    every = [("striptri", m) for m in methods] + [("pycolmap", s) for s in peers]
+    assert sorted(map(str, plan)) == sorted(map(str, every))
     assert [what for engine, what in plan if engine == "pycolmap"] == peers
     assert [what for engine, what in plan if engine == "striptri"] == methods
     for i, (engine, _) in enumerate(plan):

@@ -533,10 +533,10 @@ def run_plan(methods: list[str], peer_settings: list[tuple]) -> list[tuple[str, 
     host in the background, and touching a page anew costs 4-8 us): measured on the 5,000-photo
     block, its factorisations took 0.70-0.73 s right after another striptri run against 0.73-0.97 s
     (medians 0.86 and 0.88 s) right after pycolmap or after a 3 s pause; pycolmap's own time did
-    not depend on what ran before it (docs/benchmarks.md, eighteenth round). Until the eighteenth round of issue 29 the bundle method ran right
-    after the method of conditions and had that advantage. The peer runs stay in their order,
-    split into one stretch before each method (with fewer peer runs than methods, the last methods
-    follow each other)."""
+    not depend on what ran before it (docs/decisions.md "The benchmark's run order"). Until the
+    eighteenth round of issue 29 the bundle method ran right after the method of conditions and
+    had that advantage. The peer runs stay in their order, split into one stretch before each
+    method (with fewer peer runs than methods, the last methods follow each other)."""
     if not peer_settings:
         return [("striptri", m) for m in methods]
     plan: list[tuple[str, object]] = []
