@@ -414,10 +414,12 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
     normals.kept = damped.kept = None
     trial_state = state.updated(layout, dx)
     # the round-off floor at the trial point: for the lean decision before the trial and the tests after it
-    floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, round_off_floor(trial_state, layout), d)
+    off = round_off_floor(trial_state, layout)
+    floor = energy_floor(layout.n_unknowns + problem.unknowns.n_unknowns, off, d)
     t_back = time.perf_counter()  # the back substitution's end; the trial's normals or cost follow
     if damping.lam == 0.0:  # Gauss-Newton: the next normals, kept when the step is good
-        trial = _assemble_or_none(problem, trial_state, step.xyz, lean=_next_is_chord(problem, chord, history, step, floor))
+        lean = _next_is_chord(problem, chord, history, step, floor)
+        trial = _assemble_or_none(problem, trial_state, step.xyz, lean=lean)
         trial_ee = trial.ee if trial is not None else np.inf
     else:  # damped: only the sum of squares, the normals follow with the next damping
         trial, trial_ee = None, problem.cost(trial_state, step.xyz)
@@ -450,7 +452,7 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
         step.correction = float(np.hypot(step.correction, problem.network.datum_correction(d)))
     history.append(Iteration(vtpv=new.vtpv, max_correction=step.correction, seconds=t3 - t0,
                              solver_info=solved.info.merged(damping=damping.lam or None),
-                             element_correction=max(largest_correction(dx, d, round_off_floor(new.state, layout)),
+                             element_correction=max(largest_correction(dx, d, off),  # new.state is trial_state
                                                     step.max_point_correction)))
     progress.iteration(METHOD, len(history), new.vtpv, step.correction, t3 - t0, history[-1].solver_info)
     if damping.lam == 0.0:

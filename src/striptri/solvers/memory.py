@@ -156,7 +156,8 @@ def keep_freed_memory() -> bool:
     mallopt = _libc_function("mallopt", (ctypes.c_int, ctypes.c_int), ctypes.c_int)
     if mallopt is None:
         return False
-    kept = (bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
+    kept = (bool(mallopt(M_MMAP_THRESHOLD, KEPT_MMAP_THRESHOLD))
+            and bool(mallopt(M_TRIM_THRESHOLD, KEPT_TRIM_THRESHOLD))
             and bool(mallopt(M_MMAP_MAX, KEPT_MMAP_MAX)))
     if kept and not _kept:
         _kept.append(True)
