@@ -833,3 +833,14 @@ def test_block_starts_of_layouts_with_held_and_shared_columns(seed):
     assert np.all((groups[is_photo] == -1) == (names == ""))
     for a in np.unique(names[names != ""]):  # one group per strip, numbered in order of first appearance
         assert len(set(groups[is_photo][names == a])) == 1
+
+
+class TestCholmodScikitSparse(TestCholmod):
+    """The same suite on scikit-sparse's calls of CHOLMOD, the route where CHOLMOD's own cannot be
+    made (another CHOLMOD than 3, 64-bit indices; striptri.solvers.cholmod_direct)."""
+
+    @pytest.fixture(autouse=True)
+    def _scikit_route(self, monkeypatch):
+        from striptri.solvers import sparse_cholesky
+
+        monkeypatch.setattr(sparse_cholesky, "DIRECT", False)

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..equations import datum
 from . import diagnosis, termination
-from .. import solvers
+from .. import selected_inverse, solvers
 from ..errors import NumericalFailure
 from ..model import Project
 from ..equations.parameters import State, UnknownLayout
@@ -34,6 +34,8 @@ def solve_or_explain(normals, rhs: np.ndarray, solver: solvers.NormalSolver, sta
     defects = datum.diagnose(normals, state, layout, offset=offset) if diagnose else []
     if defects:
         raise datum_defect_failure(project, defects)
+    # the precision's symbolic analysis needs only N's pattern: made beside the factorisations
+    selected_inverse.for_layout_ahead(normals.N, layout)
     try:
         return solver.solve(normals.N, rhs)
     except solvers.SingularNormalMatrix as exc:

@@ -63,6 +63,7 @@ from .dense import DenseInverse
 from .engine import SOLVE_CHUNK, EmptyInverse, Engine
 from .result import ENTRY_CHUNK, FlatBlocks, SelectedInverse
 from .supernodal import SupernodalInverse
+from .symbolic import symbolic_ahead
 
 METHODS = ("auto", "dense", "banded", "sparse", "cholmod")
 
@@ -75,7 +76,7 @@ BLOCK_ORDERING = "nesdis"  # order of the sparse route: "nesdis" (when CHOLMOD i
 
 __all__ = [
     "BLOCK_ORDERING", "ENTRY_CHUNK", "METHODS", "MIN_BAND_BLOCK", "RELAXED_SUPERNODE", "RELAXED_ZEROS", "SOLVE_CHUNK",
-    "BandedInverse", "DenseInverse", "Engine", "SelectedInverse", "SupernodalInverse", "for_layout", "photo_blocks",
+    "BandedInverse", "DenseInverse", "Engine", "SelectedInverse", "SupernodalInverse", "for_layout", "for_layout_ahead", "photo_blocks",
     "selected_inverse",
 ]
 
@@ -144,6 +145,25 @@ def for_layout(N: sp.spmatrix, layout, photo_pairs: Sequence[tuple[int, int]] = 
     blocks = [np.asarray(c, dtype=int) for c in (*layout.photo_cols, *layout.camera_cols)]
     return selected_inverse(N, blocks, photo_pairs, block_starts=layout.block_starts(), method=method,
                             keep_factor=keep_factor)
+
+
+def for_layout_ahead(N: sp.spmatrix, layout) -> None:
+    """Begin what :func:`for_layout` (``method="auto"``) will do first with a matrix of N's
+    pattern: the symbolic analysis of the ``sparse`` route, on the other core while the
+    factorisations of the adjustment run without the GIL (symbolic.symbolic_ahead; docs/decisions.md
+    "CHOLMOD without the interpreter lock"). Nothing for a small N or one another route takes."""
+    n = N.shape[0]
+    if not sp.isspmatrix_csr(N) or n <= DENSE_LIMIT or not N.has_canonical_format:
+        return
+    blocks = [np.asarray(c, dtype=int) for c in (*layout.photo_cols, *layout.camera_cols)]
+    structure = Structure(n, _partition_starts(blocks, layout.block_starts(), n))
+    symbolic_ahead(N, structure, BLOCK_ORDERING, RELAXED_SUPERNODE, RELAXED_ZEROS, route=_sparse_route)
+
+
+def _sparse_route(N: sp.csr_matrix, structure: Structure) -> bool:
+    """Whether ``auto`` takes the sparse route for a matrix of N's pattern (the choice reads only
+    the pattern)."""
+    return _choose_method("auto", N, structure) == "sparse"
 
 
 def photo_blocks(N: sp.spmatrix, layout, *, method: str = "auto") -> np.ndarray:

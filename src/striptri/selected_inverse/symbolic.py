@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import functools
 import heapq
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
-from ..solvers import Structure
+from ..solvers import Structure, beside
 from ..solvers.blocks import Blocks, partition, ranges
 from ..solvers.direct import block_order
 from ..solvers.sparse_cholesky import cholmod_available, cholmod_module
@@ -24,6 +25,12 @@ from ..solvers.sparse_cholesky import cholmod_available, cholmod_module
 # the Python around one supernode's kernels, in multiply-adds (Supernodes.work): about 30
 # microseconds at a few GFlop/s, what a supernode of a few photos' columns costs in all
 SUPERNODE_OVERHEAD = 1e5
+PATTERN_ROWS = 4096  # rows of N collapsed to blocks at a time (_block_pattern)
+PAUSE_EVERY = 32  # blocks or supernodes between two pauses of an analysis made ahead (about 1 ms)
+
+
+def _no_pause() -> None:
+    pass
 
 
 @dataclass
@@ -134,18 +141,26 @@ class Supernodes:
         return keys, first
 
 
-def _block_pattern(A: sp.csr_matrix, blocks: Blocks) -> sp.csr_matrix:
-    """(nb, nb) pattern of the blocks of A that hold a nonzero (the columns of each row are first
-    collapsed to their blocks, so the matrix built is about a block's width smaller than A)."""
-    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
-    bc = blocks.of_column[A.indices]
-    new = np.ones(len(bc), dtype=bool)
-    new[1:] = (bc[1:] != bc[:-1]) | (rows[1:] != rows[:-1])  # sorted indices: a run per block
-    br, bc = blocks.of_column[rows[new]], bc[new]
+def _block_pattern(A: sp.csr_matrix, blocks: Blocks, pause=_no_pause) -> sp.csr_matrix:
+    """(nb, nb) pattern of the blocks of A that hold a nonzero (ones), made PATTERN_ROWS rows of A
+    at a time: each row's columns collapsed to their blocks, then the block pairs of the stretch
+    without repeats. Its memory is a few MB beside A (it may run beside a factorisation)."""
     nb = len(blocks.starts)
-    G = sp.csr_matrix((np.ones(len(br)), (br, bc)), shape=(nb, nb))
-    G.sum_duplicates()
-    return G
+    of_column = blocks.of_column.astype(np.int64)
+    keys = []
+    for r0 in range(0, A.shape[0], PATTERN_ROWS):
+        pause()
+        r1 = min(r0 + PATTERN_ROWS, A.shape[0])
+        a, b = A.indptr[r0], A.indptr[r1]
+        k = np.repeat(of_column[r0:r1] * nb, np.diff(A.indptr[r0: r1 + 1]))
+        k += of_column[A.indices[a:b]]
+        run = np.ones(len(k), dtype=bool)  # a row's columns are sorted: its blocks come in runs
+        np.not_equal(k[1:], k[:-1], out=run[1:])
+        keys.append(np.unique(k[run]))
+    key = np.unique(np.concatenate(keys)) if keys else np.zeros(0, dtype=np.int64)
+    br, bc = np.divmod(key, nb)
+    counts = np.bincount(br, minlength=nb)
+    return sp.csr_matrix((np.ones(len(key)), bc, np.concatenate([[0], np.cumsum(counts)])), shape=(nb, nb))
 
 
 def _block_sequence(graph: sp.csr_matrix, blocks: Blocks, ordering: str) -> np.ndarray:
@@ -167,7 +182,7 @@ def _block_sequence(graph: sp.csr_matrix, blocks: Blocks, ordering: str) -> np.n
     return of[np.r_[True, of[1:] != of[:-1]]]
 
 
-def _elimination_tree(graph: sp.csr_matrix, seq: np.ndarray):
+def _elimination_tree(graph: sp.csr_matrix, seq: np.ndarray, pause=_no_pause):
     """Rows of L below each block column (block positions, sorted) and the elimination tree, for the
     blocks in the order ``seq``: struct(j) = (neighbours after j) + (struct(c) minus j for each
     child c of j); parent(j) = the first of struct(j)."""
@@ -183,6 +198,8 @@ def _elimination_tree(graph: sp.csr_matrix, seq: np.ndarray):
     parent = np.full(nb, -1)
     children: list[list[int]] = [[] for _ in range(nb)]
     for j in range(nb):
+        if j % PAUSE_EVERY == 0:
+            pause()
         parts = [later.indices[later.indptr[j]: later.indptr[j + 1]]] + [struct[ch][1:] for ch in children[j]]
         sj = np.unique(np.concatenate(parts))
         struct[j] = sj
@@ -207,7 +224,7 @@ def _postorder(parent: np.ndarray, children: list[list[int]]) -> np.ndarray:
 
 
 def _supernode_partition(struct: list[np.ndarray], parent: np.ndarray, sizes: np.ndarray, relaxed_columns: int,
-                         relaxed_zeros: float) -> np.ndarray:
+                         relaxed_zeros: float, pause=_no_pause) -> np.ndarray:
     """First block of each supernode (and the block count last): a chain j -> j + 1 of the tree is
     merged when the columns share their rows, or when the merged supernode has at most
     ``relaxed_columns`` columns of which at most the fraction ``relaxed_zeros`` of the stored
@@ -217,6 +234,8 @@ def _supernode_partition(struct: list[np.ndarray], parent: np.ndarray, sizes: np
     first = [0]
     width, zeros = int(sizes[0]), 0  # of the current supernode
     for j in range(1, nb):
+        if j % PAUSE_EVERY == 0:
+            pause()
         merge, added = False, 0
         if parent[j - 1] == j:
             added = int(sizes[j] + below[j] - below[j - 1])  # rows the current columns gain (>= 0)
@@ -247,12 +266,109 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
              relaxed_zeros: float) -> Supernodes:
     """Order, block-level symbolic factorisation and supernodes of the scaled N (see
     SupernodalInverse). ordering: "nesdis" or "mmd" (_block_sequence); relaxed_columns,
-    relaxed_zeros: how far chains of blocks are merged into supernodes (_supernode_partition)."""
+    relaxed_zeros: how far chains of blocks are merged into supernodes (_supernode_partition).
+    The analysis of the same pattern started by :func:`symbolic_ahead` is taken when there is one."""
+    params = (ordering, relaxed_columns, relaxed_zeros)
+    found = _take_ahead(As, structure, params)
+    return found if found is not None else _symbolic(As, structure, *params)
+
+
+def symbolic_ahead(N: sp.csr_matrix, structure: Structure, ordering: str, relaxed_columns: int,
+                   relaxed_zeros: float, route=lambda N, structure: True) -> None:
+    """Start the analysis of N's pattern (canonical CSR) on the other core, in the windows of the
+    factorisations that run without the GIL (solvers.beside), for the :func:`symbolic` call that
+    will come with a matrix of the same pattern arrays (the adjustments' N share them). One
+    analysis is kept ahead at a time; asked again for the same pattern, nothing happens.
+    ``route(N, structure)``: whether the analysis will be wanted (checked on that core first)."""
+    global _ahead
+    params = (ordering, relaxed_columns, relaxed_zeros)
+    if _ahead is not None and _ahead.matches(N, structure, params):
+        return
+    _drop_ahead()
+    if not N.has_canonical_format:
+        return
+    _ahead = _Ahead(_Held.of(N.indptr), _Held.of(N.indices), N.shape, np.asarray(structure.block_starts),
+                    params, beside.BesideTask(_analysis_ahead, N, structure, params, route))
+
+
+def _analysis_ahead(N, structure: Structure, params: tuple, route, pause) -> Supernodes | None:
+    return _symbolic(N, structure, *params, pause=pause) if route(N, structure) else None
+
+
+@dataclass(frozen=True)
+class _Held:
+    """Where an index array lies, and the array that owns that memory (held weakly)."""
+
+    address: int
+    shape: tuple
+    strides: tuple
+    dtype: np.dtype
+    owner: weakref.ref
+
+    @classmethod
+    def of(cls, a: np.ndarray) -> "_Held":
+        owner = a
+        while isinstance(owner.base, np.ndarray):
+            owner = owner.base
+        alive = weakref.ref(owner) if owner.base is None else (lambda: None)  # foreign memory: never matched
+        return cls(a.__array_interface__["data"][0], a.shape, a.strides, a.dtype, alive)
+
+    def same(self, a: np.ndarray) -> bool:
+        """a reads the same memory the same way, and the owner of that memory still lives (so it was
+        not handed to another array: the same pattern; patterns are never changed in place)."""
+        return (self.owner() is not None and a.__array_interface__["data"][0] == self.address
+                and a.shape == self.shape and a.strides == self.strides and a.dtype == self.dtype)
+
+
+@dataclass
+class _Ahead:
+    """An analysis under way beside the factorisations, and the pattern it is of."""
+
+    indptr: _Held
+    indices: _Held
+    shape: tuple
+    block_starts: np.ndarray
+    params: tuple
+    task: beside.BesideTask
+
+    def matches(self, A: sp.csr_matrix, structure: Structure, params: tuple) -> bool:
+        return (self.shape == A.shape and self.params == params and self.indptr.same(A.indptr)
+                and self.indices.same(A.indices)
+                and np.array_equal(self.block_starts, np.asarray(structure.block_starts)))
+
+
+_ahead: _Ahead | None = None
+
+
+def _take_ahead(As: sp.csr_matrix, structure: Structure, params: tuple) -> Supernodes | None:
+    global _ahead
+    ahead = _ahead
+    if ahead is None:
+        return None
+    if not ahead.matches(As, structure, params):
+        _drop_ahead()
+        return None
+    _ahead = None
+    return ahead.task.result()  # None when it failed: then computed here
+
+
+def _drop_ahead() -> None:
+    global _ahead
+    if _ahead is not None:
+        _ahead.task.cancel()
+        _ahead = None
+
+
+def _symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_columns: int, relaxed_zeros: float,
+              pause=_no_pause) -> Supernodes:
+    """symbolic's work; ``pause()`` is called between short steps (solvers.beside)."""
     n = As.shape[0]
     blocks = partition(structure, n)
-    graph = _block_pattern(As, blocks)
+    graph = _block_pattern(As, blocks, pause)
+    pause()
     seq = _block_sequence(graph, blocks, ordering)
-    struct, parent, children = _elimination_tree(graph, seq)
+    pause()
+    struct, parent, children = _elimination_tree(graph, seq, pause)
     # postorder (an equivalent order with the same fill) so that chains parent(j) = j + 1 are long
     post = _postorder(parent, children)
     relabel = np.empty(len(seq), dtype=int)
@@ -263,17 +379,22 @@ def symbolic(As: sp.csr_matrix, structure: Structure, ordering: str, relaxed_col
     sizes = blocks.sizes[seq]
     bstart = np.concatenate([[0], np.cumsum(sizes)])
     order = ranges(blocks.starts[seq], blocks.sizes[seq])
-    sn_first = _supernode_partition(struct, parent, sizes, relaxed_columns, relaxed_zeros)
+    pause()
+    sn_first = _supernode_partition(struct, parent, sizes, relaxed_columns, relaxed_zeros, pause)
     sn_of_block = np.repeat(np.arange(len(sn_first) - 1), np.diff(sn_first))
     start = bstart[sn_first]
     count = len(start) - 1
     rows = []
     for p in range(count):
+        if p % PAUSE_EVERY == 0:
+            pause()
         bb = struct[sn_first[p + 1] - 1]  # rows below a supernode: those below its last block
         below = ranges(bstart[bb], sizes[bb])
         rows.append(np.concatenate([np.arange(start[p], start[p + 1]), below]))
     targets = []
     for p in range(count):
+        if p % PAUSE_EVERY == 0:
+            pause()
         bb = struct[sn_first[p + 1] - 1]
         below = rows[p][start[p + 1] - start[p]:]
         tp = []

@@ -1,5 +1,11 @@
 """``cholmod``: CHOLMOD's sparse Cholesky (scikit-sparse) with a fill-reducing ordering.
 
+CHOLMOD is called directly (:mod:`.cholmod_direct`: the library scikit-sparse is linked to, through
+ctypes) where that can be done (CHOLMOD 3, a matrix with 32-bit indices), else through
+scikit-sparse; the same settings, the same factor to the last bit. Called directly, the numeric
+factorisation runs without the GIL, and work that does not need the factor goes on beside it
+(:mod:`.beside`). The rest of this doc holds for both routes (scikit-sparse's calls named).
+
 The symbolic factorisation (ordering and the pattern of L, ``cholmod.analyze``) is made once per
 solver object, i.e. once per adjustment, at the first solve; every outer iteration then only
 refactorises numerically. Without ``holds_factor`` that is a new numeric factor from the kept
@@ -40,7 +46,9 @@ import threading
 import numpy as np
 import scipy.sparse as sp
 
+from . import beside
 from .base import NormalSolver, SingularNormalMatrix, SolveResult, SolverUnavailable, check_pivots, jacobi_scaled
+from .cholmod_direct import DirectFactor, direct_library
 from .info import SolverInfo
 from .threads import factorisation_threads, limit_new_libraries
 
@@ -56,6 +64,7 @@ INSTALL_HINT = (
 )
 
 
+DIRECT = True  # CHOLMOD's own calls where they can be made (module doc); the tests compare both routes
 OPENMP_DYNAMIC = True  # the module doc; the benchmark switches it off to show why it is on
 _tamed = threading.local()
 
@@ -132,11 +141,42 @@ class CholmodSolver(NormalSolver):
         Ns, s = jacobi_scaled(N)
         A = Ns.T  # CSC view of the symmetric matrix; CHOLMOD reads its lower triangle
         if not self._pattern_fits(A):
-            self._factor = self._cholmod.analyze(A, mode=self.mode, ordering_method=self.ordering)
-            self._pattern = (A.indptr.copy(), A.indices.copy(), A.shape)  # the analysed pattern
-            self._numeric = None
-            self.analyses += 1
+            self._analyse(A)
         _tame_openmp(self._cholmod)  # this thread may not be the one that made the solver
+        factor = self._factor_direct(A) if isinstance(self._factor, DirectFactor) else self._factor_scikit(A)
+        y = factor.solve(b * s) if isinstance(factor, DirectFactor) else factor.solve_A(b * s)
+        if self.holds_factor:
+            self._held, self._numeric = (factor, s), factor
+        elif isinstance(factor, DirectFactor):
+            factor.drop_values()
+        return SolveResult(np.asarray(y).reshape(-1) * s, self.name,
+                           SolverInfo(analyses=self.analyses, mode=self.mode, ordering=self.ordering))
+
+    def _analyse(self, A: sp.csc_matrix) -> None:
+        """The symbolic factorisation of A's pattern: by CHOLMOD's own calls where they can be
+        made (cholmod_direct), else by scikit-sparse."""
+        if isinstance(self._factor, DirectFactor):
+            self._factor.close()
+        lib = direct_library(self._cholmod.__file__) if DIRECT and DirectFactor.usable(A) else None
+        if lib is not None:
+            self._factor = DirectFactor(lib, A, self.mode, self.ordering)
+        else:
+            self._factor = self._cholmod.analyze(A, mode=self.mode, ordering_method=self.ordering)
+        self._pattern = (A.indptr.copy(), A.indices.copy(), A.shape)  # the analysed pattern
+        self._numeric = None
+        self.analyses += 1
+
+    def _factor_direct(self, A: sp.csc_matrix) -> DirectFactor:
+        """Factorised in the analysis' own memory, without the GIL: work beside it may go on."""
+        factor = self._factor
+        with factorisation_threads(), beside.factorising():
+            failed = factor.factorize(A)
+        if failed is not None:
+            raise SingularNormalMatrix(int(factor.perm[failed]))
+        check_pivots(factor.pivots(), factor.perm)
+        return factor
+
+    def _factor_scikit(self, A: sp.csc_matrix):
         perm = self._factor.P()
         factor, self._numeric = self._numeric, None
         try:
@@ -147,20 +187,17 @@ class CholmodSolver(NormalSolver):
                     factor.cholesky_inplace(A)
         except self._cholmod.CholmodNotPositiveDefiniteError as exc:
             col = getattr(exc, "column", None)
-            raise SingularNormalMatrix(int(perm[col]) if col is not None and 0 <= col < n else None) from exc
+            raise SingularNormalMatrix(int(perm[col]) if col is not None and 0 <= col < A.shape[0] else None) from exc
         # D(): the squared diagonal of L (supernodal, L L') or D itself (simplicial, L D L')
         check_pivots(np.sqrt(np.maximum(factor.D(), 0.0)), perm)
-        y = factor.solve_A(b * s)
-        if self.holds_factor:
-            self._held, self._numeric = (factor, s), factor
-        return SolveResult(np.asarray(y).reshape(-1) * s, self.name,
-                           SolverInfo(analyses=self.analyses, mode=self.mode, ordering=self.ordering))
+        return factor
 
     def solve_again(self, b):
         if self._held is None:
             return None
         factor, s = self._held
-        return np.asarray(factor.solve_A(b * s)).reshape(-1) * s
+        y = factor.solve(b * s) if isinstance(factor, DirectFactor) else factor.solve_A(b * s)
+        return np.asarray(y).reshape(-1) * s
 
     def holding(self) -> bool:
         return self._held is not None
@@ -169,3 +206,5 @@ class CholmodSolver(NormalSolver):
         self._held = None
         if not self.holds_factor:
             self._numeric = None
+            if isinstance(self._factor, DirectFactor):
+                self._factor.drop_values()
