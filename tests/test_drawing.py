@@ -19,6 +19,7 @@ import pytest
 
 from striptri.core.options import AdjustmentOptions
 from striptri.core.runs import RunOptions
+from striptri.errors import NumericalFailure
 from striptri.io import read_project
 from striptri.pipeline import adjust_products
 from striptri.report import drawing
@@ -368,3 +369,64 @@ def test_a_command_with_an_early_worker_draws_there_and_leaves_none_behind(tmp_p
     size = (Path(project) / "image_points.csv").stat().st_size
     assert drawing.EARLY_BYTES[0] <= size <= drawing.EARLY_BYTES[1]
     _command_draws_in_a_worker_and_leaves_none(project, tmp_path)
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc")
+def test_a_parked_worker_imports_matplotlib_only_when_taken(helpers_importable):
+    """park_worker starts the drawer without its import of matplotlib; worker_for takes it, and it
+    imports and draws then."""
+    drawing.park_worker()
+    parked = drawing._early[0]
+    try:
+        assert parked.parked
+        time.sleep(1.0)  # an unparked drawer has imported matplotlib's extensions by now
+        assert parked.process.poll() is None
+        assert "matplotlib" not in Path(f"/proc/{parked.process.pid}/maps").read_text()
+        with drawing.worker_for(True) as worker:
+            assert worker is parked and not worker.parked and not drawing._early
+            text = drawing.fill(drawing.html_of(drawing.draw(drawing_helpers.anywhere, b"p"), bytes.decode))
+            assert _drawn_by(text) == worker.process.pid
+            assert "matplotlib" in Path(f"/proc/{worker.process.pid}/maps").read_text()
+        assert worker.process.poll() is not None
+    finally:
+        drawing.discard_early_worker()
+
+
+@pytest.mark.parametrize("method", ["bundle", "conditions"])
+def test_a_later_bundle_run_parks_its_drawer(monkeypatch, method):
+    """A "later" run of the bundle method starts its drawer parked with the run and takes it after the
+    tests (one drawer made, the same report as drawn here); the method of conditions, whose point
+    precision hides a drawer's start, starts it after the tests. None is left."""
+    project = read_project(DATA / "block_3x6")
+    options = AdjustmentOptions(method=method)
+    monkeypatch.setattr(drawing, "when_to_start", lambda rays: None)
+    here = adjust_products(project, options, RunOptions())
+    made = []
+    real_init = drawing.Worker.__init__
+    monkeypatch.setattr(drawing.Worker, "__init__",
+                        lambda self, *a, **k: made.append((self, k.get("parked", False))) or real_init(self, *a, **k))
+    monkeypatch.setattr(drawing, "when_to_start", lambda rays: "later")
+    elsewhere = adjust_products(project, options, RunOptions())
+    assert [parked for _, parked in made] == [method == "bundle"]
+    footer = re.search(r"<footer>.*?</footer>", elsewhere.files["report.html"], flags=re.S).group(0)
+    assert "drawn by the second process" in footer
+    assert _figures_and_text(elsewhere.files["report.html"]) == _figures_and_text(here.files["report.html"])
+    assert made[0][0].process.poll() is not None and not drawing._early and not drawing.drawing_elsewhere()
+
+
+def test_a_parked_drawer_is_stopped_when_the_run_fails(monkeypatch):
+    """The run ends before its tests (a datum defect): the parked drawer is stopped with it."""
+    project = read_project(DATA / "block_3x6")
+    made = []
+    real_init = drawing.Worker.__init__
+    monkeypatch.setattr(drawing.Worker, "__init__", lambda self, *a, **k: made.append(self) or real_init(self, *a, **k))
+    monkeypatch.setattr(drawing, "when_to_start", lambda rays: "later")
+    import striptri.pipeline as pipeline
+
+    def fails(*args, **kwargs):
+        raise NumericalFailure("no datum", reason="datum_defect")
+
+    monkeypatch.setattr(pipeline, "adjust", fails)
+    with pytest.raises(NumericalFailure):
+        adjust_products(project, AdjustmentOptions(method="bundle"), RunOptions())
+    assert len(made) == 1 and made[0].process.wait(timeout=30) is not None and not drawing._early

@@ -306,6 +306,9 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
         workers.enter_context(drawing.worker_for(True, drawing.DRAWERS_NOW))
     else:
         drawing.discard_early_worker()  # one started before the project was read (drawing.early_worker)
+        if worker == "later" and options.method == "bundle":  # only the tables hide its start
+            drawing.park_worker()
+            workers.callback(drawing.discard_early_worker)  # not taken: the run ended before its tests
     if worker is None:
         figure_imports.preload()
     with warnings.catch_warnings(record=True) as caught:

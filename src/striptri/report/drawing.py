@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 # the figures' numpy work is small: no BLAS threads beside the command's
 WORKER_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 WAIT_SECONDS = 600.0  # the longest wait for one drawing (the 100,000-photo block's take seconds); then drawn here
+PARKED = "--parked"  # the worker's argument: wait for a byte on its input before importing matplotlib
 MARK = "\ue000"  # a private-use character around a placeholder: never in the report's own text
 
 
@@ -74,7 +75,9 @@ class Worker:
     figures go to whichever drawer is free and neither side waits for the other's pipe. A drawer
     first says it is ready (its pid): a line whose drawer never started takes no job."""
 
-    def __init__(self, drawers: int = 1):
+    def __init__(self, drawers: int = 1, parked: bool = False):
+        """parked: the drawer waits, its interpreter started, before importing matplotlib, until
+        :meth:`unpark` (its 15 MB instead of 65-100 MB meanwhile)."""
         # the striptri this process runs, wherever it was imported from
         home = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
         path = os.pathsep.join(p for p in (home, os.environ.get("PYTHONPATH", "")) if p)
@@ -82,7 +85,8 @@ class Worker:
         their_ends = [fd for jobs, answers in twins for fd in (jobs[0], answers[1])]
         try:
             self.process = subprocess.Popen(
-                [sys.executable, "-m", __name__, *(f"{jobs[0]},{answers[1]}" for jobs, answers in twins)],
+                [sys.executable, "-m", __name__, *([PARKED] if parked else []),
+                 *(f"{jobs[0]},{answers[1]}" for jobs, answers in twins)],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, pass_fds=their_ends,
                 env=dict(os.environ, **WORKER_ENVIRONMENT, PYTHONPATH=path),
                 start_new_session=True)  # not in the terminal's process group: the command takes Ctrl-C
@@ -95,6 +99,7 @@ class Worker:
             os.close(fd)
         lines = [(self.process.stdin, self.process.stdout)]
         lines += [(os.fdopen(jobs[1], "wb"), os.fdopen(answers[0], "rb")) for jobs, answers in twins]
+        self.parked = parked
         self.keys = itertools.count()
         self.outbox: queue.SimpleQueue = queue.SimpleQueue()  # (key, message) of the jobs not yet taken
         self.done: dict[int, tuple[bool, bytes | None]] = {}
@@ -107,6 +112,15 @@ class Worker:
                         for i, line in enumerate(lines)]
         for thread in self.threads:
             thread.start()
+
+    def unpark(self) -> None:
+        """Let a parked drawer import matplotlib and draw (it says it is ready only then, so no
+        job reaches its input before this byte)."""
+        if self.parked:
+            self.parked = False
+            with contextlib.suppress(OSError, ValueError):  # it has gone: its line ends, figures drawn here
+                self.process.stdin.write(b"g")
+                self.process.stdin.flush()
 
     def submit(self, function, args: tuple, kwargs: dict) -> Pending:
         job = Pending(next(self.keys), function, args, kwargs)
@@ -247,6 +261,8 @@ def _take_early(drawers: int) -> Worker | None:
     if worker is not None and (len(worker.threads) != drawers or worker.process.poll() is not None):
         worker.stop()  # not the worker asked for, or ended already: a new one
         return None
+    if worker is not None:
+        worker.unpark()
     return worker
 
 
@@ -289,6 +305,19 @@ def early_worker(project_dir):
         yield
     finally:
         discard_early_worker()
+
+
+def park_worker() -> None:
+    """Start the drawer of a "later" run now, parked before its import of matplotlib (Worker's
+    ``parked``), for :func:`worker_for` to take after the tests: for a run in which only the tables
+    come after the tests (the bundle method, whose points come with them), too short to hide the
+    whole start of a drawer. It saves the interpreter's start, about 0.1 s of the wait for the
+    figures, for 15 MB beside the run (docs/decisions.md "The drawer parked")."""
+    if not _current and not _early:
+        try:
+            _early.append(Worker(1, parked=True))
+        except Exception:  # no process can be started here: worker_for starts one or draws here
+            pass
 
 
 # From this many plate measurements on, the worker starts after the gross-error tests: the run's own
@@ -404,4 +433,9 @@ if __name__ == "__main__":  # pragma: no cover - the worker process
     # the drawings go out on the standard output as it was; anything printed goes to the standard error
     answers = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
-    _serve(sys.stdin.buffer, answers, [tuple(int(fd) for fd in arg.split(",")) for arg in sys.argv[1:]])
+    arguments = sys.argv[1:]
+    if arguments[:1] == [PARKED]:  # wait for unpark (or the command's end) before importing
+        arguments = arguments[1:]
+        if not sys.stdin.buffer.read(1):
+            sys.exit(0)
+    _serve(sys.stdin.buffer, answers, [tuple(int(fd) for fd in arg.split(",")) for arg in arguments])
