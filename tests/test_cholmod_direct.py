@@ -14,7 +14,7 @@ import scipy.sparse as sp
 from striptri import selected_inverse
 from striptri.adjustment import AdjustmentOptions, adjust
 from striptri.selected_inverse import symbolic
-from striptri.solvers import SingularNormalMatrix, SolverOptions, Structure, beside, jacobi_scaled, make_solver
+from striptri.solvers import SingularNormalMatrix, SolverOptions, beside, jacobi_scaled, make_solver
 from striptri.solvers import sparse_cholesky
 from striptri.solvers.synthetic import block_normal_matrix
 
@@ -64,9 +64,14 @@ def test_not_positive_definite_names_the_column_scikit_sparse_names():
     A.sort_indices()
     mine = DirectFactor(LIB, A, "supernodal", "nesdis")
     failed = mine.factorize(A)
+    theirs = cholmod.analyze(A, mode="supernodal", ordering_method="nesdis")
     with pytest.raises(cholmod.CholmodNotPositiveDefiniteError) as exc:
-        cholmod.analyze(A, mode="supernodal", ordering_method="nesdis").cholesky(A)
+        theirs.cholesky(A)
     assert failed == exc.value.column and mine.perm[failed] == 40
+    good = Ns.T  # the same pattern, positive definite: factorised again after the failure
+    b = np.ones(A.shape[0])
+    assert mine.factorize(good) is None
+    assert np.array_equal(mine.solve(b), theirs.cholesky(good).solve_A(b))
 
 
 @needs_direct
@@ -209,6 +214,23 @@ def test_another_pattern_is_analysed_here(monkeypatch):
     assert symbolic._ahead is None
 
 
+def test_an_analysis_waiting_for_its_windows_holds_no_numbers():
+    """A task that never runs (a strip's solver opens no windows, its precision takes the banded
+    route) keeps N's pattern arrays, not N: its numbers go with the iteration."""
+    import gc
+    import weakref
+
+    N, st = block_normal_matrix(6, 10, np.random.default_rng(3), n_cameras=1)
+    numbers = weakref.ref(N.data)
+    symbolic.symbolic_ahead(N, st, *PARAMS)
+    task = symbolic._ahead.task
+    del N
+    gc.collect()
+    assert numbers() is None and not task.done
+    symbolic._drop_ahead()
+    assert task.result() is None
+
+
 def test_memory_given_back_is_not_the_pattern():
     """The pattern's owner gone, an array at the same address is not taken for it."""
     N, _ = block_normal_matrix(3, 5, np.random.default_rng(1))
@@ -223,7 +245,8 @@ def test_memory_given_back_is_not_the_pattern():
 @pytest.mark.parametrize("method", ["conditions", "bundle"])
 def test_an_adjustment_analyses_for_the_precision_beside_its_factorisations(monkeypatch, method):
     """The adjustment's first solve starts the symbolic analysis of the selected inversion; it runs
-    beside CHOLMOD's factorisations, and the precision takes it: the same mean errors as without."""
+    beside CHOLMOD's factorisations, and the precision takes it: the same mean errors as without
+    (more blocks than AHEAD_MAX_BLOCKS: analysed where it is used)."""
     from striptri import simulate as sim
 
     design = sim.SyntheticDesign(flight=sim.FlightDesign(n_photos=10, n_strips=4, overlap=2 / 3, sidelap=0.6),
@@ -243,7 +266,6 @@ def test_an_adjustment_analyses_for_the_precision_beside_its_factorisations(monk
     sigma = r.covariance.photo_blocks()
     assert where == ["striptri-beside"]
     where.clear()
-    monkeypatch.setattr(selected_inverse, "for_layout_ahead", lambda N, layout: None)
-    monkeypatch.setattr("striptri.core.explain.selected_inverse.for_layout_ahead", lambda N, layout: None)
+    monkeypatch.setattr(selected_inverse, "AHEAD_MAX_BLOCKS", len(r.layout.photo_cols) - 1)  # too many blocks
     again = adjust(project, options)
     assert np.array_equal(again.covariance.photo_blocks(), sigma) and where == ["MainThread"]

@@ -73,11 +73,16 @@ MIN_BAND_BLOCK = 32  # smallest column block of the banded recurrence (fewer Pyt
 RELAXED_SUPERNODE = 48  # columns up to which a chain of blocks is merged into one supernode
 RELAXED_ZEROS = 0.5  # ... if at most this fraction of the merged supernode is explicit zeros
 BLOCK_ORDERING = "nesdis"  # order of the sparse route: "nesdis" (when CHOLMOD is there) or "mmd"
+# photo and camera blocks up to which for_layout_ahead analyses beside the factorisations: the
+# analysis is then held beside the iterations, which at 100,000 photos raised the peak by 343 MiB
+# (to 0.96x the peer's) for 3 s of 195 (docs/decisions.md "CHOLMOD without the interpreter lock")
+AHEAD_MAX_BLOCKS = 50_000
 
 __all__ = [
-    "BLOCK_ORDERING", "ENTRY_CHUNK", "METHODS", "MIN_BAND_BLOCK", "RELAXED_SUPERNODE", "RELAXED_ZEROS", "SOLVE_CHUNK",
-    "BandedInverse", "DenseInverse", "Engine", "SelectedInverse", "SupernodalInverse", "for_layout", "for_layout_ahead", "photo_blocks",
-    "selected_inverse",
+    "AHEAD_MAX_BLOCKS", "BLOCK_ORDERING", "ENTRY_CHUNK", "METHODS", "MIN_BAND_BLOCK", "RELAXED_SUPERNODE",
+    "RELAXED_ZEROS", "SOLVE_CHUNK",
+    "BandedInverse", "DenseInverse", "Engine", "SelectedInverse", "SupernodalInverse", "for_layout", "for_layout_ahead",
+    "photo_blocks", "selected_inverse",
 ]
 
 
@@ -153,7 +158,8 @@ def for_layout_ahead(N: sp.spmatrix, layout) -> None:
     factorisations of the adjustment run without the GIL (symbolic.symbolic_ahead; docs/decisions.md
     "CHOLMOD without the interpreter lock"). Nothing for a small N or one another route takes."""
     n = N.shape[0]
-    if not sp.isspmatrix_csr(N) or n <= DENSE_LIMIT or not N.has_canonical_format:
+    many = len(layout.photo_cols) + len(layout.camera_cols) > AHEAD_MAX_BLOCKS
+    if not sp.isspmatrix_csr(N) or n <= DENSE_LIMIT or many or not N.has_canonical_format:
         return
     blocks = [np.asarray(c, dtype=int) for c in (*layout.photo_cols, *layout.camera_cols)]
     structure = Structure(n, _partition_starts(blocks, layout.block_starts(), n))

@@ -288,7 +288,17 @@ def symbolic_ahead(N: sp.csr_matrix, structure: Structure, ordering: str, relaxe
     if not N.has_canonical_format:
         return
     _ahead = _Ahead(_Held.of(N.indptr), _Held.of(N.indices), N.shape, np.asarray(structure.block_starts),
-                    params, beside.BesideTask(_analysis_ahead, N, structure, params, route))
+                    params, beside.BesideTask(_analysis_ahead, _pattern_of(N), structure, params, route))
+
+
+def _pattern_of(N: sp.csr_matrix) -> sp.csr_matrix:
+    """N's pattern with its index arrays and without its numbers (one 1.0 seen at every entry): what
+    the analysis reads, and all that a task waiting for its windows holds (a strip's N, whose
+    analysis is never asked for, would otherwise be held for the whole run)."""
+    ones = np.lib.stride_tricks.as_strided(np.ones(1), shape=N.indices.shape, strides=(0,))
+    P = sp.csr_matrix((ones, N.indices, N.indptr), shape=N.shape, copy=False)
+    P.has_sorted_indices = P.has_canonical_format = True
+    return P
 
 
 def _analysis_ahead(N, structure: Structure, params: tuple, route, pause) -> Supernodes | None:

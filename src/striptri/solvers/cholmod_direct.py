@@ -174,7 +174,7 @@ class DirectFactor:
         return A.indices.dtype == np.int32 and A.indptr.dtype == np.int32 and A.has_sorted_indices
 
     def _view(self, A: sp.csc_matrix) -> _Sparse:
-        data = A.data if A.data.dtype == np.float64 and A.data.flags.c_contiguous else np.ascontiguousarray(A.data, float)
+        data = np.ascontiguousarray(A.data, dtype=np.float64)  # A's own numbers when they are so already
         self._held = (A.indptr, A.indices, data)  # alive while CHOLMOD reads them
         return _Sparse(nrow=A.shape[0], ncol=A.shape[1], nzmax=len(A.indices), p=A.indptr.ctypes.data,
                        i=A.indices.ctypes.data, nz=None, x=data.ctypes.data, z=None, stype=-1, itype=_INT,
@@ -188,7 +188,9 @@ class DirectFactor:
         self._lib.cholmod_factorize(C.byref(self._view(A)), self._L, C.byref(c))
         self._held = None
         if c.status == _NOT_POSDEF:
-            return int(self._L.contents.minor)
+            minor = int(self._L.contents.minor)
+            self.drop_values()  # a part of a factor: the next factorisation starts from the analysis
+            return minor
         if c.status < 0:
             raise MemoryError(f"CHOLMOD's factorisation failed (status {c.status}: out of memory or too large)")
         return None
