@@ -192,6 +192,8 @@ def test_the_analysis_made_ahead_is_the_analysis(monkeypatch):
     paced = symbolic._symbolic(N, st, *PARAMS, pause=lambda: pauses.append(1))
     assert same_supernodes(paced, direct) and len(pauses) >= 5
     symbolic.symbolic_ahead(N, st, *PARAMS)
+    copy = sp.csr_matrix((N.data, N.indices.copy(), N.indptr.copy()), shape=N.shape)
+    assert symbolic.analysed_ahead(jacobi_scaled(N)[0]) and not symbolic.analysed_ahead(copy)
     with beside.factorising():
         task = symbolic._ahead.task
         assert task.result() is not None

@@ -63,7 +63,7 @@ from .dense import DenseInverse
 from .engine import SOLVE_CHUNK, EmptyInverse, Engine
 from .result import ENTRY_CHUNK, FlatBlocks, SelectedInverse
 from .supernodal import SupernodalInverse
-from .symbolic import symbolic_ahead
+from .symbolic import analysed_ahead, symbolic_ahead
 
 METHODS = ("auto", "dense", "banded", "sparse", "cholmod")
 
@@ -157,10 +157,11 @@ def for_layout_ahead(N: sp.spmatrix, layout) -> None:
     pattern: the symbolic analysis of the ``sparse`` route, on the other core while the
     factorisations of the adjustment run without the GIL (symbolic.symbolic_ahead; docs/decisions.md
     "CHOLMOD without the interpreter lock"). Nothing for a small N or one another route takes."""
+    if not sp.isspmatrix_csr(N) or N.shape[0] <= DENSE_LIMIT or not N.has_canonical_format:
+        return  # (a dense N, the close-range blocks': no sparse route)
+    if len(layout.photo_cols) + len(layout.camera_cols) > AHEAD_MAX_BLOCKS or analysed_ahead(N):
+        return  # (analysed_ahead: the run's later solves, whose N share the first one's pattern)
     n = N.shape[0]
-    many = len(layout.photo_cols) + len(layout.camera_cols) > AHEAD_MAX_BLOCKS
-    if not sp.isspmatrix_csr(N) or n <= DENSE_LIMIT or many or not N.has_canonical_format:
-        return
     blocks = [np.asarray(c, dtype=int) for c in (*layout.photo_cols, *layout.camera_cols)]
     structure = Structure(n, _partition_starts(blocks, layout.block_starts(), n))
     symbolic_ahead(N, structure, BLOCK_ORDERING, RELAXED_SUPERNODE, RELAXED_ZEROS, route=_sparse_route)

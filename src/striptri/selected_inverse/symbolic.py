@@ -291,6 +291,13 @@ def symbolic_ahead(N: sp.csr_matrix, structure: Structure, ordering: str, relaxe
                     params, beside.BesideTask(_analysis_ahead, _pattern_of(N), structure, params, route))
 
 
+def analysed_ahead(N: sp.csr_matrix) -> bool:
+    """Whether an analysis of N's pattern arrays is under way or done (for any structure)."""
+    ahead = _ahead
+    return (ahead is not None and ahead.shape == N.shape and ahead.indptr.same(N.indptr)
+            and ahead.indices.same(N.indices))
+
+
 def _pattern_of(N: sp.csr_matrix) -> sp.csr_matrix:
     """N's pattern with its index arrays and without its numbers (one 1.0 seen at every entry): what
     the analysis reads, and all that a task waiting for its windows holds (a strip's N, whose
