@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ import scipy.sparse as sp
 
 from striptri import selected_inverse
 from striptri.adjustment import AdjustmentOptions, adjust
+from striptri.io import read_project
 from striptri.selected_inverse import symbolic
 from striptri.solvers import SingularNormalMatrix, SolverOptions, beside, jacobi_scaled, make_solver
 from striptri.solvers import sparse_cholesky
@@ -22,6 +24,7 @@ cholmod = pytest.importorskip("sksparse.cholmod")
 from striptri.solvers.cholmod_direct import DirectFactor, direct_library  # noqa: E402
 
 LIB = direct_library(cholmod.__file__)
+DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic_strips"
 needs_direct = pytest.mark.skipif(LIB is None, reason="the CHOLMOD under scikit-sparse is not CHOLMOD 3")
 
 
@@ -271,3 +274,63 @@ def test_an_adjustment_analyses_for_the_precision_beside_its_factorisations(monk
     monkeypatch.setattr(selected_inverse, "AHEAD_MAX_BLOCKS", len(r.layout.photo_cols) - 1)  # too many blocks
     again = adjust(project, options)
     assert np.array_equal(again.covariance.photo_blocks(), sigma) and where == ["MainThread"]
+
+
+# ------------------------------------------------------------------------------------ prepare
+
+
+@needs_direct
+def test_the_first_solve_takes_the_analysis_prepared_from_the_pattern(monkeypatch):
+    """prepare (the adjustments call it with N's pattern before its numbers) analyses on a thread
+    and takes the factor's memory; the first solve uses it: the same solution to the last bit, one
+    analysis, none made at the solve."""
+    from striptri.solvers.base import pattern_matrix
+    from striptri.solvers.sparse_cholesky import CholmodSolver
+
+    N, st = block_normal_matrix(3, 90, np.random.default_rng(8), n_cameras=1)  # wide enough for auto's cholmod
+    b = np.random.default_rng(9).normal(size=N.shape[0])
+    expected = make_solver(SolverOptions("cholmod"), st).solve(N, b).dx
+    for name in ("cholmod", "auto"):
+        solver = make_solver(SolverOptions(name), st)
+        solver.prepare(pattern_matrix(N.indptr, N.indices, N.shape))
+        concrete = solver if name == "cholmod" else solver._chosen
+        assert isinstance(concrete, CholmodSolver) and concrete._prepared is not None
+        with monkeypatch.context() as m:
+            m.setattr(CholmodSolver, "_analyse", lambda self, A: pytest.fail("analysed at the solve"))
+            result = solver.solve(N, b)
+        assert np.array_equal(result.dx, expected) and result.info.analyses == 1
+
+
+@needs_direct
+def test_a_prepared_analysis_of_another_pattern_is_not_taken():
+    from striptri.solvers.base import pattern_matrix
+
+    N, st = block_normal_matrix(5, 12, np.random.default_rng(8), n_cameras=1)
+    b = np.ones(N.shape[0])
+    other = N.tolil()
+    other[0, N.shape[0] - 1] = other[N.shape[0] - 1, 0] = 1e-3 * N[0, 0]  # one entry more
+    other = sp.csr_matrix(other)
+    solver = make_solver(SolverOptions("cholmod"), st)
+    solver.prepare(pattern_matrix(other.indptr, other.indices, other.shape))
+    result = solver.solve(N, b)
+    assert np.array_equal(result.dx, make_solver(SolverOptions("cholmod"), st).solve(N, b).dx)
+    assert result.info.analyses == 1 and solver._prepared is None
+
+
+@needs_direct
+@pytest.mark.parametrize("method", ["bundle", "conditions"])
+def test_the_bundle_method_tells_its_solver_the_pattern_ahead(monkeypatch, method):
+    """The bundle method prepares its solver with the reduced pattern (the first solve then finds
+    the analysis made); the method of conditions does not (its peak of memory: decisions.md)."""
+    from striptri.solvers.sparse_cholesky import CholmodSolver
+
+    project = read_project(DATA / "strip8")
+    told, analysed = [], []
+    prepare, analyse = CholmodSolver.prepare, CholmodSolver._analyse
+    monkeypatch.setattr(CholmodSolver, "prepare", lambda self, P: told.append(P.shape) or prepare(self, P))
+    monkeypatch.setattr(CholmodSolver, "_analyse", lambda self, A: analysed.append(A.shape) or analyse(self, A))
+    r = adjust(project, AdjustmentOptions(method=method, solver="cholmod"))
+    assert r.converged
+    n = r.layout.n_unknowns
+    assert told == ([(n, n)] if method == "bundle" else [])
+    assert analysed == ([] if method == "bundle" else [(n, n)])

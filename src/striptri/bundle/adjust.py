@@ -280,7 +280,8 @@ def solve_bundle(project: Project, options: AdjustmentOptions = AdjustmentOption
     problem.set_datum(now.state, normals)
     if problem.redundancy < 0:
         _explain_too_few(problem, now.state, now.xyz)
-    solver = solver_for(options, problem.layout, project)
+    # N's pattern told ahead: CHOLMOD analyses it during the first linearisation (solver_for)
+    solver = solver_for(options, problem.layout, project, problem.pattern.reduction(problem.S))
     # only after a failure; large residuals of a settled iteration are named when nothing in the input is
     causes = lambda: (diagnosis.likely_causes(project, "iteration")  # noqa: E731
                       or diagnosis.gross_residuals(project, history, problem.redundancy, now.plate_hat - obs.plate))

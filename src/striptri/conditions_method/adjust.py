@@ -331,6 +331,8 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
     reason, for a datum defect, a singular system, numbers that overflow or divergence."""
     t_start = time.perf_counter()
     problem = _Problem(project, options)
+    # not told N's pattern ahead (solver_for): its analysis beside the first linearisation raised the
+    # peak by 16-25 MiB, to 1.2x the peer's at 5,000 photos (docs/decisions.md "The analysis prepared")
     solver = solver_for(options, problem.layout, project)
     timings = Timings(conditions=0.0, assembly=0.0, solve=0.0, back_substitution=0.0)
     obs = problem.obs

@@ -10,16 +10,22 @@ from ..equations import datum
 from . import diagnosis, termination
 from .. import selected_inverse, solvers
 from ..errors import NumericalFailure
+from ..solvers.base import pattern_matrix
 from ..model import Project
 from ..equations.parameters import State, UnknownLayout
 
 
-def solver_for(options, layout: UnknownLayout, project: Project) -> solvers.NormalSolver:
+def solver_for(options, layout: UnknownLayout, project: Project, pattern=None) -> solvers.NormalSolver:
     """The solver of ``options.solver`` for the normal equations of these unknowns, told their
-    6x6 blocks and the strip of each (solvers.Structure), made once per adjustment."""
-    return solvers.make_solver(solvers.SolverOptions(name=options.solver),
-                               solvers.Structure(layout.n_unknowns, layout.block_starts(),
-                                                 layout.block_groups(project.photos.strip_ids)))
+    6x6 blocks and the strip of each (solvers.Structure), made once per adjustment; told N's
+    pattern (a ReducedPattern: its index arrays) when the method knows it already
+    (NormalSolver.prepare: CHOLMOD analyses it meanwhile)."""
+    solver = solvers.make_solver(solvers.SolverOptions(name=options.solver),
+                                 solvers.Structure(layout.n_unknowns, layout.block_starts(),
+                                                   layout.block_groups(project.photos.strip_ids)))
+    if pattern is not None and layout.n_unknowns == pattern.shape[0]:
+        solver.prepare(pattern_matrix(pattern.indptr, pattern.indices, pattern.shape))
+    return solver
 
 
 def solve_or_explain(normals, rhs: np.ndarray, solver: solvers.NormalSolver, state: State, problem,

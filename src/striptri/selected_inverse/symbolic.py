@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..solvers import Structure, beside
+from ..solvers.base import pattern_matrix
 from ..solvers.blocks import Blocks, partition, ranges
 from ..solvers.direct import block_order
 from ..solvers.sparse_cholesky import cholmod_available, cholmod_module
@@ -299,13 +300,10 @@ def analysed_ahead(N: sp.csr_matrix) -> bool:
 
 
 def _pattern_of(N: sp.csr_matrix) -> sp.csr_matrix:
-    """N's pattern with its index arrays and without its numbers (one 1.0 seen at every entry): what
-    the analysis reads, and all that a task waiting for its windows holds (a strip's N, whose
-    analysis is never asked for, would otherwise be held for the whole run)."""
-    ones = np.lib.stride_tricks.as_strided(np.ones(1), shape=N.indices.shape, strides=(0,))
-    P = sp.csr_matrix((ones, N.indices, N.indptr), shape=N.shape, copy=False)
-    P.has_sorted_indices = P.has_canonical_format = True
-    return P
+    """N's pattern with its index arrays and without its numbers: what the analysis reads, and all
+    that a task waiting for its windows holds (a strip's N, whose analysis is never asked for,
+    would otherwise be held for the whole run)."""
+    return pattern_matrix(N.indptr, N.indices, N.shape)
 
 
 def _analysis_ahead(N, structure: Structure, params: tuple, route, pause) -> Supernodes | None:

@@ -111,6 +111,10 @@ class NormalSolver:
     def solve(self, N: sp.csr_matrix, b: np.ndarray) -> SolveResult:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def prepare(self, pattern: sp.csr_matrix) -> None:
+        """N's pattern before its first numbers (the adjustments tell it once they have made it): a
+        solver may begin its analysis meanwhile. Nothing by default; never a change of result."""
+
     def solve_again(self, b: np.ndarray) -> np.ndarray | None:
         """N^-1 b for the N of the last solve, with its factor when the solver holds one
         (``holds_factor``; the CHOLMOD solvers); None when it does not (then solve N again)."""
@@ -158,6 +162,15 @@ def jacobi_scaled(N: sp.spmatrix):
     Ns = sp.csr_matrix((data, N.indices, N.indptr), shape=N.shape, copy=False)
     Ns.has_sorted_indices = True
     return Ns, s
+
+
+def pattern_matrix(indptr: np.ndarray, indices: np.ndarray, shape: tuple) -> sp.csr_matrix:
+    """A canonical CSR matrix with these index arrays (shared, not copied) and a 1.0 seen at every
+    entry (one number in memory): a pattern handed to an analysis that reads no numbers."""
+    ones = np.lib.stride_tricks.as_strided(np.ones(1), shape=indices.shape, strides=(0,))
+    P = sp.csr_matrix((ones, indices, indptr), shape=shape, copy=False)
+    P.has_sorted_indices = P.has_canonical_format = True
+    return P
 
 
 def check_pivots(pivots: np.ndarray, columns: np.ndarray | None = None) -> None:

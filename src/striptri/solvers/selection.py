@@ -110,12 +110,20 @@ class AutoSolver(NormalSolver):
         return self._chosen is not None and self._chosen.iterative
 
     def solve(self, N, b) -> SolveResult:
+        self._choose(N)
+        self._chosen.holds_factor = self.holds_factor
+        return self._chosen.solve(N, b)
+
+    def prepare(self, pattern) -> None:
+        """The choice made from the pattern now (it reads nothing else), and the pattern passed on."""
+        self._choose(pattern)
+        self._chosen.prepare(pattern)
+
+    def _choose(self, N) -> None:
         if self._chosen is None or self._chosen.structure.n_unknowns != N.shape[0]:
             concrete = resolve_solver("auto", N.shape[0], N, self.structure)
             self._chosen = _SOLVER_CLASSES[concrete](self.options, self.structure)
             self.name = concrete
-        self._chosen.holds_factor = self.holds_factor
-        return self._chosen.solve(N, b)
 
     def solve_again(self, b):
         return None if self._chosen is None else self._chosen.solve_again(b)

@@ -120,6 +120,7 @@ class CholmodSolver(NormalSolver):
         self.analyses = 0
         self._held = None  # (numeric factor, Jacobi scale) of the last solve, when holds_factor
         self._numeric = None  # while holds_factor: the last numeric factor, whose memory the next one reuses
+        self._prepared = None  # (the pattern's CSC view, the thread analysing it, [its DirectFactor]): prepare
 
     def _pattern_fits(self, A: sp.csc_matrix) -> bool:
         if self._pattern is None:
@@ -140,7 +141,7 @@ class CholmodSolver(NormalSolver):
             return SolveResult(np.zeros(0), self.name)
         Ns, s = jacobi_scaled(N)
         A = Ns.T  # CSC view of the symmetric matrix; CHOLMOD reads its lower triangle
-        if not self._pattern_fits(A):
+        if not self._pattern_fits(A) and not self._take_prepared(A):
             self._analyse(A)
         _tame_openmp(self._cholmod)  # this thread may not be the one that made the solver
         factor = self._factor_direct(A) if isinstance(self._factor, DirectFactor) else self._factor_scikit(A)
@@ -165,6 +166,48 @@ class CholmodSolver(NormalSolver):
         self._pattern = (A.indptr.copy(), A.indices.copy(), A.shape)  # the analysed pattern
         self._numeric = None
         self.analyses += 1
+
+    def prepare(self, pattern: sp.csr_matrix) -> None:
+        """The analysis of N's pattern, and the first factor's memory taken and touched, on a
+        thread while the first linearisation runs (CHOLMOD's own calls run without the GIL; the
+        supernodal mode only). The first solve takes it if its N has that pattern."""
+        A = pattern.T
+        if (self._factor is not None or self._prepared is not None or self.mode != "supernodal" or not DIRECT
+                or not DirectFactor.usable(A)):
+            return
+        lib = direct_library(self._cholmod.__file__)
+        if lib is None:
+            return
+        made: list = []
+
+        def analyse():
+            try:
+                factor = DirectFactor(lib, A, self.mode, self.ordering)
+                factor.allocate_values()
+                made.append(factor)
+            except Exception:  # noqa: BLE001 - the first solve analyses as without
+                pass
+
+        thread = threading.Thread(target=analyse, name="striptri-analysis", daemon=True)
+        thread.start()
+        self._prepared = (A, thread, made)
+
+    def _take_prepared(self, A: sp.csc_matrix) -> bool:
+        """Whether the analysis of :meth:`prepare` was of A's pattern and is now the solver's."""
+        if self._prepared is None:
+            return False
+        pattern, thread, made = self._prepared
+        self._prepared = None
+        thread.join()
+        same = (pattern.shape == A.shape and np.array_equal(pattern.indptr, A.indptr)
+                and np.array_equal(pattern.indices, A.indices))
+        if not (same and made):
+            return False
+        self._factor = made[0]
+        self._pattern = (A.indptr.copy(), A.indices.copy(), A.shape)
+        self._numeric = None
+        self.analyses += 1
+        return True
 
     def _factor_direct(self, A: sp.csc_matrix) -> DirectFactor:
         """Factorised in the analysis' own memory, without the GIL: work beside it may go on."""
