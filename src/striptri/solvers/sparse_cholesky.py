@@ -145,7 +145,7 @@ class CholmodSolver(NormalSolver):
             self._analyse(A)
         _tame_openmp(self._cholmod)  # this thread may not be the one that made the solver
         factor = self._factor_direct(A) if isinstance(self._factor, DirectFactor) else self._factor_scikit(A)
-        y = factor.solve(b * s) if isinstance(factor, DirectFactor) else factor.solve_A(b * s)
+        y = _solved(factor, b * s)
         if self.holds_factor:
             self._held, self._numeric = (factor, s), factor
         elif isinstance(factor, DirectFactor):
@@ -157,12 +157,18 @@ class CholmodSolver(NormalSolver):
         """The symbolic factorisation of A's pattern: by CHOLMOD's own calls where they can be
         made (cholmod_direct), else by scikit-sparse."""
         if isinstance(self._factor, DirectFactor):
-            self._factor.close()
+            self._factor.close()  # before the new one is made: never two at once
         lib = direct_library(self._cholmod.__file__) if DIRECT and DirectFactor.usable(A) else None
         if lib is not None:
-            self._factor = DirectFactor(lib, A, self.mode, self.ordering)
+            self._install(DirectFactor(lib, A, self.mode, self.ordering), A)
         else:
-            self._factor = self._cholmod.analyze(A, mode=self.mode, ordering_method=self.ordering)
+            self._install(self._cholmod.analyze(A, mode=self.mode, ordering_method=self.ordering), A)
+
+    def _install(self, analysis, A: sp.csc_matrix) -> None:
+        """``analysis`` (of A's pattern) becomes the solver's, in place of the one before."""
+        if isinstance(self._factor, DirectFactor):
+            self._factor.close()  # (closed already when _analyse made it: closing twice is nothing)
+        self._factor = analysis
         self._pattern = (A.indptr.copy(), A.indices.copy(), A.shape)  # the analysed pattern
         self._numeric = None
         self.analyses += 1
@@ -203,10 +209,7 @@ class CholmodSolver(NormalSolver):
                 and np.array_equal(pattern.indices, A.indices))
         if not (same and made):
             return False
-        self._factor = made[0]
-        self._pattern = (A.indptr.copy(), A.indices.copy(), A.shape)
-        self._numeric = None
-        self.analyses += 1
+        self._install(made[0], A)
         return True
 
     def _factor_direct(self, A: sp.csc_matrix) -> DirectFactor:
@@ -239,8 +242,7 @@ class CholmodSolver(NormalSolver):
         if self._held is None:
             return None
         factor, s = self._held
-        y = factor.solve(b * s) if isinstance(factor, DirectFactor) else factor.solve_A(b * s)
-        return np.asarray(y).reshape(-1) * s
+        return np.asarray(_solved(factor, b * s)).reshape(-1) * s
 
     def holding(self) -> bool:
         return self._held is not None
@@ -251,3 +253,8 @@ class CholmodSolver(NormalSolver):
             self._numeric = None
             if isinstance(self._factor, DirectFactor):
                 self._factor.drop_values()
+
+
+def _solved(factor, rhs: np.ndarray) -> np.ndarray:
+    """A^-1 rhs with either route's factor (cholmod_direct's, or scikit-sparse's Factor)."""
+    return factor.solve(rhs) if isinstance(factor, DirectFactor) else factor.solve_A(rhs)
