@@ -106,3 +106,25 @@ def test_blocks_read_once_and_equal_entries(case):
     c = cols[sets].reshape(len(a), 18)
     want = g @ Qp[c[:, :, None], c[:, None, :]] @ np.swapaxes(g, 1, 2)
     np.testing.assert_allclose(first, want, atol=1e-8 * np.abs(want).max())
+
+
+def test_release_inverse_keeps_the_blocks_its_group_forms_have_read(case):
+    """Covariance.release_inverse (the pipeline's, before the point precision): group forms over the
+    photo pairs read before give the same numbers without making the inverse again; other entries
+    make it again and equal the dense reference. A free network is never released."""
+    r, Q = case
+    cov = Covariance(r.N, r.layout, r.free_network)
+    cols = r.layout.photo_cols
+    a = np.arange(len(cols))
+    sets = np.stack([a, np.roll(a, 1), np.roll(a, 2)], axis=1)
+    G = np.random.default_rng(3).normal(size=(len(a), 4, 3, 6))
+    first = cov.group_forms([Slots(G, sets, cols)])
+    released = cov.release_inverse()
+    assert released == (r.free_network is None)
+    np.testing.assert_array_equal(cov.group_forms([Slots(G[::-1], sets[::-1], cols)]), first[::-1])
+    if released:
+        assert not cov._inv._engine.rebuilt  # read from the kept blocks
+    scale = np.abs(Q).max()
+    np.testing.assert_allclose(cov.dense(), Q, atol=1e-9 * scale)
+    if released:
+        assert cov._inv._engine.rebuilt

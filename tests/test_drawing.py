@@ -430,3 +430,36 @@ def test_a_parked_drawer_is_stopped_when_the_run_fails(monkeypatch):
     with pytest.raises(NumericalFailure):
         adjust_products(project, AdjustmentOptions(method="bundle"), RunOptions())
     assert len(made) == 1 and made[0].process.wait(timeout=30) is not None and not drawing._early
+
+
+def test_a_later_run_asks_for_its_figures_before_the_point_precision(monkeypatch):
+    """A "later" run (conditions) asks its worker for every figure that needs no points as soon as
+    the worker starts, so that they are drawn beside the point precision; the point precision then
+    reads the blocks of Qxx the tests read, with the inverse let go before it (its memory is not
+    beside the worker's) and not made again."""
+    import striptri.pipeline as pipeline
+
+    project = read_project(DATA / "block_3x6")
+    monkeypatch.setattr(drawing, "when_to_start", lambda rays: "later")
+    asked: list[str] = []
+    draw, triangulate = drawing.draw, pipeline.triangulate_result
+
+    def counted(function, *args, **kwargs):
+        asked.append(function.__name__)
+        return draw(function, *args, **kwargs)
+
+    def points(adjusted, result):
+        engine = result.covariance._inv._engine
+        assert type(engine).__name__ == "_Rebuilt" and not engine.rebuilt  # let go before
+        out = triangulate(adjusted, result)
+        assert not engine.rebuilt  # and not needed
+        asked.append("(point precision)")
+        return out
+
+    monkeypatch.setattr(drawing, "draw", counted)
+    monkeypatch.setattr(pipeline, "triangulate_result", points)
+    products = adjust_products(project, AdjustmentOptions(), RunOptions())
+    assert asked.index("(point precision)") == 4 and asked[-1] == "error_ellipses"
+    assert sorted(asked[:4]) == ["convergence", "plate_residuals_per_photo", "plate_residuals_stacked",
+                                 "structure_figure"]
+    assert "drawn by the second process" in products.files["report.html"]

@@ -463,6 +463,29 @@ def test_off_only_flags():
     assert suspect.sum() >= len(rows) // 2
 
 
+def test_the_tests_of_every_row_take_the_project_itself(monkeypatch):
+    """The first round of the tests (every row kept) adjusts and tests the project object itself,
+    not a copy of it: what is kept for that object (its condition groups, groups.build_batches) serves
+    the tests. A subset with rows left out is a new project with those rows only."""
+    from striptri.equations import groups
+    from striptri.reliability.outcome import subset
+
+    project, _ = simulated("block", BLOCK, 1)
+    keep = np.ones(len(project.image_points), dtype=bool)
+    assert subset(project, keep) is project
+    keep[3] = False
+    fewer = subset(project, keep)
+    assert fewer is not project and len(fewer.image_points) == len(project.image_points) - 1
+    np.testing.assert_array_equal(fewer.image_points.xy, project.image_points.xy[keep])
+    built = []
+    build = groups._build_batches
+    monkeypatch.setattr(groups, "_build_batches", lambda p, chains=True: built.append(p) or build(p, chains))
+    first = adjust(project, AdjustmentOptions())
+    out = detect_blunders(project, AdjustmentOptions(), BlunderOptions(method="off"), first)
+    assert out.project is project
+    assert sum(p is project for p in built) == 1  # its groups made once, for the adjustment
+
+
 def test_select_rejections_keeps_groups_and_photos_apart():
     point = np.array([0, 0, 0, 1, 1, 2, 2, 3])
     photo = np.array([0, 1, 2, 1, 2, 3, 4, 0])

@@ -320,6 +320,7 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
             # a worker running: the adjustment's own figures drawn during the tests, for the report
             # when the tests keep its result
             of_first = _figures_of_adjustment(project, first) if drawing.drawing_elsewhere() else {}
+            drawn_for = first  # the result whose figures of_first are
             seconds_early = time.perf_counter() - t_first
             if options.method == "sequential":  # step 2: the blunder procedure on it
                 det = without_tests(project, first, "not tested (sequential method)")
@@ -327,8 +328,18 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
                 det = detect_blunders(project, options, blunder_options(blunders), first)
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total - seconds_early, 0.0)
+            if run.covariance is None and point_precision == "schmid90" and not _reads_covariance_entries(adjusted,
+                                                                                                        result):
+                # the point precision reads the blocks the tests have read (Covariance.release_inverse):
+                # the inverse let go before the drawing worker starts beside it
+                result.release_inverse()
+                give_back_free_memory()
             if worker == "later":  # the run's peaks of memory are behind
                 workers.enter_context(drawing.worker_for(True))
+                if drawing.drawing_elsewhere():  # what needs no points, drawn beside the point precision
+                    t_asked = time.perf_counter()
+                    of_first, drawn_for = _figures_of_adjustment(adjusted, result, det), result
+                    seconds_early += time.perf_counter() - t_asked
             progress.phase("reliability measures (gross errors)", phases["gross_errors"])
             if not result.converged:
                 warn("kept although the adjustment did not converge (--keep-unconverged): "
@@ -359,8 +370,8 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     early: dict = {}  # with a drawing worker: the figures asked for now, drawn while the tables are written
     t0 = time.perf_counter()
     if drawing.drawing_elsewhere():
-        if result is not first:  # the tests adjusted again: drawn anew (a subset with every row is
-            of_first = {}        # the same photos and cameras: the first figures hold)
+        if result is not drawn_for:  # the tests adjusted again: drawn anew (a subset with every row is
+            of_first = {}            # the same photos and cameras: the first figures hold)
         early["structure"] = of_first["structure"] if of_first else _structure(adjusted, result)
         made = of_first.get("sections", {})
         early["sections"] = {**made, **report.figure_sections(
@@ -424,11 +435,15 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     return products
 
 
-def _figures_of_adjustment(project: Project, result: AdjustmentResult) -> dict:
+def _figures_of_adjustment(project: Project, result: AdjustmentResult, det=None) -> dict:
     """The report's figures that need only the adjustment (the structure of N, the convergence
-    section), asked for from the drawing worker (_adjust_products' "early")."""
-    return {"structure": _structure(project, result),
-            "sections": report.figure_sections(project, result, keys=("convergence",))}
+    section) and, with the outcome ``det`` of its tests, the residuals section, asked for from the
+    drawing worker (_adjust_products' "early")."""
+    sections = report.figure_sections(project, result, keys=("convergence",))
+    if det is not None:
+        sections.update(report.figure_sections(project, result, det.w[det.rows], flags=det.flag[det.rows],
+                                               keys=("residuals",)))
+    return {"structure": _structure(project, result), "sections": sections}
 
 
 def _structure(project: Project, result: AdjustmentResult):

@@ -214,8 +214,12 @@ def without_tests(project: Project, result: AdjustmentResult, stopped: str) -> B
 
 
 def subset(project: Project, keep: np.ndarray) -> Project:
-    """The project with only the ImagePoints rows where keep is True."""
+    """The project with only the ImagePoints rows where keep is True: the project itself when keep is
+    true everywhere (the first round of the tests), so that what is kept for that project object (its
+    condition groups: groups.build_batches) serves the tests too."""
     ip = project.image_points
+    if keep.dtype == bool and len(keep) == len(ip.point_index) and keep.all():
+        return project
     return replace(project, image_points=replace(
         ip, photo_index=ip.photo_index[keep], point_index=ip.point_index[keep], xy=ip.xy[keep],
         sigma_xy=ip.sigma_xy[keep],

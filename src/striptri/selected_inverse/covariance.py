@@ -60,6 +60,16 @@ class Covariance:
         self._store = BlockStore()
         return True
 
+    def release_inverse(self) -> bool:
+        """:meth:`release`, but the blocks kept for group_forms stay: the point precision after the
+        gross-error tests forms ``G Qxx G^T`` over the photo pairs whose blocks the residual
+        cofactors have read, without the inverse's 84 MB (5,000 photos) beside the drawing worker
+        (docs/decisions.md "The inverse let go before the point precision")."""
+        if self.free_network is not None:
+            return False
+        self._inv.release(self._rebuild)
+        return True
+
     def entries(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Qxx[rows, cols] elementwise (broadcast; index -1, a fixed element, reads zero)."""
         r, c = np.broadcast_arrays(np.asarray(rows, dtype=int), np.asarray(cols, dtype=int))
