@@ -73,7 +73,8 @@ def test_a_method_refused_on_a_block_is_bad_input(tmp_path):
 def test_the_structure_figure_names_the_photos():
     """Before: its axes counted the blocks from 0."""
     from striptri.io import read_project
-    from striptri.pipeline import normal_matrix_at_approximations, structure_labels
+    from striptri.adjustment import normal_matrix_at_approximations
+    from striptri.pipeline import structure_labels
 
     project = read_project(DATA / "strip8")
     _, layout = normal_matrix_at_approximations(project)

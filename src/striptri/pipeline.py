@@ -25,13 +25,13 @@ from .equations.groups import rays_per_point
 from . import progress, solvers
 from .core.adjusted_points import triangulate_adjusted, undetermined_points
 from .precision import collinearity_form
+from .precision.residuals import keep_group_blocks
 from .bundle.distances import summary_entry as distances_summary
 from .crs import project as map_coordinates
-from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message, normal_matrix_at_approximations
+from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message
 from .errors import InputError
 from .report import figures as figure_imports
 from .report import drawing
-from .report.figures import normal_matrix_structure
 from .report.tables import (camera_table, check_point_statistics, finite_or_none, gnss_tables, photo_table,  # noqa: F401
                             point_covariances, point_table, residual_table)
 from .report import film as film_report
@@ -41,7 +41,6 @@ from .io.output import OutputReservation, check_output_location
 from .solvers.memory import (WARM_BYTES_PER_INPUT_BYTE, WARM_MAX_BYTES, give_back_free_memory,
                              keep_freed_memory, warm_heap)
 from .solvers.threads import single_threaded
-from .io.png import software_of, with_software
 from .io.project_reader import FILE_NAMES, read_project
 from .model import CHECK, Project
 from .precision.residuals import joint_point_covariance
@@ -200,32 +199,6 @@ def structure_labels(project: Project, layout) -> list[str] | None:
     return labels if len(labels) == n_blocks else None
 
 
-STRUCTURE_SOFTWARE = "striptri structure"
-
-
-def structure_figure(project_dir, out_png, on_warning: Callable[[str], None] | None = None) -> Path:
-    """Write the normal matrix's structure (Schmid Fig. 10) of a project as a PNG. An existing
-    file is replaced only when it is a figure this command wrote (its PNG Software text). The
-    project's notes (input not used) go to ``on_warning``."""
-
-    project_dir = Path(project_dir)
-    inputs = input_paths(project_dir)
-
-    def owned(path: Path) -> bool:
-        return software_of(path) == STRUCTURE_SOFTWARE
-
-    check_output_location(out_png, inputs, kind="file", owned=owned)
-    project = read_project(project_dir)
-    for note in project.notes:
-        if on_warning is not None:
-            on_warning(str(note))
-    with OutputReservation(out_png, inputs, kind="file", owned=owned) as reservation:
-        N, layout = normal_matrix_at_approximations(project)
-        png = normal_matrix_structure(N, layout.block_starts(), len(project.photos),
-                                      labels=structure_labels(project, layout))
-        return reservation.commit(with_software(png, STRUCTURE_SOFTWARE))
-
-
 def adjust_products(project: Project, options: AdjustmentOptions, run: RunOptions = RunOptions(),
                     on_warning: Callable[[str], None] | None = None,
                     seconds_reading: float | None = None, frame=None) -> AdjustmentProducts:
@@ -325,11 +298,15 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
             if options.method == "sequential":  # step 2: the blunder procedure on it
                 det = without_tests(project, first, "not tested (sequential method)")
             else:
+                if drawing.parked() and lean_covariance(run, first, project) and keep_group_blocks(project, first):
+                    # the blocks the tests read kept and the inverse let go: the drawer's import
+                    # beside the tests does not add to their peak (docs/decisions.md)
+                    give_back_free_memory()
+                    drawing.unpark_early()
                 det = detect_blunders(project, options, blunder_options(blunders), first)
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total - seconds_early, 0.0)
-            if run.covariance is None and point_precision == "schmid90" and not _reads_covariance_entries(adjusted,
-                                                                                                        result):
+            if lean_covariance(run, result, adjusted):
                 # the point precision reads the blocks the tests have read (Covariance.release_inverse):
                 # the inverse let go before the drawing worker starts beside it
                 result.release_inverse()
@@ -452,6 +429,13 @@ def _structure(project: Project, result: AdjustmentResult):
     return drawing.draw(figure_imports.structure_figure,
                         *figure_imports.structure_parts(result.N, result.layout.block_starts()),
                         len(project.photos), labels=structure_labels(project, result.layout))
+
+
+def lean_covariance(run: RunOptions, result: AdjustmentResult, project: Project) -> bool:
+    """Whether the run reads nothing of Qxx beyond the blocks of its point groups, the photo blocks
+    and the diagonal (no covariance.npz, the point precision schmid90, no other entries)."""
+    return (run.covariance is None and run.point_precision == "schmid90"
+            and not _reads_covariance_entries(project, result))
 
 
 def _reads_covariance_entries(project: Project, result: AdjustmentResult) -> bool:
