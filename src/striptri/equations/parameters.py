@@ -186,23 +186,25 @@ class UnknownLayout:
 
 
 def _enforced_base_aliases(project: Project) -> np.ndarray:
-    """For each photo element (n, 3) of the centre, the (photo, axis) it is tied to, by union-find."""
+    """For each photo element (n, 3) of the centre, the (photo, axis) it is tied to: the smallest
+    element index ``3 photo + axis`` of its group of elements joined by enforced base components
+    (the connected components of that graph)."""
     n = len(project.photos)
-    parent = np.arange(3 * n)
-
-    def find(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
     b = project.bases
     enforced = ~(b.sigma > 0)
-    for f, t, ax in zip(b.photo_from[enforced], b.photo_to[enforced], b.axis[enforced]):
-        ra, rb = find(3 * f + ax), find(3 * t + ax)
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-    return np.array([find(a) for a in range(3 * n)]).reshape(n, 3)
+    nodes = np.arange(3 * n)
+    if not enforced.any():
+        return nodes.reshape(n, 3)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    a = 3 * np.asarray(b.photo_from[enforced]) + b.axis[enforced]
+    c = 3 * np.asarray(b.photo_to[enforced]) + b.axis[enforced]
+    graph = coo_matrix((np.ones(len(a)), (a, c)), shape=(3 * n, 3 * n))
+    _, label = connected_components(graph, directed=False)
+    root = np.full(label.max() + 1, 3 * n)
+    np.minimum.at(root, label, nodes)
+    return root[label].reshape(n, 3)
 
 
 def apply_enforced_bases(project: Project, xyz0: np.ndarray) -> np.ndarray:
@@ -224,32 +226,24 @@ def build_layout(project: Project) -> UnknownLayout:
     fixed_pos = photos.centre_state == HELD
     fixed_ang = photos.angle_state == HELD
     alias = _enforced_base_aliases(project)  # (n, 3) root element index 3*photo + axis
-    photo_cols = -np.ones((n, 6), dtype=int)
-    root_col: dict[int, int] = {}
-    # a group of tied elements is fixed if any member is fixed
-    fixed_roots = set(alias[fixed_pos].tolist())
-    col = 0
-    for i in range(n):
-        for ax in range(3):
-            root = int(alias[i, ax])
-            if root in fixed_roots:
-                continue
-            if root not in root_col:
-                root_col[root] = col
-                col += 1
-            photo_cols[i, ax] = root_col[root]
-        all_fixed = fixed_ang[i].all()
-        for a in range(3):
-            if not all_fixed and not fixed_ang[i, a]:
-                photo_cols[i, 3 + a] = col
-                col += 1
-    camera_cols = -np.ones((len(cams), NCP), dtype=int)
+    # columns in the order of the photos, each photo's centre (a group of tied elements takes the
+    # column of its first element; fixed when any member is fixed) then its free angles
+    centre = ~np.isin(alias, alias[fixed_pos])
+    angle = ~fixed_ang & ~fixed_ang.all(axis=1, keepdims=True)
+    first = np.zeros(3 * n, dtype=bool)
+    roots, where = np.unique(np.where(centre, alias, -1).ravel(), return_index=True)
+    first[where[roots >= 0]] = True
+    new = np.concatenate([first.reshape(n, 3), angle], axis=1)  # (n, 6) the elements that open a column
+    cols = np.cumsum(new.ravel()).reshape(n, 6) - 1
+    photo_cols = np.where(new, cols, -1)
+    root_col = np.full(3 * n, -1)
+    root_col[alias.ravel()[first]] = cols[:, :3].ravel()[first]
+    photo_cols[:, :3] = np.where(centre, root_col[alias], -1)
+    col = int(new.sum())
     free_or_observed = cams.interior_state != HELD
-    for j in range(len(cams)):
-        for e in range(NCP):
-            if free_or_observed[j, e]:
-                camera_cols[j, e] = col
-                col += 1
+    camera_cols = np.where(free_or_observed, col + np.cumsum(free_or_observed.ravel()).reshape(free_or_observed.shape)
+                           - 1, -1)
+    col += int(free_or_observed.sum())
     gnss_cols = None
     if uses_gnss(project):
         gnss_cols, col = gnss_columns(project.gnss, col)
