@@ -83,11 +83,16 @@ FORKS = """
 import os, sys, time
 import numpy as np
 a = np.ones(12_500_000)  # 100 MB resident
-if sys.argv[1] == "fork":  # a child that never execs: the parent's pages
+if sys.argv[1] in ("fork", "fork-own"):  # a child that never execs: the parent's pages
     pid = os.fork()
     if pid == 0:
+        if sys.argv[1] == "fork-own":  # and 50 MB of its own (striptri's early reader)
+            b = np.ones(6_250_000)
+        print("ready", flush=True)
         time.sleep(30)
         os._exit(0)
+    time.sleep(30)
+    sys.exit()
 else:  # a child that runs a program of its own, with 60 MB of its own
     import subprocess
     subprocess.Popen([sys.executable, "-c", "import numpy as np, time; b = np.ones(7_500_000); time.sleep(30)"])
@@ -97,11 +102,12 @@ time.sleep(30)
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="the tree is read from /proc")
-@pytest.mark.parametrize("kind", ["fork", "exec"])
+@pytest.mark.parametrize("kind", ["fork", "fork-own", "exec"])
 def test_the_process_tree_counts_a_forked_child_once_and_an_execd_one_apart(kind):
     """bench_scale._tree_rss_mib: a child that still runs its parent's program (between a fork and
-    an exec) shares the parent's pages and adds nothing; a child that runs a program of its own
-    adds its own resident memory."""
+    an exec, or a fork that never execs) shares the parent's pages and adds only its own private
+    pages (the early reader's parse of the project); a child that runs a program of its own adds its
+    own resident memory."""
     import subprocess
     import time
 
@@ -124,6 +130,8 @@ def test_the_process_tree_counts_a_forked_child_once_and_an_execd_one_apart(kind
         if kind == "fork":
             assert rss(children[0]) > 90  # the shared pages show in the child's own count
             assert tree == pytest.approx(parent, abs=5)
+        elif kind == "fork-own":
+            assert tree == pytest.approx(parent + 48, abs=5)  # 50 MB = 47.7 MiB of its own
         else:
             assert tree == pytest.approx(parent + rss(children[0]), abs=5)
             assert tree > parent + 60
