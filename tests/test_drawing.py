@@ -463,33 +463,3 @@ def test_a_later_run_asks_for_its_figures_before_the_point_precision(monkeypatch
     assert sorted(asked[:4]) == ["convergence", "plate_residuals_per_photo", "plate_residuals_stacked",
                                  "structure_figure"]
     assert "drawn by the second process" in products.files["report.html"]
-
-
-def test_a_later_bundle_run_lets_its_parked_drawer_go_during_the_tests(monkeypatch):
-    """The parked drawer of a "later" bundle run is let go before the tests, at the lowest priority
-    (drawing.BESIDE_NICENESS), once the blocks of Qxx the tests read are kept and the inverse let go
-    (its import then does not add to the tests' peak); the tests read no inverse again."""
-    import striptri.pipeline as pipeline
-    from striptri.precision import collinearity_form
-
-    project = read_project(DATA / "block_3x6")
-    monkeypatch.setattr(drawing, "when_to_start", lambda rays: "later")
-    monkeypatch.setattr(collinearity_form, "DENSE_UNKNOWNS", 0)  # Qxx read by blocks, as in a large block
-    seen = {}
-    tests = pipeline.detect_blunders
-
-    def tested(project, options, blunders, first):
-        worker = drawing._early[0]
-        seen["parked"] = worker.parked
-        seen["niceness"] = os.getpriority(os.PRIO_PROCESS, worker.process.pid)
-        engine = first.covariance._inv._engine
-        seen["released"] = type(engine).__name__ == "_Rebuilt"
-        out = tests(project, options, blunders, first)
-        seen["rebuilt"] = engine.rebuilt
-        return out
-
-    monkeypatch.setattr(pipeline, "detect_blunders", tested)
-    products = pipeline.adjust_products(project, AdjustmentOptions(method="bundle"), RunOptions())
-    assert seen == {"parked": False, "niceness": drawing.BESIDE_NICENESS, "released": True, "rebuilt": False}
-    assert "drawn by the second process" in products.files["report.html"]
-    assert not drawing._early and not drawing.drawing_elsewhere()

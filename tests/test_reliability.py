@@ -486,29 +486,6 @@ def test_the_tests_of_every_row_take_the_project_itself(monkeypatch):
     assert sum(p is project for p in built) == 1  # its groups made once, for the adjustment
 
 
-@pytest.mark.parametrize("method", ["conditions", "bundle"])
-def test_the_blocks_kept_before_the_tests_give_their_cofactors_without_the_inverse(monkeypatch, method):
-    """residuals.keep_group_blocks (a later run's, before its tests): the blocks of Qxx that the
-    residual cofactors read are kept and the inverse let go; the cofactors then equal those read
-    from the inverse, to the last bit, without making it again. Where the collinearity form reads
-    Qxx whole (a small system) nothing is let go."""
-    from striptri.precision import collinearity_form
-    from striptri.precision.residuals import keep_group_blocks
-
-    project, _ = simulated("block", BLOCK, 1)
-    options = AdjustmentOptions(method=method)
-    assert not keep_group_blocks(project, adjust(project, options))  # read whole here
-    monkeypatch.setattr(collinearity_form, "DENSE_UNKNOWNS", 0)  # by blocks, as in a large block
-    want = residual_cofactors(project, adjust(project, options))
-    result = adjust(project, options)
-    assert keep_group_blocks(project, result)
-    engine = result.covariance._inv._engine
-    got = residual_cofactors(project, result)
-    assert type(engine).__name__ == "_Rebuilt" and not engine.rebuilt
-    np.testing.assert_array_equal(got.plate, want.plate)
-    np.testing.assert_array_equal(got.control, want.control)
-
-
 def test_select_rejections_keeps_groups_and_photos_apart():
     point = np.array([0, 0, 0, 1, 1, 2, 2, 3])
     photo = np.array([0, 1, 2, 1, 2, 3, 4, 0])

@@ -25,7 +25,6 @@ from .equations.groups import rays_per_point
 from . import progress, solvers
 from .core.adjusted_points import triangulate_adjusted, undetermined_points
 from .precision import collinearity_form
-from .precision.residuals import keep_group_blocks
 from .bundle.distances import summary_entry as distances_summary
 from .crs import project as map_coordinates
 from .adjustment import AdjustmentOptions, AdjustmentResult, adjust, failure_message
@@ -298,11 +297,6 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
             if options.method == "sequential":  # step 2: the blunder procedure on it
                 det = without_tests(project, first, "not tested (sequential method)")
             else:
-                if drawing.parked() and lean_covariance(run, first, project) and keep_group_blocks(project, first):
-                    # the blocks the tests read kept and the inverse let go: the drawer's import
-                    # beside the tests does not add to their peak (docs/decisions.md)
-                    give_back_free_memory()
-                    drawing.unpark_early()
                 det = detect_blunders(project, options, blunder_options(blunders), first)
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total - seconds_early, 0.0)

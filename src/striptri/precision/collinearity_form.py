@@ -85,12 +85,6 @@ def applies(project: Project, result: AdjustmentResult) -> bool:
     return result.method == METHOD or (result.method == CONDITIONS and result.layout.n_unknowns <= DENSE_UNKNOWNS)
 
 
-def reads_whole(project: Project, result: AdjustmentResult) -> bool:
-    """Whether the collinearity form, where it applies, reads Qcc whole (at most DENSE_UNKNOWNS
-    unknowns: _Qcc) rather than by blocks of unknown sets."""
-    return applies(project, result) and result.layout.n_unknowns <= DENSE_UNKNOWNS
-
-
 @dataclass
 class CollinearityCofactors:
     """plate (m_ip, 2): qvv of the plate coordinates (0 for the rows of points without conditions);

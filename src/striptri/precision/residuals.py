@@ -258,25 +258,6 @@ def group_slots(G: np.ndarray, chunk, result: AdjustmentResult, by_ray=None) -> 
     return ray_slots(G, chunk.photo_index, lay.photo_cols, camera, lay.camera_cols[:, lay.camera_elements], by_ray)
 
 
-def keep_group_blocks(project: Project, result: AdjustmentResult) -> bool:
-    """Read the blocks of Qxx that the residual cofactors of ``project``'s groups read (among each
-    point's photos and their cameras) into ``result.covariance``'s store, then let the inverse go
-    (release_inverse): the cofactors and the point precision read them there, without the inverse
-    (docs/decisions.md "The parked drawer let go during the tests"). Not where the collinearity form
-    reads Qxx whole (a small system): returns whether the inverse was let go."""
-    if collinearity_form.reads_whole(project, result) or result.free_network is not None:
-        return False
-    cov, lay = result.covariance, result.layout
-    cameras = lay.camera_cols[:, lay.camera_elements]
-    for batch in build_batches(project):
-        m, k = batch.photo_index.shape
-        G = np.zeros((m, 1, k, 6 + lay.camera_width))
-        cov.keep_blocks(ray_slots(G, batch.photo_index, lay.photo_cols, result.state.camera_of_photo[batch.photo_index],
-                                  cameras))
-    result.release_inverse()
-    return True
-
-
 def group_inverse(M: np.ndarray, chunk) -> tuple[np.ndarray, np.ndarray]:
     """M^-1 (m, nc, nc) of every group of a chunk (M = A Q A^T) and which are degenerate (m,): a group
     whose M is singular or not finite (its conditions degenerate at the adjusted values: rays along

@@ -320,29 +320,6 @@ def park_worker() -> None:
             pass
 
 
-# the niceness of a drawer let go before its run's tests end (unpark_early): it takes the time the
-# tests leave on the cores, not the tests' own
-BESIDE_NICENESS = 19
-
-
-def parked() -> bool:
-    """Whether a drawer of :func:`park_worker` waits, parked, for worker_for to take it."""
-    return any(worker.parked for worker in _early)
-
-
-def unpark_early() -> None:
-    """Let the parked drawer import matplotlib now, at the lowest priority (BESIDE_NICENESS), before
-    worker_for takes it after the tests: its import beside the end of the tests, on what time they
-    leave on the second core (docs/decisions.md "The parked drawer let go during the tests"). An
-    unprivileged process cannot raise its priority again; the drawer keeps it (after the tests only
-    the tables, one thread, run beside it)."""
-    for worker in _early:
-        if worker.parked:
-            with contextlib.suppress(OSError):
-                os.setpriority(os.PRIO_PROCESS, worker.process.pid, BESIDE_NICENESS)
-            worker.unpark()
-
-
 # From this many plate measurements on, the worker starts after the gross-error tests: the run's own
 # peaks of memory (the iterations, the tests) are behind, and the point precision and the tables
 # take long enough for its import. Below, it starts with the run: the worker's 65-100 MB beside a

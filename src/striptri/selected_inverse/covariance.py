@@ -100,12 +100,6 @@ class Covariance:
         """Qxx among the unknown sets of every group of a batch (set_blocks with this Qxx)."""
         return set_blocks(self.entries, parts, store=self._store, blocks=self.block_entries)
 
-    def keep_blocks(self, parts: Sequence["Slots"]) -> None:
-        """Read the blocks of Qxx among the unknown sets of every group of a batch into the store
-        that group_forms and set_blocks read first (only the slots' sets and columns are read)."""
-        for _ in _set_pairs(_reader(self.entries, self.block_entries), parts, self._store):
-            pass
-
     def photo_blocks(self) -> np.ndarray:
         """(n_photos, 6, 6) blocks of Qxx of every photo's elements (fixed elements zero)."""
         cols = self.layout.photo_cols
