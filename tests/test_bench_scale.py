@@ -88,6 +88,7 @@ if sys.argv[1] in ("fork", "fork-own"):  # a child that never execs: the parent'
     if pid == 0:
         if sys.argv[1] == "fork-own":  # and 50 MB of its own (striptri's early reader)
             b = np.ones(6_250_000)
+        time.sleep(0.2)  # older than a vfork's child before its exec (bench_scale.FORK_MIN_AGE_S)
         print("ready", flush=True)
         time.sleep(30)
         os._exit(0)
