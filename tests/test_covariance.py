@@ -108,8 +108,8 @@ def test_blocks_read_once_and_equal_entries(case):
     np.testing.assert_allclose(first, want, atol=1e-8 * np.abs(want).max())
 
 
-def test_release_inverse_keeps_the_blocks_its_group_forms_have_read(case):
-    """Covariance.release_inverse (the pipeline's, before the point precision): group forms over the
+def test_a_release_keeping_blocks_keeps_those_its_group_forms_have_read(case):
+    """Covariance.release(keep_blocks=True) (the pipeline's, before the point precision): group forms over the
     photo pairs read before give the same numbers without making the inverse again; other entries
     make it again and equal the dense reference. A free network is never released."""
     r, Q = case
@@ -119,7 +119,7 @@ def test_release_inverse_keeps_the_blocks_its_group_forms_have_read(case):
     sets = np.stack([a, np.roll(a, 1), np.roll(a, 2)], axis=1)
     G = np.random.default_rng(3).normal(size=(len(a), 4, 3, 6))
     first = cov.group_forms([Slots(G, sets, cols)])
-    released = cov.release_inverse()
+    released = cov.release(keep_blocks=True)
     assert released == (r.free_network is None)
     np.testing.assert_array_equal(cov.group_forms([Slots(G[::-1], sets[::-1], cols)]), first[::-1])
     if released:

@@ -301,9 +301,9 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
             adjusted, result = det.project, det.result
             phases["gross_errors"] = max(time.perf_counter() - t0 - result.timings.total - seconds_early, 0.0)
             if lean_covariance(run, result, adjusted):
-                # the point precision reads the blocks the tests have read (Covariance.release_inverse):
-                # the inverse let go before the drawing worker starts beside it
-                result.release_inverse()
+                # the point precision reads the blocks the tests have read (Covariance.release): the
+                # inverse let go before the drawing worker starts beside it
+                result.release_covariance(keep_blocks=True)
                 give_back_free_memory()
             if worker == "later":  # the run's peaks of memory are behind
                 workers.enter_context(drawing.worker_for(True))

@@ -200,19 +200,12 @@ class AdjustmentResult:
                 raise NumericalFailure(self._precision_failure(exc), reason="singular") from exc
         return self._covariance
 
-    def release_inverse(self) -> None:
-        """Let the selected inverse behind ``covariance`` go but keep, besides its photo blocks and
-        diagonal, the blocks of Qxx that its group forms have read (Covariance.release_inverse):
-        the point precision reads the same photo pairs as the residual cofactors before it. Nothing
-        when it was never computed."""
-        if self._covariance is not None:
-            self._covariance.release_inverse()
-
-    def release_covariance(self) -> None:
+    def release_covariance(self, keep_blocks: bool = False) -> None:
         """Let the selected inverse behind ``covariance`` go, keeping its photo blocks and diagonal
-        (Covariance.release: what needs more makes it again); nothing when it was never computed."""
+        and, with ``keep_blocks``, the blocks its group forms have read (Covariance.release: what
+        needs more makes it again); nothing when it was never computed."""
         if self._covariance is not None:
-            self._covariance.release()
+            self._covariance.release(keep_blocks)
 
     def _precision_failure(self, exc: Exception | None) -> str:
         """Why Qxx cannot be formed: a singular N (naming the first element that is not determined)

@@ -49,25 +49,19 @@ class Covariance:
         if free_network.extra is not None:  # the point datum: + HK V HK^T (point_datum)
             self._CtY = self._CtY + free_network.extra
 
-    def release(self) -> bool:
-        """Free the inverse's computed pattern and the blocks kept for group_forms once the run has
-        read all it needs beyond the photo blocks and the diagonal, which stay (docs/decisions.md
-        "The inverse let go before the tables"). Anything else read later makes the inverse again.
-        Not for a free network (its photo blocks are entries). Returns whether it was released."""
+    def release(self, keep_blocks: bool = False) -> bool:
+        """Free the inverse's computed pattern once the run has read all it needs beyond the photo
+        blocks and the diagonal, which stay (docs/decisions.md "The inverse let go before the
+        tables"), and the blocks kept for group_forms unless ``keep_blocks`` (the point precision
+        after the gross-error tests reads the photo pairs the residual cofactors have read:
+        docs/decisions.md "The point precision without the inverse"). Anything else read later
+        makes the inverse again. Not for a free network (its photo blocks are entries). Returns
+        whether it was released."""
         if self.free_network is not None:
             return False
         self._inv.release(self._rebuild)
-        self._store = BlockStore()
-        return True
-
-    def release_inverse(self) -> bool:
-        """:meth:`release`, but the blocks kept for group_forms stay: the point precision after the
-        gross-error tests forms ``G Qxx G^T`` over the photo pairs whose blocks the residual
-        cofactors have read, without the inverse's 84 MB (5,000 photos) beside the drawing worker
-        (docs/decisions.md "The inverse let go before the point precision")."""
-        if self.free_network is not None:
-            return False
-        self._inv.release(self._rebuild)
+        if not keep_blocks:
+            self._store = BlockStore()
         return True
 
     def entries(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
