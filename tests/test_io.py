@@ -584,7 +584,26 @@ def test_csv_split_by_columns_equals_csv_reader():
             text = text.rstrip("\r\n")
         assert '"' not in text
         assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
-    for text in ("", "\n\n", "# only\n", "a,b\n", "a,b\n1,2", "a\n\n1\n"):
+    for text in ("", "\n\n", "# only\n", "a,b\n", "a,b\n1,2", "a\n\n1\n", "\n", "a", "a\n", "a\r\n1\r", "\ra\n1"):
+        assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
+
+
+def test_csv_without_comments_or_blank_lines_equals_csv_reader():
+    """Text with no comment, no blank line and no white space takes every line as a row without
+    looking at each (csvtable._parse): the same table, line numbers and errors as csv.reader (every
+    line ending, with and without a final one, rows of the wrong length, a header alone)."""
+    from striptri.io import csvtable
+
+    rng = np.random.default_rng(4)
+    pieces = ["1", "2.5", "", "ab", "é", "-0.0", "x1"]
+    for case in range(300):
+        k = int(rng.integers(1, 5))
+        ending = rng.choice(["\n", "\r\n", "\r"])
+        lines = [",".join(f"c{j}" for j in range(k))]
+        for _ in range(int(rng.integers(0, 12))):
+            n = k if rng.random() < 0.93 else int(rng.integers(1, k + 3))
+            lines.append(",".join(rng.choice(pieces) for _ in range(n)))
+        text = ending.join(lines) + (ending if rng.random() < 0.7 else "")
         assert _parse_outcome(csvtable._parse, text) == _parse_outcome(csvtable._parse_with_csv, text), repr(text)
 
 
