@@ -13,12 +13,19 @@ order"). The cases are bench_scale.py's, made by it (its cache).
 
 ``--against SRC``: each round also runs the striptri found in SRC (on PYTHONPATH), after its own peer
 run, so that two versions are compared pair by pair.
+
+The table gives, beside the median ratio, a distribution-free interval for it (the order statistics
+that the sign test puts around a median: ``median_interval``, 95 % or the nearest above) and how
+many pairs are below 1.0 with the one-sided sign test's p-value for "the median ratio is below 1"
+(``sign_test_below``): whether a target of 1.0x is met beyond the machine's noise, not only in the
+median.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import statistics
 import sys
@@ -45,6 +52,34 @@ def striptri_run(case_dir: Path, method: str, source: str | None, scratch: Path)
                "--method", method]
     run = bs.measured_run(command, env, 3600, None, scratch / "striptri.time")
     return run, json.loads((out / "summary.json").read_text())["timings_s"]
+
+
+def _binomial_cdf(k: int, n: int) -> float:
+    """P(X <= k) for X ~ Binomial(n, 1/2)."""
+    return sum(math.comb(n, i) for i in range(0, k + 1)) / 2**n if k >= 0 else 0.0
+
+
+def median_interval(values, level: float = 0.95) -> tuple[float, float, float]:
+    """(low, high, coverage): the order statistics ``x_(k)``, ``x_(n+1-k)`` of ``values`` around their
+    median, with the largest k whose coverage ``1 - 2 P(Bin(n, 1/2) <= k - 1)`` is at least
+    ``level`` (the sign test's interval: no assumption on the distribution); the smallest and the
+    largest value, with their coverage, when too few values reach ``level``."""
+    x = sorted(values)
+    n = len(x)
+    if n == 0:
+        return math.nan, math.nan, 0.0
+    k = 1
+    while k + 1 <= (n + 1) // 2 and 1.0 - 2.0 * _binomial_cdf(k, n) >= level:
+        k += 1
+    return x[k - 1], x[n - k], 1.0 - 2.0 * _binomial_cdf(k - 1, n)
+
+
+def sign_test_below(values, limit: float = 1.0) -> tuple[int, float]:
+    """(pairs below ``limit``, the one-sided sign test's p-value for "the median is below limit":
+    P(Bin(n', 1/2) >= below) over the n' values not equal to limit)."""
+    below = sum(v < limit for v in values)
+    n = sum(v != limit for v in values)
+    return below, 1.0 - _binomial_cdf(below - 1, n)
 
 
 def main(argv=None) -> None:
@@ -75,15 +110,18 @@ def main(argv=None) -> None:
                     print(f"pair {k + 1} {method} ({version}): striptri {r['striptri']:.2f} s, peer {r['peer']:.2f} s, "
                           f"ratio {r['ratio']:.3f}, peak {r['peak']:.0f} / {r['peer_peak']:.0f} MiB", flush=True)
     print()
-    print("| method | version | pairs | whole / peer (median, range) | striptri s | peer s | peak MiB (median, max) "
-          "| memory / peer | report s |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| method | version | pairs | whole / peer (median, range) | median's interval (coverage) | below 1.0 (p) "
+          "| striptri s | peer s | peak MiB (median, max) | memory / peer | report s |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for method in args.methods:
         for version in versions:
             got = [r for r in rows if r["method"] == method and r["version"] == version]
             med = lambda key: statistics.median(r[key] for r in got)  # noqa: E731
             ratios = [r["ratio"] for r in got]
+            low, high, coverage = median_interval(ratios)
+            below, p = sign_test_below(ratios)
             print(f"| {method} | {version} | {len(got)} | {med('ratio'):.3f} ({min(ratios):.3f}-{max(ratios):.3f}) "
+                  f"| {low:.3f}-{high:.3f} ({100 * coverage:.0f} %) | {below} of {len(got)} (p {p:.3f}) "
                   f"| {med('striptri'):.2f} | {med('peer'):.2f} | {med('peak'):.0f}, {max(r['peak'] for r in got):.0f} "
                   f"| {statistics.median(r['peak'] / r['peer_peak'] for r in got):.3f} | {med('report'):.3f} |")
 
