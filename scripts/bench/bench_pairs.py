@@ -56,7 +56,7 @@ def striptri_run(case_dir: Path, method: str, source: str | None, scratch: Path)
 
 def _binomial_cdf(k: int, n: int) -> float:
     """P(X <= k) for X ~ Binomial(n, 1/2)."""
-    return sum(math.comb(n, i) for i in range(0, k + 1)) / 2**n if k >= 0 else 0.0
+    return sum(math.comb(n, i) for i in range(k + 1)) / 2**n if k >= 0 else 0.0
 
 
 def median_interval(values, level: float = 0.95) -> tuple[float, float, float]:
