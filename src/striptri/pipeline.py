@@ -252,7 +252,9 @@ def _adjust_products(project, options, run, on_warning, seconds_reading, frame, 
     point_precision, blunders, keep_unconverged = run.point_precision, run.blunders, run.keep_unconverged
 
     check_products_options(options, point_precision, blunders)
-    options = _replace(options, keep_unconverged=keep_unconverged)
+    # the tests' residual cofactors from the final checks' whitened groups (core.result.SolutionSystems)
+    options = _replace(options, keep_unconverged=keep_unconverged,
+                       conditions=_replace(options.conditions, keep_solution_systems=True))
     given = project  # as read: inactive.inactive_residuals corrects its inactive rows itself
     # [corrections]: Earth curvature and refraction of the plate coordinates, before everything else
     project, corrections = plate_corrections.correct_project(project)

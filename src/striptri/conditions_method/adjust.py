@@ -34,11 +34,12 @@ from ..core.explain import (datum_defect_failure, not_finite_message, reduction_
                             solve_or_explain, solver_for)
 from ..equations.observations import Observations, observations_of
 from ..core.options import AdjustmentOptions
-from ..core.result import AdjustmentResult, Checks, Iteration, Timings, observation_count
+from ..core.result import AdjustmentResult, Checks, Iteration, SolutionSystems, Timings, observation_count
 from ..errors import NumericalFailure
+from ..precision import collinearity_form
 from ..equations.groups import build_batches
 from ..equations.joint_groups import JointGroups, whiten_joint
-from ..equations.linearise import At, Sweep
+from ..equations.linearise import PRECISION_CHUNK, At, Sweep
 from ..model import Project
 from ..equations.triangulation import GivenCoordinates, RayObservations, triangulate
 from ..equations.block_pattern import BlockPattern, selection_matrix
@@ -70,20 +71,24 @@ START_ITERATIONS = 1
 class _WhitenedChunk:
     """What the back substitution needs of one chunk, kept from the assembly of the same iteration
     (normal_equations.whiten): Bw = L^-1 B (m, nc, nu), ww = L^-1 w (m, nc), the columns (m, nu)
-    and Gt = L^-1 A Q (m, nc, no), so that v = -Gt^T (ww + Bw dx)."""
+    and Gt = L^-1 A Q (m, nc, no), so that v = -Gt^T (ww + Bw dx). Kept at the solution for the
+    residual cofactors (core.result.SolutionSystems): Bw, Gt and clear (m,), whether each group's
+    M is clearly regular; nothing but the chunk for a chunk of long tracks (its Bw is dense)."""
 
     chunk: object
-    Bw: np.ndarray
-    ww: np.ndarray
-    cols: np.ndarray
-    Gt: np.ndarray
+    Bw: np.ndarray | None
+    ww: np.ndarray | None
+    cols: np.ndarray | None
+    Gt: np.ndarray | None
+    clear: np.ndarray | None = None
 
 
-def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool = False,
+def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", keep: bool | str = False,
                      normals: bool = True):
     """N and u of one sweep: point groups into the block pattern, then the observed elements.
-    keep: also keep each chunk's whitened system for the back substitution (acc.kept), so that an
-    iteration linearises its conditions once. normals: False forms u, w^T P w and the misclosures
+    keep: also keep each chunk's whitened system (acc.kept, _WhitenedChunk) for the back
+    substitution (True), so that an iteration linearises its conditions once, or for the residual
+    cofactors at the solution ("solution"; not for the joint groups: acc.kept_joint). normals: False forms u, w^T P w and the misclosures
     but not N (acc.N None; a chord step). acc.max_misclosure: the largest |g| of a condition in
     units of its standard deviation (Schmid's final check)."""
     acc = PatternAccumulator(assembly.pattern, assembly.S, normals)
@@ -92,8 +97,13 @@ def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assem
     cam_of_photo = sweep.state.camera_of_photo
 
     def products(chunk, system, scatters):  # in the chunk's thread: whitened, its products for N and u
-        white = whiten(system, residual_map=keep)
-        kept = _WhitenedChunk(chunk, white.Bw, white.ww, system.cols, white.Gt) if keep else None
+        white = whiten(system, residual_map=bool(keep), regularity=keep == "solution")
+        kept = None
+        if keep == "solution":
+            kept = (_WhitenedChunk(chunk, None, None, None, None) if white.by_ray is not None
+                    else _WhitenedChunk(chunk, white.Bw, None, None, white.Gt, white.clear))
+        elif keep:
+            kept = _WhitenedChunk(chunk, white.Bw, white.ww, system.cols, white.Gt)
         photo = chunk.photo_index
         if not normals:  # a chord step: u alone
             return kept, group_misclosures(assembly.pattern, white.Bw, white.ww, white.gw, photo, cam_of_photo[photo])
@@ -121,7 +131,7 @@ def assemble_normals(sweep: Sweep, pobs: ParameterObservations, assembly: "Assem
 
 
 def _assemble_checked(sweep: Sweep, pobs: ParameterObservations, assembly: "Assembly", project: Project,
-                      iteration: int, keep: bool = False, normals: bool = True):
+                      iteration: int, keep: bool | str = False, normals: bool = True):
     """assemble_normals, with numbers that are not finite (an overflow: wild values, c in another unit)
     explained as a NumericalFailure naming the points whose conditions fail and the likely cause."""
     try:
@@ -273,7 +283,7 @@ class _Problem:
         return Sweep(self.batches, At.of(state, self.layout, self.obs, plate_hat, control_hat), self.options,
                      self.joint, distance_hat)
 
-    def assemble(self, sweep: Sweep, iteration: int, keep: bool = False, normals: bool = True):
+    def assemble(self, sweep: Sweep, iteration: int, keep: bool | str = False, normals: bool = True):
         trim = len(self.obs.plate) >= TRIM_FROM and not keeps_freed_memory()
         if trim:
             give_back_free_memory()  # the last iteration's factor and kept chunks, freed
@@ -370,7 +380,12 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
 
         t0 = time.perf_counter()
         final = problem.sweep(now.state, now.plate_hat, now.control_hat, now.distance_hat)
-        acc = problem.assemble(final, len(history) + 1)
+        # for the tests' residual cofactors by the conditions form, in chunks of the precision passes' size at most
+        solution = (options.conditions.keep_solution_systems and problem.joint is None
+                    and options.chunk_size <= PRECISION_CHUNK
+                    and not collinearity_form.applies_to(project, METHOD, problem.layout.n_unknowns,
+                                                         problem.free_network is not None))
+        acc = problem.assemble(final, len(history) + 1, keep="solution" if solution else False)
         free_network = problem.free_network
         if free_network is not None:
             free_network = problem.datum_at(now.state, acc.N, now.plate_hat, at_solution=True)
@@ -389,6 +404,7 @@ def adjust_conditions(project: Project, options: AdjustmentOptions = AdjustmentO
         n_observations=observation_count(project, obs, len(problem.pobs)),
         n_parameter_observations=len(problem.pobs), parameter_residuals=now.v_par, N=acc.N, checks=checks,
         timings=timings, free_network=free_network, termination=status, termination_message=message,
+        solution_systems=SolutionSystems(project, acc.kept) if solution else None,
     )
 
 

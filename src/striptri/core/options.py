@@ -34,10 +34,15 @@ class ConditionsOptions:
     condition_transform: optional callable(GroupBatch) -> (m, nc, nc) invertible matrices that
     rescale or recombine each group's conditions (a test of invariance: the result must not depend
     on it).
+    keep_solution_systems: keep the whitened groups of the final checks on the result
+    (AdjustmentResult.solution_systems) for the residual cofactors of the tests that follow, which
+    then linearise nothing again; the command sets it (memory of the order of the iterations'
+    kept chunks, held until the cofactors are formed).
     """
 
     scale_form: str = "3d"
     condition_transform: Callable | None = None
+    keep_solution_systems: bool = False
 
     def __post_init__(self):
         if self.scale_form not in SCALE_FORMS:

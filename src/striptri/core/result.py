@@ -124,6 +124,25 @@ def sigma0_of(vtpv: float, redundancy: int) -> float:
     return float(np.sqrt(vtpv / redundancy)) if redundancy > 0 else float("nan")
 
 
+class SolutionSystems:
+    """The method of conditions' whitened groups at the solution, from the sweep of its final
+    checks (ConditionsOptions.keep_solution_systems), kept for the residual cofactors that come
+    next (precision.residuals): the tests then need no linearisation of their own. Per chunk of
+    groups its whitened system (conditions_method's kept chunk: chunk, Bw = L^-1 B, Gt = L^-1 A Q,
+    clear (m,): M = A Q A^T clearly regular), or for a chunk of long tracks the chunk alone (its
+    groups are formed from B by ray again). They hold for the project adjusted only, and are taken
+    once (:meth:`take`), chunk by chunk, so that memory falls as they are used."""
+
+    def __init__(self, project, chunks: list):
+        self.project, self._chunks = project, chunks
+
+    def take(self, project) -> list | None:
+        """The chunks, once, for ``project`` (the very project adjusted), else None; either way they
+        are let go here, for every copy of the result that shares them."""
+        chunks, self._chunks = self._chunks, None
+        return chunks if project is self.project else None
+
+
 @dataclass
 class AdjustmentResult:
     """Everything a report needs. Ground coordinates are in the reduced frame; add ``offset``.
@@ -161,6 +180,8 @@ class AdjustmentResult:
     # (photo ids, camera ids) of the project: names the unknowns in messages (None: by column)
     ids: tuple | None = None
     _covariance: Covariance | None = None
+    # the method of conditions' whitened groups at the solution for the residual cofactors, or None
+    solution_systems: SolutionSystems | None = None
 
     def __post_init__(self):
         if self.termination not in TERMINATIONS:

@@ -21,8 +21,9 @@ from . import weights
 
 class Whitened(NamedTuple):
     """A chunk of whitened groups (whiten): Bw = L^-1 B (m, nc, nu), ww = L^-1 w and gw = L^-1 g
-    (m, nc), L^-1 (m, nc, nc) (M = A Q A^T = L L^T), Gt = L^-1 A Q (m, nc, no) or None, and B by
-    ray (ray_columns.RayColumns) for the chunks of long tracks, else None."""
+    (m, nc), L^-1 (m, nc, nc) (M = A Q A^T = L L^T), Gt = L^-1 A Q (m, nc, no) or None, B by
+    ray (ray_columns.RayColumns) for the chunks of long tracks, else None, and clear (m,) bool,
+    whether each M is clearly regular (:func:`clearly_regular`), or None."""
 
     Bw: np.ndarray
     ww: np.ndarray
@@ -30,13 +31,26 @@ class Whitened(NamedTuple):
     Linv: np.ndarray
     Gt: np.ndarray | None
     by_ray: RayColumns | None
+    clear: np.ndarray | None = None
 
 
-def whiten(system: GroupSystem, residual_map: bool = False) -> Whitened:
+CLEARLY_REGULAR = 1e-8  # clearly_regular: eigenvalues that span less than 1e8
+
+
+def clearly_regular(M: np.ndarray, Minv: np.ndarray) -> np.ndarray:
+    """Whether each positive definite M (m, n, n), with its inverse Minv, is clearly regular:
+    ``1 / (|M|_F |M^-1|_F)``, a lower bound of its smallest over its largest eigenvalue, above
+    CLEARLY_REGULAR (triangulation.safe_inverse keeps such an inverse without computing eigenvalues)."""
+    bound = 1.0 / (np.sqrt(np.einsum("mij,mij->m", M, M)) * np.sqrt(np.einsum("mij,mij->m", Minv, Minv)))
+    return bound > CLEARLY_REGULAR
+
+
+def whiten(system: GroupSystem, residual_map: bool = False, regularity: bool = False) -> Whitened:
     """L^-1 B, L^-1 w, L^-1 g and L^-1 for each group (M = A Q A^T = L L^T), and with residual_map
     also ``L^-1 A Q`` (m, nc, no): the map from the whitened ``t = L^-1 (w + B dx)`` to the
     residuals, ``v = Q A^T k = -(L^-1 A Q)^T t``, so that the back substitution needs no second
-    linearisation. Batched: one triangular factorisation and one solve with all right-hand sides.
+    linearisation; with regularity also whether each M is clearly regular (clearly_regular).
+    Batched: one triangular factorisation and one solve with all right-hand sides.
     For long tracks L^-1 B is formed ray by ray from B's compact form (ray_columns)."""
     AQ = system.A * system.Q[:, None, :]
     M = np.matmul(AQ, np.swapaxes(system.A, 1, 2))
@@ -53,7 +67,8 @@ def whiten(system: GroupSystem, residual_map: bool = False) -> Whitened:
     ww, gw = solved[..., 0], solved[..., 1]
     Gt = solved[..., 2 : 2 + no] if residual_map else None
     Bw = np.matmul(Linv, system.B) if by_ray is None else by_ray.left(Linv).reshape(m, nc, nu)
-    return Whitened(Bw, ww, gw, Linv, Gt, by_ray)
+    clear = clearly_regular(M, np.matmul(np.swapaxes(Linv, 1, 2), Linv)) if regularity else None
+    return Whitened(Bw, ww, gw, Linv, Gt, by_ray, clear)
 
 
 TRIANGULAR_BLOCK = 16  # lower_inverse: np.linalg.inv up to this size

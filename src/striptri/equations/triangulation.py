@@ -22,6 +22,7 @@ from ..geometry.camera import plate_vector, ray_ground
 from ..geometry.collinearity import collinearity_jacobians
 from ..selected_inverse.covariance import group_forms
 from .conditions import coplanarity, ray_chain, RayConditions
+from .normal_equations import CLEARLY_REGULAR, clearly_regular  # noqa: F401 - CLEARLY_REGULAR: safe_inverse's threshold
 from ..model import CHECK, Project
 from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads
@@ -388,8 +389,7 @@ def safe_inverse(M: np.ndarray, rcond: float = SINGULAR_RCOND) -> tuple[np.ndarr
             except np.linalg.LinAlgError:
                 return _lapack_safe_inverse(M, finite, rcond)
             inv, positive = np.linalg.inv(safe), np.ones(len(M), dtype=bool)
-        bound = 1.0 / (np.sqrt(np.einsum("mij,mij->m", safe, safe)) * np.sqrt(np.einsum("mij,mij->m", inv, inv)))
-        clear = finite & positive & (bound > CLEARLY_REGULAR)
+        clear = finite & positive & clearly_regular(safe, inv)
     if np.all(clear):
         return inv, clear
     doubt = np.flatnonzero(~clear)
@@ -397,9 +397,6 @@ def safe_inverse(M: np.ndarray, rcond: float = SINGULAR_RCOND) -> tuple[np.ndarr
     inv[doubt] = inv_doubt
     clear[doubt] = ok_doubt
     return inv, clear
-
-
-CLEARLY_REGULAR = 1e-8  # safe_inverse: the closed form's answer is kept when eigenvalues span less than 1e8
 
 
 def _lapack_safe_inverse(M: np.ndarray, finite: np.ndarray, rcond: float):

@@ -80,9 +80,14 @@ def applies(project: Project, result: AdjustmentResult) -> bool:
     linear model; for a small system the collinearity form is the faster (close range: 0.04-0.12 s
     against 0.50 s; tracks of 7 rays on 12 photos: 0.008 against 0.029 s), for a large block's short
     tracks the conditions form (5,000 photos: 0.31 against 0.36 s)."""
-    if getattr(project, "distances", None) is not None or result.free_network is not None:
+    return applies_to(project, result.method, result.layout.n_unknowns, result.free_network is not None)
+
+
+def applies_to(project: Project, method: str, n_unknowns: int, free_network: bool) -> bool:
+    """applies() before the result: for a ``method`` with ``n_unknowns`` unknowns, in a free network or not."""
+    if getattr(project, "distances", None) is not None or free_network:
         return False
-    return result.method == METHOD or (result.method == CONDITIONS and result.layout.n_unknowns <= DENSE_UNKNOWNS)
+    return method == METHOD or (method == CONDITIONS and n_unknowns <= DENSE_UNKNOWNS)
 
 
 @dataclass

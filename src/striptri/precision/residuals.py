@@ -22,6 +22,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..equations.linearise import At, Sweep, precision_options
+from ..parallel import map_ordered
+from ..solvers.threads import chunk_threads
 from . import collinearity_form
 from ..equations.observations import observations_of
 from ..core.options import AdjustmentOptions
@@ -77,13 +79,20 @@ def residual_cofactors(project: Project, result: AdjustmentResult, options: Adju
 
     Per batch of groups, by matrix products (no einsum of three operands): ``M = (A Q) A^T``,
     ``B Qxx B^T`` by Covariance.group_forms (Qxx read by blocks of photo pairs), ``K = M^-1 (M - B Qxx
-    B^T) M^-1`` and ``qvv_o = sum_c (K A Q)_co (A Q)_co``. Memory is that of one chunk of groups."""
+    B^T) M^-1`` and ``qvv_o = sum_c (K A Q)_co (A Q)_co``. Memory is that of one chunk of groups.
+    A result of the method of conditions that kept its final checks' whitened groups
+    (core.result.SolutionSystems) gives them to the conditions form, once (_solution_cofactors)."""
     if form not in ("auto", "conditions", "collinearity"):
         raise ValueError(f"unknown form {form!r}")
+    kept = result.solution_systems.take(project) if result.solution_systems is not None else None
     if form == "collinearity" or (form == "auto" and collinearity_form.applies(project, result)):
         return _collinearity_cofactors(project, result, options, plate_blocks)
-    q_plate, q_control, blocks, q_distance, d_adjusted, undetermined = _conditions_cofactors(
-        project, result, options, plate_blocks)
+    if kept is not None:
+        q_plate, q_control, blocks, undetermined = _solution_cofactors(project, result, options, plate_blocks, kept)
+        q_distance = d_adjusted = np.zeros(0)
+    else:
+        q_plate, q_control, blocks, q_distance, d_adjusted, undetermined = _conditions_cofactors(
+            project, result, options, plate_blocks)
     return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
                              plate_blocks=blocks, distances=q_distance, distance_adjusted=d_adjusted,
                              undetermined=undetermined)
@@ -108,24 +117,79 @@ def _collinearity_cofactors(project: Project, result: AdjustmentResult, options:
     J^T`` would lose digits (a redundancy number below bundle.precision.R_SUBTRACTION) taken from
     the conditions form, which forms their qvv without it. points: (n_pt,) bool, only these."""
     c = collinearity_form.residual_cofactors(project, result, plate_blocks, points=points)
-    q_plate, q_control, blocks = c.plate, c.control, c.plate_blocks
-    undetermined = np.zeros(len(project.points), dtype=bool)
-    if c.imprecise.any():
-        q_p, q_c, b, _, _, undetermined = _conditions_cofactors(project, result, options, plate_blocks,
-                                                                points=c.imprecise)
-        rows = c.imprecise[project.image_points.point_index]
-        q_plate[rows] = q_p[rows]
-        q_control[c.imprecise] = q_c[c.imprecise]
-        if blocks is not None:  # each chunk without its imprecise points, then theirs
-            point_of = project.image_points.point_index
-            kept = []
-            for r, q in blocks:
-                keep = ~c.imprecise[point_of[r[:, 0]]]
-                if keep.any():
-                    kept.append((r[keep], q[keep]))
-            blocks = kept + b
+    q_plate, q_control, blocks, undetermined = _conditions_form_of(project, result, options, c.imprecise, c.plate,
+                                                                   c.control, c.plate_blocks)
     return ResidualCofactors(plate=q_plate, control=q_control, parameters=_parameter_cofactors(project, result),
                              plate_blocks=blocks, undetermined=undetermined)
+
+
+def _conditions_form_of(project: Project, result: AdjustmentResult, options: AdjustmentOptions, points: np.ndarray,
+                        q_plate: np.ndarray, q_control: np.ndarray, blocks: list | None):
+    """The cofactors q_plate, q_control and blocks (None: not formed) with those of the points
+    ``points`` (n_pt,) bool replaced by the conditions form's (_conditions_cofactors), which also
+    tells which of them are undetermined. -> (q_plate, q_control, blocks, undetermined (n_pt,))."""
+    if not points.any():
+        return q_plate, q_control, blocks, np.zeros(len(project.points), dtype=bool)
+    q_p, q_c, b, _, _, undetermined = _conditions_cofactors(project, result, options, blocks is not None,
+                                                            points=points)
+    rows = points[project.image_points.point_index]
+    q_plate[rows] = q_p[rows]
+    q_control[points] = q_c[points]
+    if blocks is not None:  # each chunk without those points, then theirs
+        point_of = project.image_points.point_index
+        kept = []
+        for r, q in blocks:
+            keep = ~points[point_of[r[:, 0]]]
+            if keep.any():
+                kept.append((r[keep], q[keep]))
+        blocks = kept + b
+    return q_plate, q_control, blocks, undetermined
+
+
+def _solution_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions, plate_blocks: bool,
+                        kept: list):
+    """The conditions form from the whitened groups the final checks kept (core.result.SolutionSystems,
+    Bw = L^-1 B, Gt = L^-1 A Q with M = L L^T): ``Q A^T K A Q = Gt^T (I - Bw Qxx Bw^T) Gt``, the
+    same Qvv as _conditions_cofactors' without linearising the groups again. The points of groups
+    whose M is not clearly regular (the conditions form tells the degenerate ones: group_inverse)
+    and of chunks kept without their systems (long tracks, whose B by ray the conditions form
+    reads) are formed by the conditions form. Each chunk is let go once used. -> (q_plate, q_control,
+    blocks, undetermined) as _conditions_cofactors' (a project without distances)."""
+    obs = observations_of(project, result.offset)
+    cov = result.covariance
+    q_plate, q_control = np.zeros_like(obs.plate), np.zeros_like(obs.control)
+    blocks = [] if plate_blocks else None
+    again = np.zeros(len(project.points), dtype=bool)  # the points formed by the conditions form
+
+    def cofactors(i):  # a chunk's qvv (m, no) and plate blocks, in a chunk thread
+        white, kept[i] = kept[i], None
+        if white.Bw is None:
+            return white, None, None
+        K = cov.group_forms(group_slots(white.Bw, white.chunk, result))  # Bw Qxx Bw^T, then I - it
+        np.negative(K, out=K)
+        diagonal = np.arange(K.shape[1])
+        K[:, diagonal, diagonal] += 1.0
+        KG = K @ white.Gt
+        block = None
+        if plate_blocks:
+            n = 2 * white.chunk.image_rows.shape[1]
+            block = (white.chunk.image_rows, np.swapaxes(white.Gt[:, :, :n], 1, 2) @ KG[:, :, :n])
+        return white, np.einsum("mco,mco->mo", KG, white.Gt), block
+
+    pairs = sum(w.chunk.photo_index.size * w.chunk.photo_index.shape[1] for w in kept)
+    for white, qvv, block in map_ordered(cofactors, range(len(kept)), chunk_threads(pairs)):
+        chunk = white.chunk
+        if qvv is None:
+            again[chunk.point_index] = True
+            continue
+        again[chunk.point_index[~white.clear]] = True
+        m, k = chunk.image_rows.shape
+        if block is not None:
+            blocks.append(block)
+        q_plate[chunk.image_rows] = qvv[:, : 2 * k].reshape(m, k, 2)
+        if chunk.has_control:
+            q_control[chunk.point_index] = qvv[:, 2 * k:]  # 0 where Q is (Gt's column of zeros)
+    return _conditions_form_of(project, result, options, again, q_plate, q_control, blocks)
 
 
 def _conditions_cofactors(project: Project, result: AdjustmentResult, options: AdjustmentOptions,
