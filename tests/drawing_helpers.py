@@ -24,3 +24,14 @@ def slowly(value: bytes, seconds: float) -> bytes:
 
     time.sleep(seconds)
     return anywhere(value)
+
+
+def projections(value: bytes) -> bytes:
+    """Whether this process holds mpl_toolkits.mplot3d and matplotlib's 3D projection (the drawing
+    worker imports neither: figures.import_figure_modules' without_axes3d)."""
+    import sys
+
+    import matplotlib.projections
+
+    names = matplotlib.projections.get_projection_names()
+    return value + f" mplot3d {'mpl_toolkits.mplot3d' in sys.modules} 3d {'3d' in names}".encode()

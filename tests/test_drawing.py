@@ -392,6 +392,27 @@ def test_a_parked_worker_imports_matplotlib_only_when_taken(helpers_importable):
         drawing.discard_early_worker()
 
 
+def test_the_worker_imports_matplotlib_without_its_3d_projection(helpers_importable):
+    """The drawer's import leaves mplot3d out (figures.import_figure_modules' without_axes3d): no
+    figure draws in 3D, and the report's figures are the same bytes as this process draws them
+    (test_the_report_drawn_by_a_worker_is_the_report_drawn_here)."""
+    with drawing.worker_for(True):
+        text = drawing.fill(drawing.html_of(drawing.draw(drawing_helpers.projections, b"p"), bytes.decode))
+    assert text == "p mplot3d False 3d False"
+
+
+def test_the_stand_in_for_mplot3d_is_gone_after_the_import():
+    """In an interpreter of its own: after import_figure_modules(without_axes3d=True) the real
+    mplot3d imports as ever."""
+    code = ("import sys; from striptri.report.figures import import_figure_modules as i; i(without_axes3d=True); "
+            "import matplotlib.projections as p; assert '3d' not in p.get_projection_names(); "
+            "assert 'mpl_toolkits.mplot3d' not in sys.modules; from mpl_toolkits.mplot3d import Axes3D; "
+            "assert Axes3D.name == '3d'; print('ok')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "ok"
+
+
 @pytest.mark.parametrize("method", ["bundle", "conditions"])
 def test_a_later_bundle_run_parks_its_drawer(monkeypatch, method):
     """A "later" run of the bundle method starts its drawer parked with the run and takes it after the

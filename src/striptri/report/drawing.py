@@ -395,7 +395,7 @@ def _serve(jobs, results, twins: list[tuple[int, int]]) -> None:  # pragma: no c
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the command's to handle
     from .figures import import_figure_modules
 
-    import_figure_modules()
+    import_figure_modules(without_axes3d=True)
     mine = (jobs, results)
     for jobs_fd, answers_fd in twins:
         try:
