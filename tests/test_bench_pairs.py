@@ -53,3 +53,11 @@ def test_sign_test_p_value_is_the_binomial_tail(below, n):
 def test_sign_test_leaves_out_ties_with_the_limit():
     below, p = bench_pairs.sign_test_below([0.9, 0.9, 1.0, 1.0, 1.2])
     assert below == 2 and p == pytest.approx(sum(sum(s) >= 2 for s in itertools.product((0, 1), repeat=3)) / 8)
+
+
+def test_the_peers_seconds_are_its_last_lines():
+    """peer_seconds reads colmap_worker.py's last line of output (its JSON record), nan without one."""
+    record = '{"seconds": 4.25, "iterations": 13}'
+    assert bench_pairs.peer_seconds({"stdout": "Ceres says something\n" + record + "\n"}) == 4.25
+    assert np.isnan(bench_pairs.peer_seconds({"stdout": ""}))
+    assert np.isnan(bench_pairs.peer_seconds({}))

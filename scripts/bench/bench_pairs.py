@@ -18,7 +18,8 @@ The table gives, beside the median ratio, a distribution-free interval for it (t
 that the sign test puts around a median: ``median_interval``, 95 % or the nearest above) and how
 many pairs are below 1.0 with the one-sided sign test's p-value for "the median ratio is below 1"
 (``sign_test_below``): whether a target of 1.0x is met beyond the machine's noise, not only in the
-median.
+median. Beside it, pair by pair, striptri's adjust() (summary.json's total) over the peer's bundle
+adjustment (``peer_seconds``): bench_scale.py's adjust() ratio, with its median's interval.
 """
 
 from __future__ import annotations
@@ -34,6 +35,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_scale as bs  # noqa: E402
+
+
+def peer_seconds(peer: dict) -> float:
+    """The peer's bundle adjustment alone (set-up and solve: colmap_worker.py's ``seconds``, the
+    denominator of bench_scale.py's adjust() ratio), from its run's last line of output."""
+    lines = peer.get("stdout", "").strip().splitlines()
+    return float(json.loads(lines[-1])["seconds"]) if lines else float("nan")
 
 
 def peer_run(case_dir: Path, threads: int, tolerance: str, scratch: Path) -> dict:
@@ -105,14 +113,16 @@ def main(argv=None) -> None:
                     mine, timings = striptri_run(case_dir, method, source, scratch)
                     rows.append(dict(method=method, version=version, ratio=mine["wall_s"] / peer["wall_s"],
                                      striptri=mine["wall_s"], peer=peer["wall_s"], peak=mine["peak_mib"],
-                                     peer_peak=peer["peak_mib"], report=timings.get("report", float("nan"))))
+                                     peer_peak=peer["peak_mib"], report=timings.get("report", float("nan")),
+                                     adjust_ratio=timings.get("total", float("nan")) / peer_seconds(peer)))
                     r = rows[-1]
                     print(f"pair {k + 1} {method} ({version}): striptri {r['striptri']:.2f} s, peer {r['peer']:.2f} s, "
                           f"ratio {r['ratio']:.3f}, peak {r['peak']:.0f} / {r['peer_peak']:.0f} MiB", flush=True)
     print()
     print("| method | version | pairs | whole / peer (median, range) | median's interval (coverage) | below 1.0 (p) "
-          "| striptri s | peer s | peak MiB (median, max) | memory / peer | report s |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+          "| adjust() / peer's BA (median, interval) | striptri s | peer s | peak MiB (median, max) | memory / peer "
+          "| report s |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for method in args.methods:
         for version in versions:
             got = [r for r in rows if r["method"] == method and r["version"] == version]
@@ -120,8 +130,10 @@ def main(argv=None) -> None:
             ratios = [r["ratio"] for r in got]
             low, high, coverage = median_interval(ratios)
             below, p = sign_test_below(ratios)
+            a_low, a_high, _ = median_interval([r["adjust_ratio"] for r in got])
             print(f"| {method} | {version} | {len(got)} | {med('ratio'):.3f} ({min(ratios):.3f}-{max(ratios):.3f}) "
                   f"| {low:.3f}-{high:.3f} ({100 * coverage:.0f} %) | {below} of {len(got)} (p {p:.3f}) "
+                  f"| {med('adjust_ratio'):.3f} ({a_low:.3f}-{a_high:.3f}) "
                   f"| {med('striptri'):.2f} | {med('peer'):.2f} | {med('peak'):.0f}, {max(r['peak'] for r in got):.0f} "
                   f"| {statistics.median(r['peak'] / r['peer_peak'] for r in got):.3f} | {med('report'):.3f} |")
 
