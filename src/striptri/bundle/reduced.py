@@ -65,8 +65,8 @@ class PointChunk:
     @property
     def N_cp(self) -> np.ndarray:
         """(m, 9k, 3), rows in the order of ``cols.reshape(m, 9k)``."""
-        m, k = self.e.shape[:2]
-        return np.einsum("mkai,mkaj->mkij", self.Jc, self.Jp).reshape(m, -1, 3)
+        # a batched matrix product per ray: a quarter of einsum's time for these 6 x 2 by 2 x 3 products
+        return (np.swapaxes(self.Jc, -1, -2) @ self.Jp).reshape(len(self.e), -1, 3)
 
     def sum_of_squares(self) -> float:
         """e^T e of the plate and control observations at the linearisation point."""
@@ -142,10 +142,11 @@ def reduce_points(chunk: PointChunk):
     N_pp_inv = np.linalg.inv(chunk.N_pp)
     Y = N_cp @ N_pp_inv
     N_loc = -(Y @ np.swapaxes(N_cp, 1, 2))
-    N_cc = np.einsum("mkai,mkaj->kmij", chunk.Jc, chunk.Jc)  # rays of a point: block diagonal
-    ray = np.arange(k)
+    N_cc = np.swapaxes(chunk.Jc, -1, -2) @ chunk.Jc  # (m, k, w, w): rays of a point, block diagonal
     width = chunk.Jc.shape[-1]
-    N_loc.reshape(m, k, width, k, width)[:, ray, :, ray, :] += N_cc
+    # the ray-diagonal blocks as a view of N_loc (einsum's repeated index): a fancy-indexed += over
+    # the rays took twice as long
+    np.einsum("maiaj->maij", N_loc.reshape(m, k, width, k, width))[...] += N_cc
     b_c = np.einsum("mkai,mka->mki", chunk.Jc, chunk.e).reshape(m, width * k)
     b_loc = b_c - np.einsum("mci,mi->mc", Y, chunk.b_p)
     reduced = np.einsum("mi,mij,mj->m", chunk.b_p, N_pp_inv, chunk.b_p)
@@ -196,14 +197,15 @@ def reduce_points_one_camera(chunk: PointChunk) -> OneCameraReduction:
     m, k = chunk.e.shape[:2]
     Jc = chunk.Jc
     N_pp_inv = np.linalg.inv(chunk.N_pp)
-    N_cp = np.einsum("mkai,mkaj->mkij", Jc, chunk.Jp)  # (m, k, 6 + w, 3), per ray
+    Jc_T = np.swapaxes(Jc, -1, -2)
+    N_cp = Jc_T @ chunk.Jp  # (m, k, 6 + w, 3), per ray
     N_cp_photo = N_cp[:, :, :6]  # (m, k, 6, 3)
     N_cp_camera = N_cp[:, :, 6:].sum(axis=1)  # (m, w, 3)
     Y_photo = N_cp_photo @ N_pp_inv[:, None]  # (m, k, 6, 3)
     Y_camera = N_cp_camera @ N_pp_inv  # (m, w, 3)
     N_pc_camera = np.swapaxes(N_cp_camera, 1, 2)  # (m, 3, w)
     pp = -np.matmul(Y_photo[:, :, None], np.swapaxes(N_cp_photo, 2, 3)[:, None])  # (m, k, k, 6, 6)
-    N_cc = np.einsum("mkai,mkaj->mkij", Jc, Jc)  # (m, k, 6 + w, 6 + w), per ray
+    N_cc = Jc_T @ Jc  # (m, k, 6 + w, 6 + w), per ray
     ray = np.arange(k)
     pp[:, ray, ray] += N_cc[:, :, :6, :6]
     pc = N_cc[:, :, :6, 6:] - Y_photo @ N_pc_camera[:, None]
@@ -219,15 +221,16 @@ def point_corrections(chunk: PointChunk, dx: np.ndarray, shift: np.ndarray | Non
     """Back-substitution ``dX = N_pp^-1 (b_p - N_pc dx)`` (m, 3) and the linearised whitened
     residuals after the step: plate (m, k, 2) ``Jc dx + Jp dX - e`` and control (m, 3).
     shift: (m, 3) added to dX (the distances' coupling, bundle.distances), or None."""
-    m, k = chunk.e.shape[:2]
     dxp = np.concatenate([dx, [0.0]])
     dx_loc = dxp[chunk.cols]  # (m, k, 9); column -1 reads 0
-    rhs = chunk.b_p - np.einsum("mci,mc->mi", chunk.N_cp, dx_loc.reshape(m, -1))
+    # N_pc dx = Jp^T (Jc dx) ray by ray: Jc dx serves the residuals too, and N_cp (m, 9k, 3) is not
+    # formed (at 5,000 photos 0.054 -> 0.030 s a back substitution)
+    Jc_dx = np.einsum("mkai,mki->mka", chunk.Jc, dx_loc)
+    rhs = chunk.b_p - np.einsum("mkai,mka->mi", chunk.Jp, Jc_dx)
     dX = np.linalg.solve(chunk.N_pp, rhs[..., None])[..., 0]
     if shift is not None:
         dX = dX + shift
-    v_plate = (np.einsum("mkai,mki->mka", chunk.Jc, dx_loc) + np.einsum("mkai,mi->mka", chunk.Jp, dX)
-               - chunk.e)
+    v_plate = Jc_dx + np.einsum("mkai,mi->mka", chunk.Jp, dX) - chunk.e
     v_control = np.sqrt(chunk.weight) * (dX - chunk.control_misclosure)
     return dX, v_plate, v_control
 
