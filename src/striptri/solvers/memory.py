@@ -186,10 +186,12 @@ def give_back_free_memory() -> None:
 
 
 # warm_heap: a command run of an early-read project touches this many bytes of heap per byte of its
-# image_points.csv while it waits for the reader (about 225 MB at 5,000 photos, whose run holds
+# image_points.csv while it waits for the reader (about 210 MB at 5,000 photos, whose run holds
 # 400 MB), at most WARM_MAX_BYTES (below KEPT_TRIM_THRESHOLD: the freed block stays in the heap), a
-# chunk of pages at a time
-WARM_BYTES_PER_INPUT_BYTE = 30
+# chunk of pages at a time. The reader holds about 12 bytes per byte of its own meanwhile: with 30,
+# the two together made the run's peak at 5,000 photos (445 against 420-430 MiB later in the run;
+# docs/decisions.md "The heap warmed while the project is read")
+WARM_BYTES_PER_INPUT_BYTE = 22
 WARM_MAX_BYTES = 512 * 2**20
 WARM_CHUNK_BYTES = 8 * 2**20
 PAGE_BYTES = 4096
