@@ -209,13 +209,19 @@ class _Problem:
         normals.reduced += growth
         normals.coupling = coupling
 
-    def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0):
-        """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp."""
+    def chunks(self, state: State, xyz: np.ndarray, damping: float = 0.0, then=None):
+        """Linearised point chunks at (state, xyz); damping: Levenberg-Marquardt factor on N_pp.
+        then: a function of a linearised chunk and its scatters (self.scatters) that the chunk's
+        thread applies too, whose results come instead of the chunks."""
         T = self.layout.rotation_maps(state)
         chunks = (chunk for batch in self.linearised for chunk in batch.chunks(self.options.chunk_size))
-        yield from map_ordered(lambda chunk: linearise_points(chunk, state, self.layout, T, self.obs, self.unknowns,
-                                                              xyz, damping), chunks,
-                               chunk_threads(sweep_size(self.linearised)))
+
+        def work(item):
+            group_chunk, scatters = item
+            chunk = linearise_points(group_chunk, state, self.layout, T, self.obs, self.unknowns, xyz, damping)
+            return chunk if then is None else then(chunk, scatters)
+
+        yield from map_ordered(work, zip(chunks, self.scatters, strict=True), chunk_threads(sweep_size(self.linearised)))
 
     def parameter_rows(self, state: State):
         """Whitened observation equations of the observed elements: J (p, 3), cols, e (p,)."""
@@ -247,8 +253,13 @@ class _Problem:
         normals = self.normals()
         normals.damped = damping > 0
         normals.lean = lean and normals.dense is None
-        for chunk, scatters in zip(self.chunks(state, xyz, damping), self.scatters):
-            normals.add_points(chunk, state.camera_of_photo, scatters)
+        cam = state.camera_of_photo
+        if normals.dense is None:  # each chunk's share formed in its thread, added up here in order
+            for made in self.chunks(state, xyz, damping, lambda chunk, scatters: normals.products(chunk, cam, scatters)):
+                normals.add_products(made)
+        else:
+            for chunk, scatters in zip(self.chunks(state, xyz, damping), self.scatters, strict=True):
+                normals.add_points(chunk, cam, scatters)
         if len(self.pobs):
             normals.add_rows(*self.parameter_rows(state))
         self.couple(normals, normals.kept, xyz)

@@ -235,6 +235,26 @@ def point_corrections(chunk: PointChunk, dx: np.ndarray, shift: np.ndarray | Non
     return dX, v_plate, v_control
 
 
+@dataclass
+class PointProducts:
+    """A chunk's share of the reduced camera system in the block pattern (ReducedNormals.products),
+    formed in the chunk's thread and added up in order by ReducedNormals.add_products.
+
+    scatters: the chunk's BlockPattern.scatters (None in a lean assembly); sums: its ray-pair blocks
+    summed by position for each of them (ChunkScatter.sums; None where not formed: the cameras held,
+    no N); b, d: (full-space columns, numbers) added in turn to b_full and to d_full; reduced:
+    sum b_p^T N_pp^-1 b_p; ee: the chunk's e^T e.
+    """
+
+    chunk: PointChunk
+    scatters: tuple | None
+    sums: tuple
+    b: list
+    d: list
+    reduced: float
+    ee: float
+
+
 class ReducedNormals:
     """Sums the reduced camera system ``N_rcs dx = b_rcs`` of point chunks and parameter
     observations.
@@ -283,27 +303,54 @@ class ReducedNormals:
         return self.d
 
     def add_points(self, chunk: PointChunk, camera_of_photo: np.ndarray, scatters=None, keep: bool = True) -> None:
-        """Add a linearised chunk; scatters: its BlockPattern.scatters when worked out before;
-        keep: hold the chunk for the back substitution (``kept``)."""
+        """Add a linearised chunk; scatters: its BlockPattern.scatters (or, summed dense, its
+        bundle.dense.DenseScatter) when worked out before; keep: hold the chunk for the back
+        substitution (``kept``)."""
+        if self.lean or self.dense is None:
+            self.add_products(self.products(chunk, camera_of_photo, scatters), keep)
+            return
         if keep:
             self.kept.append(chunk)
+        photo = chunk.batch.photo_index
+        self._add_dense(chunk, photo, camera_of_photo[photo], scatters)
+        self.ee += chunk.sum_of_squares()
+
+    def products(self, chunk: PointChunk, camera_of_photo: np.ndarray, scatters=None) -> "PointProducts":
+        """What a chunk adds to the normals in the block pattern (not summed dense): changes nothing
+        shared, so that the chunk threads form it (bundle.adjust._Problem.assemble) and this
+        process only adds it up (:meth:`add_products`, in the chunks' order: the same numbers as
+        :meth:`add_points`). scatters: the chunk's BlockPattern.scatters when worked out before."""
         photo = chunk.batch.photo_index
         cam = camera_of_photo[photo]
         pat = self.pattern
         if self.lean:
-            self._add_lean(chunk, photo, cam)
-        elif self.dense is not None:
-            self._add_dense(chunk, photo, cam, scatters)
+            scatters, parts = None, self._lean_parts(chunk, photo, cam)
         elif sums_camera_columns(pat, cam):
             scatters = scatters if scatters is not None else pat.scatters(photo, cam, camera_summed=True)
-            self._add_one_camera(chunk, photo, cam, scatters)
+            parts = self._one_camera_parts(chunk, photo, cam, scatters)
         else:
-            self._add_general(chunk, photo, cam, scatters if scatters is not None else pat.scatters(photo, cam))
-        self.ee += chunk.sum_of_squares()
+            scatters = scatters if scatters is not None else pat.scatters(photo, cam)
+            parts = self._general_parts(chunk, photo, cam, scatters)
+        return PointProducts(chunk, scatters, *parts, chunk.sum_of_squares())
 
-    def _add_lean(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray) -> None:
-        """add_points without N: ``b_c - Y b_p`` (Y = N_cp N_pp^-1, as reduce_points) and the
-        diagonal of N_cc into b_full and d_full, and the points' share of the reduced sum."""
+    def add_products(self, made: "PointProducts", keep: bool = True) -> None:
+        """Add a chunk's :meth:`products`; keep: hold its chunk for the back substitution."""
+        if keep:
+            self.kept.append(made.chunk)
+        for target, sums, scatter in zip((self.pp, self.pc, self.cc), made.sums, made.scatters or (None,) * 3):
+            if sums is not None:
+                scatter.add_sums(target, sums)
+        n_full = self.pattern.n_full
+        for cols, numbers in made.b:
+            self.b_full += np.bincount(cols, weights=numbers, minlength=n_full)
+        for cols, numbers in made.d:
+            self.d_full += np.bincount(cols, weights=numbers, minlength=n_full)
+        self.reduced += made.reduced
+        self.ee += made.ee
+
+    def _lean_parts(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray):
+        """products without N: ``b_c - Y b_p`` (Y = N_cp N_pp^-1, as reduce_points) and the
+        diagonal of N_cc, and the points' share of the reduced sum."""
         pat = self.pattern
         m, k = photo.shape
         width = chunk.Jc.shape[-1]
@@ -315,9 +362,9 @@ class ReducedNormals:
         full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
         if not pat.with_cameras:
             full_cols, b3, d3 = full_cols[..., :6], b3[..., :6], d3[..., :6]
-        self.b_full += np.bincount(full_cols.ravel(), weights=b3.ravel(), minlength=pat.n_full)
-        self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
-        self.reduced += float(np.sum(np.einsum("mi,mij,mj->m", chunk.b_p, N_pp_inv, chunk.b_p)))
+        cols = full_cols.ravel()
+        reduced = float(np.sum(np.einsum("mi,mij,mj->m", chunk.b_p, N_pp_inv, chunk.b_p)))
+        return (None, None, None), [(cols, b3.ravel())], [(cols, d3.ravel())], reduced
 
     def _add_dense(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatter=None) -> None:
         """add_points summed dense (bundle.dense): the points' share into the DenseSchur, ``Jc^T e``
@@ -336,44 +383,39 @@ class ReducedNormals:
         self.b_full += np.bincount(full_cols.ravel(), weights=b_c.ravel(), minlength=pat.n_full)
         self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
 
-    def _add_one_camera(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatters) -> None:
-        """add_points for points that each see one camera (reduce_points_one_camera): the
+    def _one_camera_parts(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatters):
+        """products for points that each see one camera (reduce_points_one_camera): the
         photo-camera scatter gets one block per ray, the camera-camera scatter one per point
         (BlockPattern.scatters with camera_summed)."""
         red = reduce_points_one_camera(chunk)
         pat = self.pattern
         scatter_pp, scatter_pc, scatter_cc = scatters
-        scatter_pp.add(self.pp, red.pp)
-        scatter_pc.add(self.pc, red.pc[:, :, None])
-        scatter_cc.add(self.cc, red.cc[:, None, None])
+        sums = (scatter_pp.sums(red.pp), scatter_pc.sums(red.pc[:, :, None]), scatter_cc.sums(red.cc[:, None, None]))
         photo_cols = 6 * photo[..., None] + np.arange(6)  # (m, k, 6) full-space columns
         camera_cols = 6 * pat.n_photos + NCP * cam[:, :1] + pat.camera_elements  # (m, w)
-        self.b_full += np.bincount(photo_cols.ravel(), weights=red.b_photo.ravel(), minlength=pat.n_full)
-        self.b_full += np.bincount(camera_cols.ravel(), weights=red.b_camera.ravel(), minlength=pat.n_full)
         d3 = np.einsum("mkai,mkai->mki", chunk.Jc, chunk.Jc)  # diagonal of N_cc before the reduction
-        self.d_full += np.bincount(ray_columns(pat, photo, cam).ravel(), weights=d3.ravel(), minlength=pat.n_full)
-        self.reduced += float(np.sum(red.reduced))
+        b = [(photo_cols.ravel(), red.b_photo.ravel()), (camera_cols.ravel(), red.b_camera.ravel())]
+        return sums, b, [(ray_columns(pat, photo, cam).ravel(), d3.ravel())], float(np.sum(red.reduced))
 
-    def _add_general(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatters) -> None:
-        """add_points for any chunk: the (k (6 + w))^2 blocks of reduce_points, ray pair by ray pair."""
+    def _general_parts(self, chunk: PointChunk, photo: np.ndarray, cam: np.ndarray, scatters):
+        """products for any chunk: the (k (6 + w))^2 blocks of reduce_points, ray pair by ray pair."""
         N_loc, b_loc, reduced = reduce_points(chunk)
         m, k = photo.shape
         pat = self.pattern
         width = chunk.Jc.shape[-1]
-        N5 = N_loc.reshape(m, k, width, k, width)
+        N5 = N_loc.reshape(m, k, width, k, width).transpose(0, 1, 3, 2, 4)  # (m, k, k, w, w): pattern order
         scatter_pp, scatter_pc, scatter_cc = scatters
-        scatter_pp.add_pairs_by_ray(self.pp, N5[:, :, :6, :, :6])
+        sums = (scatter_pp.sums(N5[..., :6, :6]), None, None)
+        if pat.with_cameras:
+            sums = (sums[0], scatter_pc.sums(N5[..., :6, 6:]), scatter_cc.sums(N5[..., 6:, 6:]))
+        del N_loc, N5  # the chunk's largest array, before the thread takes its next chunk
         full_cols = ray_columns(pat, photo, cam)  # (m, k, 6 + pattern width)
         b3 = b_loc.reshape(m, k, width)
         d3 = np.einsum("mkai,mkai->mki", chunk.Jc, chunk.Jc)  # diagonal of N_cc before the reduction
         if not pat.with_cameras:
             full_cols, b3, d3 = full_cols[..., :6], b3[..., :6], d3[..., :6]
-        self.b_full += np.bincount(full_cols.ravel(), weights=b3.ravel(), minlength=pat.n_full)
-        self.d_full += np.bincount(full_cols.ravel(), weights=d3.ravel(), minlength=pat.n_full)
-        if pat.with_cameras:
-            scatter_pc.add_pairs_by_ray(self.pc, N5[:, :, :6, :, 6:])
-            scatter_cc.add_pairs_by_ray(self.cc, N5[:, :, 6:, :, 6:])
-        self.reduced += float(np.sum(reduced))
+        cols = full_cols.ravel()
+        return sums, [(cols, b3.ravel())], [(cols, d3.ravel())], float(np.sum(reduced))
 
     def add_rows(self, J: np.ndarray, cols: np.ndarray, e: np.ndarray) -> None:
         """Whitened observation equations of parameters, one row each: J (p, w), cols (p, w) in the

@@ -66,11 +66,6 @@ class ChunkScatter:
         """target += sums (ChunkScatter.sums) at their positions (or over their span)."""
         target.reshape(-1, sums.shape[1])[self.positions if self.span is None else self.span] += sums
 
-    def add_pairs_by_ray(self, target: np.ndarray, blocks: np.ndarray) -> None:
-        """The same for blocks laid out ray by ray, (m, k, r, k, s) (block (a, b) is
-        blocks[m, a, :, b, :], as in a product J^T J over the rays' columns)."""
-        self.add(target, blocks.transpose(0, 1, 3, 2, 4))
-
 
 class BlockPattern:
     """The block sparsity pattern of N in the full parameter space, computed once per adjustment.
