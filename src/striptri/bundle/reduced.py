@@ -315,7 +315,7 @@ class ReducedNormals:
         self._add_dense(chunk, photo, camera_of_photo[photo], scatters)
         self.ee += chunk.sum_of_squares()
 
-    def products(self, chunk: PointChunk, camera_of_photo: np.ndarray, scatters=None) -> "PointProducts":
+    def products(self, chunk: PointChunk, camera_of_photo: np.ndarray, scatters=None) -> PointProducts:
         """What a chunk adds to the normals in the block pattern (not summed dense): changes nothing
         shared, so that the chunk threads form it (bundle.adjust._Problem.assemble) and this
         process only adds it up (:meth:`add_products`, in the chunks' order: the same numbers as
@@ -333,7 +333,7 @@ class ReducedNormals:
             parts = self._general_parts(chunk, photo, cam, scatters)
         return PointProducts(chunk, scatters, *parts, chunk.sum_of_squares())
 
-    def add_products(self, made: "PointProducts", keep: bool = True) -> None:
+    def add_products(self, made: PointProducts, keep: bool = True) -> None:
         """Add a chunk's :meth:`products`; keep: hold its chunk for the back substitution."""
         if keep:
             self.kept.append(made.chunk)
