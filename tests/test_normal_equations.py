@@ -361,6 +361,62 @@ def test_bundle_reductions_on_the_bundle_cases(monkeypatch, name, path):
     _assert_same_normals(fast, general)
 
 
+@pytest.mark.parametrize("case", ["block_3x6", "close range, one camera", "close range, general"])
+def test_bundle_normals_formed_in_the_chunk_threads_equal_those_of_one_thread(monkeypatch, tmp_path, case):
+    """Each chunk's share of the bundle's reduced camera system is formed in its chunk thread
+    (ReducedNormals.products) and added up by the caller in the chunks' order: N, b, the LM
+    diagonal, e^T e, the reduced sum and the kept chunks are those of one thread to the bit, for the
+    full and the lean normals, with the cameras held (block_3x6) and estimated (close range, its
+    points summed by camera or ray pair by ray pair)."""
+    import sys
+    from pathlib import Path
+
+    from striptri import parallel
+    from striptri.bundle import adjust as bundle_adjust
+    from striptri.bundle import dense, reduced
+    from striptri.bundle.points import initial_points
+    from striptri.core.options import AdjustmentOptions
+    from striptri.io import read_project
+    from striptri.solvers import threads
+
+    if case == "block_3x6":
+        from test_bundle import CASES
+
+        project = CASES[case]()
+    else:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "bench"))
+        import close_range
+
+        project = read_project(close_range.write_close_range(tmp_path / "p", close_range.make_close_range(24, 40, seed=3)))
+        monkeypatch.setattr(reduced, "CAMERA_SUM_RAYS", 2 if case.endswith("one camera") else 10**9)
+    monkeypatch.setattr(dense, "DENSE_WORK_RATIO", 0)  # the block pattern, whose chunks the threads reduce
+    monkeypatch.setattr(threads, "PARALLEL_MIN_RAY_PAIRS", 0)
+    monkeypatch.setattr(threads, "available_cores", lambda: 2)
+    used = []
+    map_ordered = parallel.map_ordered
+    monkeypatch.setattr(bundle_adjust, "map_ordered",
+                        lambda fn, items, n: (used.append(n), map_ordered(fn, items, n))[1])
+    problem = bundle_adjust._Problem(project, AdjustmentOptions(method="bundle", chunk_size=3))
+    assert not problem.dense and len(problem.scatters) > 4
+    state = problem.initial_state
+    xyz = initial_points(problem.batches, state, problem.obs, problem.unknowns, 3,
+                         None if project.points.xyz_approx is None else project.points.xyz_approx - problem.offset)
+    for lean in (False, True):
+        formed = {}
+        for n in (1, 2):
+            used.clear()
+            with threads.use_threads(n):
+                formed[n] = problem.assemble(state, xyz, lean=lean)
+            assert used == [n]
+        one, two = formed[1], formed[2]
+        assert (one.N is None) == (two.N is None) == lean
+        if not lean:
+            assert np.array_equal(one.N.toarray(), two.N.toarray())
+        assert np.array_equal(one.b, two.b) and np.array_equal(one.d, two.d)
+        assert one.ee == two.ee and one.reduced == two.reduced
+        assert [c.batch.point_index.tolist() for c in one.kept] == [c.batch.point_index.tolist() for c in two.kept]
+
+
 def _conditions_normals(monkeypatch, project, full_product_rays, chunk_size=5, compact_rays=10**9):
     """The method of conditions' N, u, wPw, ug, gPg at the approximations, with groups of
     full_product_rays rays or more taking the whole products (normal_equations.add_groups) and
