@@ -71,20 +71,20 @@ def whiten(system: GroupSystem, residual_map: bool = False, regularity: bool = F
     return Whitened(Bw, ww, gw, Linv, Gt, by_ray, clear)
 
 
-TRIANGULAR_BLOCK = 16  # lower_inverse: np.linalg.inv up to this size
+TRIANGULAR_BLOCK = 16  # lower_inverse: row by row up to this size
 
 
 def lower_inverse(L: np.ndarray) -> np.ndarray:
     """L^-1 of lower-triangular matrices L (..., n, n), by halves:
-    ``[[A, 0], [C, D]]^-1 = [[A^-1, 0], [-D^-1 C A^-1, D^-1]]``, the halves in turn, and
-    np.linalg.inv from TRIANGULAR_BLOCK rows down. np.linalg.inv alone treats L as a general
+    ``[[A, 0], [C, D]]^-1 = [[A^-1, 0], [-D^-1 C A^-1, D^-1]]``, the halves in turn, and row by
+    row (_lower_inverse_rows) from TRIANGULAR_BLOCK rows down. np.linalg.inv treats L as a general
     matrix (an LU factorisation, then n solves: eight times the arithmetic of a triangular
     inverse), which for the 129 conditions of a 66-ray close-range target was the largest part
     of the whitening; measured on one core, 3 groups of 129 conditions 5.0 -> 1.3 ms, 10 of 60
     3.0 -> 1.2 ms; the aerial groups (9 conditions and fewer) are not split."""
     n = L.shape[-1]
     if n <= TRIANGULAR_BLOCK:
-        return np.linalg.inv(L)
+        return _lower_inverse_rows(L)
     h = n // 2
     A_inv, D_inv = lower_inverse(L[..., :h, :h]), lower_inverse(L[..., h:, h:])
     out = np.zeros_like(L)
@@ -92,6 +92,21 @@ def lower_inverse(L: np.ndarray) -> np.ndarray:
     out[..., h:, h:] = D_inv
     out[..., h:, :h] = -D_inv @ (L[..., h:, :h] @ A_inv)
     return out
+
+
+def _lower_inverse_rows(L: np.ndarray) -> np.ndarray:
+    """L^-1 of lower-triangular matrices L (..., n, n) by forward substitution of the identity,
+    one row at a time for all matrices at once: row i of X = L^-1 is ``(e_i - L[i, :i] X[:i]) /
+    L[i, i]``, whose columns beyond i are zero. A third of np.linalg.inv's time for the aerial
+    groups' 3 to 9 conditions (1,024 groups of 9: 1.52 -> 0.51 ms), half for 16."""
+    n = L.shape[-1]
+    X = np.zeros_like(L)
+    d = 1.0 / np.diagonal(L, axis1=-2, axis2=-1)  # (..., n)
+    for i in range(n):
+        if i:
+            X[..., i, :i] = -(L[..., i : i + 1, :i] @ X[..., :i, :i])[..., 0, :] * d[..., i : i + 1]
+        X[..., i, i] = d[..., i]
+    return X
 
 
 class NormalAccumulator:
