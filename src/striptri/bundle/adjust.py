@@ -453,7 +453,7 @@ def _step(problem: "_Problem", solver, now: _Estimate, normals: ReducedNormals, 
         timings.add("back_substitution", t_back - t1)
         timings.add("linearisation_and_reduction", time.perf_counter() - t_back)
         return None, again
-    damping.after_good_step(actual, predicted)
+    damping.after_good_step(actual, predicted, ROUND_OFF * ee + problem.cost_floor)
     new = _Estimate(trial_state, step.xyz, step.plate_hat, step.control_hat, step.v_par, step.vtpv)
     normals = trial if trial is not None and damping.lam == 0.0 else problem.assemble(new.state, new.xyz, damping.lam)
     t3 = time.perf_counter()
