@@ -16,8 +16,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from striptri.equations.triangulation import (CLEARLY_REGULAR, SINGULAR_RCOND, _lapack_safe_inverse, ray_normals,
-                                              safe_inverse, safe_solve, symmetric_eigenvalues_3, symmetric_inverse_3)
+from striptri.equations.normal_equations import CLEARLY_REGULAR
+from striptri.equations.triangulation import (SINGULAR_RCOND, _lapack_safe_inverse, ray_normals, safe_inverse,
+                                              safe_solve, symmetric_eigenvalues_3, symmetric_inverse_3)
 
 
 def batch(seed, m=4000, spread=0.0):

@@ -22,7 +22,7 @@ from ..geometry.camera import plate_vector, ray_ground
 from ..geometry.collinearity import collinearity_jacobians
 from ..selected_inverse.covariance import group_forms
 from .conditions import coplanarity, ray_chain, RayConditions
-from .normal_equations import CLEARLY_REGULAR, clearly_regular  # noqa: F401 - CLEARLY_REGULAR: safe_inverse's threshold
+from .normal_equations import clearly_regular
 from ..model import CHECK, Project
 from ..parallel import map_ordered
 from ..solvers.threads import chunk_threads
@@ -370,8 +370,8 @@ def safe_inverse(M: np.ndarray, rcond: float = SINGULAR_RCOND) -> tuple[np.ndarr
     3 x 3 matrices (a point's normal matrix) are inverted in closed form (symmetric_inverse_3),
     larger ones (a group's A Q A^T) by LAPACK once a Cholesky factorisation of the whole batch has
     shown them positive definite; an inverse is kept where it shows its matrix clearly regular:
-    positive definite and ``1 / (|M|_F |M^-1|_F) > CLEARLY_REGULAR``, a lower bound of the smallest
-    over the largest eigenvalue. Only the others (near-singular, indefinite, or not finite) go
+    positive definite and ``1 / (|M|_F |M^-1|_F) > CLEARLY_REGULAR`` (normal_equations.clearly_regular),
+    a lower bound of the smallest over the largest eigenvalue. Only the others (near-singular, indefinite, or not finite) go
     through LAPACK's eigenvalues first: numpy's batched eigvalsh and inv on 3 x 3 matrices took
     0.3 s of the 5,000-photo block's triangulations."""
     M = np.asarray(M, dtype=float)
